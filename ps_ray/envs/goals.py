@@ -1,0 +1,24 @@
+"""Goal-conditioned helpers shared by the env, HER and evaluation: pure numpy, any batch shape."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+import numpy as np
+
+SUCCESS_DISTANCE = 0.05  # metres, the paper's threshold for reward and success
+
+
+def goal_distance(achieved: np.ndarray, desired: np.ndarray) -> np.ndarray:
+    """Euclidean distance over the last axis."""
+    return np.linalg.norm(np.asarray(achieved) - np.asarray(desired), axis=-1)
+
+
+def goal_reward(achieved: np.ndarray, desired: np.ndarray, threshold: float = SUCCESS_DISTANCE) -> np.ndarray:
+    """Sparse reward: -1 where ``||achieved - desired|| > threshold``, else 0 (float32, batch shape)."""
+    return (goal_distance(achieved, desired) <= threshold).astype(np.float32) - np.float32(1.0)
+
+
+def task_input(obs: Mapping[str, np.ndarray]) -> np.ndarray:
+    """The task module's input: ``task_state`` then ``desired_goal`` (single or batched obs)."""
+    return np.concatenate([obs["task_state"], obs["desired_goal"]], axis=-1)

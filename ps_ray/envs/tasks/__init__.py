@@ -1,0 +1,61 @@
+"""Task registry: built-in variants are a family plus option values.
+
+A task is given as a name (``"push_slippery"``) or a mapping ``{"name": ..., **options}``; keyword
+options are merged on top (``make(task="reach", goal_region="q2")``). Options are the fields of
+the family's options dataclass (``Reach.Options``, ``Push.Options``, ``Pick.Options``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+from ..errors import choice_error
+from .base import Task, TaskOptions
+from .pick import Pick
+from .push import Push
+from .reach import GOAL_REGIONS, Reach
+
+
+@dataclass(frozen=True)
+class TaskSpec:
+    name: str
+    family: type[Task]
+    options: TaskOptions
+
+
+_SLIPPERY_RGBA = (0.75, 0.85, 0.95, 1.0)  # recoloured table; the object carries the low friction
+
+TASKS: dict[str, tuple[type[Task], dict[str, Any]]] = {
+    "reach": (Reach, {}),
+    "push": (Push, {}),  # Pu1
+    "push_slippery": (Push, {"object_friction": 0.1, "table_rgba": _SLIPPERY_RGBA}),  # Pu2
+    "push_rocks": (Push, {"rocks": True, "table_length": 1.1, "table_x_offset": -0.3}),  # Pu3
+    "pick_cube": (Pick, {}),  # Pi1
+    "pick_stick": (Pick, {"object_half_extents": (0.15, 0.02, 0.02)}),  # Pi2: 0.30 m bar along x
+}
+
+
+def resolve_task(task: str | Mapping | TaskSpec, **options: Any) -> TaskSpec:
+    if isinstance(task, TaskSpec):
+        if not options:
+            return task
+        task = {"name": task.name, **dataclasses.asdict(task.options)}
+    if isinstance(task, Mapping):
+        options = {**{k: v for k, v in task.items() if k != "name"}, **options}
+        if "name" not in task:
+            raise ValueError(f"task mapping {dict(task)!r} needs a 'name'; valid tasks: {', '.join(TASKS)}")
+        task = task["name"]
+    if not isinstance(task, str) or task not in TASKS:
+        raise choice_error("task", task, TASKS)
+    family, preset = TASKS[task]
+    valid = [f.name for f in dataclasses.fields(family.Options)]
+    for key in options:
+        if key not in valid:
+            raise ValueError(f"unknown option {key!r} for task {task!r}; valid options: {', '.join(valid)}")
+    return TaskSpec(task, family, family.Options(**{**preset, **options}))
+
+
+__all__ = ["GOAL_REGIONS", "TASKS", "Pick", "Push", "Reach", "Task", "TaskOptions", "TaskSpec", "resolve_task"]

@@ -1,0 +1,74 @@
+"""Task base: a family is a class, its variants are data (an options dataclass)."""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from dataclasses import dataclass
+from typing import ClassVar
+
+import numpy as np
+import pybullet as p
+
+from ..sim import Sim
+
+PLANE_Z = -0.4
+PLANE_RGBA = (0.15, 0.15, 0.15, 1.0)
+TARGET_RGBA = (0.9, 0.2, 0.2, 0.5)  # goal marker; the tiny renderer ignores alpha
+
+
+@dataclass(frozen=True)
+class TaskOptions:
+    """Scene options shared by every family: the table (panda-gym's create_table)."""
+
+    table_length: float = 1.1
+    table_width: float = 0.7
+    table_height: float = 0.4
+    table_x_offset: float = -0.3
+    table_friction: float | None = None  # None: PyBullet's default (0.5)
+    table_rgba: tuple[float, ...] = (0.95, 0.95, 0.95, 1.0)
+
+
+class Task(ABC):
+    """One task family in a :class:`Sim`.
+
+    The constructor builds the static scene (floor, table, goal marker); ``reset`` samples the goal
+    with the env's RNG and re-creates the moving bodies (see :class:`Sim` on determinism);
+    ``observe`` returns ``(task_state, achieved_goal)`` given the end-effector position.
+    """
+
+    Options: ClassVar[type[TaskOptions]] = TaskOptions
+    state_dim: ClassVar[int] = 0
+    default_gripper: ClassVar[bool] = False
+
+    def __init__(self, sim: Sim, options: TaskOptions) -> None:
+        self.sim, self.options = sim, options
+        self.goal = np.zeros(3)
+        self.object: int | None = None  # the body whose contact/touching is reported
+        o = options
+        sim.add_box((3.0, 3.0, 0.01), (0.0, 0.0, PLANE_Z - 0.01), rgba=PLANE_RGBA)  # floor, as panda-gym
+        sim.add_box(
+            (o.table_length / 2, o.table_width / 2, o.table_height / 2),
+            (o.table_x_offset, 0.0, -o.table_height / 2),
+            rgba=o.table_rgba, lateral_friction=o.table_friction,
+        )
+        self._build()
+        self._marker = sim.add_shape(*self._marker_shape(), self.goal, rgba=TARGET_RGBA, ghost=True)
+
+    def _build(self) -> None:
+        """Add the family's static bodies."""
+
+    def _marker_shape(self) -> tuple[int, tuple[float, ...]]:
+        """The goal marker (visual only): a 2 cm sphere."""
+        return p.GEOM_SPHERE, (0.02,)
+
+    def reset(self, rng: np.random.Generator) -> None:
+        self._reset(rng)
+        self.sim.move(self._marker, self.goal)
+
+    @abstractmethod
+    def _reset(self, rng: np.random.Generator) -> None:
+        """Sample ``self.goal`` and (re-)create the moving bodies."""
+
+    @abstractmethod
+    def observe(self, ee_position: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(task_state, achieved_goal)``."""

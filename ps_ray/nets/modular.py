@@ -1,0 +1,345 @@
+"""Modular SAC networks: task module g (task input -> latent) + robot module f (latent + robot -> out).
+
+Every method is a row of :data:`METHODS`; one :class:`TaskModule` and one robot-module trunk are
+configured from a :class:`MethodSpec` and :class:`NetDims`. Architecture (hidden = 256, latent D):
+
+- modular task module:  RunningNorm(task) -> mlp(task, [h, h], D) [-> cosine vs K = D anchors (PS)]
+- actor robot module:   RunningNorm(robot) -> Linear(robot, h/2) + ReLU, concat latent
+                        -> mlp(D + h/2, [h, h], 2A) -> (mean, log_std clamped to [-9, 2])
+- critic robot module:  [action, RunningNorm(robot)] -> Linear(A + robot, h/2) + ReLU, concat latent
+                        -> mlp(D + h/2, [h, h], 1) -> q (B,)
+- plain: one MLP over the whole state cut in the middle. Bottom ("task module"):
+  RunningNorm(task + robot), then [+ action for the critic, unnormalised]
+  -> mlp(in, [h], h, out_act=True); top ("robot module"): mlp(h, [h], heads). Latent width = h.
+- devin / devin_large: Dropout(0.25) on the latent at the robot module's input (where the authors'
+  commented-out Dropout sits), so ``interface()`` returns the undropped latent.
+"""
+
+from __future__ import annotations
+
+import copy
+from dataclasses import dataclass
+from typing import TypeVar
+
+import torch
+from torch import Tensor, nn
+
+from ps_ray.nets.mlp import mlp
+from ps_ray.nets.normalize import RunningNorm
+from ps_ray.nets.relative import RelativeProjection
+
+LOG_STD_MIN, LOG_STD_MAX = -9.0, 2.0
+
+
+@dataclass(frozen=True)
+class MethodSpec:
+    """One row per method; a baseline is a row of settings, not a class."""
+
+    name: str
+    relative: bool  # cosine projection onto anchors (PS)
+    modular: bool  # False for plain: the bottom half sees the whole state
+    interface_dim: int | None  # fixed bottleneck width, or None = the caller's interface_dim
+    dropout: float  # dropout on the latent, applied at the robot module's input
+
+    def __post_init__(self) -> None:
+        if self.relative and not self.modular:
+            raise ValueError(f"method {self.name!r}: a relative interface needs a modular network")
+
+    def latent_dim(self, interface_dim: int, hidden: int) -> int:
+        """Width at the cut: fixed (devin), the caller's interface_dim, or ``hidden`` for plain."""
+        if not self.modular:
+            return hidden
+        return self.interface_dim if self.interface_dim is not None else interface_dim
+
+
+METHODS: dict[str, MethodSpec] = {
+    spec.name: spec
+    for spec in (
+        MethodSpec("ps", relative=True, modular=True, interface_dim=None, dropout=0.0),
+        MethodSpec("ablation", relative=False, modular=True, interface_dim=None, dropout=0.0),
+        MethodSpec("devin", relative=False, modular=True, interface_dim=16, dropout=0.25),
+        MethodSpec("devin_large", relative=False, modular=True, interface_dim=None, dropout=0.25),
+        MethodSpec("plain", relative=False, modular=False, interface_dim=None, dropout=0.0),
+    )
+}
+
+
+@dataclass(frozen=True)
+class NetDims:
+    task_dim: int  # task state (+ desired goal)
+    robot_dim: int  # joint angles + finger width
+    action_dim: int
+
+
+def method_spec(method: str) -> MethodSpec:
+    try:
+        return METHODS[method]
+    except KeyError:
+        raise ValueError(f"unknown method {method!r}; expected one of {sorted(METHODS)}") from None
+
+
+class TaskModule(nn.Module):
+    """g_k: task input -> latent (B x D). For plain it is the bottom half and also sees robot_in
+    (and, in a critic, the action)."""
+
+    def __init__(
+        self,
+        spec: MethodSpec,
+        dims: NetDims,
+        latent_dim: int,
+        hidden: int = 256,
+        *,
+        anchors: Tensor | None = None,
+        anchor_grad: bool = True,
+        sees_action: bool = False,
+    ) -> None:
+        super().__init__()
+        if sees_action and spec.modular:
+            raise ValueError("only the plain bottom half sees the action; modular task modules do not")
+        self.spec, self.dims, self.latent_dim, self.sees_action = spec, dims, latent_dim, sees_action
+        if spec.modular:
+            self.norm = RunningNorm(dims.task_dim)
+            self.body = mlp(dims.task_dim, [hidden, hidden], latent_dim)
+        else:
+            self.norm = RunningNorm(dims.task_dim + dims.robot_dim)
+            in_dim = dims.task_dim + dims.robot_dim + (dims.action_dim if sees_action else 0)
+            self.body = mlp(in_dim, [hidden], latent_dim, out_act=True)
+        self.relative = _relative_projection(spec, dims, latent_dim, anchors, anchor_grad)
+
+    @property
+    def anchors(self) -> Tensor | None:
+        return None if self.relative is None else self.relative.anchors
+
+    def encode(self, task_in: Tensor) -> Tensor:
+        """Normalised input -> raw latent (modular methods; also embeds the PS anchors)."""
+        return self.body(self.norm(task_in))
+
+    def forward(
+        self, task_in: Tensor, robot_in: Tensor | None = None, action: Tensor | None = None
+    ) -> Tensor:
+        if self.spec.modular:
+            return self.encode(task_in) if self.relative is None else self.relative(self.encode, task_in)
+        if robot_in is None or (self.sees_action and action is None):
+            needs = "robot_in and action" if self.sees_action else "robot_in"
+            raise ValueError(f"the plain bottom half needs {needs}")
+        x = self.norm(torch.cat([task_in, robot_in], -1))
+        if self.sees_action:
+            x = torch.cat([x, action], -1)
+        return self.body(x)
+
+    def update_norm(self, task_in: Tensor, robot_in: Tensor) -> None:
+        self.norm.update(task_in if self.spec.modular else torch.cat([task_in, robot_in], -1))
+
+
+def _relative_projection(
+    spec: MethodSpec, dims: NetDims, latent_dim: int, anchors: Tensor | None, anchor_grad: bool
+) -> RelativeProjection | None:
+    if not spec.relative:
+        return None  # anchors, if given, mean nothing to a non-relative method
+    expected = (latent_dim, dims.task_dim)
+    if anchors is None:
+        hint = "(K = interface dim, task_dim)"
+        raise ValueError(f"method {spec.name!r} needs anchors of shape {expected} {hint}")
+    if tuple(anchors.shape) != expected:
+        raise ValueError(
+            f"method {spec.name!r}: anchors have shape {tuple(anchors.shape)}, expected {expected} "
+            f"(K = interface dim {latent_dim}, task_dim {dims.task_dim})"
+        )
+    return RelativeProjection(anchors, anchor_grad=anchor_grad)
+
+
+class _RobotModule(nn.Module):
+    """Shared trunk of f_r: features from the latent and (modular only) the robot state [+ action]."""
+
+    def __init__(
+        self, spec: MethodSpec, dims: NetDims, latent_dim: int, hidden: int, out_dim: int, takes_action: bool
+    ) -> None:
+        super().__init__()
+        self.spec, self.dims, self.latent_dim, self.takes_action = spec, dims, latent_dim, takes_action
+        self.latent_dropout = nn.Dropout(spec.dropout) if spec.dropout > 0 else nn.Identity()
+        if spec.modular:
+            robot_width = hidden // 2
+            self.norm: RunningNorm | None = RunningNorm(dims.robot_dim)
+            in_dim = dims.robot_dim + (dims.action_dim if takes_action else 0)
+            self.embed: nn.Module | None = nn.Sequential(nn.Linear(in_dim, robot_width), nn.ReLU())
+            self.head = mlp(latent_dim + robot_width, [hidden, hidden], out_dim)
+        else:
+            self.norm = self.embed = None  # plain top half: sees only the latent
+            self.head = mlp(latent_dim, [hidden], out_dim)
+
+    def trunk(self, latent: Tensor, robot_in: Tensor, action: Tensor | None = None) -> Tensor:
+        latent = self.latent_dropout(latent)
+        if self.embed is None:
+            return self.head(latent)
+        robot = self.norm(robot_in)
+        if self.takes_action:
+            robot = torch.cat([action, robot], -1)  # actions are already in [-1, 1]
+        return self.head(torch.cat([latent, self.embed(robot)], -1))
+
+    def update_norm(self, task_in: Tensor, robot_in: Tensor) -> None:
+        if self.norm is not None:
+            self.norm.update(robot_in)
+
+
+class ActorRobotModule(_RobotModule):
+    def __init__(self, spec: MethodSpec, dims: NetDims, latent_dim: int, hidden: int = 256) -> None:
+        super().__init__(spec, dims, latent_dim, hidden, 2 * dims.action_dim, takes_action=False)
+
+    def forward(self, latent: Tensor, robot_in: Tensor) -> tuple[Tensor, Tensor]:
+        mean, log_std = self.trunk(latent, robot_in).chunk(2, dim=-1)
+        return mean, log_std.clamp(LOG_STD_MIN, LOG_STD_MAX)
+
+
+class CriticRobotModule(_RobotModule):
+    def __init__(self, spec: MethodSpec, dims: NetDims, latent_dim: int, hidden: int = 256) -> None:
+        super().__init__(spec, dims, latent_dim, hidden, 1, takes_action=True)
+
+    def forward(self, latent: Tensor, robot_in: Tensor, action: Tensor) -> Tensor:
+        return self.trunk(latent, robot_in, action).squeeze(-1)
+
+
+class _Modular(nn.Module):
+    """A task module and a robot module of the same method, latent width and dims."""
+
+    robot_type: type[_RobotModule]
+
+    def __init__(self, task: TaskModule, robot: _RobotModule) -> None:
+        super().__init__()
+        if not isinstance(robot, self.robot_type):
+            wanted, got = self.robot_type.__name__, type(robot).__name__
+            raise ValueError(f"{type(self).__name__} needs a {wanted}, got {got}")
+        _check_compatible(task, robot)
+        self.task, self.robot = task, robot
+
+    @property
+    def spec(self) -> MethodSpec:
+        return self.task.spec
+
+    @property
+    def dims(self) -> NetDims:
+        return self.task.dims
+
+    @property
+    def latent_dim(self) -> int:
+        return self.task.latent_dim
+
+    @property
+    def anchors(self) -> Tensor | None:
+        return self.task.anchors
+
+
+class Actor(_Modular):
+    robot_type = ActorRobotModule
+
+    def forward(self, task_in: Tensor, robot_in: Tensor) -> tuple[Tensor, Tensor]:
+        """Pre-tanh Gaussian (mean, log_std)."""
+        return self.robot(self.task(task_in, robot_in), robot_in)
+
+    def interface(self, task_in: Tensor, robot_in: Tensor) -> Tensor:
+        """The latent at the cut (the relative vector for PS)."""
+        return self.task(task_in, robot_in)
+
+
+class Critic(_Modular):
+    robot_type = CriticRobotModule
+
+    def forward(self, task_in: Tensor, robot_in: Tensor, action: Tensor) -> Tensor:
+        return self.robot(self.task(task_in, robot_in, action), robot_in, action)
+
+    def interface(self, task_in: Tensor, robot_in: Tensor, action: Tensor) -> Tensor:
+        return self.task(task_in, robot_in, action)
+
+
+def _check_compatible(task: TaskModule, robot: _RobotModule) -> None:
+    problems = [
+        f"{what} differs (task side {a!r}, robot side {b!r})"
+        for what, a, b in (
+            ("method", task.spec.name, robot.spec.name),
+            ("latent width", task.latent_dim, robot.latent_dim),
+            ("dims", task.dims, robot.dims),
+        )
+        if a != b
+    ]
+    if task.sees_action != (robot.takes_action and not task.spec.modular):
+        problems.append("actor/critic role differs")
+    if problems:
+        raise ValueError("cannot combine task module and robot module: " + "; ".join(problems))
+
+
+def _build(
+    method: str,
+    dims: NetDims,
+    critic: bool,
+    interface_dim: int,
+    hidden: int,
+    anchors: Tensor | None,
+    anchor_grad: bool,
+) -> tuple[TaskModule, _RobotModule]:
+    spec = method_spec(method)
+    latent_dim = spec.latent_dim(interface_dim, hidden)
+    task = TaskModule(
+        spec, dims, latent_dim, hidden,
+        anchors=anchors, anchor_grad=anchor_grad, sees_action=critic and not spec.modular,
+    )
+    robot_type = CriticRobotModule if critic else ActorRobotModule
+    return task, robot_type(spec, dims, latent_dim, hidden)
+
+
+def build_actor(
+    method: str,
+    dims: NetDims,
+    *,
+    interface_dim: int = 128,
+    hidden: int = 256,
+    anchors: Tensor | None = None,
+    anchor_grad: bool = True,
+) -> Actor:
+    return Actor(*_build(method, dims, False, interface_dim, hidden, anchors, anchor_grad))
+
+
+def build_critic(
+    method: str,
+    dims: NetDims,
+    *,
+    interface_dim: int = 128,
+    hidden: int = 256,
+    anchors: Tensor | None = None,
+    anchor_grad: bool = True,
+) -> Critic:
+    return Critic(*_build(method, dims, True, interface_dim, hidden, anchors, anchor_grad))
+
+
+@torch.no_grad()
+def update_normalizers(module: nn.Module, task_in: Tensor, robot_in: Tensor) -> None:
+    """Update every RunningNorm inside ``module`` (any container of actors/critics, targets
+    included): task norms get task_in (plain: concat(task_in, robot_in)), robot norms robot_in."""
+    for sub in module.modules():
+        if isinstance(sub, (TaskModule, _RobotModule)):
+            sub.update_norm(task_in, robot_in)
+
+
+Net = TypeVar("Net", Actor, Critic)
+
+
+def stitch(task_from: Net, robot_from: Net) -> Net:
+    """Deep copies of ``task_from.task`` and ``robot_from.robot`` joined into a new network.
+
+    For plain this is the bottom half of ``task_from`` with the top half of ``robot_from``.
+    Refuses (ValueError) unless both are the same kind (actor/critic), method, latent width and
+    dims, and for PS the anchor tensors are exactly equal.
+    """
+    if type(task_from) is not type(robot_from):
+        task_kind, robot_kind = type(task_from).__name__, type(robot_from).__name__
+        raise ValueError(f"cannot stitch an {task_kind} task side with a {robot_kind} robot side")
+    _check_compatible(task_from.task, robot_from.robot)
+    a, b = task_from.anchors, robot_from.anchors
+    if a is not None and b is not None and (a.shape != b.shape or not torch.equal(a, b.to(a.device))):
+        raise ValueError(
+            f"cannot stitch {task_from.spec.name!r} modules trained with different anchor sets "
+            f"(shapes {tuple(a.shape)} vs {tuple(b.shape)})"
+        )
+    return type(task_from)(copy.deepcopy(task_from.task), copy.deepcopy(robot_from.robot))
+
+
+def count_parameters(module: nn.Module) -> int:
+    return sum(p.numel() for p in module.parameters())

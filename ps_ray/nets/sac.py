@@ -1,0 +1,138 @@
+"""SAC update math in plain torch, shared by the RLlib learner and the bare-torch benchmark loop.
+
+Choices (see REFERENCE.md §5 for the authors' variant):
+- twin critics with a min over the *target* critics (standard SAC; the authors' per-critic targets and
+  target actor are not used);
+- targets clipped to [-1/(1-gamma), 0], the range of a -1/0 sparse return (authors' trick);
+- optional action L2 penalty on the squashed action (authors: 1.0);
+- no done mask: 50-step episodes are truncated, never terminated;
+- target entropy -|A| (the authors' expression is a bug).
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+from dataclasses import dataclass
+
+import torch
+from torch import Tensor, nn
+
+import numpy as np
+
+from ps_ray.nets.modular import Actor, Critic, NetDims, build_actor, build_critic
+
+LOG_2 = math.log(2.0)
+
+
+@dataclass(frozen=True)
+class SACHyper:
+    gamma: float = 0.98
+    clip_targets: bool = True
+    action_l2: float = 0.0
+    target_entropy: float | None = None  # None: -|A|
+
+
+def squashed_sample(mean: Tensor, log_std: Tensor) -> tuple[Tensor, Tensor]:
+    """Reparameterised tanh-Gaussian sample and its log-probability (summed over action dims)."""
+    std = log_std.exp()
+    pre = mean + std * torch.randn_like(mean)
+    logp = (-0.5 * ((pre - mean) / std).pow(2) - log_std - 0.5 * math.log(2 * math.pi)).sum(-1)
+    # log|d tanh(u)/du| = 2 (log 2 - u - softplus(-2u)), numerically stable
+    logp = logp - (2.0 * (LOG_2 - pre - nn.functional.softplus(-2.0 * pre))).sum(-1)
+    return torch.tanh(pre), logp
+
+
+NET_NAMES = ("actor", "critic", "critic_twin", "target_critic", "target_critic_twin")
+
+
+class SACNets(nn.Module):
+    """Actor, twin critics and their targets: the unit that is trained, saved and stitched.
+
+    The SAC functions below take any module with these five attributes (the RLlib module too).
+    """
+
+    def __init__(self, actor: Actor, critic: Critic, critic_twin: Critic):
+        super().__init__()
+        self.actor, self.critic, self.critic_twin = actor, critic, critic_twin
+        self.target_critic = _frozen_copy(critic)
+        self.target_critic_twin = _frozen_copy(critic_twin)
+
+
+def critic_pairs(nets: nn.Module) -> list[tuple[nn.Module, nn.Module]]:
+    return [(nets.critic, nets.target_critic), (nets.critic_twin, nets.target_critic_twin)]
+
+
+@torch.no_grad()
+def polyak(nets: nn.Module, tau: float) -> None:
+    """target <- tau * online + (1 - tau) * target for parameters; buffers (normaliser statistics,
+    anchors) are copied, as they are not trained."""
+    targets, onlines = [], []
+    for online, target in critic_pairs(nets):
+        targets += target.parameters()
+        onlines += online.parameters()
+        for t, o in zip(target.buffers(), online.buffers()):
+            t.copy_(o)
+    torch._foreach_lerp_(targets, onlines, tau)
+
+
+def build_sac_nets(method: str, dims: NetDims, *, interface_dim: int = 128, hidden: int = 256,
+                   anchors: np.ndarray | None = None) -> SACNets:
+    """Actor and twin critics of one method from the one network builder."""
+    anchor_t = None if anchors is None else torch.as_tensor(anchors, dtype=torch.float32)
+    kwargs = dict(interface_dim=interface_dim, hidden=hidden, anchors=anchor_t)
+    return SACNets(build_actor(method, dims, **kwargs), build_critic(method, dims, **kwargs),
+                   build_critic(method, dims, **kwargs))
+
+
+def _frozen_copy(module: nn.Module) -> nn.Module:
+    target = copy.deepcopy(module)
+    target.requires_grad_(False)
+    return target
+
+
+def sac_forward(nets: SACNets, batch: dict[str, Tensor]) -> dict[str, Tensor]:
+    """Every network output the SAC losses need, for one batch.
+
+    batch: task_in, robot_in, actions, next_task_in, next_robot_in (float tensors, batch-first).
+    """
+    task, robot, next_task, next_robot = (
+        batch["task_in"], batch["robot_in"], batch["next_task_in"], batch["next_robot_in"])
+    out = {
+        "q": nets.critic(task, robot, batch["actions"]),
+        "q_twin": nets.critic_twin(task, robot, batch["actions"]),
+    }
+    with torch.no_grad():
+        next_action, out["logp_next"] = squashed_sample(*nets.actor(next_task, next_robot))
+        out["q_target_next"] = torch.min(
+            nets.target_critic(next_task, next_robot, next_action),
+            nets.target_critic_twin(next_task, next_robot, next_action))
+    action, out["logp"] = squashed_sample(*nets.actor(task, robot))
+    out["action"] = action
+    # The actor's gradient must pass through the critics without updating them.
+    critic_params = [p for c in (nets.critic, nets.critic_twin) for p in c.parameters()]
+    for p in critic_params:
+        p.requires_grad_(False)
+    out["q_policy"] = torch.min(nets.critic(task, robot, action), nets.critic_twin(task, robot, action))
+    for p in critic_params:
+        p.requires_grad_(True)
+    return out
+
+
+def sac_losses(fwd: dict[str, Tensor], rewards: Tensor, log_alpha: Tensor, hp: SACHyper,
+               action_dim: int) -> dict[str, Tensor]:
+    """Critic, actor and temperature losses; their sum gives each parameter group its own gradient."""
+    alpha = log_alpha.exp().detach()
+    target = rewards + hp.gamma * (fwd["q_target_next"] - alpha * fwd["logp_next"])
+    if hp.clip_targets:
+        target = target.clamp(-1.0 / (1.0 - hp.gamma), 0.0)
+    target = target.detach()
+    critic = (fwd["q"] - target).pow(2).mean() + (fwd["q_twin"] - target).pow(2).mean()
+    actor = (alpha * fwd["logp"] - fwd["q_policy"]).mean()
+    if hp.action_l2:
+        actor = actor + hp.action_l2 * fwd["action"].pow(2).mean()
+    target_entropy = -float(action_dim) if hp.target_entropy is None else hp.target_entropy
+    alpha_loss = -(log_alpha * (fwd["logp"].detach() + target_entropy)).mean()
+    total = critic + actor + alpha_loss
+    return {"total": total, "critic": critic, "actor": actor, "alpha": alpha_loss,
+            "q_mean": fwd["q"].detach().mean(), "entropy": -fwd["logp"].detach().mean()}

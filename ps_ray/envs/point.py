@@ -8,7 +8,7 @@ from __future__ import annotations
 import gymnasium as gym
 import numpy as np
 
-from ps_ray.envs.reward import goal_reward
+from .goals import SUCCESS_DISTANCE, goal_reward
 
 
 class PointGoalEnv(gym.Env):
@@ -16,8 +16,9 @@ class PointGoalEnv(gym.Env):
 
     metadata = {"render_modes": []}
 
-    def __init__(self, horizon: int = 20, step_size: float = 0.1, goal_range: float = 0.5):
-        self.horizon, self.step_size, self.goal_range = horizon, step_size, goal_range
+    def __init__(self, max_episode_steps: int = 20, step_size: float = 0.1, goal_range: float = 0.5):
+        self.max_episode_steps, self.step_size = max_episode_steps, step_size
+        self.goal_range = goal_range
         box = lambda n, lim: gym.spaces.Box(-lim, lim, (n,), np.float32)  # noqa: E731
         self.observation_space = gym.spaces.Dict(
             robot_state=box(2, 1.0), task_state=box(0, 1.0),
@@ -33,7 +34,7 @@ class PointGoalEnv(gym.Env):
                 "achieved_goal": self._pos.copy(), "desired_goal": self._goal.copy()}
 
     def _info(self, initially: bool = False) -> dict:
-        success = bool(np.linalg.norm(self._pos - self._goal) < 0.05)
+        success = bool(np.linalg.norm(self._pos - self._goal) < SUCCESS_DISTANCE)
         return {"is_success": success, "touching": False, "contact": False,
                 "initially_successful": initially}
 
@@ -51,7 +52,7 @@ class PointGoalEnv(gym.Env):
         self._t += 1
         obs = self._obs()
         reward = float(self.compute_reward(obs["achieved_goal"], obs["desired_goal"], None))
-        return obs, reward, False, self._t >= self.horizon, self._info(self._initially)
+        return obs, reward, False, self._t >= self.max_episode_steps, self._info(self._initially)
 
     def compute_reward(self, achieved_goal, desired_goal, info):
         return goal_reward(achieved_goal, desired_goal)

@@ -17,6 +17,7 @@ from . import BUILTIN_PAIRS
 from .core import RobotTaskEnv, make
 
 RLLIB_ENV = "ps_ray"
+RLLIB_POINT_ENV = "ps_ray_point"  # the physics-free PointGoalEnv, for fast learning checks
 NAMESPACE = "ps_ray"
 
 
@@ -31,7 +32,8 @@ def create_env(env_config: Mapping[str, Any]) -> RobotTaskEnv:
 
 
 def register(rllib: bool = True) -> list[str]:
-    """Register the gymnasium ids (idempotent) and, if ``rllib``, the Tune env ``"ps_ray"``."""
+    """Register the gymnasium ids (idempotent) and, if ``rllib``, the Tune envs ``"ps_ray"`` and
+    ``"ps_ray_point"``."""
     ids = []
     for robot, task in BUILTIN_PAIRS:
         ids.append(env_id(robot, task))
@@ -40,5 +42,8 @@ def register(rllib: bool = True) -> list[str]:
     if rllib:
         from ray.tune.registry import register_env
 
+        from .point import PointGoalEnv
+
         register_env(RLLIB_ENV, create_env)
+        register_env(RLLIB_POINT_ENV, lambda env_config: PointGoalEnv(**dict(env_config)))
     return ids

@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ps_ray.envs.goals import goal_reward
 from ps_ray.her import HindsightReplay
 
 T, A = 50, 7
@@ -25,10 +26,6 @@ PUSH_SPEC = {
     "achieved_goal": ((3,), np.float32),
     "desired_goal": ((3,), np.float32),
 }
-
-
-def goal_reward(achieved: np.ndarray, desired: np.ndarray) -> np.ndarray:  # as ps_ray.envs.reward
-    return -(np.linalg.norm(achieved - desired, axis=-1) > 0.05).astype(np.float32)
 
 
 def rss_mb() -> float:
@@ -87,11 +84,11 @@ def bench(capacity: int, repeats: int) -> None:
         print(f"save {t1 - t0:.2f} s, from_file {t2 - t1:.2f} s, file {path.stat().st_size / 2**20:.1f} MiB")
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--capacities", type=int, nargs="+", default=[2_000, 20_000])
     ap.add_argument("--repeats", type=int, default=300)
-    args = ap.parse_args()
+    args = ap.parse_args(argv)
     floats = sum(int(np.prod(s)) for s, _ in PUSH_SPEC.values())
     print(f"numpy {np.__version__}; push spec T={T}, A={A}, obs {floats} floats/step")
     for cap in args.capacities:

@@ -1,0 +1,545 @@
+"""Anchor selection for the relative-representation interface of Policy Stitching.
+
+What the authors do (REFERENCE.md §4, ``permutation_measure`` and
+``generate_anchors_with_kmeans.py``):
+
+1. Roll out a trained policy and record the task module's input
+   (``concatenate([task_state, desired_goal])``) at time steps 5-9 of every episode, where
+   step ``t`` is the observation the policy sees before its ``t``-th action (``t = 0`` is the
+   reset observation).
+2. Pool the states of the source task variants and run
+   ``KMeans(n_clusters=k, random_state=0)`` (k-means++, ``n_init=10`` in sklearn 1.1.3).
+3. For every centroid take the nearest *real* state (Euclidean,
+   ``pairwise_distances_argmin_min``). The authors keep duplicates.
+
+Here:
+
+- :func:`collect_task_states` is step 1 (it stops each episode after the last recorded step,
+  since later observations are never used; every episode is reset with its own seed).
+- :func:`select_anchor_indices` / :func:`select_anchors` are steps 2-3. ``n_init`` defaults to
+  10 explicitly (sklearn >= 1.4 defaults to ``"auto"``, i.e. 1 run for k-means++).
+  ``distinct=True`` (the default) makes the anchors pairwise distinct rows: when two
+  centroids share the same nearest state, the centroid closest to it keeps it and the other
+  takes its nearest state not taken yet. Duplicate anchors would only give the relative
+  representation identical (wasted) coordinates. When no collision happens - the usual
+  case - the result is bit-identical to the authors' rule; ``distinct=False`` reproduces it
+  always, duplicates included.
+- :class:`AnchorSet` bundles the anchors with a content hash (:func:`anchor_hash`) and a
+  provenance dict; :func:`save_anchor_set` / :func:`load_anchor_set` store it as an ``.npz``
+  that never needs pickle, and :func:`anchors_from_file` accepts either such a file or a
+  plain array of task states.
+
+No torch and no Ray here: numpy, scikit-learn and gymnasium-style env objects only.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import operator
+import os
+import tempfile
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+__all__ = [
+    "AnchorSet",
+    "anchor_hash",
+    "anchors_from_file",
+    "collect_task_states",
+    "load_anchor_set",
+    "make_anchor_set",
+    "save_anchor_set",
+    "select_anchor_indices",
+    "select_anchors",
+]
+
+log = logging.getLogger(__name__)
+
+FORMAT = "ps_ray.anchor_set"
+FORMAT_VERSION = 1
+_HASH_DOMAIN = b"ps_ray.anchors.v1\x00"
+_ANCHOR_KEY, _META_KEY = "anchors", "meta"
+_ZIP_MAGIC = b"PK\x03\x04"
+_NPY_MAGIC = b"\x93NUMPY"
+
+Policy = Callable[[dict[str, np.ndarray]], Any]
+
+
+# --------------------------------------------------------------------------- collection
+
+
+def _task_input(obs: Mapping[str, Any]) -> np.ndarray:
+    """``concatenate([task_state, desired_goal])`` of one (unbatched) observation, float32."""
+    task = np.asarray(obs["task_state"], np.float32).reshape(-1)
+    goal = np.asarray(obs["desired_goal"], np.float32).reshape(-1)
+    return np.concatenate([task, goal])
+
+
+def _check_steps(steps: Sequence[int]) -> list[int]:
+    try:
+        out = [operator.index(s) for s in steps]
+    except TypeError:
+        raise ValueError(f"steps must be integers, got {list(steps)}") from None
+    if not out or min(out) < 0:
+        raise ValueError(f"steps must be one or more non-negative integers, got {out}")
+    if len(set(out)) != len(out):
+        raise ValueError(f"steps must be distinct, got {out}")
+    return sorted(out)
+
+
+def collect_task_states(
+    make_env: Callable[[], Any],
+    *,
+    episodes: int,
+    steps: Sequence[int] = range(5, 10),
+    policy: Policy | None = None,
+    seed: int = 0,
+) -> np.ndarray:
+    """Roll out ``episodes`` episodes and record the task input at the given time steps.
+
+    Episode ``i`` starts with ``env.reset(seed=seed + i)``; with ``policy=None`` its actions
+    are uniform random from ``env.action_space`` seeded with ``seed + i``, so each episode is
+    reproducible on its own. ``policy`` gets the observation batched to a leading dimension of
+    1 (``{key: array[None]}``) and returns actions of shape ``(1, A)``.
+
+    Step ``t`` is the observation before the ``t``-th action (``t = 0``: the reset
+    observation), as in the authors' loop. Each episode stops after the last recorded step;
+    an episode that ends earlier is an error.
+
+    Returns an ``(episodes * len(steps), task_dim)`` float32 array, episode-major, steps in
+    ascending order within an episode.
+    """
+    if int(episodes) != episodes or episodes < 1:
+        raise ValueError(f"episodes must be a positive integer, got {episodes!r}")
+    episodes = int(episodes)
+    wanted = _check_steps(steps)
+    wanted_set, last = set(wanted), wanted[-1]
+    report_every = max(1, episodes // 10) if episodes >= 100 else 0
+
+    rows: list[np.ndarray] = []
+    env = make_env()
+    try:
+        for ep in range(episodes):
+            obs, _ = env.reset(seed=seed + ep)
+            if policy is None:
+                env.action_space.seed(seed + ep)
+            for t in range(last + 1):
+                if t in wanted_set:
+                    rows.append(_task_input(obs))
+                if t == last:
+                    break
+                if policy is None:
+                    action = env.action_space.sample()
+                else:
+                    batched = {key: np.asarray(val)[None] for key, val in obs.items()}
+                    action = np.asarray(policy(batched))
+                    if action.ndim != 2 or action.shape[0] != 1:
+                        raise ValueError(
+                            f"policy must return actions of shape (1, A) for a batch of one "
+                            f"observation, got shape {action.shape}")
+                    action = action[0]
+                obs, _, terminated, truncated, _ = env.step(action)
+                if (terminated or truncated) and t + 1 <= last:
+                    raise ValueError(
+                        f"episode {ep} ended after {t + 1} steps, before the last recorded "
+                        f"step {last}")
+            if report_every and (ep + 1) % report_every == 0:
+                log.info("collect_task_states: %d/%d episodes", ep + 1, episodes)
+    finally:
+        close = getattr(env, "close", None)
+        if close is not None:
+            close()
+    out = np.stack(rows).astype(np.float32, copy=False)
+    return np.ascontiguousarray(out)
+
+
+# --------------------------------------------------------------------------- selection
+
+
+def _as_states(states: Any, name: str = "states") -> np.ndarray:
+    arr = np.asarray(states)
+    if arr.dtype.kind not in "biuf":
+        raise ValueError(f"{name} must be a numeric array, got dtype {arr.dtype}")
+    if arr.ndim != 2 or arr.shape[0] == 0 or arr.shape[1] == 0:
+        raise ValueError(f"{name} must be a non-empty (N, dim) matrix, got shape {arr.shape}")
+    arr = np.ascontiguousarray(arr, dtype=np.float32)
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"{name} contains NaN or infinite values (after casting to float32)")
+    return arr
+
+
+def _make_distinct(centers: np.ndarray, states: np.ndarray, idx: np.ndarray,
+                   dist: np.ndarray) -> np.ndarray:
+    """Reassign centroids whose nearest state is already taken (by value) by a closer centroid.
+
+    Centroids are served in order of their distance to their nearest state; a centroid whose
+    nearest state (as a value; equal rows count as one) is taken gets its nearest free one.
+    Requires at least ``len(centers)`` distinct rows in ``states``.
+    """
+    uniq, first, value_id = np.unique(states, axis=0, return_index=True, return_inverse=True)
+    value_id = value_id.reshape(-1)
+    chosen = value_id[idx]
+    if len(np.unique(chosen)) == len(idx):
+        return idx
+    out = idx.copy()
+    taken: set[int] = set()
+    losers: list[int] = []
+    for c in np.argsort(dist, kind="stable"):
+        if int(chosen[c]) in taken:
+            losers.append(int(c))
+        else:
+            taken.add(int(chosen[c]))
+    from sklearn.metrics import pairwise_distances
+
+    d = pairwise_distances(centers[losers], uniq)  # (losers, distinct states)
+    for row, c in enumerate(losers):
+        for v in np.argsort(d[row], kind="stable"):
+            if int(v) not in taken:
+                taken.add(int(v))
+                out[c] = first[v]
+                break
+    return out
+
+
+def select_anchor_indices(states: np.ndarray, k: int, *, seed: int = 0, n_init: int = 10,
+                          distinct: bool = True) -> np.ndarray:
+    """Row indices into ``states`` (cast to float32) of the ``k`` anchors, in centroid order.
+
+    k-means (``KMeans(n_clusters=k, random_state=seed, n_init=n_init)``, k-means++), then the
+    nearest real state to each centroid; see the module docstring for ``distinct``.
+    """
+    from sklearn.cluster import KMeans
+    from sklearn.metrics import pairwise_distances_argmin_min
+
+    x = _as_states(states)
+    if int(k) != k or k < 1:
+        raise ValueError(f"k must be a positive integer, got {k!r}")
+    k = int(k)
+    n_distinct = len(np.unique(x, axis=0))
+    if n_distinct < k:
+        raise ValueError(
+            f"cannot select {k} anchors from {x.shape[0]} states with only {n_distinct} "
+            f"distinct rows; collect more states or lower k")
+    kmeans = KMeans(n_clusters=k, random_state=seed, n_init=n_init).fit(x)
+    centers = kmeans.cluster_centers_.astype(np.float32, copy=False)
+    idx, dist = pairwise_distances_argmin_min(centers, x)
+    idx = np.asarray(idx, dtype=np.int64)
+    if distinct:
+        idx = _make_distinct(centers, x, idx, np.asarray(dist))
+    return idx
+
+
+def select_anchors(states: np.ndarray, k: int, *, seed: int = 0, n_init: int = 10,
+                   distinct: bool = True) -> np.ndarray:
+    """``(k, dim)`` float32 anchors: actual rows of ``states`` nearest to the k-means centroids.
+
+    Raises ``ValueError`` when ``states`` has fewer than ``k`` distinct rows.
+    """
+    x = _as_states(states)
+    idx = select_anchor_indices(x, k, seed=seed, n_init=n_init, distinct=distinct)
+    return np.ascontiguousarray(x[idx])
+
+
+# --------------------------------------------------------------------------- hashing
+
+
+def _canonical(anchors: Any) -> np.ndarray:
+    arr = np.asarray(anchors)
+    if arr.dtype.kind not in "biuf":
+        raise ValueError(f"anchors must be numeric, got dtype {arr.dtype}")
+    arr = np.ascontiguousarray(arr, dtype="<f4")
+    if not np.all(np.isfinite(arr)):
+        raise ValueError("anchors contain NaN or infinite values")
+    return arr + np.float32(0.0)  # -0.0 -> +0.0: equal values hash equally
+
+
+def anchor_hash(anchors: np.ndarray) -> str:
+    """sha256 hex digest of the anchors as little-endian float32 in C order, shape included.
+
+    The input is cast to float32 first; ``-0.0`` and ``0.0`` hash the same. Stable across
+    runs, processes and platforms.
+    """
+    arr = _canonical(anchors)
+    h = hashlib.sha256(_HASH_DOMAIN)
+    h.update(json.dumps({"dtype": "<f4", "shape": list(arr.shape)}, sort_keys=True).encode())
+    h.update(arr.tobytes(order="C"))
+    return h.hexdigest()
+
+
+# --------------------------------------------------------------------------- anchor sets
+
+
+@dataclass(frozen=True, eq=False)
+class AnchorSet:
+    """Anchors (read-only ``(k, dim)`` float32), their :func:`anchor_hash` and a provenance dict.
+
+    The constructor checks that ``hash`` matches the anchors; use :meth:`of` to compute it.
+    ``provenance`` must be JSON-serialisable and is stored in its JSON round-tripped form
+    (tuples become lists), so a saved and loaded set compares equal to the original.
+    """
+
+    anchors: np.ndarray
+    hash: str
+    provenance: dict = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        arr = np.asarray(self.anchors)
+        if arr.ndim != 2 or arr.shape[0] < 1 or arr.shape[1] < 1:
+            raise ValueError(f"anchors must be a non-empty (k, dim) matrix, got shape {arr.shape}")
+        arr = np.array(_canonical(arr), dtype=np.float32, order="C", copy=True)
+        arr.setflags(write=False)
+        expected = anchor_hash(arr)
+        if self.hash != expected:
+            raise ValueError(f"anchor hash {self.hash!r} does not match the anchors ({expected})")
+        try:
+            prov = json.loads(json.dumps(dict(self.provenance), sort_keys=True, allow_nan=False))
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"provenance must be JSON-serialisable: {exc}") from None
+        object.__setattr__(self, "anchors", arr)
+        object.__setattr__(self, "provenance", prov)
+
+    @classmethod
+    def of(cls, anchors: np.ndarray, provenance: Mapping[str, Any] | None = None) -> AnchorSet:
+        return cls(np.asarray(anchors), anchor_hash(anchors), dict(provenance or {}))
+
+    @property
+    def k(self) -> int:
+        return int(self.anchors.shape[0])
+
+    @property
+    def dim(self) -> int:
+        return int(self.anchors.shape[1])
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, AnchorSet):
+            return NotImplemented
+        return (self.hash == other.hash and self.provenance == other.provenance
+                and np.array_equal(self.anchors, other.anchors))
+
+    def __hash__(self) -> int:
+        return hash(self.hash)
+
+
+def _library_versions() -> dict[str, str]:
+    import sklearn
+
+    return {"numpy": np.__version__, "sklearn": sklearn.__version__}
+
+
+def make_anchor_set(states_by_source: Mapping[str, np.ndarray], k: int, *, seed: int = 0,
+                    n_init: int = 10, distinct: bool = True,
+                    extra_provenance: Mapping[str, Any] | None = None) -> AnchorSet:
+    """Pool the task states of several sources (in the given order) and select ``k`` anchors.
+
+    The provenance records the sources with their state counts, the selection settings and
+    the numpy / scikit-learn versions; ``extra_provenance`` (e.g. the collection ``steps``,
+    episodes, policy checkpoints) is merged in.
+    """
+    if not states_by_source:
+        raise ValueError("no task-state sources given")
+    parts = [_as_states(v, name=f"states of source {name!r}") for name, v in states_by_source.items()]
+    dims = {p.shape[1] for p in parts}
+    if len(dims) != 1:
+        shapes = {name: p.shape for name, p in zip(states_by_source, parts)}
+        raise ValueError(f"task-state sources have different dimensions: {shapes}")
+    pooled = np.concatenate(parts)
+    anchors = select_anchors(pooled, k, seed=seed, n_init=n_init, distinct=distinct)
+    provenance: dict[str, Any] = {
+        "method": "kmeans_nearest_real_state",
+        "sources": {name: int(p.shape[0]) for name, p in zip(states_by_source, parts)},
+        "num_states": int(pooled.shape[0]),
+        "dim": int(pooled.shape[1]),
+        "k": int(k), "seed": int(seed), "n_init": int(n_init), "distinct": bool(distinct),
+        "versions": _library_versions(),
+    }
+    provenance.update(dict(extra_provenance or {}))
+    return AnchorSet.of(anchors, provenance)
+
+
+# --------------------------------------------------------------------------- files
+
+
+def save_anchor_set(path: str | os.PathLike, anchor_set: AnchorSet) -> None:
+    """Write ``anchor_set`` to ``path`` (exactly that name) as an ``.npz`` without pickle.
+
+    Members: ``anchors`` (float32) and ``meta`` (a 0-d unicode array holding JSON with the
+    format tag, hash and provenance). The file is written to a temporary file in the same
+    directory and renamed over ``path``, so a crash never leaves a half-written file there.
+    """
+    path = Path(path)
+    meta = json.dumps({"format": FORMAT, "version": FORMAT_VERSION, "hash": anchor_set.hash,
+                       "provenance": anchor_set.provenance}, sort_keys=True, allow_nan=False)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            np.savez(fh, **{_ANCHOR_KEY: np.ascontiguousarray(anchor_set.anchors, "<f4"),
+                            _META_KEY: np.array(meta)})
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        try:
+            os.unlink(tmp)
+        except FileNotFoundError:
+            pass
+        raise
+
+
+class _BadFile(Exception):
+    """Internal: what is wrong with a file; turned into a one-line ValueError naming it."""
+
+
+def _magic(path: Path) -> bytes:
+    with open(path, "rb") as fh:
+        return fh.read(6)
+
+
+def _read_npz(path: Path) -> dict[str, np.ndarray]:
+    """All members of an .npz, loaded without pickle."""
+    try:
+        with np.load(path, allow_pickle=False) as npz:
+            members = {key: npz[key] for key in npz.files}
+    except Exception as exc:  # zipfile, zlib, numpy format errors: all mean "bad file"
+        msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        if "pickle" in msg.lower():
+            raise _BadFile("it contains pickled (object) data, which is never loaded") from None
+        raise _BadFile(f"unreadable .npz archive ({msg})") from None
+    for key, value in members.items():
+        if not isinstance(value, np.ndarray):  # numpy hands back raw bytes for non-.npy members
+            raise _BadFile(f"unreadable .npz archive (member {key!r} is not a .npy array)")
+    return members
+
+
+def _parse_anchor_npz(members: dict[str, np.ndarray]) -> AnchorSet:
+    missing = sorted({_ANCHOR_KEY, _META_KEY} - set(members))
+    extra = sorted(set(members) - {_ANCHOR_KEY, _META_KEY})
+    if missing:
+        raise _BadFile(f"not an anchor-set file: missing member(s) {missing}, found {sorted(members)}")
+    if extra:
+        raise _BadFile(f"not an anchor-set file: unexpected member(s) {extra}")
+    raw_meta = members[_META_KEY]
+    if raw_meta.dtype.kind != "U" or raw_meta.ndim != 0:
+        raise _BadFile(f"'meta' must be a 0-d unicode string, got {raw_meta.dtype} {raw_meta.shape}")
+    try:
+        meta = json.loads(str(raw_meta[()]))
+    except json.JSONDecodeError as exc:
+        raise _BadFile(f"'meta' is not valid JSON ({exc})") from None
+    if not isinstance(meta, dict) or meta.get("format") != FORMAT:
+        raise _BadFile(f"'meta' does not describe a {FORMAT} file")
+    if meta.get("version") != FORMAT_VERSION:
+        raise _BadFile(f"unsupported {FORMAT} version {meta.get('version')!r} "
+                       f"(this code reads version {FORMAT_VERSION})")
+    stored_hash, provenance = meta.get("hash"), meta.get("provenance")
+    if not isinstance(stored_hash, str) or not isinstance(provenance, dict):
+        raise _BadFile("'meta' lacks a string 'hash' or a dict 'provenance'")
+    anchors = members[_ANCHOR_KEY]
+    if anchors.dtype != np.float32 or anchors.ndim != 2 or 0 in anchors.shape:
+        raise _BadFile(f"'anchors' must be a non-empty 2-D float32 array, "
+                       f"got {anchors.dtype} {anchors.shape}")
+    if not np.all(np.isfinite(anchors)):
+        raise _BadFile("'anchors' contains NaN or infinite values")
+    actual = anchor_hash(anchors)
+    if actual != stored_hash:
+        raise _BadFile(f"hash mismatch: stored {stored_hash[:16]}..., anchors hash to "
+                       f"{actual[:16]}... (the file was modified)")
+    return AnchorSet(anchors, stored_hash, provenance)
+
+
+def load_anchor_set(path: str | os.PathLike) -> AnchorSet:
+    """Load and verify an anchor set written by :func:`save_anchor_set`.
+
+    Never unpickles. Any corrupt, foreign or tampered file raises a one-line ``ValueError``
+    that names the file; a missing file raises ``FileNotFoundError``.
+    """
+    path = Path(path)
+    try:
+        magic = _magic(path)
+        if magic.startswith(_NPY_MAGIC):
+            raise _BadFile("it is a plain .npy array, not an anchor-set .npz "
+                           "(use anchors_from_file to select anchors from task states)")
+        if not magic.startswith(_ZIP_MAGIC):
+            raise _BadFile("not an .npz archive")
+        return _parse_anchor_npz(_read_npz(path))
+    except _BadFile as exc:
+        raise ValueError(f"{path}: {exc}") from None
+
+
+def _file_sha256(path: Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for chunk in iter(lambda: fh.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+def anchors_from_file(path: str | os.PathLike, k: int, *, seed: int = 0, n_init: int = 10,
+                      distinct: bool = True) -> AnchorSet:
+    """An anchor set from "any file of task states".
+
+    - an anchor-set ``.npz`` (:func:`save_anchor_set`): loaded and verified; it must have
+      exactly ``k`` rows;
+    - a plain ``.npy`` array, or an ``.npz`` with a single array (or a member named
+      ``states`` / ``task_states``), of shape ``(N, dim)`` with ``N >= k``: ``k`` anchors are
+      selected with :func:`select_anchors`; the provenance names the file and its sha256.
+
+    Never unpickles; bad files raise a one-line ``ValueError`` naming the file.
+    """
+    path = Path(path)
+    try:
+        magic = _magic(path)
+        if magic.startswith(_NPY_MAGIC):
+            try:
+                states = np.load(path, allow_pickle=False)
+            except Exception as exc:  # numpy format errors of any kind mean "bad file"
+                msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+                if "pickle" in msg.lower():
+                    raise _BadFile("it contains pickled (object) data, which is never loaded") from None
+                raise _BadFile(f"unreadable .npy file ({msg})") from None
+            member = None
+        elif magic.startswith(_ZIP_MAGIC):
+            members = _read_npz(path)
+            if _META_KEY in members:
+                anchor_set = _parse_anchor_npz(members)
+                if anchor_set.k != k:
+                    raise _BadFile(f"anchor set has {anchor_set.k} anchors, {k} requested")
+                return anchor_set
+            for key in ("task_states", "states"):
+                if key in members:
+                    member = key
+                    break
+            else:
+                if len(members) != 1:
+                    raise _BadFile(f"expected one array (or a 'states' member) in the .npz, "
+                                   f"found {sorted(members)}")
+                member = next(iter(members))
+            states = members[member]
+        else:
+            raise _BadFile("neither an .npy nor an .npz file")
+        try:
+            x = _as_states(states)
+        except ValueError as exc:
+            raise _BadFile(str(exc)) from None
+        if x.shape[0] < k:
+            raise _BadFile(f"{x.shape[0]} task states, fewer than the {k} anchors requested")
+        try:
+            anchors = select_anchors(x, k, seed=seed, n_init=n_init, distinct=distinct)
+        except ValueError as exc:
+            raise _BadFile(str(exc)) from None
+    except _BadFile as exc:
+        raise ValueError(f"{path}: {exc}") from None
+    provenance: dict[str, Any] = {
+        "method": "kmeans_nearest_real_state",
+        "source_file": str(path), "source_sha256": _file_sha256(path),
+        "num_states": int(x.shape[0]), "dim": int(x.shape[1]),
+        "k": int(k), "seed": int(seed), "n_init": int(n_init), "distinct": bool(distinct),
+        "versions": _library_versions(),
+    }
+    if member is not None:
+        provenance["source_member"] = member
+    return AnchorSet.of(anchors, provenance)

@@ -1,0 +1,72 @@
+"""`ps-ray` command line. Bad input exits non-zero with one line naming the bad value."""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import sys
+from pathlib import Path
+
+from ps_ray.config import SpecError, TrainSpec
+
+
+def _train_parser(sub) -> None:
+    p = sub.add_parser("train", help="train one policy (SAC + HER on RLlib); re-running resumes")
+    defaults = TrainSpec()
+    for f in dataclasses.fields(TrainSpec):
+        if f.name in ("robot", "task"):
+            p.add_argument(f"--{f.name}", default=getattr(defaults, f.name),
+                           help=f"built-in name or a JSON mapping (default {getattr(defaults, f.name)})")
+            continue
+        kind = type(getattr(defaults, f.name)) if getattr(defaults, f.name) is not None else str
+        p.add_argument(f"--{f.name.replace('_', '-')}", dest=f.name, type=kind,
+                       default=getattr(defaults, f.name))
+    p.add_argument("--run-dir", default=None,
+                   help="where checkpoints, policy and metrics go (default runs/<method>-<robot>-...)")
+    p.add_argument("--quiet", action="store_true")
+
+
+def _bench_parser(sub) -> None:
+    p = sub.add_parser("bench", help="print speed figures")
+    p.add_argument("what", choices=["env", "train", "her"])
+    p.add_argument("options", nargs=argparse.REMAINDER, help="passed to the benchmark (see --help)")
+
+
+def _mapping_or_name(value: str):
+    return json.loads(value) if value.strip().startswith("{") else value
+
+
+def cmd_train(args: argparse.Namespace) -> int:
+    from ps_ray.train import train
+
+    fields = {f.name: getattr(args, f.name) for f in dataclasses.fields(TrainSpec)}
+    fields["robot"], fields["task"] = _mapping_or_name(args.robot), _mapping_or_name(args.task)
+    spec = TrainSpec.from_mapping(fields)
+    run_dir = Path(args.run_dir or Path("runs") / spec.label().replace("/", "-"))
+    train(spec, run_dir, progress=not args.quiet)
+    return 0
+
+
+def cmd_bench(args: argparse.Namespace) -> int:
+    import importlib
+
+    importlib.import_module(f"ps_ray.bench.{args.what}").main(args.options)
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="ps-ray", description=__doc__)
+    sub = parser.add_subparsers(dest="command", required=True)
+    _train_parser(sub)
+    _bench_parser(sub)
+    args = parser.parse_args(argv)
+    try:
+        return {"train": cmd_train, "bench": cmd_bench}[args.command](args)
+    except (SpecError, ValueError, json.JSONDecodeError) as e:
+        print(f"ps-ray {args.command}: error: {e}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

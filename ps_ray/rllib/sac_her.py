@@ -1,0 +1,158 @@
+"""RLlib SAC with hindsight replay: a numpy HER buffer and K learner updates per training step.
+
+One `training_step`: the env runner(s) collect whole episodes with the module's exploration
+forward pass, the episodes go into `HindsightReplay` in one vectorised write, K = updates_per_step
+× new env steps minibatches are drawn in one gather and handed to the learner group in one
+`update` call, then weights are synced to the env runners once.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import torch
+from ray.rllib.algorithms.sac import SAC, SACConfig
+from ray.rllib.core import DEFAULT_MODULE_ID
+from ray.rllib.core.rl_module.rl_module import RLModuleSpec
+from ray.rllib.policy.sample_batch import MultiAgentBatch, SampleBatch
+from ray.rllib.utils.metrics import (
+    ENV_RUNNER_SAMPLING_TIMER, LEARNER_RESULTS, LEARNER_UPDATE_TIMER,
+    NUM_ENV_STEPS_SAMPLED_LIFETIME, TIMERS,
+)
+
+from ps_ray.her import HindsightReplay
+from ps_ray.nets.obs import dims_from_spaces
+from ps_ray.weights import nets_from_state, nets_state, save_policy
+from ps_ray.nets.modular import update_normalizers
+from ps_ray.rllib.episodes import episode_stats, episodes_to_arrays, train_batch
+from ps_ray.rllib.learner import ModularSACLearner
+from ps_ray.rllib.module import ModularSACModule
+
+STATE_FILE = "ps_ray_state.json"
+REPLAY_FILE = "replay.npz"
+
+
+class ModularSACConfig(SACConfig):
+    """SACConfig plus the HER / update-ratio settings of ps_ray."""
+
+    def __init__(self, algo_class=None):
+        super().__init__(algo_class=algo_class or ModularSAC)
+        # One train() call = one training_step (RLlib would otherwise repeat it for a time/steps quota).
+        self.min_time_s_per_iteration = None
+        self.min_sample_timesteps_per_iteration = 0
+        self.min_train_timesteps_per_iteration = 0
+        self.episodes_per_step = 2        # whole episodes collected per training step
+        self.updates_per_step = 0.4       # gradient updates per collected env step (authors: 0.4)
+        self.random_episodes = 10         # warm-up episodes with uniform random actions
+        self.learning_starts = 1000       # transitions in the buffer before the first update
+        self.buffer_episodes = 20_000
+        self.relabel_prob = 0.8           # HER 'future' with k = 4
+        self.action_l2 = 0.0
+        self.clip_targets = True
+        self.eval_interval = 10           # training steps between greedy evaluations (0: never)
+        self.eval_episodes = 10
+
+    def get_default_learner_class(self):
+        return ModularSACLearner
+
+    def get_default_rl_module_spec(self):
+        return RLModuleSpec(module_class=ModularSACModule)
+
+
+class ModularSAC(SAC):
+    @classmethod
+    def get_default_config(cls) -> ModularSACConfig:
+        return ModularSACConfig()
+
+    def setup(self, config) -> None:
+        super().setup(config)
+        cfg = self.config
+        # A driver-side env instance supplies spaces, horizon and compute_reward for relabelling.
+        self._reward_env = self.env_creator(cfg.env_config)
+        space = self._reward_env.observation_space
+        self.replay = HindsightReplay(
+            {k: (s.shape, np.float32) for k, s in space.spaces.items()},
+            action_dim=self._reward_env.action_space.shape[0],
+            horizon=self._reward_env.max_episode_steps,
+            capacity_episodes=cfg.buffer_episodes,
+            reward_fn=lambda a, d: self._reward_env.compute_reward(a, d, None),
+            relabel_prob=cfg.relabel_prob, seed=cfg.seed)
+        self.counters = {"env_steps": 0, "episodes": 0, "updates": 0}
+        dims = dims_from_spaces(space, self._reward_env.action_space)
+        self.replay_dims = {"task_dim": dims.task_dim, "robot_dim": dims.robot_dim,
+                            "action_dim": dims.action_dim}
+
+    def learner_state(self) -> dict[str, torch.Tensor]:
+        """The full module's tensors (actor, critics, targets) from the (first) learner."""
+        return self.learner_group.foreach_learner(
+            lambda learner: nets_state(learner.module[DEFAULT_MODULE_ID])).result_or_errors[0].get()
+
+    def export_policy(self, path, signature) -> None:
+        save_policy(path, nets_from_state(self.learner_state(), signature), signature)
+
+    def evaluate_greedy(self, episodes: int) -> dict[str, float]:
+        return episode_stats(self._collect(explore=False, random=False, n=episodes))
+
+    def _collect(self, *, explore: bool, random: bool, n: int) -> list:
+        results = self.env_runner_group.foreach_env_runner(
+            lambda r: r.sample(num_episodes=n, explore=explore, random_actions=random),
+            local_env_runner=self.env_runner_group.num_remote_env_runners() == 0)
+        return [ep for eps in results for ep in eps]
+
+    def training_step(self) -> None:
+        cfg = self.config
+        with self.metrics.log_time((TIMERS, ENV_RUNNER_SAMPLING_TIMER)):
+            episodes = self._collect(explore=True, n=cfg.episodes_per_step,
+                                     random=self.counters["episodes"] < cfg.random_episodes)
+        obs, actions = episodes_to_arrays(episodes)
+        self.replay.add_episodes(obs, actions)
+        steps = actions.shape[0] * actions.shape[1]
+        self.counters["env_steps"] += steps
+        self.counters["episodes"] += actions.shape[0]
+        self._log_episode_stats("train", episodes)
+
+        task_in = np.concatenate([obs["task_state"], obs["desired_goal"]], -1).reshape(-1, sum(
+            obs[k].shape[-1] for k in ("task_state", "desired_goal")))
+        robot_in = obs["robot_state"].reshape(-1, obs["robot_state"].shape[-1])
+        task_t, robot_t = torch.from_numpy(task_in), torch.from_numpy(robot_in)
+        self.learner_group.foreach_learner(
+            lambda learner: update_normalizers(learner.module[DEFAULT_MODULE_ID], task_t, robot_t))
+
+        if self.replay.num_transitions >= cfg.learning_starts:
+            n_updates = max(1, round(steps * cfg.updates_per_step))
+            batch = train_batch(self.replay.sample_many(n_updates, cfg.train_batch_size))
+            with self.metrics.log_time((TIMERS, LEARNER_UPDATE_TIMER)):
+                self.learner_group.update(
+                    batch=MultiAgentBatch({DEFAULT_MODULE_ID: SampleBatch(batch)},
+                                          env_steps=n_updates * cfg.train_batch_size),
+                    timesteps={NUM_ENV_STEPS_SAMPLED_LIFETIME: self.counters["env_steps"]},
+                    num_epochs=1, minibatch_size=cfg.train_batch_size, _no_metrics_reduce=True)
+            self.counters["updates"] += n_updates
+            reduced = self.learner_group.foreach_learner(lambda learner: learner.metrics.reduce())
+            self.metrics.aggregate([r.get() for r in reduced], key=LEARNER_RESULTS)
+        # Normaliser statistics change every step, so env runners are synced even before learning.
+        self.env_runner_group.sync_weights(from_worker_or_learner_group=self.learner_group,
+                                           inference_only=True)
+
+        if cfg.eval_interval and self.iteration % cfg.eval_interval == 0:
+            self._log_episode_stats(
+                "eval", self._collect(explore=False, random=False, n=cfg.eval_episodes))
+        for key, value in self.counters.items():
+            self.metrics.log_value(("ps_ray", key), value, reduce="item")
+
+    def _log_episode_stats(self, prefix: str, episodes: list) -> None:
+        for key, value in episode_stats(episodes).items():
+            self.metrics.log_value(("ps_ray", f"{prefix}_{key}"), value, reduce="item")
+
+    # -- checkpoints carry the replay buffer and counters ---------------------------------------
+    def save_checkpoint(self, checkpoint_dir: str) -> None:
+        super().save_checkpoint(checkpoint_dir)
+        self.replay.save(Path(checkpoint_dir) / REPLAY_FILE)
+        (Path(checkpoint_dir) / STATE_FILE).write_text(json.dumps(self.counters))
+
+    def load_checkpoint(self, checkpoint_dir: str) -> None:
+        super().load_checkpoint(checkpoint_dir)
+        self.replay.load(Path(checkpoint_dir) / REPLAY_FILE)
+        self.counters = json.loads((Path(checkpoint_dir) / STATE_FILE).read_text())

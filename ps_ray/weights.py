@@ -1,0 +1,142 @@
+"""Policy weights as safetensors, with the interface signature that stitching checks.
+
+One file holds the actor, both critics and both target critics (normaliser statistics and PS
+anchors included, as buffers). The signature travels in the safetensors metadata. Loading never
+unpickles and refuses any file whose metadata or tensor names do not match what the signature
+builds, with one line naming the file and the problem.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+from safetensors import SafetensorError, safe_open
+from safetensors.torch import save_file
+from torch import nn
+
+from ps_ray.nets.modular import NetDims
+from ps_ray.nets.sac import NET_NAMES, SACNets, build_sac_nets
+
+FORMAT = "ps_ray.policy/1"
+ANCHORS_KEY = "actor.task.relative.anchors"
+
+
+@dataclass(frozen=True)
+class Signature:
+    """What must agree for two modules to be stitched."""
+
+    method: str
+    interface_dim: int
+    hidden: int
+    anchor_hash: str  # "" for methods without anchors
+    task_dim: int
+    robot_dim: int
+    action_dim: int
+
+    @property
+    def dims(self) -> NetDims:
+        return NetDims(self.task_dim, self.robot_dim, self.action_dim)
+
+    def mismatches(self, other: Signature, fields: tuple[str, ...] | None = None) -> list[str]:
+        names = fields or tuple(f.name for f in dataclasses.fields(self))
+        return [f"{n}: {getattr(self, n)!r} vs {getattr(other, n)!r}"
+                for n in names if getattr(self, n) != getattr(other, n)]
+
+
+def anchor_hash(anchors: np.ndarray | torch.Tensor | None) -> str:
+    """sha256 of the float32 anchor array (shape included); "" without anchors."""
+    if anchors is None:
+        return ""
+    array = np.ascontiguousarray(np.asarray(anchors, dtype=np.float32))
+    digest = hashlib.sha256(repr(array.shape).encode())
+    digest.update(array.tobytes())
+    return digest.hexdigest()
+
+
+def signature_of(nets: nn.Module, method: str, interface_dim: int, hidden: int) -> Signature:
+    dims = nets.actor.dims
+    return Signature(method=method, interface_dim=interface_dim, hidden=hidden,
+                     anchor_hash=anchor_hash(None if nets.actor.anchors is None
+                                             else nets.actor.anchors.detach().cpu()),
+                     task_dim=dims.task_dim, robot_dim=dims.robot_dim, action_dim=dims.action_dim)
+
+
+def nets_state(nets: nn.Module) -> dict[str, torch.Tensor]:
+    """State of the five SAC nets of any container that has them (SACNets or the RLlib module)."""
+    return {f"{name}.{k}": v.detach().cpu().contiguous()
+            for name in NET_NAMES for k, v in getattr(nets, name).state_dict().items()}
+
+
+def save_policy(path: str | Path, nets: nn.Module, signature: Signature,
+                extra: dict[str, str] | None = None) -> Path:
+    """Write atomically: a crash leaves either the old file or the new one, never half of one."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    metadata = {"format": FORMAT, "signature": json.dumps(dataclasses.asdict(signature)),
+                **(extra or {})}
+    tmp = path.with_name(path.name + ".tmp")
+    save_file(nets_state(nets), str(tmp), metadata=metadata)
+    os.replace(tmp, path)
+    return path
+
+
+def read_signature(path: str | Path) -> tuple[Signature, dict[str, str]]:
+    """The signature and metadata of a policy file, without loading its tensors."""
+    path = Path(path)
+    try:
+        with safe_open(str(path), framework="pt") as f:
+            metadata = f.metadata() or {}
+    except (SafetensorError, OSError, ValueError) as e:
+        raise ValueError(f"{path}: not a ps_ray policy file ({e})") from None
+    if metadata.get("format") != FORMAT:
+        raise ValueError(f"{path}: not a ps_ray policy file (format {metadata.get('format')!r}, "
+                         f"expected {FORMAT!r})")
+    try:
+        signature = Signature(**json.loads(metadata["signature"]))
+    except (KeyError, TypeError, json.JSONDecodeError) as e:
+        raise ValueError(f"{path}: corrupt policy signature ({e})") from None
+    return signature, metadata
+
+
+def nets_from_state(state: dict[str, torch.Tensor], signature: Signature,
+                    source: str = "state") -> SACNets:
+    """Build the nets a signature describes and load `state` into them, strictly."""
+    anchors = state.get(ANCHORS_KEY)
+    if anchor_hash(anchors) != signature.anchor_hash:
+        raise ValueError(f"{source}: anchors do not match the signature's anchor hash")
+    try:
+        nets = build_sac_nets(signature.method, signature.dims,
+                              interface_dim=signature.interface_dim, hidden=signature.hidden,
+                              anchors=None if anchors is None else anchors.numpy())
+    except ValueError as e:
+        raise ValueError(f"{source}: {e}") from None
+    expected = nets_state(nets)
+    missing, unexpected = sorted(expected.keys() - state.keys()), sorted(state.keys() - expected.keys())
+    wrong_shape = [k for k in expected.keys() & state.keys() if expected[k].shape != state[k].shape]
+    if missing or unexpected or wrong_shape:
+        raise ValueError(f"{source}: tensors do not match the signature (missing {missing[:3]}, "
+                         f"unexpected {unexpected[:3]}, wrong shape {wrong_shape[:3]})")
+    for name in NET_NAMES:
+        prefix = name + "."
+        getattr(nets, name).load_state_dict(
+            {k[len(prefix):]: v for k, v in state.items() if k.startswith(prefix)}, strict=True)
+    return nets
+
+
+def load_policy(path: str | Path) -> tuple[SACNets, Signature]:
+    """Rebuild the nets a policy file describes and load every tensor, targets included."""
+    path = Path(path)
+    signature, _ = read_signature(path)
+    try:
+        with safe_open(str(path), framework="pt") as f:
+            state = {k: f.get_tensor(k) for k in f.keys()}
+    except (SafetensorError, OSError, ValueError) as e:
+        raise ValueError(f"{path}: unreadable tensors ({e})") from None
+    return nets_from_state(state, signature, str(path)), signature

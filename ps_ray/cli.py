@@ -33,6 +33,16 @@ def _bench_parser(sub) -> None:
     p.add_argument("options", nargs=argparse.REMAINDER, help="passed to the benchmark (see --help)")
 
 
+def _render_parser(sub) -> None:
+    p = sub.add_parser("render", help="roll out one episode headless and save a PNG and/or GIF")
+    p.add_argument("--robot", default="panda")
+    p.add_argument("--task", default="reach")
+    p.add_argument("--policy", default=None, help="a policy.safetensors (default: random actions)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--png", default=None)
+    p.add_argument("--gif", default=None)
+
+
 def _mapping_or_name(value: str):
     return json.loads(value) if value.strip().startswith("{") else value
 
@@ -48,6 +58,22 @@ def cmd_train(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_render(args: argparse.Namespace) -> int:
+    from ps_ray.envs.render import record
+    from ps_ray.policy import GreedyPolicy
+
+    if args.png is None and args.gif is None:
+        raise ValueError("nothing to write: give --png and/or --gif")
+    policy = GreedyPolicy.from_file(args.policy) if args.policy else None
+    for path in (args.png, args.gif):
+        if path:
+            Path(path).parent.mkdir(parents=True, exist_ok=True)
+    record(_mapping_or_name(args.robot), _mapping_or_name(args.task), policy, seed=args.seed,
+           png=args.png, gif=args.gif)
+    print(f"wrote {' and '.join(p for p in (args.png, args.gif) if p)}")
+    return 0
+
+
 def cmd_bench(args: argparse.Namespace) -> int:
     import importlib
 
@@ -59,10 +85,11 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="ps-ray", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
     _train_parser(sub)
+    _render_parser(sub)
     _bench_parser(sub)
     args = parser.parse_args(argv)
     try:
-        return {"train": cmd_train, "bench": cmd_bench}[args.command](args)
+        return {"train": cmd_train, "render": cmd_render, "bench": cmd_bench}[args.command](args)
     except (SpecError, ValueError, json.JSONDecodeError) as e:
         print(f"ps-ray {args.command}: error: {e}", file=sys.stderr)
         return 2

@@ -45,7 +45,7 @@ class TrainSpec:
     eval_episodes: int = 10
     checkpoint_every: int = 50       # training steps between checkpoints
     anchors: str | None = None       # file of task states / an anchor set (PS); None: random rollouts
-    anchor_episodes: int = 60        # random-policy episodes collected for anchors when anchors=None
+    anchor_episodes: int = 200       # random-policy episodes collected for anchors when anchors=None
 
     def __post_init__(self) -> None:
         if self.method not in METHODS:

@@ -55,10 +55,7 @@ def prepare_anchors(spec: TrainSpec, run_dir: Path):
     else:
         states = collect_task_states(lambda: make_env(spec), episodes=spec.anchor_episodes,
                                      seed=spec.seed)
-        anchors = select_anchors(states, spec.interface_dim, seed=0)
-        from ps_ray.anchors import anchor_hash
-
-        anchor_set = AnchorSet(anchors, anchor_hash(anchors), {
+        anchor_set = AnchorSet.of(select_anchors(states, spec.interface_dim, seed=0), {
             "source": "random-policy rollouts", "env": spec.env_config,
             "episodes": spec.anchor_episodes, "num_states": int(len(states))})
     save_anchor_set(path, anchor_set)
@@ -105,7 +102,7 @@ def train(spec: TrainSpec, run_dir: str | Path, *, progress: bool = True) -> dic
     import ray
 
     from ps_ray.rllib.algo import algo_config
-    from ps_ray.weights import Signature, anchor_hash
+    from ps_ray.weights import Signature
 
     torch.set_num_threads(1)
     run_dir = Path(run_dir)
@@ -118,7 +115,7 @@ def train(spec: TrainSpec, run_dir: str | Path, *, progress: bool = True) -> dic
     algo = algo_config(spec, anchors).build_algo()
     dims = algo.replay_dims
     signature = Signature(method=spec.method, interface_dim=spec.interface_dim, hidden=spec.hidden,
-                          anchor_hash=anchor_hash(anchors), **dims)
+                          anchor_hash="" if anchor_set is None else anchor_set.hash, **dims)
     checkpoint = run_dir / CHECKPOINT_DIR
     if checkpoint.exists():
         algo.load_checkpoint(str(checkpoint))

@@ -9,7 +9,6 @@ builds, with one line naming the file and the problem.
 from __future__ import annotations
 
 import dataclasses
-import hashlib
 import json
 import os
 from dataclasses import dataclass
@@ -21,6 +20,7 @@ from safetensors import SafetensorError, safe_open
 from safetensors.torch import save_file
 from torch import nn
 
+from ps_ray.anchors import anchor_hash
 from ps_ray.nets.modular import NetDims
 from ps_ray.nets.sac import NET_NAMES, SACNets, build_sac_nets
 
@@ -50,21 +50,11 @@ class Signature:
                 for n in names if getattr(self, n) != getattr(other, n)]
 
 
-def anchor_hash(anchors: np.ndarray | torch.Tensor | None) -> str:
-    """sha256 of the float32 anchor array (shape included); "" without anchors."""
-    if anchors is None:
-        return ""
-    array = np.ascontiguousarray(np.asarray(anchors, dtype=np.float32))
-    digest = hashlib.sha256(repr(array.shape).encode())
-    digest.update(array.tobytes())
-    return digest.hexdigest()
-
-
 def signature_of(nets: nn.Module, method: str, interface_dim: int, hidden: int) -> Signature:
     dims = nets.actor.dims
     return Signature(method=method, interface_dim=interface_dim, hidden=hidden,
-                     anchor_hash=anchor_hash(None if nets.actor.anchors is None
-                                             else nets.actor.anchors.detach().cpu()),
+                     anchor_hash="" if nets.actor.anchors is None
+                     else anchor_hash(nets.actor.anchors.detach().cpu().numpy()),
                      task_dim=dims.task_dim, robot_dim=dims.robot_dim, action_dim=dims.action_dim)
 
 
@@ -109,7 +99,7 @@ def nets_from_state(state: dict[str, torch.Tensor], signature: Signature,
                     source: str = "state") -> SACNets:
     """Build the nets a signature describes and load `state` into them, strictly."""
     anchors = state.get(ANCHORS_KEY)
-    if anchor_hash(anchors) != signature.anchor_hash:
+    if (anchor_hash(anchors.numpy()) if anchors is not None else "") != signature.anchor_hash:
         raise ValueError(f"{source}: anchors do not match the signature's anchor hash")
     try:
         nets = build_sac_nets(signature.method, signature.dims,

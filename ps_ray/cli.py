@@ -33,6 +33,16 @@ def _bench_parser(sub) -> None:
     p.add_argument("options", nargs=argparse.REMAINDER, help="passed to the benchmark (see --help)")
 
 
+def _sweep_parser(sub) -> None:
+    p = sub.add_parser("sweep", help="run a sweep YAML's training trials on Ray Tune")
+    p.add_argument("sweep", help="path to a sweep YAML, e.g. sweeps/smoke.yaml")
+    p.add_argument("--resume", action="store_true",
+                   help="finish only the missing trials of an interrupted sweep")
+    p.add_argument("--storage", default=None, help="override the spec's storage directory")
+    p.add_argument("--tracking-uri", default=None, help="override the MLflow tracking URI")
+    p.add_argument("--check", action="store_true", help="validate the spec, list trials, run nothing")
+
+
 def _render_parser(sub) -> None:
     p = sub.add_parser("render", help="roll out one episode headless and save a PNG and/or GIF")
     p.add_argument("--robot", default="panda")
@@ -56,6 +66,28 @@ def cmd_train(args: argparse.Namespace) -> int:
     run_dir = Path(args.run_dir or Path("runs") / spec.label().replace("/", "-"))
     train(spec, run_dir, progress=not args.quiet)
     return 0
+
+
+def cmd_sweep(args: argparse.Namespace) -> int:
+    from ps_ray.config import load_sweep
+
+    spec = load_sweep(args.sweep)
+    overrides = {k: v for k, v in (("storage", args.storage), ("tracking_uri", args.tracking_uri)) if v}
+    if overrides:
+        spec = dataclasses.replace(spec, **overrides)
+    trials = spec.trials()
+    print(f"sweep {spec.name!r}: {len(trials)} training trials")
+    if args.check:
+        for trial in trials:
+            print(f"  {trial.label()}  {trial.env_steps} env steps")
+        return 0
+    from ps_ray.sweep import run_sweep, sweep_dir
+
+    results = run_sweep(spec, resume=args.resume)
+    errors = [r for r in results if r.error]
+    print(f"sweep {spec.name!r}: {len(results) - len(errors)}/{len(results)} trials finished; "
+          f"results in {sweep_dir(spec)}")
+    return 1 if errors else 0
 
 
 def cmd_render(args: argparse.Namespace) -> int:
@@ -85,11 +117,13 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="ps-ray", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
     _train_parser(sub)
+    _sweep_parser(sub)
     _render_parser(sub)
     _bench_parser(sub)
     args = parser.parse_args(argv)
     try:
-        return {"train": cmd_train, "render": cmd_render, "bench": cmd_bench}[args.command](args)
+        return {"train": cmd_train, "sweep": cmd_sweep, "render": cmd_render,
+                "bench": cmd_bench}[args.command](args)
     except (SpecError, ValueError, json.JSONDecodeError) as e:
         print(f"ps-ray {args.command}: error: {e}", file=sys.stderr)
         return 2

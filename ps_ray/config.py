@@ -6,6 +6,7 @@ import dataclasses
 import hashlib
 import json
 from collections.abc import Mapping
+from pathlib import Path
 from dataclasses import dataclass
 from typing import Any
 
@@ -14,6 +15,9 @@ from ps_ray.envs.tasks import resolve_task
 from ps_ray.nets.modular import METHODS
 
 POINT_TASK = "point"  # the physics-free PointGoalEnv (robot is ignored), for fast checks
+
+
+RESUMABLE_CHANGES = ("env_steps", "eval_every", "eval_episodes", "checkpoint_every")
 
 
 class SpecError(ValueError):
@@ -89,9 +93,13 @@ class TrainSpec:
     def env_name(self) -> str:
         return "ps_ray_point" if self.task == POINT_TASK else "ps_ray"
 
+    def identity(self) -> dict[str, Any]:
+        """What defines the policy being trained; budget and reporting settings may change on resume."""
+        return {k: v for k, v in self.to_dict().items() if k not in RESUMABLE_CHANGES}
+
     def digest(self) -> str:
-        """Stable hash of the spec: a run directory belongs to exactly one spec."""
-        return hashlib.sha256(json.dumps(self.to_dict(), sort_keys=True).encode()).hexdigest()[:16]
+        """Stable hash of the identity: a run directory belongs to exactly one policy."""
+        return hashlib.sha256(json.dumps(self.identity(), sort_keys=True).encode()).hexdigest()[:16]
 
     def label(self) -> str:
         name = lambda x: x if isinstance(x, str) else x.get("name", "custom")  # noqa: E731
@@ -102,4 +110,113 @@ def _plain(value: Any) -> Any:
     return dict(value) if isinstance(value, Mapping) else value
 
 
-__all__ = ["POINT_TASK", "SpecError", "TrainSpec"]
+
+
+STAGES = ("train",)  # grows with the pipeline: anchors, stitch, analyze
+
+
+@dataclass(frozen=True)
+class AnchorSpec:
+    """Where PS anchors come from: a file of task states / an anchor set, or rollouts."""
+
+    file: str | None = None             # anchor set (.npz) or task-state array; overrides rollouts
+    source_tasks: tuple[str, ...] = ()  # tasks whose states are pooled (default: the sweep's tasks)
+    robot: str = "panda"
+    episodes: int = 200
+    steps: tuple[int, ...] = (5, 6, 7, 8, 9)
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        for task in self.source_tasks:
+            try:
+                resolve_task(task)
+            except ValueError as e:
+                raise SpecError(f"anchors.source_tasks: {e}") from None
+        if self.episodes <= 0 or not self.steps:
+            raise SpecError("anchors: episodes must be positive and steps non-empty")
+
+
+@dataclass(frozen=True)
+class SweepSpec:
+    """A grid of training trials (methods x robots x tasks x seeds) run as Ray Tune trials."""
+
+    name: str
+    methods: tuple[str, ...]
+    robots: tuple[str | Mapping, ...]
+    tasks: tuple[str | Mapping, ...]
+    seeds: tuple[int, ...]
+    stages: tuple[str, ...] = ("train",)
+    interface_dims: tuple[int, ...] = (128,)
+    train: Mapping[str, Any] = dataclasses.field(default_factory=dict)  # TrainSpec settings
+    anchors: AnchorSpec = AnchorSpec()
+    max_concurrent: int | None = None   # default: one trial per available CPU
+    max_failures: int = 2               # retries of a crashed trial, from its last checkpoint
+    storage: str = "runs/sweeps"
+    tracking_uri: str | None = None     # default: sqlite under <storage>/<name>/
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.name, str) or not self.name.replace("_", "").replace("-", "").isalnum():
+            raise SpecError(f"sweep name must be letters, digits, '-' or '_', got {self.name!r}")
+        for stage in self.stages:
+            if stage not in STAGES:
+                raise SpecError(f"unknown stage {stage!r}; valid stages: {', '.join(STAGES)}")
+        for key in ("methods", "robots", "tasks", "seeds", "interface_dims"):
+            if not getattr(self, key):
+                raise SpecError(f"{key} must be a non-empty list")
+        self.trials()  # every trial's TrainSpec is validated before anything starts
+
+    def trials(self) -> list[TrainSpec]:
+        overrides = dict(self.train)
+        for key in ("method", "robot", "task", "seed", "interface_dim"):
+            if key in overrides:
+                raise SpecError(f"train.{key} is set by the sweep grid; remove it from 'train'")
+        return [TrainSpec.from_mapping({**overrides, "method": m, "robot": r, "task": t,
+                                        "seed": s, "interface_dim": d}, where="sweep 'train'")
+                for m in self.methods for r in self.robots for t in self.tasks
+                for s in self.seeds for d in self.interface_dims]
+
+    @classmethod
+    def from_mapping(cls, data: Mapping[str, Any], where: str = "sweep") -> SweepSpec:
+        if not isinstance(data, Mapping):
+            raise SpecError(f"{where}: expected a mapping at the top level, got {type(data).__name__}")
+        valid = [f.name for f in dataclasses.fields(cls)]
+        for key in data:
+            if key not in valid:
+                raise SpecError(f"{where}: unknown key {key!r}; valid keys: {', '.join(valid)}")
+        fields = dict(data)
+        for key in ("methods", "robots", "tasks", "seeds", "stages", "interface_dims"):
+            if key in fields:
+                value = fields[key]
+                fields[key] = tuple(value) if isinstance(value, (list, tuple)) else (value,)
+        if "anchors" in fields:
+            anchors = fields["anchors"] or {}
+            bad = [k for k in anchors if k not in {f.name for f in dataclasses.fields(AnchorSpec)}]
+            if bad:
+                raise SpecError(f"{where}: unknown key {bad[0]!r} in anchors; valid keys: "
+                                f"{', '.join(f.name for f in dataclasses.fields(AnchorSpec))}")
+            fields["anchors"] = AnchorSpec(**{k: tuple(v) if isinstance(v, list) else v
+                                              for k, v in anchors.items()})
+        try:
+            return cls(**fields)
+        except TypeError as e:
+            raise SpecError(f"{where}: {e}") from None
+
+
+def load_sweep(path: str | Path) -> SweepSpec:
+    """Strict YAML loading: malformed YAML, unknown keys and bad values fail with one line."""
+    import yaml
+
+    path = Path(path)
+    try:
+        data = yaml.safe_load(path.read_text())
+    except FileNotFoundError:
+        raise SpecError(f"{path}: no such sweep file") from None
+    except yaml.YAMLError as e:
+        mark = getattr(e, "problem_mark", None)
+        where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""
+        raise SpecError(f"{path}: malformed YAML{where}: {getattr(e, 'problem', e)}") from None
+    try:
+        return SweepSpec.from_mapping(data, where=str(path))
+    except SpecError as e:
+        message = str(e)
+        raise SpecError(message if message.startswith(str(path)) else f"{path}: {message}") from None

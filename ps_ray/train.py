@@ -63,87 +63,117 @@ def prepare_anchors(spec: TrainSpec, run_dir: Path):
 
 
 def _check_run_dir(spec: TrainSpec, run_dir: Path) -> None:
+    """A run directory belongs to one policy; only the budget and reporting settings may change."""
     spec_file = run_dir / "spec.json"
     if spec_file.exists():
-        stored = json.loads(spec_file.read_text())
-        if stored != spec.to_dict():
-            changed = sorted(k for k in set(stored) | set(spec.to_dict())
-                             if stored.get(k) != spec.to_dict().get(k))
+        stored = TrainSpec.from_mapping(json.loads(spec_file.read_text())).identity()
+        changed = sorted(k for k in stored if stored[k] != spec.identity()[k])
+        if changed:
             raise SpecError(f"{run_dir} holds a run of another spec (differs in {', '.join(changed)});"
                             f" use another --run-dir")
-    else:
-        run_dir.mkdir(parents=True, exist_ok=True)
-        spec_file.write_text(json.dumps(spec.to_dict(), indent=2))
+    run_dir.mkdir(parents=True, exist_ok=True)
+    spec_file.write_text(json.dumps(spec.to_dict(), indent=2))
 
 
-def _save(algo, run_dir: Path, signature) -> None:
+class TrainingRun:
+    """One ModularSAC algorithm with its signature; the loop body shared by `ps-ray train` and Tune."""
+
+    def __init__(self, spec: TrainSpec, anchor_set=None):
+        from ps_ray.rllib.algo import algo_config
+        from ps_ray.weights import Signature
+
+        torch.set_num_threads(1)
+        self.spec = spec
+        self.algo = algo_config(spec, None if anchor_set is None else anchor_set.anchors).build_algo()
+        self.signature = Signature(
+            method=spec.method, interface_dim=spec.interface_dim, hidden=spec.hidden,
+            anchor_hash="" if anchor_set is None else anchor_set.hash, **self.algo.replay_dims)
+        self.start, self.start_steps = time.time(), 0
+
+    @property
+    def env_steps(self) -> int:
+        return self.algo.counters["env_steps"]
+
+    @property
+    def done(self) -> bool:
+        return self.env_steps >= self.spec.env_steps
+
+    def step(self) -> dict[str, Any]:
+        result = self.algo.train()
+        ours = result.get("ps_ray", {})
+        row = {k: ours.get(k) for k in METRIC_FIELDS if k in ours}
+        row.update(iteration=result["training_iteration"], wall_s=round(time.time() - self.start, 1))
+        return row
+
+    def save(self, directory: Path) -> None:
+        """RLlib checkpoint + replay buffer + policy.safetensors into `directory`."""
+        self.algo.save_checkpoint(str(directory))
+        self.algo.export_policy(Path(directory) / POLICY_FILE, self.signature)
+
+    def restore(self, directory: Path) -> None:
+        self.algo.load_checkpoint(str(directory))
+        self.start_steps = self.env_steps
+
+    def final_eval(self) -> dict[str, float]:
+        return self.algo.evaluate_greedy(self.spec.eval_episodes * 2)
+
+    def stop(self) -> None:
+        self.algo.stop()
+
+    def progress_line(self, row: dict[str, Any]) -> str:
+        rate = (self.env_steps - self.start_steps) / max(time.time() - self.start, 1e-9)
+        return (f"[{self.spec.label()}] {row['env_steps']:>7}/{self.spec.env_steps} steps "
+                f"{row['updates']:>7} updates  train success {row.get('train_success') or 0:.2f}  "
+                f"eval success {row['eval_success']:.2f} touching {_fmt(row.get('eval_touching'))}"
+                f"  {rate:.0f} steps/s")
+
+
+def _save_atomically(run: TrainingRun, run_dir: Path) -> None:
     """Checkpoint into a fresh directory, then swap it in: a kill never leaves half a checkpoint."""
     tmp, final, old = (run_dir / f"{CHECKPOINT_DIR}.tmp", run_dir / CHECKPOINT_DIR,
                        run_dir / f"{CHECKPOINT_DIR}.old")
     shutil.rmtree(tmp, ignore_errors=True)
-    algo.save_checkpoint(str(tmp))
+    run.save(tmp)
     if final.exists():
         os.replace(final, old)
     os.replace(tmp, final)
     shutil.rmtree(old, ignore_errors=True)
-    algo.export_policy(run_dir / POLICY_FILE, signature)
-
-
-def _row(result: dict[str, Any], wall: float) -> dict[str, Any]:
-    ours = result.get("ps_ray", {})
-    row = {k: ours.get(k) for k in METRIC_FIELDS if k in ours}
-    row.update(iteration=result.get("training_iteration"), env_steps=ours.get("env_steps"),
-               updates=ours.get("updates"), wall_s=round(wall, 1))
-    return row
+    shutil.copy2(final / POLICY_FILE, run_dir / POLICY_FILE)
 
 
 def train(spec: TrainSpec, run_dir: str | Path, *, progress: bool = True) -> dict[str, Any]:
-    """Train (or resume) until spec.env_steps; returns the last metrics row."""
+    """Train (or resume) until spec.env_steps; returns the last metrics row with final_* figures."""
     import ray
 
-    from ps_ray.rllib.algo import algo_config
-    from ps_ray.weights import Signature
-
-    torch.set_num_threads(1)
     run_dir = Path(run_dir)
     _check_run_dir(spec, run_dir)
     anchor_set = prepare_anchors(spec, run_dir) if spec.method == "ps" else None
-    anchors = None if anchor_set is None else anchor_set.anchors
     if not ray.is_initialized():
         ray.init(address="local", num_cpus=max(1, os.cpu_count() or 1), include_dashboard=False,
                  log_to_driver=False, configure_logging=False)
-    algo = algo_config(spec, anchors).build_algo()
-    dims = algo.replay_dims
-    signature = Signature(method=spec.method, interface_dim=spec.interface_dim, hidden=spec.hidden,
-                          anchor_hash="" if anchor_set is None else anchor_set.hash, **dims)
-    checkpoint = run_dir / CHECKPOINT_DIR
-    if checkpoint.exists():
-        algo.load_checkpoint(str(checkpoint))
+    run = TrainingRun(spec, anchor_set)
+    if (run_dir / CHECKPOINT_DIR).exists():
+        run.restore(run_dir / CHECKPOINT_DIR)
         if progress:
-            print(f"[{spec.label()}] resumed at {algo.counters['env_steps']} env steps", flush=True)
-    start, row = time.time(), {}
+            print(f"[{spec.label()}] resumed at {run.env_steps} env steps", flush=True)
+    row: dict[str, Any] = {}
     with open(run_dir / METRICS_FILE, "a", newline="") as f:
         writer = csv.DictWriter(f, METRIC_FIELDS)
         if f.tell() == 0:
             writer.writeheader()
-        while algo.counters["env_steps"] < spec.env_steps:
-            result = algo.train()
-            row = _row(result, time.time() - start)
+        while not run.done:
+            row = run.step()
             writer.writerow(row)
-            if result["training_iteration"] % spec.checkpoint_every == 0:
+            if row["iteration"] % spec.checkpoint_every == 0:
                 f.flush()
-                _save(algo, run_dir, signature)
+                _save_atomically(run, run_dir)
             if progress and row.get("eval_success") is not None:
-                rate = algo.counters["env_steps"] / max(time.time() - start, 1e-9)
-                print(f"[{spec.label()}] {row['env_steps']:>7}/{spec.env_steps} steps "
-                      f"{row['updates']:>7} updates  train success {row.get('train_success', 0):.2f}"
-                      f"  eval success {row['eval_success']:.2f} touching "
-                      f"{_fmt(row.get('eval_touching'))}  {rate:.0f} steps/s", flush=True)
-    _save(algo, run_dir, signature)
-    final = algo.evaluate_greedy(spec.eval_episodes * 2)
+                print(run.progress_line(row), flush=True)
+    _save_atomically(run, run_dir)
+    final = run.final_eval()
     row = {**row, **{f"final_{k}": v for k, v in final.items()}}
     (run_dir / "result.json").write_text(json.dumps(row, indent=2))
-    algo.stop()
+    run.stop()
     if progress:
         print(f"[{spec.label()}] done: final greedy success {final['success']:.2f}, touching "
               f"{_fmt(final['touching'])}; policy in {run_dir / POLICY_FILE}", flush=True)

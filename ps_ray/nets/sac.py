@@ -3,7 +3,8 @@
 Choices (see REFERENCE.md §5 for the authors' variant):
 - twin critics with a min over the *target* critics (standard SAC; the authors' per-critic targets and
   target actor are not used);
-- targets clipped to [-1/(1-gamma), 0], the range of a -1/0 sparse return (authors' trick);
+- the return part of the target clipped to [-1/(1-gamma), 0], the range of a -1/0 sparse return
+  (authors' trick), the entropy bonus added outside the clip;
 - optional action L2 penalty on the squashed action (authors: 1.0);
 - no done mask: 50-step episodes are truncated, never terminated;
 - target entropy -|A| (the authors' expression is a bug).
@@ -123,10 +124,11 @@ def sac_losses(fwd: dict[str, Tensor], rewards: Tensor, log_alpha: Tensor, hp: S
                action_dim: int) -> dict[str, Tensor]:
     """Critic, actor and temperature losses; their sum gives each parameter group its own gradient."""
     alpha = log_alpha.exp().detach()
-    target = rewards + hp.gamma * (fwd["q_target_next"] - alpha * fwd["logp_next"])
+    # The return part is clipped to its possible range; the entropy bonus is added outside the clip.
+    target = rewards + hp.gamma * fwd["q_target_next"]
     if hp.clip_targets:
         target = target.clamp(-1.0 / (1.0 - hp.gamma), 0.0)
-    target = target.detach()
+    target = (target - hp.gamma * alpha * fwd["logp_next"]).detach()
     critic = (fwd["q"] - target).pow(2).mean() + (fwd["q_twin"] - target).pow(2).mean()
     actor = (alpha * fwd["logp"] - fwd["q_policy"]).mean()
     if hp.action_l2:

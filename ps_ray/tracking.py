@@ -1,0 +1,435 @@
+"""MLflow tracking: one run per trial key, batched metrics, driver-side Tune callback.
+
+Only the process that calls these functions touches the MLflow store; in a sweep that is the
+Tune driver (``MLflowTuneCallback``), never the trial workers. The store is a sqlite file
+(``default_tracking_uri``); ``ensure_experiment`` creates it and the experiment once, before any
+other process could race to create the same fresh database.
+
+A run is found again by its tag ``ps_ray.trial_key``, not by an in-memory map: a trial resumed
+after a driver restart, or a second ``TrialTracker`` with the same key, continues the same run.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import subprocess
+import time
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from ray.tune import Callback
+
+if TYPE_CHECKING:
+    from mlflow import MlflowClient
+    from mlflow.entities import Metric
+    from ray.tune.experiment import Trial
+
+log = logging.getLogger(__name__)
+
+TRIAL_KEY_TAG = "ps_ray.trial_key"
+STAGE_TAG = "ps_ray.stage"
+GIT_COMMIT_TAG = "git_commit"
+MAX_METRICS_PER_CALL = 1000       # mlflow.utils.validation.MAX_METRICS_PER_BATCH
+MAX_PARAMS_TAGS_PER_CALL = 100    # mlflow.utils.validation.MAX_PARAMS_TAGS_PER_BATCH
+MAX_PARAM_CHARS = 6000            # mlflow.utils.validation.MAX_PARAM_VAL_LENGTH
+MAX_TAG_CHARS = 8000              # mlflow.utils.validation.MAX_TAG_VAL_LENGTH
+TERMINAL_STATUSES = ("FINISHED", "FAILED", "KILLED")
+
+
+# ---------------------------------------------------------------------------------- store
+
+
+def default_tracking_uri(root: str | Path) -> str:
+    """The sqlite store of a project root: ``sqlite:////abs/root/mlflow.db``."""
+    return f"sqlite:///{Path(root).expanduser().resolve() / 'mlflow.db'}"
+
+
+def _client(tracking_uri: str) -> MlflowClient:
+    from mlflow import MlflowClient
+
+    return MlflowClient(tracking_uri=tracking_uri)
+
+
+def _first_line(exc: BaseException) -> str:
+    text = str(exc).strip() or type(exc).__name__
+    return text.splitlines()[0]
+
+
+def ensure_experiment(tracking_uri: str, name: str, artifact_root: str | Path) -> str:
+    """Create (if needed) the store and the experiment ``name`` with its artifacts under
+    ``artifact_root``; returns the experiment id. Idempotent; call it from the driver only."""
+    artifact_location = Path(artifact_root).expanduser().resolve().as_uri()
+    try:
+        if tracking_uri.startswith("sqlite:///"):
+            Path(tracking_uri.removeprefix("sqlite:///")).parent.mkdir(parents=True, exist_ok=True)
+        client = _client(tracking_uri)
+        experiment = client.get_experiment_by_name(name)
+        if experiment is None:
+            return client.create_experiment(name, artifact_location=artifact_location)
+    except Exception as e:  # noqa: BLE001 - any failure here means the URI is unusable
+        raise ValueError(f"cannot use MLflow tracking URI {tracking_uri!r}: {_first_line(e)}") from e
+    if experiment.artifact_location != artifact_location:
+        raise ValueError(f"MLflow experiment {name!r} in {tracking_uri} keeps artifacts in "
+                         f"{experiment.artifact_location}, not {artifact_location}")
+    if experiment.lifecycle_stage == "deleted":
+        client.restore_experiment(experiment.experiment_id)
+    return experiment.experiment_id
+
+
+def git_commit(cwd: str | Path | None = None) -> str | None:
+    """``git rev-parse HEAD`` of ``cwd`` (default: the ps_ray source tree), or None."""
+    try:
+        out = subprocess.run(["git", "rev-parse", "HEAD"], cwd=cwd or Path(__file__).parent,
+                             capture_output=True, text=True, timeout=5, check=True)
+    except (OSError, subprocess.SubprocessError):
+        return None
+    return out.stdout.strip() or None
+
+
+# ---------------------------------------------------------------------------------- values
+
+
+def flatten_params(params: Mapping[str, Any], prefix: str = "") -> dict[str, str]:
+    """Nested mappings become ``a.b`` keys; values become strings (lists/None as JSON)."""
+    flat: dict[str, str] = {}
+    for key, value in params.items():
+        name = f"{prefix}{key}"
+        if isinstance(value, Mapping):
+            flat.update(flatten_params(value, f"{name}."))
+        else:
+            flat[name] = _param_str(value)
+    return flat
+
+
+def _param_str(value: Any) -> str:
+    text = value if isinstance(value, str) else json.dumps(value, default=str)
+    return text[:MAX_PARAM_CHARS]
+
+
+def finite_float(value: Any) -> float | None:
+    """``value`` as a float, or None for None, NaN, infinities and non-numbers."""
+    if value is None or isinstance(value, str):
+        return None
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        return None
+    return number if math.isfinite(number) else None
+
+
+def _chunks(items: Sequence[Any], size: int) -> Iterable[Sequence[Any]]:
+    for start in range(0, len(items), size):
+        yield items[start:start + size]
+
+
+# ---------------------------------------------------------------------------------- tracker
+
+
+class TrialTracker:
+    """One MLflow run per trial key; a resumed trial continues its run instead of creating a second.
+
+    The run is looked up by the tag ``ps_ray.trial_key`` in the experiment (the oldest one if a
+    race ever made two). A found run is set back to RUNNING and its tags updated; its params must
+    agree with ``params`` (MLflow params are immutable), otherwise ValueError names the first
+    difference. Metrics are buffered until :meth:`flush` (or 1000 are pending).
+    """
+
+    def __init__(self, tracking_uri: str, experiment_id: str, trial_key: str, *,
+                 params: Mapping[str, Any], tags: Mapping[str, str],
+                 client: MlflowClient | None = None) -> None:
+        if not trial_key:
+            raise ValueError("trial_key must be a non-empty string")
+        self.tracking_uri = tracking_uri
+        self.experiment_id = experiment_id
+        self.trial_key = trial_key
+        self.client = client or _client(tracking_uri)
+        self._pending: list[Metric] = []
+        all_tags = {k: str(v)[:MAX_TAG_CHARS] for k, v in tags.items() if v is not None}
+        all_tags[TRIAL_KEY_TAG] = trial_key
+        flat = flatten_params(params)
+        run = self._find_run()
+        if run is None:
+            self.run_id = self._create_run(all_tags)
+            self.resumed = False
+        else:
+            self.run_id = run.info.run_id
+            self.resumed = True
+            self._check_params(run.data.params, flat)
+            flat = {k: v for k, v in flat.items() if k not in run.data.params}
+            if run.info.status != "RUNNING":
+                self.client.update_run(self.run_id, status="RUNNING")
+        self._log_params_tags(flat, all_tags)
+
+    def _find_run(self):
+        from mlflow.entities import ViewType
+
+        runs = self.client.search_runs([self.experiment_id], filter_string=_tag_filter(self.trial_key),
+                                       run_view_type=ViewType.ACTIVE_ONLY,
+                                       order_by=["attributes.start_time ASC"], max_results=10)
+        return runs[0] if runs else None
+
+    def _create_run(self, tags: Mapping[str, str]) -> str:
+        run = self.client.create_run(self.experiment_id, run_name=self.trial_key[:250], tags=tags)
+        return run.info.run_id
+
+    def _check_params(self, logged: Mapping[str, str], wanted: Mapping[str, str]) -> None:
+        for key, value in wanted.items():
+            if key in logged and logged[key] != value:
+                raise ValueError(f"trial {self.trial_key!r} already has run {self.run_id} with param "
+                                 f"{key}={logged[key]!r}, not {value!r}; use another trial key")
+
+    def _log_params_tags(self, params: Mapping[str, str], tags: Mapping[str, str]) -> None:
+        from mlflow.entities import Param, RunTag
+
+        param_list = [Param(k, v) for k, v in params.items()]
+        tag_list = [RunTag(k, v) for k, v in tags.items()]
+        for chunk in _chunks(param_list, MAX_PARAMS_TAGS_PER_CALL):
+            self.client.log_batch(self.run_id, params=chunk)
+        for chunk in _chunks(tag_list, MAX_PARAMS_TAGS_PER_CALL):
+            self.client.log_batch(self.run_id, tags=chunk)
+
+    @property
+    def pending(self) -> int:
+        """Metrics buffered and not yet written."""
+        return len(self._pending)
+
+    def log_metrics(self, metrics: Mapping[str, Any], step: int, *,
+                    timestamp_ms: int | None = None) -> None:
+        """Buffer ``metrics`` at ``step``; None, NaN, infinities and non-numbers are dropped."""
+        from mlflow.entities import Metric
+
+        stamp = int(time.time() * 1000) if timestamp_ms is None else timestamp_ms
+        for key, value in metrics.items():
+            number = finite_float(value)
+            if number is not None:
+                self._pending.append(Metric(key, number, stamp, int(step)))
+        if len(self._pending) >= MAX_METRICS_PER_CALL:
+            self.flush()
+
+    def flush(self) -> None:
+        """Write buffered metrics, at most 1000 per ``log_batch`` call; a failed call keeps the rest."""
+        while self._pending:
+            chunk = self._pending[:MAX_METRICS_PER_CALL]
+            self.client.log_batch(self.run_id, metrics=chunk)
+            del self._pending[:len(chunk)]
+
+    def log_artifact(self, path: str | Path, artifact_path: str | None = None) -> None:
+        """A file goes to ``artifact_path/<name>``; a directory to ``artifact_path/<dirname>/...``."""
+        path = Path(path)
+        if path.is_dir():
+            target = f"{artifact_path}/{path.name}" if artifact_path else path.name
+            self.client.log_artifacts(self.run_id, str(path), artifact_path=target)
+        elif path.is_file():
+            self.client.log_artifact(self.run_id, str(path), artifact_path=artifact_path)
+        else:
+            raise FileNotFoundError(f"no artifact to log at {path}")
+
+    def log_dict(self, data: dict, artifact_file: str) -> None:
+        """``data`` as a JSON (or YAML, by suffix) artifact, e.g. the resolved config."""
+        self.client.log_dict(self.run_id, data, artifact_file)
+
+    def close(self, status: str = "FINISHED") -> None:
+        """Flush and mark the run ``status`` (FINISHED, FAILED or KILLED)."""
+        if status not in TERMINAL_STATUSES:
+            raise ValueError(f"status must be one of {', '.join(TERMINAL_STATUSES)}, got {status!r}")
+        self.flush()
+        self.client.set_terminated(self.run_id, status=status)
+
+
+def _tag_filter(trial_key: str) -> str:
+    if "'" not in trial_key:
+        return f"tags.`{TRIAL_KEY_TAG}` = '{trial_key}'"
+    if '"' not in trial_key:
+        return f'tags.`{TRIAL_KEY_TAG}` = "{trial_key}"'
+    raise ValueError(f"trial key {trial_key!r} holds both quote characters; MLflow cannot search it")
+
+
+# ---------------------------------------------------------------------------------- specs
+
+
+def trial_spec(trial: Trial) -> Mapping[str, Any]:
+    """``trial.config["spec"]`` as a plain mapping (a TrainSpec is converted with ``to_dict``)."""
+    spec = trial.config.get("spec")
+    if hasattr(spec, "to_dict"):
+        spec = spec.to_dict()
+    if not isinstance(spec, Mapping):
+        raise ValueError(f"trial {trial.trial_id} has no config['spec'] mapping; pass key_fn/params_fn")
+    return spec
+
+
+def _short(value: Any, limit: int = 64) -> str:
+    """A robot/task: its name; a mapping ``{"name": base, ...}`` as ``base{json of the rest}``,
+    or ``base#<hash>`` when that is longer than ``limit`` characters."""
+    if not isinstance(value, Mapping):
+        return str(value)
+    rest = {k: v for k, v in value.items() if k != "name"}
+    base = str(value.get("name", "custom"))
+    if not rest:
+        return base
+    text = json.dumps(rest, sort_keys=True, separators=(",", ":"), default=str)
+    if len(base) + len(text) <= limit:
+        return base + text
+    import hashlib
+
+    return f"{base}#{hashlib.sha256(text.encode()).hexdigest()[:8]}"
+
+
+def spec_key(spec: Mapping[str, Any]) -> str:
+    """``method/robot/task/seed``; mapping robots/tasks rendered by :func:`_short`."""
+    return "/".join(_short(spec.get(k)) for k in ("method", "robot", "task", "seed"))
+
+
+def spec_params(spec: Mapping[str, Any]) -> dict[str, str]:
+    """The spec's fields as params (nested robot/task mappings as ``robot.x`` keys)."""
+    return flatten_params(spec)
+
+
+def default_key_fn(trial: Trial) -> str:
+    return spec_key(trial_spec(trial))
+
+
+def default_params_fn(trial: Trial) -> dict[str, str]:
+    return spec_params(trial_spec(trial))
+
+
+# ---------------------------------------------------------------------------------- Tune
+
+
+def lookup(result: Mapping[str, Any], key: str) -> Any:
+    """``result[key]``, or the nested value for ``a/b`` keys (``result["a"]["b"]``); None if absent."""
+    if key in result:
+        return result[key]
+    head, sep, tail = key.partition("/")
+    if sep and isinstance(result.get(head), Mapping):
+        return lookup(result[head], tail)
+    return None
+
+
+class MLflowTuneCallback(Callback):
+    """Driver-side: only the driver process touches the store. Results → batched metrics of the trial's run.
+
+    Each result contributes the whitelisted ``metric_keys`` (nested ``a/b`` keys are looked up in
+    the nested result dict, logged under the same name) at step ``result[step_key]`` (default
+    ``training_iteration``; e.g. ``num_env_steps_sampled_lifetime`` for env-step curves). A
+    trial's metrics are written every ``flush_every`` results or ``flush_secs`` seconds, and on
+    completion/error/recovery/experiment end. Trackers are keyed by ``key_fn(trial)`` and find
+    their run by tag, so a trial restored after a driver restart continues the SAME run.
+    Store errors after construction are logged as warnings, never raised into Tune: a sweep
+    does not die for its bookkeeping (unflushed metrics are retried at the next flush).
+    """
+
+    def __init__(self, tracking_uri: str, experiment_id: str, *, metric_keys: Sequence[str],
+                 params_fn: Callable[[Trial], Mapping[str, Any]] = default_params_fn,
+                 key_fn: Callable[[Trial], str] = default_key_fn,
+                 tags: Mapping[str, str] | None = None, flush_every: int = 20,
+                 artifacts_fn: Callable[[Trial], list[Path]] | None = None,
+                 step_key: str = "training_iteration", flush_secs: float = 60.0) -> None:
+        if flush_every < 1:
+            raise ValueError(f"flush_every must be >= 1, got {flush_every}")
+        self.tracking_uri = tracking_uri
+        self.experiment_id = experiment_id
+        self.metric_keys = tuple(metric_keys)
+        self.params_fn = params_fn
+        self.key_fn = key_fn
+        self.tags = dict(tags or {})
+        if GIT_COMMIT_TAG not in self.tags and (commit := git_commit()):
+            self.tags[GIT_COMMIT_TAG] = commit
+        self.flush_every = flush_every
+        self.flush_secs = flush_secs
+        self.artifacts_fn = artifacts_fn
+        self.step_key = step_key
+        self._trackers: dict[str, TrialTracker] = {}
+        self._results: dict[str, int] = {}
+        self._last_flush: dict[str, float] = {}
+        self._client_cache: MlflowClient | None = None
+
+    # Tuner.restore unpickles the callback from the experiment state: keep no store handles there.
+    def __getstate__(self) -> dict[str, Any]:
+        state = dict(self.__dict__)
+        state.update(_trackers={}, _results={}, _last_flush={}, _client_cache=None)
+        return state
+
+    @property
+    def _client(self) -> MlflowClient:
+        if self._client_cache is None:
+            self._client_cache = _client(self.tracking_uri)
+        return self._client_cache
+
+    def tracker(self, trial: Trial) -> TrialTracker:
+        """The trial's tracker, creating (or finding again) its run on first use."""
+        key = self.key_fn(trial)
+        if key not in self._trackers:
+            tags = {**self.tags, "ps_ray.tune_trial_id": trial.trial_id}
+            self._trackers[key] = TrialTracker(self.tracking_uri, self.experiment_id, key,
+                                               params=self.params_fn(trial), tags=tags,
+                                               client=self._client)
+            self._results[key] = 0
+            self._last_flush[key] = time.monotonic()
+        return self._trackers[key]
+
+    def run_id(self, trial: Trial) -> str:
+        return self.tracker(trial).run_id
+
+    def on_trial_start(self, iteration: int, trials: list[Trial], trial: Trial, **info: Any) -> None:
+        self.tracker(trial)
+
+    def on_trial_result(self, iteration: int, trials: list[Trial], trial: Trial, result: dict,
+                        **info: Any) -> None:
+        tracker = self.tracker(trial)
+        step = lookup(result, self.step_key)
+        stamp = result.get("timestamp")
+        tracker.log_metrics({k: lookup(result, k) for k in self.metric_keys},
+                            step=int(step) if step is not None else self._results[tracker.trial_key],
+                            timestamp_ms=int(stamp * 1000) if stamp else None)
+        key = tracker.trial_key
+        self._results[key] += 1
+        due = time.monotonic() - self._last_flush[key] >= self.flush_secs
+        if self._results[key] % self.flush_every == 0 or due:
+            self._flush(tracker)
+
+    def on_trial_recover(self, iteration: int, trials: list[Trial], trial: Trial, **info: Any) -> None:
+        key = self.key_fn(trial)
+        if key in self._trackers:
+            self._flush(self._trackers[key])
+
+    def on_trial_complete(self, iteration: int, trials: list[Trial], trial: Trial, **info: Any) -> None:
+        tracker = self.tracker(trial)
+        if self.artifacts_fn is not None:
+            for path in self.artifacts_fn(trial):
+                self._guard(f"log artifact {path}", tracker.log_artifact, path)
+        self._close(trial, "FINISHED")
+
+    def on_trial_error(self, iteration: int, trials: list[Trial], trial: Trial, **info: Any) -> None:
+        self._close(trial, "FAILED")
+
+    def on_experiment_end(self, trials: list[Trial], **info: Any) -> None:
+        """Trials still open (interrupted) are flushed and marked KILLED; a resume reopens them."""
+        for key in list(self._trackers):
+            self._guard(f"close run of {key}", self._trackers.pop(key).close, "KILLED")
+
+    def _flush(self, tracker: TrialTracker) -> None:
+        self._guard(f"flush metrics of {tracker.trial_key}", tracker.flush)
+        self._last_flush[tracker.trial_key] = time.monotonic()
+
+    def _close(self, trial: Trial, status: str) -> None:
+        tracker = self._trackers.pop(self.key_fn(trial), None) or self.tracker(trial)
+        self._trackers.pop(tracker.trial_key, None)
+        self._guard(f"close run of {tracker.trial_key}", tracker.close, status)
+
+    @staticmethod
+    def _guard(what: str, fn: Callable[..., None], *args: Any) -> None:
+        try:
+            fn(*args)
+        except Exception as e:  # noqa: BLE001 - tracking must not end a sweep
+            log.warning("MLflow: could not %s: %s", what, _first_line(e))
+
+
+__all__ = [
+    "GIT_COMMIT_TAG", "MLflowTuneCallback", "STAGE_TAG", "TRIAL_KEY_TAG", "TrialTracker",
+    "default_key_fn", "default_params_fn", "default_tracking_uri", "ensure_experiment",
+    "finite_float", "flatten_params", "git_commit", "lookup", "spec_key", "spec_params",
+    "trial_spec",
+]

@@ -1,0 +1,258 @@
+"""ps_ray.tracking against a real sqlite MLflow store and a real (local) Tune."""
+
+from __future__ import annotations
+
+import pickle
+import sys
+from pathlib import Path
+from urllib.parse import urlparse
+
+import pytest
+from mlflow import MlflowClient
+from mlflow.entities import ViewType
+
+from ps_ray.tracking import (
+    TRIAL_KEY_TAG,
+    MLflowTuneCallback,
+    TrialTracker,
+    default_tracking_uri,
+    ensure_experiment,
+    git_commit,
+    lookup,
+    spec_key,
+)
+
+
+@pytest.fixture(scope="module")
+def store(tmp_path_factory) -> dict:
+    """One sqlite store for the module (creating one costs about 5 s of migrations)."""
+    root = tmp_path_factory.mktemp("mlflow")
+    uri = default_tracking_uri(root)
+    existed = (root / "mlflow.db").exists()
+    exp_id = ensure_experiment(uri, "tracking-tests", root / "artifacts")
+    return {"root": root, "uri": uri, "existed": existed, "exp_id": exp_id,
+            "client": MlflowClient(tracking_uri=uri)}
+
+
+def runs_of(store: dict, exp_id: str) -> list:
+    return store["client"].search_runs([exp_id], run_view_type=ViewType.ALL, max_results=1000)
+
+
+def new_experiment(store: dict, name: str) -> str:
+    return ensure_experiment(store["uri"], name, store["root"] / f"artifacts-{name}")
+
+
+def artifact_dir(store: dict, run_id: str) -> Path:
+    return Path(urlparse(store["client"].get_run(run_id).info.artifact_uri).path)
+
+
+# ------------------------------------------------------------------------- store
+
+
+def test_ensure_experiment_creates_store_and_is_idempotent(store):
+    root = store["root"]
+    assert store["uri"] == f"sqlite:///{root.resolve()}/mlflow.db"
+    assert not store["existed"] and (root / "mlflow.db").is_file()
+    assert ensure_experiment(store["uri"], "tracking-tests", root / "artifacts") == store["exp_id"]
+    experiment = store["client"].get_experiment(store["exp_id"])
+    assert experiment.name == "tracking-tests"
+    assert experiment.artifact_location == (root / "artifacts").resolve().as_uri()
+    assert [e.name for e in store["client"].search_experiments()].count("tracking-tests") == 1
+
+
+def test_ensure_experiment_errors_are_one_line(store, tmp_path):
+    with pytest.raises(ValueError, match="keeps artifacts in"):
+        ensure_experiment(store["uri"], "tracking-tests", tmp_path / "elsewhere")
+    blocker = tmp_path / "file"
+    blocker.write_text("")
+    bad_uri = f"sqlite:///{blocker}/sub/mlflow.db"
+    with pytest.raises(ValueError, match=f"cannot use MLflow tracking URI '{bad_uri}'") as info:
+        ensure_experiment(bad_uri, "x", tmp_path)
+    assert "\n" not in str(info.value)
+    with pytest.raises(ValueError, match="'bogus://nowhere'"):
+        ensure_experiment("bogus://nowhere", "x", tmp_path)
+
+
+def test_git_commit(tmp_path):
+    commit = git_commit()
+    assert commit is None or (len(commit) == 40 and int(commit, 16) >= 0)
+    assert git_commit(tmp_path) is None
+
+
+# ------------------------------------------------------------------------- TrialTracker
+
+
+PARAMS = {"method": "ps", "robot": {"name": "panda", "locked_joints": [1]}, "task": "reach",
+          "seed": 101, "interface_dim": 128}
+FLAT = {"method": "ps", "robot.name": "panda", "robot.locked_joints": "[1]", "task": "reach",
+        "seed": "101", "interface_dim": "128"}
+
+
+def test_tracker_params_tags_and_batched_metrics(store):
+    exp = new_experiment(store, "tracker-basic")
+    tracker = TrialTracker(store["uri"], exp, "ps/panda/reach/101", params=PARAMS,
+                           tags={"ps_ray.stage": "train", "git_commit": "abc123"})
+    run = store["client"].get_run(tracker.run_id)
+    assert run.data.params == FLAT
+    assert run.info.run_name == "ps/panda/reach/101" and run.info.status == "RUNNING"
+    assert run.data.tags[TRIAL_KEY_TAG] == "ps/panda/reach/101"
+    assert run.data.tags["ps_ray.stage"] == "train" and run.data.tags["git_commit"] == "abc123"
+
+    for step in range(3):
+        tracker.log_metrics({"return": step * 1.5, "success": step / 2, "none": None,
+                             "nan": float("nan"), "inf": float("inf")}, step=step * 10)
+    assert tracker.pending == 6
+    assert store["client"].get_metric_history(tracker.run_id, "return") == []  # buffered
+    tracker.flush()
+    history = store["client"].get_metric_history(tracker.run_id, "return")
+    assert [(m.step, m.value) for m in history] == [(0, 0.0), (10, 1.5), (20, 3.0)]
+    assert set(store["client"].get_run(tracker.run_id).data.metrics) == {"return", "success"}
+
+    for step in range(2500):  # more than one log_batch call (1000 metrics each)
+        tracker.log_metrics({"big": float(step)}, step=step)
+    tracker.close()
+    assert len(store["client"].get_metric_history(tracker.run_id, "big")) == 2500
+    assert store["client"].get_run(tracker.run_id).info.status == "FINISHED"
+
+
+def test_tracker_resume_reuses_run_and_keys_separate_runs(store):
+    exp = new_experiment(store, "tracker-resume")
+    first = TrialTracker(store["uri"], exp, "ps/panda/reach/1", params=PARAMS, tags={})
+    first.log_metrics({"return": 1.0}, step=1)
+    first.close("KILLED")
+
+    again = TrialTracker(store["uri"], exp, "ps/panda/reach/1", params=PARAMS,
+                         tags={"git_commit": "new"})
+    assert again.run_id == first.run_id and again.resumed
+    run = store["client"].get_run(again.run_id)
+    assert run.info.status == "RUNNING" and run.data.tags["git_commit"] == "new"
+    again.log_metrics({"return": 2.0}, step=2)
+    again.close()
+    history = store["client"].get_metric_history(again.run_id, "return")
+    assert [(m.step, m.value) for m in history] == [(1, 1.0), (2, 2.0)]
+
+    other = TrialTracker(store["uri"], exp, "ps/panda/reach/2", params=PARAMS, tags={})
+    assert other.run_id != first.run_id and not other.resumed
+    other.close()
+    assert len(runs_of(store, exp)) == 2
+    with pytest.raises(ValueError, match="already has run .* param seed='101', not '7'"):
+        TrialTracker(store["uri"], exp, "ps/panda/reach/1", params={**PARAMS, "seed": 7}, tags={})
+
+
+def test_tracker_artifacts(store, tmp_path):
+    exp = new_experiment(store, "tracker-artifacts")
+    tracker = TrialTracker(store["uri"], exp, "k", params={}, tags={})
+    (tmp_path / "metrics.csv").write_text("a,b\n1,2\n")
+    policy = tmp_path / "policy"
+    policy.mkdir()
+    (policy / "weights.safetensors").write_bytes(b"\0" * 16)
+    tracker.log_artifact(tmp_path / "metrics.csv")
+    tracker.log_artifact(policy)
+    tracker.log_artifact(tmp_path / "metrics.csv", artifact_path="logs")
+    tracker.log_dict({"spec": {"seed": 1}}, "config/resolved.json")
+    with pytest.raises(FileNotFoundError, match="no artifact to log at"):
+        tracker.log_artifact(tmp_path / "missing")
+    tracker.close()
+    root = artifact_dir(store, tracker.run_id)
+    assert root.is_relative_to((store["root"] / "artifacts-tracker-artifacts").resolve())
+    files = sorted(str(p.relative_to(root)) for p in root.rglob("*") if p.is_file())
+    assert files == ["config/resolved.json", "logs/metrics.csv", "metrics.csv",
+                     "policy/weights.safetensors"]
+
+
+def test_spec_key_and_lookup():
+    assert spec_key({"method": "ps", "robot": "panda", "task": "reach", "seed": 3}) == "ps/panda/reach/3"
+    assert spec_key({"method": "ps", "robot": {"name": "panda"}, "task": "push", "seed": 3}) \
+        == "ps/panda/push/3"
+    locked = spec_key({"method": "ps", "robot": {"name": "panda", "locked_joints": [1]},
+                       "task": "reach", "seed": 3})
+    assert locked == 'ps/panda{"locked_joints":[1]}/reach/3'
+    long = spec_key({"method": "ps", "robot": {"name": "panda", "x": "y" * 100}, "task": "reach",
+                     "seed": 3})
+    assert long.startswith("ps/panda#") and len(long) < 40
+    result = {"a": {"b": 1}, "c/d": 2, "e": 3}
+    assert lookup(result, "a/b") == 1 and lookup(result, "c/d") == 2 and lookup(result, "e") == 3
+    assert lookup(result, "a/zz") is None and lookup(result, "zz") is None
+
+
+# ------------------------------------------------------------------------- Tune
+
+
+def _trainable(config):
+    from ray import tune
+
+    spec = config["spec"]
+    marker = Path(config["marker"])
+    for i in range(1, 4):
+        tune.report({"score": i * spec["seed"], "eval": {"success": i / 3, "skipped": 1},
+                     "junk": 7})
+        if spec["seed"] == 2 and i == 2 and not marker.exists():
+            marker.write_text("failed once")
+            raise RuntimeError("planned failure")
+    (marker.parent / f"summary-{spec['seed']}.txt").write_text("done")
+
+
+def _summary_file(trial) -> list[Path]:
+    return [Path(trial.config["marker"]).parent / f"summary-{trial.config['spec']['seed']}.txt"]
+
+
+def _tuner(tmp_path: Path, callback: MLflowTuneCallback, name: str):
+    from ray import tune
+
+    space = {"spec": {"method": "ps", "robot": "panda", "task": "reach",
+                      "seed": tune.grid_search([1, 2])},
+             "marker": str(tmp_path / f"{name}.marker")}
+    return tune.Tuner(_trainable, param_space=space,
+                      tune_config=tune.TuneConfig(max_concurrent_trials=2),
+                      run_config=tune.RunConfig(name=name, storage_path=str(tmp_path / "tune"),
+                                                callbacks=[callback], verbose=0))
+
+
+def test_tune_callback_one_run_per_trial_across_restore_and_rerun(store, tmp_path, ray_local):
+    from ray import cloudpickle, tune
+
+    cloudpickle.register_pickle_by_value(sys.modules[__name__])  # workers cannot import tests/
+
+    exp = new_experiment(store, "tune")
+    callback = MLflowTuneCallback(store["uri"], exp, metric_keys=["score", "eval/success", "absent"],
+                                  tags={"ps_ray.stage": "train"}, flush_every=2,
+                                  artifacts_fn=_summary_file)
+    pickle.loads(pickle.dumps(callback))  # Tuner.restore unpickles it from the experiment state
+    grid = _tuner(tmp_path, callback, "sweep").fit()
+    assert sorted(r.error is not None for r in grid) == [False, True]
+
+    def by_key() -> dict:
+        runs = runs_of(store, exp)
+        keys = [r.data.tags[TRIAL_KEY_TAG] for r in runs]
+        assert len(keys) == len(set(keys)), f"more than one run per trial key: {keys}"
+        return {r.data.tags[TRIAL_KEY_TAG]: r for r in runs}
+
+    runs = by_key()
+    assert set(runs) == {"ps/panda/reach/1", "ps/panda/reach/2"}
+    ok, failed = runs["ps/panda/reach/1"], runs["ps/panda/reach/2"]
+    assert ok.info.status == "FINISHED" and failed.info.status == "FAILED"
+    assert ok.data.params == {"method": "ps", "robot": "panda", "task": "reach", "seed": "1"}
+    assert set(ok.data.metrics) == {"score", "eval/success"}
+    assert ok.data.tags["ps_ray.stage"] == "train"
+    history = store["client"].get_metric_history(ok.info.run_id, "score")
+    assert [(m.step, m.value) for m in history] == [(1, 1.0), (2, 2.0), (3, 3.0)]
+    assert [m.step for m in store["client"].get_metric_history(failed.info.run_id, "score")] == [1, 2]
+    assert (artifact_dir(store, ok.info.run_id) / "summary-1.txt").is_file()
+
+    # driver restart: a new driver-side callback object (unpickled), the errored trial resumes
+    path = str(tmp_path / "tune" / "sweep")
+    assert tune.Tuner.can_restore(path)
+    grid = tune.Tuner.restore(path, trainable=_trainable, resume_errored=True).fit()
+    assert not grid.errors
+    runs = by_key()
+    resumed = runs["ps/panda/reach/2"]
+    assert resumed.info.run_id == failed.info.run_id and resumed.info.status == "FINISHED"
+    steps = [m.step for m in store["client"].get_metric_history(resumed.info.run_id, "score")]
+    assert steps == [1, 2, 1, 2, 3]  # no checkpoint: the trial restarted at iteration 1
+
+    # a second sweep with the same keys continues the same runs
+    _tuner(tmp_path, callback, "sweep-again").fit()
+    runs = by_key()
+    assert {k: r.info.run_id for k, r in runs.items()} == \
+        {"ps/panda/reach/1": ok.info.run_id, "ps/panda/reach/2": failed.info.run_id}
+    assert len(store["client"].get_metric_history(ok.info.run_id, "score")) == 6

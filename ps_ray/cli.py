@@ -29,7 +29,7 @@ def _train_parser(sub) -> None:
 
 def _bench_parser(sub) -> None:
     p = sub.add_parser("bench", help="print speed figures")
-    p.add_argument("what", choices=["env", "train", "her"])
+    p.add_argument("what", choices=["env", "her", "train", "learn", "tracking"])
     p.add_argument("options", nargs=argparse.REMAINDER, help="passed to the benchmark (see --help)")
 
 

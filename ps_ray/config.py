@@ -40,6 +40,7 @@ class TrainSpec:
     updates_per_step: float = 0.4    # gradient updates per collected env step (authors: 0.4)
     batch_size: int = 256
     lr: float = 1e-3
+    initial_alpha: float = 0.1       # entropy temperature at the start (auto-tuned after)
     gamma: float = 0.98
     tau: float = 0.005
     action_l2: float = 0.0
@@ -66,7 +67,7 @@ class TrainSpec:
             value = getattr(self, name)
             if not isinstance(value, int) or isinstance(value, bool) or value <= 0:
                 raise SpecError(f"{name} must be a positive integer, got {value!r}")
-        for name in ("updates_per_step", "lr", "tau"):
+        for name in ("updates_per_step", "lr", "tau", "initial_alpha"):
             if not isinstance(getattr(self, name), (int, float)) or getattr(self, name) <= 0:
                 raise SpecError(f"{name} must be a positive number, got {getattr(self, name)!r}")
         if not 0 < self.gamma < 1:

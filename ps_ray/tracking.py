@@ -251,8 +251,14 @@ def _tag_filter(trial_key: str) -> str:
 
 
 def trial_spec(trial: Trial) -> Mapping[str, Any]:
-    """``trial.config["spec"]`` as a plain mapping (a TrainSpec is converted with ``to_dict``)."""
-    spec = trial.config.get("spec")
+    """``trial.config["spec"]``, or ``trial.config[<k>]["spec"]`` for a grid over whole trial
+    dicts (``{"trial": tune.grid_search([{"spec": ...}, ...])}``), as a plain mapping (a
+    TrainSpec is converted with ``to_dict``)."""
+    config = trial.config
+    spec = config.get("spec")
+    if spec is None:
+        nested = [v["spec"] for v in config.values() if isinstance(v, Mapping) and "spec" in v]
+        spec = nested[0] if len(nested) == 1 else None
     if hasattr(spec, "to_dict"):
         spec = spec.to_dict()
     if not isinstance(spec, Mapping):
@@ -317,8 +323,9 @@ class MLflowTuneCallback(Callback):
     trial's metrics are written every ``flush_every`` results or ``flush_secs`` seconds, and on
     completion/error/recovery/experiment end. Trackers are keyed by ``key_fn(trial)`` and find
     their run by tag, so a trial restored after a driver restart continues the SAME run.
-    Store errors after construction are logged as warnings, never raised into Tune: a sweep
-    does not die for its bookkeeping (unflushed metrics are retried at the next flush).
+    Errors while writing metrics, artifacts or status are logged as warnings, never raised into
+    Tune: a sweep does not die for its bookkeeping (unflushed metrics are retried at the next
+    flush). Finding or creating a trial's run does raise (e.g. its key's run has other params).
     """
 
     def __init__(self, tracking_uri: str, experiment_id: str, *, metric_keys: Sequence[str],
@@ -415,8 +422,8 @@ class MLflowTuneCallback(Callback):
         self._last_flush[tracker.trial_key] = time.monotonic()
 
     def _close(self, trial: Trial, status: str) -> None:
-        tracker = self._trackers.pop(self.key_fn(trial), None) or self.tracker(trial)
-        self._trackers.pop(tracker.trial_key, None)
+        tracker = self.tracker(trial)
+        del self._trackers[tracker.trial_key]
         self._guard(f"close run of {tracker.trial_key}", tracker.close, status)
 
     @staticmethod

@@ -18,6 +18,8 @@ from ps_ray.tracking import (
     default_tracking_uri,
     ensure_experiment,
     git_commit,
+    default_key_fn,
+    default_params_fn,
     lookup,
     spec_key,
 )
@@ -173,6 +175,19 @@ def test_spec_key_and_lookup():
     result = {"a": {"b": 1}, "c/d": 2, "e": 3}
     assert lookup(result, "a/b") == 1 and lookup(result, "c/d") == 2 and lookup(result, "e") == 3
     assert lookup(result, "a/zz") is None and lookup(result, "zz") is None
+
+
+def test_default_key_and_params_from_trial_config():
+    from ray.tune.experiment import Trial
+
+    spec = {"method": "ps", "robot": {"name": "panda"}, "task": "reach", "seed": 5}
+    for config in ({"spec": spec, "marker": "x"}, {"trial": {"spec": spec, "anchors": None}}):
+        trial = Trial("__fake", config=config, stub=True)
+        assert default_key_fn(trial) == "ps/panda/reach/5"
+        assert default_params_fn(trial) == {"method": "ps", "robot.name": "panda", "task": "reach",
+                                            "seed": "5"}
+    with pytest.raises(ValueError, match="has no config\\['spec'\\] mapping"):
+        default_key_fn(Trial("__fake", config={"lr": 1}, stub=True))
 
 
 # ------------------------------------------------------------------------- Tune

@@ -34,7 +34,7 @@ class BareTrainer:
         self.dims = dims_from_spaces(env.observation_space, env.action_space)
         self.nets = build_sac_nets(spec.method, self.dims, interface_dim=spec.interface_dim,
                                    hidden=spec.hidden, anchors=anchors)
-        self.log_alpha = torch.zeros(1, requires_grad=True)
+        self.log_alpha = torch.full((1,), float(np.log(spec.initial_alpha)), requires_grad=True)
         params = [*self.nets.actor.parameters(), *self.nets.critic.parameters(),
                   *self.nets.critic_twin.parameters(), self.log_alpha]
         self.optimizer = torch.optim.Adam(params, lr=spec.lr)

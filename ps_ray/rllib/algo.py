@@ -20,7 +20,7 @@ def algo_config(spec: TrainSpec, anchors: np.ndarray | None = None) -> ModularSA
             "method": spec.method, "interface_dim": spec.interface_dim, "hidden": spec.hidden,
             "anchors": None if anchors is None else np.asarray(anchors, np.float32).tolist()})
         .training(train_batch_size=spec.batch_size, gamma=spec.gamma, tau=spec.tau,
-                  actor_lr=spec.lr, critic_lr=spec.lr, alpha_lr=spec.lr, initial_alpha=1.0)
+                  actor_lr=spec.lr, critic_lr=spec.lr, alpha_lr=spec.lr, initial_alpha=spec.initial_alpha)
         .reporting(metrics_num_episodes_for_smoothing=1)
         .debugging(seed=spec.seed)
     )

@@ -1,0 +1,113 @@
+"""Spec validation: every bad input is one line naming the bad value, before anything runs."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from ps_ray.config import SpecError, SweepSpec, TrainSpec, load_sweep
+
+SWEEPS = Path(__file__).resolve().parents[1] / "sweeps"
+
+
+def test_train_spec_defaults_are_valid_and_label_names_the_trial():
+    spec = TrainSpec()
+    assert spec.label() == "ps/panda/reach/101"
+    custom = TrainSpec(robot={"base": "panda", "locked_joints": [1]}, task={"name": "reach",
+                                                                           "goal_region": "q2"})
+    assert custom.env_config == {"robot": {"base": "panda", "locked_joints": [1]},
+                                 "task": {"name": "reach", "goal_region": "q2"}}
+
+
+@pytest.mark.parametrize("fields, message", [
+    ({"method": "psx"}, "unknown method 'psx'; valid methods: ps, ablation, devin, devin_large, plain"),
+    ({"robot": "pandaa"}, "unknown robot 'pandaa'; valid robots: panda, panda_l3, panda_l5"),
+    ({"task": "pushh"}, "unknown task 'pushh'"),
+    ({"robot": {"base": "panda", "locked_joints": [9]}}, "9"),
+    ({"env_steps": 0}, "env_steps must be a positive integer, got 0"),
+    ({"gamma": 1.5}, "gamma must be in (0, 1), got 1.5"),
+])
+def test_bad_train_spec_values_name_the_value(fields, message):
+    with pytest.raises(SpecError) as err:
+        TrainSpec(**fields)
+    assert message in str(err.value)
+    assert "\n" not in str(err.value)
+
+
+def test_unknown_train_key_lists_valid_keys():
+    with pytest.raises(SpecError, match=r"unknown key 'env_step' in train spec; valid keys: robot, task"):
+        TrainSpec.from_mapping({"env_step": 10})
+
+
+def test_resumable_changes_keep_the_identity():
+    base = TrainSpec()
+    assert TrainSpec(env_steps=99, eval_every=3).digest() == base.digest()
+    assert TrainSpec(seed=102).digest() != base.digest()
+
+
+def test_shipped_sweeps_load_and_expand_to_trials():
+    smoke = load_sweep(SWEEPS / "smoke.yaml")
+    trials = smoke.trials()
+    assert len(trials) == len(smoke.methods) * len(smoke.robots) * len(smoke.tasks) * len(smoke.seeds)
+    assert {t.method for t in trials} == set(smoke.methods)
+
+
+def _write(tmp_path: Path, text: str) -> Path:
+    path = tmp_path / "sweep.yaml"
+    path.write_text(text)
+    return path
+
+
+GOOD = """name: t
+methods: [ps]
+robots: [panda]
+tasks: [reach]
+seeds: [1]
+"""
+
+
+@pytest.mark.parametrize("text, message", [
+    (GOOD + "colour: red\n", "unknown key 'colour'; valid keys: name, methods"),
+    (GOOD.replace("[ps]", "[ps, nope]"), "unknown method 'nope'"),
+    (GOOD.replace("[panda]", "[{base: panda, locked_joints: [8]}]"), "8"),
+    (GOOD + "train: {env_steps: -1}\n", "env_steps must be a positive integer, got -1"),
+    (GOOD + "train: {method: ps}\n", "train.method is set by the sweep grid"),
+    (GOOD + "stages: [train, fly]\n", "unknown stage 'fly'; valid stages: train"),
+    (GOOD + "anchors: {epizodes: 3}\n", "unknown key 'epizodes' in anchors"),
+    ("name: t\nmethods: [ps\n", "malformed YAML at line"),
+    ("- just\n- a list\n", "expected a mapping at the top level"),
+    (GOOD.replace("seeds: [1]", "seeds: []"), "seeds must be a non-empty list"),
+])
+def test_bad_sweep_files_fail_with_one_line_naming_the_problem(tmp_path, text, message):
+    path = _write(tmp_path, text)
+    with pytest.raises(SpecError) as err:
+        load_sweep(path)
+    assert message in str(err.value)
+    assert str(path) in str(err.value)
+    assert "\n" not in str(err.value)
+
+
+def test_cli_rejects_a_bad_sweep_with_exit_code_2_and_writes_nothing(tmp_path):
+    path = _write(tmp_path, GOOD.replace("[ps]", "[nope]") + f"storage: {tmp_path / 'out'}\n")
+    proc = subprocess.run([sys.executable, "-m", "ps_ray.cli", "sweep", str(path)],
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2
+    assert "unknown method 'nope'" in proc.stderr
+    assert not (tmp_path / "out").exists()
+
+
+def test_cli_rejects_bad_train_input(tmp_path):
+    proc = subprocess.run([sys.executable, "-m", "ps_ray.cli", "train", "--robot", "pandaa",
+                           "--run-dir", str(tmp_path / "run")], capture_output=True, text=True,
+                          timeout=120)
+    assert proc.returncode == 2
+    assert proc.stderr.strip().endswith("unknown robot 'pandaa'; valid robots: panda, panda_l3, panda_l5")
+    assert not (tmp_path / "run").exists()
+
+
+def test_sweep_spec_is_checked_before_anything_starts():
+    with pytest.raises(SpecError, match="unknown task 'swim'"):
+        SweepSpec(name="x", methods=("ps",), robots=("panda",), tasks=("swim",), seeds=(1,))

@@ -18,7 +18,9 @@ from typing import Any
 from ps_ray.config import SpecError, SweepSpec, TrainSpec
 
 TUNE_DIR = "tune"
-CRASH_ENV = "PS_RAY_CRASH_ONCE"  # test hook: a marker path; the first trial to see it absent crashes
+# Test hook for FailureConfig: a marker path; the first trial to find it absent after saving a
+# checkpoint creates it and crashes.
+CRASH_ENV = "PS_RAY_CRASH_ONCE"
 METRIC_KEYS = ("env_steps", "updates", "train_success", "train_touching", "eval_success",
                "eval_touching")
 
@@ -77,6 +79,7 @@ def _task(name: str):
 # -- the Tune trial ------------------------------------------------------------------------------
 def sweep_trial(config: dict[str, Any]) -> None:
     """Tune function trainable: one TrainingRun, checkpointed to Tune, resumed from Tune."""
+    import ray
     from ray import tune
 
     from ps_ray.anchors import load_anchor_set
@@ -90,15 +93,16 @@ def sweep_trial(config: dict[str, Any]) -> None:
     if checkpoint is not None:
         with checkpoint.as_directory() as directory:
             run.restore(Path(directory))
+    node_id = ray.get_runtime_context().get_node_id()
     while not run.done:
-        row = run.step()
+        row = {**run.step(), "node_id": node_id}
         if row["iteration"] % spec.checkpoint_every == 0 or run.done:
-            _maybe_crash()
             with tempfile.TemporaryDirectory() as directory:
                 run.save(Path(directory))
                 if run.done:
                     row.update({f"final_{k}": v for k, v in run.final_eval().items()})
                 tune.report(row, checkpoint=tune.Checkpoint.from_directory(directory))
+            _maybe_crash()
         elif row.get("eval_success") is not None:
             tune.report(row)
     run.stop()
@@ -162,11 +166,15 @@ def run_sweep(spec: SweepSpec, *, resume: bool = False, progress: bool = True):
 
 
 def _trial_artifacts(trial) -> list[Path]:
-    checkpoint = trial.checkpoint
-    if checkpoint is None:
-        return []
-    path = Path(checkpoint.path) / "policy.safetensors"
-    return [path] if path.exists() else []
+    """Module weights, interface signature, resolved spec and anchors of a finished trial."""
+    paths = []
+    if trial.checkpoint is not None:
+        paths += [Path(trial.checkpoint.path) / name
+                  for name in ("policy.safetensors", "signature.json", "spec.json")]
+    anchors = trial.config["trial"].get("anchors")
+    if anchors:
+        paths.append(Path(anchors))
+    return [p for p in paths if p.exists()]
 
 
 def _spec_dict(spec: SweepSpec) -> dict[str, Any]:

@@ -107,8 +107,13 @@ class TrainingRun:
 
     def save(self, directory: Path) -> None:
         """RLlib checkpoint + replay buffer + policy.safetensors into `directory`."""
+        import dataclasses
+
         self.algo.save_checkpoint(str(directory))
         self.algo.export_policy(Path(directory) / POLICY_FILE, self.signature)
+        (Path(directory) / "signature.json").write_text(
+            json.dumps(dataclasses.asdict(self.signature), indent=2))
+        (Path(directory) / "spec.json").write_text(json.dumps(self.spec.to_dict(), indent=2))
 
     def restore(self, directory: Path) -> None:
         self.algo.load_checkpoint(str(directory))

@@ -1,0 +1,86 @@
+"""`ray job submit` path: a local head with token auth, a small sweep submitted as a job, MLflow."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import mlflow
+import pytest
+import yaml
+
+REPO = Path(__file__).resolve().parents[1]
+BIN = Path(sys.executable).parent
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.fixture
+def ray_head(tmp_path):
+    """`ray start --head --block` in its own session; killed with its process group afterwards."""
+    env = {**os.environ, "RAY_AUTH_MODE": "token", "RAY_USAGE_STATS_ENABLED": "0"}
+    dashboard = free_port()
+    head = subprocess.Popen(
+        [str(BIN / "ray"), "start", "--head", "--block", f"--port={free_port()}", "--num-cpus=2",
+         "--dashboard-host=127.0.0.1", f"--dashboard-port={dashboard}",
+         f"--temp-dir={Path('/tmp') / f'ps_ray_head_{dashboard}'}", "--include-dashboard=true"],
+        env=env, stdout=subprocess.DEVNULL, stderr=subprocess.STDOUT, start_new_session=True)
+    address = f"http://127.0.0.1:{dashboard}"
+    deadline = time.time() + 120
+    while time.time() < deadline:
+        probe = subprocess.run([str(BIN / "ray"), "job", "list", "--address", address], env=env,
+                               capture_output=True, text=True)
+        if probe.returncode == 0:
+            break
+        time.sleep(2)
+    else:
+        os.killpg(head.pid, signal.SIGKILL)
+        pytest.fail("the Ray head did not come up")
+    yield address, env
+    os.killpg(head.pid, signal.SIGTERM)
+    try:
+        head.wait(timeout=30)
+    except subprocess.TimeoutExpired:
+        os.killpg(head.pid, signal.SIGKILL)
+    shutil.rmtree(Path("/tmp") / f"ps_ray_head_{dashboard}", ignore_errors=True)
+
+
+def test_sweep_submitted_as_a_ray_job_lands_in_mlflow(ray_head, tmp_path):
+    address, env = ray_head
+    storage = tmp_path / "store"
+    sweep = tmp_path / "job.yaml"
+    sweep.write_text(yaml.safe_dump({
+        "name": "job", "methods": ["ablation"], "robots": ["panda"], "tasks": ["reach"],
+        "seeds": [1], "interface_dims": [8], "storage": str(storage),
+        "train": {"env_steps": 200, "hidden": 32, "learning_starts": 100, "random_episodes": 2,
+                  "eval_every": 2, "eval_episodes": 2, "checkpoint_every": 2, "batch_size": 32}}))
+    submit = subprocess.run(
+        [str(BIN / "ray"), "job", "submit", "--address", address, "--working-dir", str(REPO), "--",
+         str(BIN / "ps-ray"), "sweep", str(sweep)],
+        env=env, capture_output=True, text=True, timeout=600)
+    assert submit.returncode == 0, submit.stdout[-3000:] + submit.stderr[-2000:]
+    assert "succeeded" in submit.stdout
+    client = mlflow.MlflowClient(f"sqlite:///{storage / 'job' / 'mlflow.db'}")
+    experiment = client.get_experiment_by_name("job")
+    (run,) = client.search_runs([experiment.experiment_id])
+    assert run.info.run_name == "ablation/panda/reach/1"
+    assert run.info.status == "FINISHED"
+    assert run.data.metrics["env_steps"] >= 200
+
+
+def test_job_cli_without_a_token_is_refused(ray_head):
+    address, env = ray_head
+    no_auth = {k: v for k, v in env.items() if k != "RAY_AUTH_MODE"}
+    listing = subprocess.run([str(BIN / "ray"), "job", "list", "--address", address],
+                             env=no_auth, capture_output=True, text=True, timeout=60)
+    assert listing.returncode != 0

@@ -113,12 +113,14 @@ def _plain(value: Any) -> Any:
 
 
 
+ANCHOR_POLICIES = ("plain", "random")
 STAGES = ("train",)  # grows with the pipeline: anchors, stitch, analyze
 
 
 @dataclass(frozen=True)
 class AnchorSpec:
-    """Where PS anchors come from: a file of task states / an anchor set, or rollouts."""
+    """Where PS anchors come from: a file of task states / an anchor set, or rollouts of the
+    source tasks (greedy trained plain policies, as the paper, or random actions)."""
 
     file: str | None = None             # anchor set (.npz) or task-state array; overrides rollouts
     source_tasks: tuple[str, ...] = ()  # tasks whose states are pooled (default: the sweep's tasks)
@@ -126,8 +128,12 @@ class AnchorSpec:
     episodes: int = 200
     steps: tuple[int, ...] = (5, 6, 7, 8, 9)
     seed: int = 0
+    policy: str = "plain"               # roll out trained plain policies (paper) or "random"
 
     def __post_init__(self) -> None:
+        if self.policy not in ANCHOR_POLICIES:
+            raise SpecError(f"unknown anchors.policy {self.policy!r}; valid: "
+                            f"{', '.join(ANCHOR_POLICIES)}")
         for task in self.source_tasks:
             try:
                 resolve_task(task)

@@ -2,8 +2,9 @@
 
 Layout under <storage>/<name>/:
   sweep.yaml       the resolved spec (a resumed sweep must match it)
-  anchors/         one anchor set per task-input width (PS), made by the driver before any trial
-  tune/            Tune's experiment directory (trial checkpoints hold policy.safetensors)
+  tune_plain/      stage 1: the plain source policies of the anchors (anchors.policy: plain)
+  anchors/         stage 2: one anchor set per (task-input width, k), made by the driver
+  tune/            stage 3: every trial of the grid (trial checkpoints hold policy.safetensors)
   mlflow.db        the default MLflow store (sqlite), created once by the driver
 """
 
@@ -18,6 +19,7 @@ from typing import Any
 from ps_ray.config import SpecError, SweepSpec, TrainSpec
 
 TUNE_DIR = "tune"
+PLAIN_TUNE_DIR = "tune_plain"
 # Test hook for FailureConfig: a marker path; the first trial to find it absent after saving a
 # checkpoint creates it and crashes.
 CRASH_ENV = "PS_RAY_CRASH_ONCE"
@@ -36,40 +38,61 @@ def task_input_dim(task) -> int:
     return 3 if resolve_task(task).family.__name__ == "Reach" else 15
 
 
-def prepare_sweep_anchors(spec: SweepSpec, root: Path) -> dict[int, str]:
-    """One anchor set per task-input width, pooled over the source tasks of that width."""
+def anchor_path(root: Path, dim: int, k: int) -> Path:
+    return root / "anchors" / f"anchors_{dim}d_k{k}.npz"
+
+
+def anchor_sources(spec: SweepSpec) -> list[TrainSpec]:
+    """The plain trials whose greedy rollouts give the anchor states (policy: plain)."""
+    ps = [t for t in spec.trials() if t.method == "ps"]
+    tasks = list(spec.anchors.source_tasks) or list(dict.fromkeys(_name(t.task) for t in ps))
+    return [TrainSpec.from_mapping({**t.to_dict(), "method": "plain", "robot": spec.anchors.robot,
+                                    "task": _task(task), "seed": spec.seeds[0]})
+            for task in tasks for t in ps[:1]]
+
+
+def prepare_sweep_anchors(spec: SweepSpec, root: Path,
+                          plain_policies: dict[str, Path] | None = None) -> dict[tuple[int, int], str]:
+    """Stage 2: one anchor set per (task-input width, k), pooled over that width's source tasks.
+
+    States come from `spec.anchors.file`, from greedy rollouts of the trained plain policies
+    (policy: plain, after stage 1) or from random-action rollouts (policy: random).
+    """
     from ps_ray.anchors import anchors_from_file, collect_task_states, make_anchor_set, save_anchor_set
     from ps_ray.envs import make
+    from ps_ray.policy import GreedyPolicy
 
-    trials = [t for t in spec.trials() if t.method == "ps"]
-    if not trials:
-        return {}
-    k = {t.interface_dim for t in trials}
-    if len(k) != 1:
-        raise SpecError("PS trials of one sweep must share one interface_dim (one anchor set each)")
-    k = k.pop()
-    sources = list(spec.anchors.source_tasks) or list(dict.fromkeys(
-        t.task if isinstance(t.task, str) else json.dumps(t.task, sort_keys=True) for t in trials))
-    paths: dict[int, str] = {}
-    for dim in sorted({task_input_dim(t.task) for t in trials}):
-        path = root / "anchors" / f"anchors_{dim}d_k{k}.npz"
-        paths[dim] = str(path)
+    ps = [t for t in spec.trials() if t.method == "ps"]
+    sources = anchor_sources(spec) if ps else []
+    paths: dict[tuple[int, int], str] = {}
+    for dim, k in sorted({(task_input_dim(t.task), t.interface_dim) for t in ps}):
+        path = anchor_path(root, dim, k)
+        paths[(dim, k)] = str(path)
         if path.exists():
             continue
         if spec.anchors.file:
             anchor_set = anchors_from_file(spec.anchors.file, k, seed=spec.anchors.seed)
         else:
-            group = [s for s in sources if task_input_dim(_task(s)) == dim]
-            states = {s: collect_task_states(lambda s=s: make(spec.anchors.robot, _task(s)),
-                                             episodes=spec.anchors.episodes,
-                                             steps=spec.anchors.steps, seed=spec.anchors.seed)
-                      for s in group}
+            states = {}
+            for source in (s for s in sources if task_input_dim(s.task) == dim):
+                policy = None
+                if spec.anchors.policy == "plain":
+                    policy = GreedyPolicy.from_file(plain_policies[source.label()])
+                states[_name(source.task)] = collect_task_states(
+                    lambda source=source: make(source.robot, source.task),
+                    episodes=spec.anchors.episodes, steps=spec.anchors.steps,
+                    policy=policy, seed=spec.anchors.seed)
             anchor_set = make_anchor_set(states, k, seed=spec.anchors.seed, extra_provenance={
-                "policy": "random", "robot": spec.anchors.robot, "steps": list(spec.anchors.steps),
-                "episodes": spec.anchors.episodes})
+                "policy": spec.anchors.policy, "robot": spec.anchors.robot,
+                "steps": list(spec.anchors.steps), "episodes": spec.anchors.episodes,
+                "checkpoints": {s: str(p) for s, p in (plain_policies or {}).items()}})
         path.parent.mkdir(parents=True, exist_ok=True)
         save_anchor_set(path, anchor_set)
     return paths
+
+
+def _name(task) -> str:
+    return task if isinstance(task, str) else json.dumps(task, sort_keys=True)
 
 
 def _task(name: str):
@@ -117,13 +140,17 @@ def _maybe_crash() -> None:
 
 # -- the driver ----------------------------------------------------------------------------------
 def run_sweep(spec: SweepSpec, *, resume: bool = False, progress: bool = True):
-    """Run (or resume) every training trial of the sweep; returns Tune's ResultGrid."""
+    """Run (or resume) the sweep's stages; returns the training stage's Tune ResultGrid.
+
+    Stage 1 (anchors.policy: plain): the plain source policies, as Tune trials.
+    Stage 2: anchor sets, made by the driver. Stage 3: every trial of the grid, as Tune trials.
+    A stage whose outputs exist is skipped, so a killed sweep resumes where it stopped.
+    """
     import ray
     import yaml
-    from ray import tune
 
     from ps_ray.envs.registry import register
-    from ps_ray.tracking import MLflowTuneCallback, default_tracking_uri, ensure_experiment, git_commit
+    from ps_ray.tracking import default_tracking_uri, ensure_experiment
 
     root = sweep_dir(spec)
     spec_file = root / "sweep.yaml"
@@ -132,33 +159,63 @@ def run_sweep(spec: SweepSpec, *, resume: bool = False, progress: bool = True):
         raise SpecError(f"{root} holds a different sweep spec; resume needs the same file")
     root.mkdir(parents=True, exist_ok=True)
     spec_file.write_text(resolved)
-    anchors = prepare_sweep_anchors(spec, root)
-
     if not ray.is_initialized():
         ray.init(address=os.environ.get("RAY_ADDRESS", "local"), include_dashboard=False,
                  log_to_driver=False, configure_logging=False)
     register()
     tracking_uri = spec.tracking_uri or default_tracking_uri(root)
     experiment_id = ensure_experiment(tracking_uri, spec.name, root / "mlartifacts")
+    tune_args = dict(spec=spec, root=root, tracking=(tracking_uri, experiment_id),
+                     resume=resume, progress=progress)
+
+    plain_policies = None
+    needs_anchors = any(not Path(p).exists() for p in _anchor_paths(spec, root))
+    if spec.anchors.policy == "plain" and needs_anchors and not spec.anchors.file:
+        sources = anchor_sources(spec)
+        grid = _run_tune([{"spec": s.to_dict(), "anchors": None} for s in sources],
+                         name=PLAIN_TUNE_DIR, stage="anchors_plain", **tune_args)
+        _raise_on_errors(grid, "plain source policies")
+        plain_policies = {TrainSpec.from_mapping(r.config["trial"]["spec"]).label():
+                          Path(r.checkpoint.path) / "policy.safetensors" for r in grid}
+    anchors = prepare_sweep_anchors(spec, root, plain_policies)
+    trials = [{"spec": t.to_dict(),
+               "anchors": anchors[(task_input_dim(t.task), t.interface_dim)]
+               if t.method == "ps" else None} for t in spec.trials()]
+    return _run_tune(trials, name=TUNE_DIR, stage="train", **tune_args)
+
+
+def _anchor_paths(spec: SweepSpec, root: Path) -> list[Path]:
+    return [anchor_path(root, task_input_dim(t.task), t.interface_dim)
+            for t in spec.trials() if t.method == "ps"]
+
+
+def _raise_on_errors(grid, what: str) -> None:
+    errors = [r for r in grid if r.error]
+    if errors:
+        raise RuntimeError(f"{len(errors)} of the {what} failed: {errors[0].error}")
+
+
+def _run_tune(trials: list[dict], *, name: str, stage: str, spec: SweepSpec, root: Path,
+              tracking: tuple[str, str], resume: bool, progress: bool):
+    from ray import tune
+
+    from ps_ray.tracking import MLflowTuneCallback, git_commit
+
     callback = MLflowTuneCallback(
-        tracking_uri, experiment_id, metric_keys=METRIC_KEYS + tuple(f"final_{k}" for k in (
-            "success", "touching")),
-        tags={"ps_ray.sweep": spec.name, "ps_ray.stage": "train", "git_commit": git_commit() or ""},
+        *tracking, metric_keys=METRIC_KEYS + ("final_success", "final_touching"),
+        tags={"ps_ray.sweep": spec.name, "ps_ray.stage": stage, "git_commit": git_commit() or ""},
         artifacts_fn=_trial_artifacts)
     trainable = tune.with_resources(sweep_trial, {"cpu": 1})
-    tune_path = root / TUNE_DIR
-    if resume and tune.Tuner.can_restore(str(tune_path)):
-        tuner = tune.Tuner.restore(str(tune_path), trainable=trainable, resume_unfinished=True,
+    path = root / name
+    if resume and tune.Tuner.can_restore(str(path)):
+        tuner = tune.Tuner.restore(str(path), trainable=trainable, resume_unfinished=True,
                                    resume_errored=True, restart_errored=False)
     else:
-        param_space = {"trial": tune.grid_search([
-            {"spec": t.to_dict(), "anchors": anchors.get(task_input_dim(t.task)) if t.method == "ps"
-             else None} for t in spec.trials()])}
         tuner = tune.Tuner(
-            trainable, param_space=param_space,
+            trainable, param_space={"trial": tune.grid_search(trials)},
             tune_config=tune.TuneConfig(max_concurrent_trials=spec.max_concurrent),
             run_config=tune.RunConfig(
-                name=TUNE_DIR, storage_path=str(root),
+                name=name, storage_path=str(root),
                 failure_config=tune.FailureConfig(max_failures=spec.max_failures),
                 checkpoint_config=tune.CheckpointConfig(num_to_keep=1),
                 callbacks=[callback], verbose=1 if progress else 0))

@@ -150,7 +150,7 @@ def train(spec: TrainSpec, run_dir: str | Path, *, progress: bool = True) -> dic
     """Train (or resume) until spec.env_steps; returns the last metrics row with final_* figures."""
     import ray
 
-    run_dir = Path(run_dir)
+    run_dir = Path(run_dir).resolve()  # RLlib's checkpoint writer needs absolute paths
     _check_run_dir(spec, run_dir)
     anchor_set = prepare_anchors(spec, run_dir) if spec.method == "ps" else None
     if not ray.is_initialized():

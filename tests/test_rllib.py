@@ -99,3 +99,21 @@ def test_sac_her_learns_the_point_goal_env(ray_local):
         algo.stop()
     # A random policy essentially never ends within 5 cm of a goal drawn from [-0.5, 0.5]^2.
     assert stats["success"] >= 0.8, stats
+
+
+def test_training_episodes_get_fresh_goals_and_evaluations_fixed_ones(ray_local):
+    """RLlib re-seeds its envs on every num_episodes sample; ps_ray must not replay old goals."""
+    spec = TrainSpec(method="ablation", **{**SMALL, "learning_starts": 10**6, "eval_every": 10**6})
+    algo = algo_config(spec).build_algo()
+    try:
+        for _ in range(3):
+            algo.train()
+        stored = algo.replay._obs["desired_goal"][:algo.replay.num_episodes, 0]
+        assert len(np.unique(stored.round(6), axis=0)) == algo.replay.num_episodes == 12
+        first = [ep.get_observations()["desired_goal"][0] for ep in algo._collect(
+            explore=False, random=False, n=2)]
+        second = [ep.get_observations()["desired_goal"][0] for ep in algo._collect(
+            explore=False, random=False, n=2)]
+        np.testing.assert_array_equal(first, second)
+    finally:
+        algo.stop()

@@ -31,6 +31,7 @@ from ps_ray.rllib.learner import ModularSACLearner
 from ps_ray.rllib.module import ModularSACModule
 
 STATE_FILE = "ps_ray_state.json"
+EVAL_SEED_OFFSET = 500_000
 REPLAY_FILE = "replay.npz"
 
 
@@ -96,9 +97,20 @@ class ModularSAC(SAC):
         return episode_stats(self._collect(explore=False, random=False, n=episodes))
 
     def _collect(self, *, explore: bool, random: bool, n: int) -> list:
+        """n whole episodes per env runner. Training episodes get fresh reset seeds (derived from
+        the run's seed and episode count, so a resumed run does not replay old goals); greedy
+        evaluations reuse one fixed seed, so every evaluation sees the same episodes."""
+        seed = (self.config.seed or 0) * 1_000_003 + (
+            self.counters["episodes"] if explore else EVAL_SEED_OFFSET)
+
+        def sample(runner):
+            # RLlib re-seeds the envs with its config seed on every num_episodes call, which
+            # would replay the same goals forever: set the seed of this call instead.
+            runner._seed = seed + 1_000 * runner.worker_index
+            return runner.sample(num_episodes=n, explore=explore, random_actions=random)
+
         results = self.env_runner_group.foreach_env_runner(
-            lambda r: r.sample(num_episodes=n, explore=explore, random_actions=random),
-            local_env_runner=self.env_runner_group.num_remote_env_runners() == 0)
+            sample, local_env_runner=self.env_runner_group.num_remote_env_runners() == 0)
         return [ep for eps in results for ep in eps]
 
     def training_step(self) -> None:

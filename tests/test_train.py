@@ -1,0 +1,63 @@
+"""`ps-ray train`: a killed run resumes from its last checkpoint and ends with a loadable policy."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import pandas as pd
+
+from ps_ray.weights import load_policy
+
+ARGS = ["--task", "point", "--method", "ps", "--interface-dim", "8", "--hidden", "32",
+        "--learning-starts", "200", "--random-episodes", "2", "--episodes-per-step", "4",
+        "--checkpoint-every", "3", "--eval-every", "3", "--eval-episodes", "4", "--batch-size", "64",
+        "--anchor-episodes", "20"]
+
+
+def train_cmd(run_dir, steps: int) -> list[str]:
+    return [sys.executable, "-m", "ps_ray.cli", "train", *ARGS, "--env-steps", str(steps),
+            "--run-dir", str(run_dir)]
+
+
+def test_killed_training_resumes_from_its_last_checkpoint(tmp_path):
+    run_dir = tmp_path / "run"
+    first = subprocess.Popen(train_cmd(run_dir, 100_000), stdout=subprocess.DEVNULL,
+                             stderr=subprocess.DEVNULL, start_new_session=True)
+    deadline = time.time() + 180
+    while not (run_dir / "checkpoint" / "ps_ray_state.json").exists():
+        assert time.time() < deadline, "no checkpoint was written"
+        assert first.poll() is None, "training exited early"
+        time.sleep(0.5)
+    time.sleep(2)
+    os.killpg(first.pid, signal.SIGKILL)
+    first.wait()
+    saved = json.loads((run_dir / "checkpoint" / "ps_ray_state.json").read_text())["env_steps"]
+    assert saved > 0
+
+    # Same policy, larger budget: allowed, and it continues from the checkpoint.
+    second = subprocess.run(train_cmd(run_dir, saved + 400), capture_output=True, text=True,
+                            timeout=300)
+    assert second.returncode == 0, second.stdout[-2000:] + second.stderr[-2000:]
+    assert f"resumed at {saved} env steps" in second.stdout
+    metrics = pd.read_csv(run_dir / "metrics.csv")
+    assert metrics["env_steps"].iloc[-1] >= saved + 400
+    result = json.loads((run_dir / "result.json").read_text())
+    assert 0.0 <= result["final_success"] <= 1.0
+    nets, signature = load_policy(run_dir / "policy.safetensors")
+    assert signature.method == "ps" and signature.interface_dim == 8
+    assert signature.anchor_hash and (run_dir / "anchors.npz").exists()
+
+
+def test_a_run_directory_refuses_another_policy(tmp_path):
+    run_dir = tmp_path / "run"
+    run_dir.mkdir()
+    (run_dir / "spec.json").write_text(json.dumps({"method": "ablation", "task": "point"}))
+    proc = subprocess.run(train_cmd(run_dir, 100), capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2
+    assert "holds a run of another spec (differs in" in proc.stderr
+    assert "method" in proc.stderr

@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Set-up and entry points for a fresh machine; each command installs what it needs first.
-#   ./run.sh smoke   end-to-end demo on 2 CPUs (render, PS anchors, a short SAC+HER training)
+#   ./run.sh smoke   the smoke sweep on 2 CPUs (plain sources, k-means anchors, PS/ablation trials, MLflow)
 #   ./run.sh test    the test suite (slow learning checks included; add -m "not slow" to skip)
 #   ./run.sh setup   only create .venv and install ps_ray
 set -euo pipefail
@@ -23,13 +23,10 @@ case "$cmd" in
   setup) setup ;;
   smoke)
     setup
-    out="${PS_RAY_OUT:-runs/smoke}"
-    "$VENV/bin/ps-ray" render --robot panda_l3 --task push --gif "$out/push_random.gif"
-    "$VENV/bin/ps-ray" train --robot panda --task reach --method ps --env-steps 6000 \
-      --interface-dim 16 --run-dir "$out/train-ps-panda-reach" "$@"
-    "$VENV/bin/ps-ray" render --robot panda --task reach --policy "$out/train-ps-panda-reach/policy.safetensors" \
-      --gif "$out/reach_trained.gif"
-    echo "smoke outputs in $out"
+    out="${PS_RAY_OUT:-runs}"
+    "$VENV/bin/ps-ray" render --robot panda_l3 --task push --gif "$out/smoke_render/push_random.gif"
+    "$VENV/bin/ps-ray" sweep sweeps/smoke.yaml --storage "$out/sweeps" "$@"
+    echo "MLflow: $VENV/bin/mlflow ui --backend-store-uri sqlite:///$(cd "$out" && pwd)/sweeps/smoke/mlflow.db"
     ;;
   test)
     setup

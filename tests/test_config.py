@@ -48,11 +48,14 @@ def test_resumable_changes_keep_the_identity():
     assert TrainSpec(seed=102).digest() != base.digest()
 
 
-def test_shipped_sweeps_load_and_expand_to_trials():
-    smoke = load_sweep(SWEEPS / "smoke.yaml")
-    trials = smoke.trials()
-    assert len(trials) == len(smoke.methods) * len(smoke.robots) * len(smoke.tasks) * len(smoke.seeds)
-    assert {t.method for t in trials} == set(smoke.methods)
+@pytest.mark.parametrize("name, n_trials", [("smoke", 4), ("latent_reach", 72),
+                                             ("zero_shot", 225), ("few_shot", 375)])
+def test_shipped_sweeps_load_and_expand_to_trials(name, n_trials):
+    sweep = load_sweep(SWEEPS / f"{name}.yaml")
+    trials = sweep.trials()
+    assert len(trials) == n_trials == (len(sweep.methods) * len(sweep.robots) * len(sweep.tasks)
+                                       * len(sweep.seeds) * len(sweep.interface_dims))
+    assert {t.method for t in trials} == set(sweep.methods)
 
 
 def _write(tmp_path: Path, text: str) -> Path:

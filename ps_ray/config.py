@@ -51,6 +51,7 @@ class TrainSpec:
     checkpoint_every: int = 50       # training steps between checkpoints
     anchors: str | None = None       # file of task states / an anchor set (PS); None: random rollouts
     anchor_episodes: int = 200       # random-policy episodes collected for anchors when anchors=None
+    init_policy: str | None = None   # start from these weights (a stitched policy: few-shot)
 
     def __post_init__(self) -> None:
         if self.method not in METHODS:

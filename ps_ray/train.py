@@ -50,7 +50,11 @@ def prepare_anchors(spec: TrainSpec, run_dir: Path):
     path = run_dir / "anchors.npz"
     if path.exists():
         return load_anchor_set(path)
-    if spec.anchors is not None:
+    if spec.init_policy is not None:  # the anchors travel inside the policy file
+        from ps_ray.weights import policy_anchors
+
+        anchor_set = AnchorSet.of(policy_anchors(spec.init_policy), {"source": spec.init_policy})
+    elif spec.anchors is not None:
         anchor_set = anchors_from_file(spec.anchors, spec.interface_dim, seed=0)
     else:
         states = collect_task_states(lambda: make_env(spec), episodes=spec.anchor_episodes,
@@ -89,6 +93,8 @@ class TrainingRun:
             method=spec.method, interface_dim=spec.interface_dim, hidden=spec.hidden,
             anchor_hash="" if anchor_set is None else anchor_set.hash, **self.algo.replay_dims)
         self.start, self.start_steps = time.time(), 0
+        if spec.init_policy is not None:
+            self.algo.load_policy_weights(spec.init_policy)
 
     @property
     def env_steps(self) -> int:

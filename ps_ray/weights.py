@@ -113,11 +113,25 @@ def nets_from_state(state: dict[str, torch.Tensor], signature: Signature,
     if missing or unexpected or wrong_shape:
         raise ValueError(f"{source}: tensors do not match the signature (missing {missing[:3]}, "
                          f"unexpected {unexpected[:3]}, wrong shape {wrong_shape[:3]})")
+    load_nets_state(nets, state)
+    return nets
+
+
+def load_nets_state(nets: nn.Module, state: dict[str, torch.Tensor]) -> None:
+    """Inverse of nets_state: load every net of a container (SACNets or the RLlib module), strictly."""
     for name in NET_NAMES:
         prefix = name + "."
         getattr(nets, name).load_state_dict(
             {k[len(prefix):]: v for k, v in state.items() if k.startswith(prefix)}, strict=True)
-    return nets
+
+
+def policy_anchors(path: str | Path) -> np.ndarray:
+    """The anchor array stored in a PS policy file."""
+    signature, _ = read_signature(path)
+    with safe_open(str(path), framework="pt") as f:
+        if ANCHORS_KEY not in f.keys():
+            raise ValueError(f"{path}: a {signature.method!r} policy has no anchors")
+        return f.get_tensor(ANCHORS_KEY).numpy()
 
 
 def load_policy(path: str | Path) -> tuple[SACNets, Signature]:

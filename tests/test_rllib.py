@@ -117,3 +117,27 @@ def test_training_episodes_get_fresh_goals_and_evaluations_fixed_ones(ray_local)
         np.testing.assert_array_equal(first, second)
     finally:
         algo.stop()
+
+
+def test_a_run_can_start_from_given_weights(ray_local, tmp_path):
+    """Few-shot fine-tuning starts from the stitched weights, not a fresh initialisation."""
+    from ps_ray.nets.modular import NetDims
+    from ps_ray.nets.sac import build_sac_nets
+    from ps_ray.train import TrainingRun, prepare_anchors
+    from ps_ray.weights import nets_state, save_policy
+
+    anchors = np.random.default_rng(1).uniform(-0.5, 0.5, (16, 2)).astype(np.float32)
+    nets = build_sac_nets("ps", NetDims(2, 2, 2), interface_dim=16, hidden=64, anchors=anchors)
+    signature = Signature(method="ps", interface_dim=16, hidden=64, anchor_hash=anchor_hash(anchors),
+                          task_dim=2, robot_dim=2, action_dim=2)
+    save_policy(tmp_path / "start.safetensors", nets, signature)
+    spec = TrainSpec(method="ps", init_policy=str(tmp_path / "start.safetensors"), **SMALL)
+    anchor_set = prepare_anchors(spec, tmp_path)
+    assert anchor_set.hash == signature.anchor_hash
+    run = TrainingRun(spec, anchor_set)
+    try:
+        loaded = run.algo.learner_state()
+        for key, value in nets_state(nets).items():
+            assert torch.equal(loaded[key], value), key
+    finally:
+        run.stop()

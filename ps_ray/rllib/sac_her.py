@@ -24,7 +24,7 @@ from ray.rllib.utils.metrics import (
 
 from ps_ray.her import HindsightReplay
 from ps_ray.nets.obs import dims_from_spaces
-from ps_ray.weights import nets_from_state, nets_state, save_policy
+from ps_ray.weights import load_nets_state, nets_from_state, nets_state, save_policy
 from ps_ray.nets.modular import update_normalizers
 from ps_ray.rllib.episodes import episode_stats, episodes_to_arrays, train_batch
 from ps_ray.rllib.learner import ModularSACLearner
@@ -89,6 +89,22 @@ class ModularSAC(SAC):
         """The full module's tensors (actor, critics, targets) from the (first) learner."""
         return self.learner_group.foreach_learner(
             lambda learner: nets_state(learner.module[DEFAULT_MODULE_ID])).result_or_errors[0].get()
+
+    def load_policy_weights(self, path) -> None:
+        """Start from a policy file (e.g. a stitched one): actor, critics and targets, strictly."""
+        from ps_ray.weights import load_policy
+
+        nets, signature = load_policy(path)
+        ours = {k: self.replay_dims[k] for k in ("task_dim", "robot_dim", "action_dim")}
+        theirs = {k: getattr(signature, k) for k in ours}
+        if ours != theirs:
+            raise ValueError(f"{path}: policy dims {theirs} do not fit this env {ours}")
+        state = nets_state(nets)
+
+        self.learner_group.foreach_learner(
+            lambda learner: load_nets_state(learner.module[DEFAULT_MODULE_ID], state))
+        self.env_runner_group.sync_weights(from_worker_or_learner_group=self.learner_group,
+                                           inference_only=True)
 
     def export_policy(self, path, signature) -> None:
         save_policy(path, nets_from_state(self.learner_state(), signature), signature)

@@ -5,6 +5,7 @@ A run directory holds:
   anchors.npz        the anchor set (PS only)
   checkpoint/        the latest RLlib checkpoint + replay buffer (replaced atomically)
   policy.safetensors actor, critics and targets with the interface signature
+  best_policy.safetensors  the same at the best greedy evaluation so far
   metrics.csv        one row per training step
 """
 
@@ -25,6 +26,7 @@ from ps_ray.config import SpecError, TrainSpec
 
 CHECKPOINT_DIR = "checkpoint"
 POLICY_FILE = "policy.safetensors"
+BEST_POLICY_FILE = "best_policy.safetensors"
 METRICS_FILE = "metrics.csv"
 METRIC_FIELDS = ["iteration", "env_steps", "updates", "train_success", "train_touching",
                  "eval_success", "eval_touching", "wall_s"]
@@ -168,6 +170,7 @@ def train(spec: TrainSpec, run_dir: str | Path, *, progress: bool = True) -> dic
         if progress:
             print(f"[{spec.label()}] resumed at {run.env_steps} env steps", flush=True)
     row: dict[str, Any] = {}
+    best = -1.0
     with open(run_dir / METRICS_FILE, "a", newline="") as f:
         writer = csv.DictWriter(f, METRIC_FIELDS)
         if f.tell() == 0:
@@ -178,11 +181,15 @@ def train(spec: TrainSpec, run_dir: str | Path, *, progress: bool = True) -> dic
             if row["iteration"] % spec.checkpoint_every == 0:
                 f.flush()
                 _save_atomically(run, run_dir)
-            if progress and row.get("eval_success") is not None:
-                print(run.progress_line(row), flush=True)
+            if row.get("eval_success") is not None:
+                if row["eval_success"] > best:  # keep the best greedy policy seen so far
+                    best = row["eval_success"]
+                    run.algo.export_policy(run_dir / BEST_POLICY_FILE, run.signature)
+                if progress:
+                    print(run.progress_line(row), flush=True)
     _save_atomically(run, run_dir)
     final = run.final_eval()
-    row = {**row, **{f"final_{k}": v for k, v in final.items()}}
+    row = {**row, **{f"final_{k}": v for k, v in final.items()}, "best_eval_success": best}
     (run_dir / "result.json").write_text(json.dumps(row, indent=2))
     run.stop()
     if progress:

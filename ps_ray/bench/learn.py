@@ -33,11 +33,12 @@ def main(argv: list[str] | None = None) -> None:
         result_file = run_dir / "result.json"
         result = json.loads(result_file.read_text()) if result_file.exists() else train(spec, run_dir)
         rows.append((method, result))
-    print(f"\n{args.robot} {args.task}, {args.env_steps} env steps, greedy evaluation over 40 episodes")
-    print(f"{'method':<12}{'success':>9}{'touching':>10}{'updates':>9}{'wall s':>8}")
+    print(f"\n{args.robot} {args.task}, {args.env_steps} env steps; best periodic greedy evaluation "
+          f"(20 fixed episodes) and final greedy evaluation (40 episodes)")
+    print(f"{'method':<12}{'best eval':>10}{'success':>9}{'touching':>10}{'updates':>9}{'wall s':>8}")
     for method, r in rows:
         touching = r.get("final_touching")
-        print(f"{method:<12}{r['final_success']:>9.2f}"
+        print(f"{method:<12}{r.get('best_eval_success', float('nan')):>10.2f}{r['final_success']:>9.2f}"
               f"{'n/a' if touching is None or touching != touching else f'{touching:.2f}':>10}"
               f"{r.get('updates', 0):>9}{r.get('wall_s', 0):>8.0f}")
 

@@ -29,7 +29,7 @@ def _train_parser(sub) -> None:
 
 def _bench_parser(sub) -> None:
     p = sub.add_parser("bench", help="print speed figures")
-    p.add_argument("what", choices=["env", "her", "train", "learn", "tracking"])
+    p.add_argument("what", choices=["env", "her", "train", "learn", "tracking", "evaluate"])
     p.add_argument("options", nargs=argparse.REMAINDER, help="passed to the benchmark (see --help)")
 
 
@@ -53,6 +53,23 @@ def _render_parser(sub) -> None:
     p.add_argument("--gif", default=None)
 
 
+def _stitch_parser(sub) -> None:
+    p = sub.add_parser("stitch", help="stitch a task module and a robot module; zero-shot evaluation")
+    p.add_argument("--task-from", required=True,
+                   help="policy file/run dir or zoo key (e.g. ps/panda/push/101) giving the task module")
+    p.add_argument("--robot-from", required=True,
+                   help="policy file/run dir or zoo key giving the robot module")
+    p.add_argument("--sweep", action="append", default=[],
+                   help="sweep directory (<storage>/<name>) whose policies keys refer to; repeatable")
+    p.add_argument("--robot", default=None, help="target robot (default: the robot module's robot)")
+    p.add_argument("--task", default=None, help="target task (default: the task module's task)")
+    p.add_argument("--episodes", type=int, default=200, help="episodes per repeat (0: no evaluation)")
+    p.add_argument("--repeats", type=int, default=5)
+    p.add_argument("--seed", type=int, default=0, help="first evaluation seed")
+    p.add_argument("--num-envs", type=int, default=8, help="envs stepped in lockstep")
+    p.add_argument("--save", default=None, help="write the stitched policy (.safetensors) here")
+
+
 def _mapping_or_name(value: str):
     return json.loads(value) if value.strip().startswith("{") else value
 
@@ -63,7 +80,7 @@ def cmd_train(args: argparse.Namespace) -> int:
     fields = {f.name: getattr(args, f.name) for f in dataclasses.fields(TrainSpec)}
     fields["robot"], fields["task"] = _mapping_or_name(args.robot), _mapping_or_name(args.task)
     spec = TrainSpec.from_mapping(fields)
-    run_dir = Path(args.run_dir or Path("runs") / spec.label().replace("/", "-"))
+    run_dir = Path(args.run_dir or Path("runs") / spec.slug())
     train(spec, run_dir, progress=not args.quiet)
     return 0
 
@@ -106,6 +123,32 @@ def cmd_render(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_stitch(args: argparse.Namespace) -> int:
+    from ps_ray.evaluate import evaluate, format_result
+    from ps_ray.stitch import resolve_source, resolve_target, stitch_metadata, stitch_policies
+    from ps_ray.weights import save_policy
+    from ps_ray.zoo import ModuleZoo
+
+    if args.episodes < 0:
+        raise ValueError(f"--episodes must be >= 0, got {args.episodes}")
+    zoo = ModuleZoo.from_sweep(*args.sweep) if args.sweep else None
+    task_src, robot_src = resolve_source(args.task_from, zoo), resolve_source(args.robot_from, zoo)
+    robot, task = resolve_target(task_src, robot_src,
+                                 robot=args.robot and _mapping_or_name(args.robot),
+                                 task=args.task and _mapping_or_name(args.task))
+    nets, signature = stitch_policies(task_src.path, robot_src.path, target=(robot, task))
+    if args.save:
+        path = save_policy(args.save, nets, signature,
+                           extra=stitch_metadata(args.task_from, args.robot_from))
+        print(f"wrote {path}")
+    if args.episodes > 0:
+        result = evaluate((nets, signature), robot, task, episodes=args.episodes,
+                          repeats=args.repeats, seed=args.seed, num_envs=args.num_envs, verbose=True)
+        print(format_result(result, f"zero-shot ({signature.method}): task module {args.task_from}, "
+                                    f"robot module {args.robot_from}"))
+    return 0
+
+
 def cmd_bench(args: argparse.Namespace) -> int:
     import importlib
 
@@ -120,10 +163,11 @@ def main(argv: list[str] | None = None) -> int:
     _sweep_parser(sub)
     _render_parser(sub)
     _bench_parser(sub)
+    _stitch_parser(sub)
     args = parser.parse_args(argv)
     try:
         return {"train": cmd_train, "sweep": cmd_sweep, "render": cmd_render,
-                "bench": cmd_bench}[args.command](args)
+                "bench": cmd_bench, "stitch": cmd_stitch}[args.command](args)
     except (SpecError, ValueError, json.JSONDecodeError) as e:
         print(f"ps-ray {args.command}: error: {e}", file=sys.stderr)
         return 2

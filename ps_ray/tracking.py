@@ -22,6 +22,9 @@ from typing import TYPE_CHECKING, Any
 
 from ray.tune import Callback
 
+from ps_ray.config import short_name as _short  # noqa: F401 (kept for the zoo, see below)
+from ps_ray.config import trial_key
+
 if TYPE_CHECKING:
     from mlflow import MlflowClient
     from mlflow.entities import Metric
@@ -266,26 +269,9 @@ def trial_spec(trial: Trial) -> Mapping[str, Any]:
     return spec
 
 
-def _short(value: Any, limit: int = 64) -> str:
-    """A robot/task: its name; a mapping ``{"name": base, ...}`` as ``base{json of the rest}``,
-    or ``base#<hash>`` when that is longer than ``limit`` characters."""
-    if not isinstance(value, Mapping):
-        return str(value)
-    rest = {k: v for k, v in value.items() if k != "name"}
-    base = str(value.get("name", "custom"))
-    if not rest:
-        return base
-    text = json.dumps(rest, sort_keys=True, separators=(",", ":"), default=str)
-    if len(base) + len(text) <= limit:
-        return base + text
-    import hashlib
-
-    return f"{base}#{hashlib.sha256(text.encode()).hexdigest()[:8]}"
-
-
 def spec_key(spec: Mapping[str, Any]) -> str:
-    """``method/robot/task/seed``; mapping robots/tasks rendered by :func:`_short`."""
-    return "/".join(_short(spec.get(k)) for k in ("method", "robot", "task", "seed"))
+    """``method/robot/task/seed`` (+ ``/i<dim>`` off the default interface), see trial_key."""
+    return trial_key(spec)
 
 
 def spec_params(spec: Mapping[str, Any]) -> dict[str, str]:

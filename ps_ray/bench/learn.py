@@ -29,7 +29,7 @@ def main(argv: list[str] | None = None) -> None:
         spec = TrainSpec(robot=args.robot, task=args.task, method=method, seed=args.seed,
                          env_steps=args.env_steps, interface_dim=args.interface_dim,
                          eval_episodes=20)
-        run_dir = Path(args.out) / spec.label().replace("/", "-")
+        run_dir = Path(args.out) / spec.slug()
         result_file = run_dir / "result.json"
         result = json.loads(result_file.read_text()) if result_file.exists() else train(spec, run_dir)
         rows.append((method, result))

@@ -1,0 +1,245 @@
+"""Batched zero-shot evaluation: a deterministic policy on fixed evaluation episodes.
+
+Protocol (REFERENCE §6): ``repeats`` x ``episodes`` episodes; episode j of repeat r is reset with
+seed ``seed + r * episodes + j``, so every policy evaluated with the same seed sees exactly the same
+episodes (goals, object starts). ``num_envs`` envs run in lockstep, one batched forward per step.
+Per repeat:
+
+- success: ``is_success`` after the last step, averaged over all episodes;
+- touching (the authors' measure): the end effector within 0.05 m of the object at any state the
+  policy acted on (reset and the states before each of the following actions, checked before each
+  action as the authors do), averaged over the episodes that did *not* start successful;
+- contact: PyBullet robot-object contact at any step, same denominator as touching.
+
+Reported: mean and (population) std over the repeats, the per-repeat values and speed. Reach has
+no object, so its touching and contact are 0.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from contextlib import contextmanager
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any, Union
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from ps_ray.config import short_name
+from ps_ray.envs import make
+from ps_ray.nets.modular import Actor, NetDims
+from ps_ray.nets.obs import dims_from_spaces, split_obs
+from ps_ray.nets.sac import SACNets
+from ps_ray.weights import Signature
+
+Obs = dict[str, np.ndarray]
+ActionFn = Callable[[Obs], np.ndarray]  # batched Dict obs (leading axis) -> actions (B, A)
+PolicyLike = Union[str, Path, tuple[SACNets, Signature], SACNets, Actor, ActionFn]
+
+
+@dataclass(frozen=True)
+class EpisodeRecord:
+    repeat: int
+    seed: int
+    success: bool
+    touched: bool
+    contact: bool
+    initially_successful: bool
+    goal: tuple[float, ...]  # desired goal at reset
+    start: tuple[float, ...]  # achieved goal at reset (the object; the end effector for reach)
+
+
+# -- the policy -----------------------------------------------------------------------------------
+class BatchedGreedy:
+    """tanh(mean) of an actor for a batch of observations, under no_grad.
+
+    With ``cache_anchors`` a PS actor's anchors are embedded once, not at every forward: the
+    weights and normaliser statistics are fixed during evaluation, so the relative vectors are the
+    same (up to float rounding) as the actor's own forward, at a fraction of the cost.
+    """
+
+    def __init__(self, actor: Actor, cache_anchors: bool = True) -> None:
+        self.actor = actor.eval()
+        self.dims: NetDims = actor.dims
+        self._anchor_z = None
+        if cache_anchors and actor.task.relative is not None:
+            with torch.no_grad():
+                self._anchor_z = F.normalize(actor.task.encode(actor.task.relative.anchors), dim=-1)
+
+    @torch.no_grad()
+    def __call__(self, obs: Obs) -> np.ndarray:
+        task_in, robot_in = split_obs(obs)
+        if self._anchor_z is None:
+            mean, _ = self.actor(task_in, robot_in)
+        else:  # RelativeProjection with the anchor embeddings precomputed
+            latent = F.normalize(self.actor.task.encode(task_in), dim=-1) @ self._anchor_z.T
+            mean, _ = self.actor.robot(latent, robot_in)
+        return torch.tanh(mean).numpy()
+
+
+def as_action_fn(policy: PolicyLike, cache_anchors: bool = True) -> tuple[ActionFn, NetDims | None]:
+    """A batched action function and the dims it expects (None for a bare callable)."""
+    if isinstance(policy, (str, Path)):
+        from ps_ray.stitch import load_source
+
+        policy = load_source(policy)
+    if isinstance(policy, tuple):
+        policy = policy[0]
+    if isinstance(policy, SACNets):
+        policy = policy.actor
+    if isinstance(policy, nn.Module):
+        fn = BatchedGreedy(policy, cache_anchors)
+        return fn, fn.dims
+    if callable(policy):
+        return policy, None
+    raise ValueError(f"cannot evaluate a {type(policy).__name__}: give a policy file, SACNets, "
+                     f"an Actor or a batched action function")
+
+
+# -- aggregation ----------------------------------------------------------------------------------
+def _rate(flags: Sequence[bool]) -> float:
+    return float(np.mean(flags)) if len(flags) else math.nan
+
+
+def _mean_std(values: Sequence[float]) -> tuple[float, float]:
+    finite = [v for v in values if not math.isnan(v)]
+    if not finite:
+        return math.nan, math.nan
+    return float(np.mean(finite)), float(np.std(finite))
+
+
+def summarize(records: Sequence[EpisodeRecord]) -> dict[str, Any]:
+    """Per-repeat success / touching / contact and their mean and std over repeats."""
+    repeats = sorted({r.repeat for r in records})
+    out: dict[str, Any] = {"success_per_repeat": [], "touching_per_repeat": [],
+                           "contact_per_repeat": [], "initially_successful_per_repeat": []}
+    for rep in repeats:
+        rows = [r for r in records if r.repeat == rep]
+        eligible = [r for r in rows if not r.initially_successful]
+        out["success_per_repeat"].append(_rate([r.success for r in rows]))
+        out["touching_per_repeat"].append(_rate([r.touched for r in eligible]))
+        out["contact_per_repeat"].append(_rate([r.contact for r in eligible]))
+        out["initially_successful_per_repeat"].append(len(rows) - len(eligible))
+    for name in ("success", "touching", "contact"):
+        out[f"{name}_mean"], out[f"{name}_std"] = _mean_std(out[f"{name}_per_repeat"])
+    return out
+
+
+# -- rollouts -------------------------------------------------------------------------------------
+@contextmanager
+def torch_threads(n: int) -> Iterator[None]:
+    """Small batched forwards gain nothing from intra-op threads, and lose a lot when the CPUs
+    are busy (spinning workers), so evaluation runs torch on one thread."""
+    old = torch.get_num_threads()
+    torch.set_num_threads(n)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(old)
+
+
+def _stack(obs: Sequence[Obs]) -> Obs:
+    return {k: np.stack([o[k] for o in obs]) for k in obs[0]}
+
+
+def _run_batch(envs: Sequence, seeds: Sequence[int], act: ActionFn, repeat_of: Callable[[int], int]
+               ) -> list[EpisodeRecord]:
+    """One episode per env, in lockstep: one batched forward per step."""
+    resets = [env.reset(seed=s) for env, s in zip(envs, seeds)]
+    obs = [o for o, _ in resets]
+    touched = [info["touching"] for _, info in resets]
+    contact = [info["contact"] for _, info in resets]
+    success = [info["is_success"] for _, info in resets]
+    steps = envs[0].max_episode_steps
+    for t in range(steps):
+        actions = act(_stack(obs))
+        for i, env in enumerate(envs):
+            obs[i], _, _, _, info = env.step(actions[i])
+            if t < steps - 1:  # touching is checked before each action, as the authors do
+                touched[i] |= info["touching"]
+            contact[i] |= info["contact"]
+            success[i] = info["is_success"]  # success after the last step counts
+    return [EpisodeRecord(repeat_of(s), s, bool(success[i]), bool(touched[i]), bool(contact[i]),
+                          bool(info["initially_successful"]),
+                          tuple(map(float, o["desired_goal"])), tuple(map(float, o["achieved_goal"])))
+            for i, (s, (o, info)) in enumerate(zip(seeds, resets))]
+
+
+def check_dims(dims: NetDims, env) -> None:
+    """ValueError naming each dim where the policy and the env disagree."""
+    env_dims = dims_from_spaces(env.observation_space, env.action_space)
+    wrong = [f"{f} {getattr(dims, f)} vs env {getattr(env_dims, f)}"
+             for f in ("task_dim", "robot_dim", "action_dim") if getattr(dims, f) != getattr(env_dims, f)]
+    if wrong:
+        raise ValueError("policy does not fit the env: " + "; ".join(wrong))
+
+
+def evaluate(policy: PolicyLike, robot: str | Mapping = "panda", task: str | Mapping = "reach", *,
+             episodes: int = 200, repeats: int = 5, seed: int = 0, num_envs: int = 8,
+             verbose: bool = False, cache_anchors: bool = True) -> dict[str, Any]:
+    """Zero-shot evaluation of a deterministic policy (see the module docstring).
+
+    Returns success/touching/contact mean, std and per-repeat values, ``initially_successful``
+    per repeat, ``records`` (one :class:`EpisodeRecord` dict per episode), ``episodes_per_s`` and
+    ``env_steps_per_s`` of the rollout loop (env construction excluded) and ``wall_s`` (all of it).
+    """
+    for name, value in (("episodes", episodes), ("repeats", repeats), ("num_envs", num_envs)):
+        if not isinstance(value, int) or value < 1:
+            raise ValueError(f"{name} must be a positive integer, got {value!r}")
+    act, dims = as_action_fn(policy, cache_anchors)
+    seeds = [seed + r * episodes + j for r in range(repeats) for j in range(episodes)]
+    repeat_of = lambda s: (s - seed) // episodes  # noqa: E731
+    started = time.perf_counter()
+    envs = [make(robot, task) for _ in range(min(num_envs, len(seeds)))]
+    try:
+        if dims is not None:
+            check_dims(dims, envs[0])
+        records: list[EpisodeRecord] = []
+        loop_start = time.perf_counter()
+        with torch_threads(1):
+            for first in range(0, len(seeds), len(envs)):
+                chunk = seeds[first:first + len(envs)]
+                done_before = len(records)
+                records += _run_batch(envs[:len(chunk)], chunk, act, repeat_of)
+                if verbose:
+                    _progress(records, done_before, episodes, repeats, loop_start, robot, task)
+        loop_s = time.perf_counter() - loop_start
+        steps = envs[0].max_episode_steps
+    finally:
+        for env in envs:
+            env.close()
+    return {"robot": short_name(robot), "task": short_name(task), "episodes": episodes,
+            "repeats": repeats, "seed": seed, "num_envs": len(envs), **summarize(records),
+            "episodes_per_s": len(records) / loop_s, "env_steps_per_s": len(records) * steps / loop_s,
+            "wall_s": time.perf_counter() - started, "records": [asdict(r) for r in records]}
+
+
+def _progress(records: list[EpisodeRecord], done_before: int, episodes: int, repeats: int,
+              loop_start: float, robot: Any, task: Any) -> None:
+    """One line per finished repeat."""
+    for rep in range(done_before // episodes, len(records) // episodes):
+        rows = summarize([r for r in records if r.repeat == rep])
+        rate = len(records) / (time.perf_counter() - loop_start)
+        print(f"[evaluate {task}/{robot}] repeat {rep + 1}/{repeats}: success "
+              f"{rows['success_mean']:.3f}, touching {rows['touching_mean']:.3f} "
+              f"({len(records)}/{episodes * repeats} episodes, {rate:.1f} episodes/s)", flush=True)
+
+
+def format_result(result: Mapping[str, Any], title: str = "") -> str:
+    """A small table: mean +- std and per-repeat values of each rate."""
+    lines = [title] if title else []
+    lines.append(f"target env: robot {result['robot']}, task {result['task']}; "
+                 f"{result['repeats']} x {result['episodes']} episodes from seed {result['seed']}; "
+                 f"{result['episodes_per_s']:.1f} episodes/s")
+    lines.append(f"{'':<10}{'mean':>8}{'std':>8}   per repeat")
+    for name in ("success", "touching", "contact"):
+        per = " ".join(f"{v:.3f}" for v in result[f"{name}_per_repeat"])
+        lines.append(f"{name:<10}{result[name + '_mean']:>8.3f}{result[name + '_std']:>8.3f}   {per}")
+    n_init = sum(result["initially_successful_per_repeat"])
+    lines.append(f"(touching and contact exclude the {n_init} episodes that started successful)")
+    return "\n".join(lines)

@@ -1,0 +1,311 @@
+"""Policy stitching: the task modules of one policy with the robot modules of another.
+
+REFERENCE §6: the task module comes from the policy trained on the *target task* with another
+robot, the robot module from the policy trained with the *target robot* on another task. All five
+nets are stitched (actor, both critics and both target critics), so a stitched policy can start
+few-shot training; zero-shot evaluation uses the actor alone (:mod:`ps_ray.evaluate`).
+
+What must agree (:func:`check_stitchable`): method, latent width at the cut (the interface dim;
+devin's is fixed at 16, plain's is ``hidden``), hidden width and anchor set (PS). Dims: the task
+module brings the task-input width, the robot module the robot-state and action widths, so a push
+task module (7-D actions) can meet a pick robot module (8-D). Plain is one MLP cut in the middle:
+its bottom half also sees the robot state (and, in a critic, the action), so both halves must
+agree on every dim. Given a target env, the stitched dims must be the env's.
+
+Target env (:func:`default_target`): the task of the task module, run by the same physical robot
+as the robot module, i.e. with the gripper setting that robot module was trained with. A robot
+module trained on pick (gripper on, 8-D actions) therefore drives a gripper-enabled push robot
+(REFERENCE §1, Push-v4), ``{"name": "panda_l3", "gripper": true}`` on push; a robot module trained
+without the gripper cannot run a pick task (refused). So that a *push* robot module can serve a
+pick target (E5), it must have been trained with the gripper: list ``{name: panda_l3, gripper:
+true}`` among the sweep's robots, as ``sweeps/few_shot.yaml`` does.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Union
+
+from ps_ray.envs.robots import N_ARM, RobotSpec, resolve_robot
+from ps_ray.envs.tasks import resolve_task
+from ps_ray.nets.modular import NetDims, method_spec
+from ps_ray.nets.sac import NET_NAMES, SACNets, build_sac_nets
+from ps_ray.config import short_name, trial_key
+from ps_ray.weights import Signature, load_policy, signature_of
+from ps_ray.zoo import POLICY_FILE, SPEC_FILE, ModuleZoo, ZooEntry
+
+GOAL_DIM = 3
+PolicySource = Union[str, Path, ZooEntry, tuple[SACNets, Signature]]
+EnvSpec = tuple[Union[str, Mapping], Union[str, Mapping]]  # (robot, task) as make() takes them
+
+
+# -- target envs ----------------------------------------------------------------------------------
+def effective_gripper(robot: str | Mapping | RobotSpec, task: str | Mapping) -> bool:
+    """Whether ``robot`` has a working gripper in ``task`` (None: the task's default)."""
+    spec = resolve_robot(robot)
+    return resolve_task(task).family.default_gripper if spec.gripper is None else spec.gripper
+
+
+def env_dims(robot: str | Mapping, task: str | Mapping) -> NetDims:
+    """The network dims of ``make(robot, task)``, without building it."""
+    family = resolve_task(task).family
+    return NetDims(family.state_dim + GOAL_DIM, N_ARM + 1, N_ARM + int(effective_gripper(robot, task)))
+
+
+def same_robot(robot: str | Mapping, trained_task: str | Mapping,
+               target_task: str | Mapping) -> str | Mapping:
+    """``robot`` as trained on ``trained_task``, for ``target_task``: the gripper setting is pinned
+    when the two tasks' defaults differ (pick-trained panda_l3 on push -> gripper-enabled)."""
+    gripper = effective_gripper(robot, trained_task)
+    if gripper == effective_gripper(robot, target_task):
+        return robot
+    if isinstance(robot, str):
+        return {"name": robot, "gripper": gripper}
+    return {**robot, "gripper": gripper}
+
+
+def default_target(task_spec: Mapping, robot_spec: Mapping) -> EnvSpec:
+    """(robot, task) of the target env from the two sources' training specs."""
+    task = task_spec["task"]
+    return same_robot(robot_spec["robot"], robot_spec["task"], task), task
+
+
+@dataclass(frozen=True)
+class Resolved:
+    """A policy named on the command line: its file and training spec (None if unknown)."""
+
+    path: Path
+    spec: Mapping | None
+
+
+def resolve_source(ref: str, zoo: ModuleZoo | None = None) -> Resolved:
+    """A policy file, a directory holding ``policy.safetensors``, or a key of ``zoo``."""
+    path = Path(ref)
+    if path.is_dir():
+        path = path / POLICY_FILE
+    if path.is_file():
+        spec_path = path.parent / SPEC_FILE
+        if not spec_path.is_file():
+            return Resolved(path, None)
+        try:
+            return Resolved(path, dict(json.loads(spec_path.read_text())))
+        except (json.JSONDecodeError, TypeError, ValueError) as e:
+            raise ValueError(f"{spec_path}: unreadable training spec ({e})") from None
+    if zoo is None:
+        raise ValueError(f"{ref}: no such policy file (give --sweep DIR to look keys up)")
+    entry = zoo.get(ref)
+    return Resolved(entry.path, entry.spec)
+
+
+def resolve_target(task_src: Resolved, robot_src: Resolved, robot: str | Mapping | None = None,
+                   task: str | Mapping | None = None) -> EnvSpec:
+    """The target env: the given robot/task, else :func:`default_target`'s choice."""
+    needs = [(src, what) for src, what, given in ((task_src, "task", task), (robot_src, "robot", robot))
+             if given is None and src.spec is None]
+    if needs:
+        src, what = needs[0]
+        raise ValueError(f"{src.path}: no spec.json beside it to tell the target {what}; give --{what}")
+    task = task_src.spec["task"] if task is None else task
+    if robot is None:
+        robot = same_robot(robot_src.spec["robot"], robot_src.spec["task"], task)
+    return robot, task
+
+
+def _arm(robot: str | Mapping) -> tuple[str, tuple[int, ...]]:
+    spec = resolve_robot(robot)
+    return spec.base, spec.locked_joints
+
+
+# -- checks ---------------------------------------------------------------------------------------
+def stitch_problems(sig_task: Signature, sig_robot: Signature,
+                    target: EnvSpec | None = None) -> list[str]:
+    """Every reason the task modules of ``sig_task`` and robot modules of ``sig_robot`` cannot be
+    stitched (into a policy for ``target``, if given); empty if they can."""
+    problems = []
+    pair = lambda a, b: f"task module {a!r} vs robot module {b!r}"  # noqa: E731
+    if sig_task.method != sig_robot.method:
+        problems.append(f"method: {pair(sig_task.method, sig_robot.method)}")
+    else:
+        spec = method_spec(sig_task.method)
+        latents = [spec.latent_dim(s.interface_dim, s.hidden) for s in (sig_task, sig_robot)]
+        if spec.modular and latents[0] != latents[1]:  # plain's latent is `hidden`, checked below
+            problems.append(f"interface dim: {pair(*latents)}")
+        if not spec.modular:  # plain: the bottom half sees the robot state and (critic) action
+            for dim in ("robot_dim", "action_dim"):
+                a, b = getattr(sig_task, dim), getattr(sig_robot, dim)
+                if a != b:
+                    problems.append(f"{dim.replace('_', ' ')} (plain needs equal dims): {pair(a, b)}")
+    if sig_task.hidden != sig_robot.hidden:
+        problems.append(f"hidden: {pair(sig_task.hidden, sig_robot.hidden)}")
+    if sig_task.anchor_hash != sig_robot.anchor_hash:
+        short = lambda h: h[:12] or "none"  # noqa: E731
+        problems.append(f"anchor set: {pair(short(sig_task.anchor_hash), short(sig_robot.anchor_hash))}")
+    if target is not None:
+        problems += target_problems(_stitched_signature(sig_task, sig_robot), target)
+    return problems
+
+
+def target_problems(signature: Signature, target: EnvSpec) -> list[str]:
+    """Reasons a policy with ``signature`` cannot run the target env (robot, task)."""
+    robot, task = target
+    name = f"target env ({short_name(robot)}, {short_name(task)})"
+    try:
+        dims = env_dims(robot, task)
+        needs_gripper = resolve_task(task).family.default_gripper
+    except (ValueError, TypeError) as e:
+        return [f"{name}: {e}"]
+    problems = [f"{what}: policy {getattr(signature, field)} vs {name} {getattr(dims, field)}"
+                for what, field in (("task dim", "task_dim"), ("robot dim", "robot_dim"),
+                                    ("action dim", "action_dim"))
+                if getattr(signature, field) != getattr(dims, field)]
+    if needs_gripper and not effective_gripper(robot, task):
+        problems.append(f"{name}: {short_name(task)} needs the gripper; use a robot module "
+                        f"trained with it, e.g. robot {{\"name\": ..., \"gripper\": true}}")
+    return problems
+
+
+def check_stitchable(sig_task: Signature, sig_robot: Signature,
+                     target: EnvSpec | None = None) -> Signature:
+    """The stitched policy's signature, or one ValueError naming every mismatch."""
+    problems = stitch_problems(sig_task, sig_robot, target)
+    if problems:
+        raise ValueError("cannot stitch: " + "; ".join(problems))
+    return _stitched_signature(sig_task, sig_robot)
+
+
+def _stitched_signature(sig_task: Signature, sig_robot: Signature) -> Signature:
+    return dataclasses.replace(sig_task, robot_dim=sig_robot.robot_dim,
+                               action_dim=sig_robot.action_dim)
+
+
+# -- stitching ------------------------------------------------------------------------------------
+def load_source(source: PolicySource) -> tuple[SACNets, Signature]:
+    if isinstance(source, tuple):
+        return source
+    path = Path(source.path if isinstance(source, ZooEntry) else source)
+    if not path.is_file():
+        raise ValueError(f"{path}: no such policy file")
+    return load_policy(path)
+
+
+def stitch_policies(task_from: PolicySource, robot_from: PolicySource, *,
+                    target: EnvSpec | None = None) -> tuple[SACNets, Signature]:
+    """New nets: every net's task module from ``task_from``, its robot module from ``robot_from``.
+
+    The results own copies of the tensors (normaliser statistics and anchors included); target
+    critics are stitched from the sources' target critics. Stitching a policy with itself gives
+    back exactly that policy.
+    """
+    nets_t, sig_t = load_source(task_from)
+    nets_r, sig_r = load_source(robot_from)
+    signature = check_stitchable(sig_t, sig_r, target)
+    anchors = nets_t.actor.anchors
+    nets = build_sac_nets(signature.method, signature.dims, interface_dim=signature.interface_dim,
+                          hidden=signature.hidden,
+                          anchors=None if anchors is None else anchors.detach().cpu().numpy())
+    for name in NET_NAMES:
+        net = getattr(nets, name)
+        net.task.load_state_dict(getattr(nets_t, name).task.state_dict(), strict=True)
+        net.robot.load_state_dict(getattr(nets_r, name).robot.state_dict(), strict=True)
+    rebuilt = signature_of(nets, signature.method, signature.interface_dim, signature.hidden)
+    if rebuilt != signature:  # the anchors the nets carry are the ones the signature names
+        raise ValueError(f"stitched nets do not match their signature: {rebuilt.mismatches(signature)}")
+    return nets, signature
+
+
+# -- the stitching matrix of a sweep --------------------------------------------------------------
+@dataclass(frozen=True)
+class Combo:
+    """One stitched policy of a sweep: task module, robot module and the env it is meant for."""
+
+    task_from: ZooEntry
+    robot_from: ZooEntry
+    robot: str | Mapping  # target env
+    task: str | Mapping
+
+    @property
+    def label(self) -> str:
+        t, r = self.task_from.key, self.robot_from.key
+        return f"t: {t.task}-{t.robot} & r: {r.task}-{r.robot}"
+
+
+def combos(zoo: ModuleZoo, method: str, seed: int, interface_dim: int | None = None) -> list[Combo]:
+    """Every valid (task module, robot module) pair of one method and seed: task module from
+    (task X, robot Ra), robot module from (task Y, robot Rb), X != Y, Ra != Rb (different arms),
+    target env (Rb, X); pairs that cannot be stitched or cannot run their target are left out."""
+    entries = zoo.select(method=method, seed=seed, interface_dim=interface_dim)
+    found = []
+    for t in entries:
+        for r in entries:
+            if t.key.task == r.key.task or _arm(t.robot) == _arm(r.robot):
+                continue
+            target = default_target(t.spec, r.spec)
+            if not stitch_problems(t.signature, r.signature, target):
+                found.append(Combo(t, r, *target))
+    return found
+
+
+# -- the paper's eight combinations (REFERENCE §10) -----------------------------------------------
+PANDA_L3_GRIPPER = {"name": "panda_l3", "gripper": True}  # R2 with the gripper, on push (Push-v4)
+PAPER_TASKS = {"Pu1": "push", "Pu2": "push_slippery", "Pu3": "push_rocks",
+               "Pi1": "pick_cube", "Pi2": "pick_stick"}
+PAPER_ROBOTS = {"R1": "panda", "R2": "panda_l3", "R3": "panda_l5"}
+
+
+@dataclass(frozen=True)
+class Source:
+    task: str
+    robot: str | Mapping  # a name, or a mapping such as PANDA_L3_GRIPPER
+
+
+@dataclass(frozen=True)
+class PaperCombo:
+    """E1-E8 of the paper's few-shot figure, with ps_ray's task and robot names."""
+
+    name: str
+    label: str  # as in the figure: "t: <task>-<robot> & r: <task>-<robot>"
+    task_from: Source
+    robot_from: Source
+    target: Source  # (task of task_from, robot of robot_from)
+    epochs: int  # few-shot epochs shown in the figure (1 epoch = 35,000 env steps)
+
+    def keys(self, method: str, seed: int, interface_dim: int = 128) -> tuple[str, str]:
+        """Zoo keys (trial keys) of the task-module and robot-module sources."""
+        task_key, robot_key = (trial_key({"method": method, "robot": s.robot, "task": s.task,
+                                          "seed": seed, "interface_dim": interface_dim})
+                               for s in (self.task_from, self.robot_from))
+        return task_key, robot_key
+
+
+def _paper(name: str, label: str, target: tuple[str, str | Mapping], epochs: int,
+           robot_from: str | Mapping | None = None) -> PaperCombo:
+    (t_task, t_robot), (r_task, r_robot) = (part.split("-") for part in
+                                            label.removeprefix("t: ").split(" & r: "))
+    return PaperCombo(name, label, Source(PAPER_TASKS[t_task], PAPER_ROBOTS[t_robot]),
+                      Source(PAPER_TASKS[r_task], robot_from or PAPER_ROBOTS[r_robot]),
+                      Source(PAPER_TASKS[target[0]], target[1]), epochs)
+
+
+# E5: the robot module comes from push, so its robot has the gripper (8-D actions, like pick).
+# E6: the robot module comes from pick (gripper on), so the target push robot has the gripper.
+# For plain (one MLP cut in the middle) E6 also needs the task source trained with the gripper
+# ({"name": "panda_l5", "gripper": true} on push): its bottom half sees the critic's action.
+PAPER_COMBOS: tuple[PaperCombo, ...] = (
+    _paper("E1", "t: Pu1-R1 & r: Pu2-R2", ("Pu1", "panda_l3"), 30),
+    _paper("E2", "t: Pu2-R1 & r: Pu1-R2", ("Pu2", "panda_l3"), 90),
+    _paper("E3", "t: Pu1-R3 & r: Pu3-R1", ("Pu1", "panda"), 30),
+    _paper("E4", "t: Pu3-R1 & r: Pu1-R2", ("Pu3", "panda_l3"), 70),
+    _paper("E5", "t: Pi1-R1 & r: Pu1-R2", ("Pi1", "panda_l3"), 190, robot_from=PANDA_L3_GRIPPER),
+    _paper("E6", "t: Pu1-R3 & r: Pi1-R2", ("Pu1", PANDA_L3_GRIPPER), 40),
+    _paper("E7", "t: Pi2-R1 & r: Pi1-R3", ("Pi2", "panda_l5"), 40),
+    _paper("E8", "t: Pi1-R3 & r: Pi2-R1", ("Pi1", "panda"), 190),
+)
+
+
+def stitch_metadata(task_from: str, robot_from: str) -> dict[str, str]:
+    """Provenance stored in a saved stitched policy's metadata."""
+    return {"stitched_task_from": task_from, "stitched_robot_from": robot_from}

@@ -1,0 +1,185 @@
+"""Module zoo: every trained policy of one or more sweeps, indexed for stitching.
+
+A key is (method, robot, task, seed, interface_dim); robots and tasks are rendered by
+:func:`ps_ray.config.short_name` (a name, or ``base{json}`` for a mapping). As a string a key is
+the trial key (:func:`ps_ray.config.trial_key`, also the MLflow run name): ``ps/panda/push/101``,
+with ``/i<dim>`` appended off the default interface dim (``ps/panda/push/101/i16``).
+
+Sweep layout read (see :mod:`ps_ray.sweep`): ``<sweep>/tune/<trial>/checkpoint_N/`` (stage
+"train") and ``<sweep>/tune_plain/<trial>/checkpoint_N/`` (stage "plain_source", the anchors' plain
+source policies), each with ``policy.safetensors`` and ``spec.json``. The highest-numbered
+checkpoint of a trial is used. When one key appears twice, a "train" entry beats a
+"plain_source" one, then the newest file wins.
+"""
+
+from __future__ import annotations
+
+import difflib
+import json
+from collections.abc import Iterable, Iterator, Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+
+from ps_ray.config import short_name, trial_key
+from ps_ray.weights import Signature, read_signature
+
+POLICY_FILE = "policy.safetensors"
+SPEC_FILE = "spec.json"
+STAGE_DIRS = {"tune": "train", "tune_plain": "plain_source"}
+STAGE_RANK = {"train": 0, "run": 0, "plain_source": 1}  # lower wins a duplicate key
+
+
+@dataclass(frozen=True, order=True)
+class ZooKey:
+    method: str
+    robot: str  # rendered by short_name
+    task: str
+    seed: int
+    interface_dim: int
+
+    def __str__(self) -> str:
+        return trial_key({"method": self.method, "robot": self.robot, "task": self.task,
+                          "seed": self.seed, "interface_dim": self.interface_dim})
+
+
+@dataclass(frozen=True)
+class ZooEntry:
+    """One trained policy: its key, file, interface signature and training spec (a dict)."""
+
+    key: ZooKey
+    path: Path
+    signature: Signature
+    spec: Mapping[str, Any]
+    stage: str  # "train", "plain_source" or "run"
+
+    @property
+    def robot(self) -> str | Mapping:
+        """The robot as trained (a name or a mapping), for making its env."""
+        return self.spec["robot"]
+
+    @property
+    def task(self) -> str | Mapping:
+        return self.spec["task"]
+
+
+def key_of(spec: Mapping[str, Any]) -> ZooKey:
+    """The key of a TrainSpec dict; as a string, the trial key (MLflow run name)."""
+    return ZooKey(str(spec["method"]), short_name(spec["robot"]), short_name(spec["task"]),
+                  int(spec["seed"]), int(spec["interface_dim"]))
+
+
+def read_entry(policy_path: str | Path, stage: str = "run") -> ZooEntry:
+    """A policy file and the ``spec.json`` beside it; ValueError naming the file if either is bad."""
+    path = Path(policy_path)
+    if not path.is_file():
+        raise ValueError(f"{path}: no such policy file")
+    signature, _ = read_signature(path)
+    spec_path = path.parent / SPEC_FILE
+    try:
+        spec = json.loads(spec_path.read_text())
+        key = key_of(spec)
+    except (OSError, json.JSONDecodeError, KeyError, TypeError, ValueError) as e:
+        raise ValueError(f"{spec_path}: missing or unreadable training spec ({e})") from None
+    if (spec["method"], int(spec["interface_dim"])) != (signature.method, signature.interface_dim):
+        raise ValueError(f"{path}: signature ({signature.method}, interface dim "
+                         f"{signature.interface_dim}) disagrees with {spec_path}")
+    return ZooEntry(key, path, signature, spec, stage)
+
+
+def _latest_checkpoints(stage_dir: Path) -> list[Path]:
+    """The policy file of each trial's highest-numbered checkpoint."""
+    latest: dict[Path, Path] = {}
+    for policy in sorted(stage_dir.glob(f"*/checkpoint_*/{POLICY_FILE}")):
+        latest[policy.parent.parent] = policy  # sorted: the last one is the highest number
+    return list(latest.values())
+
+
+class ModuleZoo:
+    """Trained policies by key. ``strict=False`` skips unreadable ones, listed in ``problems``."""
+
+    def __init__(self, entries: Iterable[ZooEntry] = (), problems: Iterable[str] = ()) -> None:
+        self._entries: dict[ZooKey, ZooEntry] = {}
+        self.problems = list(problems)
+        for entry in entries:
+            self._add(entry)
+
+    def _add(self, entry: ZooEntry) -> None:
+        old = self._entries.get(entry.key)
+        if old is None or _preference(entry) < _preference(old):
+            self._entries[entry.key] = entry
+
+    @classmethod
+    def from_sweep(cls, *sweep_dirs: str | Path, strict: bool = True) -> ModuleZoo:
+        """Index ``tune/`` and ``tune_plain/`` of each sweep directory (``<storage>/<name>``)."""
+        entries, problems = [], []
+        for sweep in map(Path, sweep_dirs):
+            found = [(p, stage) for d, stage in STAGE_DIRS.items()
+                     for p in _latest_checkpoints(sweep / d)]
+            if not found:
+                raise ValueError(f"{sweep}: no trained policies (expected "
+                                 f"tune/<trial>/checkpoint_*/{POLICY_FILE})")
+            for path, stage in found:
+                try:
+                    entries.append(read_entry(path, stage))
+                except ValueError as e:
+                    if strict:
+                        raise
+                    problems.append(str(e))
+        return cls(entries, problems)
+
+    @classmethod
+    def from_paths(cls, *paths: str | Path) -> ModuleZoo:
+        """Policy files, or directories holding one (a ``ps-ray train`` run dir, a checkpoint)."""
+        return cls(read_entry(Path(p) / POLICY_FILE if Path(p).is_dir() else p) for p in paths)
+
+    # -- lookup ---------------------------------------------------------------------------------
+    def __len__(self) -> int:
+        return len(self._entries)
+
+    def __iter__(self) -> Iterator[ZooEntry]:
+        return iter(sorted(self._entries.values(), key=lambda e: e.key))
+
+    def __contains__(self, key: object) -> bool:
+        try:
+            self.get(key)  # type: ignore[arg-type]
+        except ValueError:
+            return False
+        return True
+
+    def keys(self) -> list[ZooKey]:
+        return sorted(self._entries)
+
+    def get(self, key: str | ZooKey) -> ZooEntry:
+        """By ZooKey or trial key (``ps/panda/push/101``, ``ps/panda/push/101/i16``)."""
+        by_name = {str(k): e for k, e in self._entries.items()}
+        if str(key) in by_name:
+            return by_name[str(key)]
+        close = difflib.get_close_matches(str(key), sorted(by_name), n=5, cutoff=0.5)
+        hint = f"close keys: {', '.join(close)}" if close else \
+            f"valid keys include: {', '.join(sorted(by_name)[:5])}"
+        raise ValueError(f"no policy {str(key)!r} in the zoo ({len(self)} policies); {hint}")
+
+    def select(self, *, method: str | None = None, seed: int | None = None,
+               interface_dim: int | None = None) -> list[ZooEntry]:
+        return [e for e in self if (method is None or e.key.method == method)
+                and (seed is None or e.key.seed == seed)
+                and (interface_dim is None or e.key.interface_dim == interface_dim)]
+
+    def table(self) -> pd.DataFrame:
+        """One row per policy: key fields, stage, signature and path."""
+        rows = [{"key": str(e.key), "method": e.key.method, "robot": e.key.robot,
+                 "task": e.key.task, "seed": e.key.seed, "interface_dim": e.key.interface_dim,
+                 "stage": e.stage, "hidden": e.signature.hidden,
+                 "anchors": e.signature.anchor_hash[:12], "task_dim": e.signature.task_dim,
+                 "robot_dim": e.signature.robot_dim, "action_dim": e.signature.action_dim,
+                 "path": str(e.path)} for e in self]
+        columns = ["key", "method", "robot", "task", "seed", "interface_dim", "stage", "hidden",
+                   "anchors", "task_dim", "robot_dim", "action_dim", "path"]
+        return pd.DataFrame(rows, columns=columns)
+
+
+def _preference(entry: ZooEntry) -> tuple[int, float]:
+    return STAGE_RANK.get(entry.stage, 2), -entry.path.stat().st_mtime

@@ -5,8 +5,8 @@ steps, exactly the env work of an evaluation episode, measured in the same proce
 interleaved with the evaluation rounds; each keeps its best round (robust to load from other
 processes). ``ratio`` = evaluation env-steps/s over the env's steps/s (goal >= 0.8): what the
 policy forward, batching and bookkeeping cost on top of the simulator. The policy is an untrained
-net of the chosen method and size (speed does not depend on training); "uncached" re-embeds the
-PS anchors at every forward (the actor's own forward) for comparison.
+net of the chosen method and size (speed does not depend on training); "eager" is the actor's own
+forward (PS anchors re-embedded at every step, no TorchScript), for comparison.
 
     ps-ray bench evaluate [--task push] [--method ps] [--episodes 24] [--rounds 3]
 """
@@ -57,16 +57,16 @@ def run(robot: str = "panda", task: str = "push", method: str = "ps", episodes: 
         rounds: int = 3, num_envs: Sequence[int] = (1, 8), interface_dim: int = 128,
         hidden: int = 256) -> dict:
     nets = policy_nets(robot, task, method, interface_dim, hidden)
-    variants = [(n, True) for n in num_envs] + ([(1, False)] if method == "ps" else [])
+    variants = [(n, True) for n in num_envs] + [(1, False)]
     best = {v: 0.0 for v in variants}
     env_best = 0.0
     steps = episodes * 50
     for _ in range(rounds):
         env_best = max(env_best, env_rate(robot, task, steps))
-        for n, cached in variants:
+        for n, fast in variants:
             result = evaluate(nets, robot, task, episodes=episodes, repeats=1, num_envs=n,
-                              cache_anchors=cached)
-            best[(n, cached)] = max(best[(n, cached)], result["env_steps_per_s"])
+                              fast=fast)
+            best[(n, fast)] = max(best[(n, fast)], result["env_steps_per_s"])
     return {"env_steps_per_s": env_best, "eval": best}
 
 
@@ -88,8 +88,8 @@ def main(argv: Sequence[str] | None = None) -> None:
           f"torch threads during evaluation: 1 (of {torch.get_num_threads()})")
     print(f"{'':<28}{'env steps/s':>12}{'episodes/s':>12}{'ratio':>8}")
     print(f"{'env.step, random actions':<28}{env:>12.0f}{env / 50:>12.1f}{1.0:>8.2f}")
-    for (n, cached), rate in out["eval"].items():
-        name = f"evaluate num_envs={n}" + ("" if cached else " uncached")
+    for (n, fast), rate in out["eval"].items():
+        name = f"evaluate num_envs={n}" + ("" if fast else " eager")
         print(f"{name:<28}{rate:>12.0f}{rate / 50:>12.1f}{rate / env:>8.2f}")
 
 

@@ -10,6 +10,8 @@ import argparse
 import json
 from pathlib import Path
 
+import pandas as pd
+
 from ps_ray.config import TrainSpec
 from ps_ray.train import train
 
@@ -32,13 +34,19 @@ def main(argv: list[str] | None = None) -> None:
         run_dir = Path(args.out) / spec.slug()
         result_file = run_dir / "result.json"
         result = json.loads(result_file.read_text()) if result_file.exists() else train(spec, run_dir)
+        curve = pd.read_csv(run_dir / "metrics.csv").dropna(subset=["eval_success"])
+        reached = curve[curve["eval_success"] >= 0.9]["env_steps"]
+        result["best_eval_success"] = curve["eval_success"].max()
+        result["steps_to_90"] = int(reached.iloc[0]) if len(reached) else None
         rows.append((method, result))
     print(f"\n{args.robot} {args.task}, {args.env_steps} env steps; best periodic greedy evaluation "
           f"(20 fixed episodes) and final greedy evaluation (40 episodes)")
-    print(f"{'method':<12}{'best eval':>10}{'success':>9}{'touching':>10}{'updates':>9}{'wall s':>8}")
+    print(f"{'method':<12}{'best eval':>10}{'steps to 0.9':>13}{'final':>7}{'touching':>10}"
+          f"{'updates':>9}{'wall s':>8}")
     for method, r in rows:
         touching = r.get("final_touching")
-        print(f"{method:<12}{r.get('best_eval_success', float('nan')):>10.2f}{r['final_success']:>9.2f}"
+        print(f"{method:<12}{r['best_eval_success']:>10.2f}{str(r['steps_to_90']):>13}"
+              f"{r['final_success']:>7.2f}"
               f"{'n/a' if touching is None or touching != touching else f'{touching:.2f}':>10}"
               f"{r.get('updates', 0):>9}{r.get('wall_s', 0):>8.0f}")
 

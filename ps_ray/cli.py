@@ -60,11 +60,11 @@ def _stitch_parser(sub) -> None:
     p.add_argument("--robot-from", required=True,
                    help="policy file/run dir or zoo key giving the robot module")
     p.add_argument("--sweep", action="append", default=[],
-                   help="sweep directory (<storage>/<name>) whose policies keys refer to; repeatable")
+                   help="sweep directory (<storage>/<name>) to look keys up in; repeatable")
     p.add_argument("--robot", default=None, help="target robot (default: the robot module's robot)")
     p.add_argument("--task", default=None, help="target task (default: the task module's task)")
     p.add_argument("--episodes", type=int, default=200, help="episodes per repeat (0: no evaluation)")
-    p.add_argument("--repeats", type=int, default=5)
+    p.add_argument("--repeats", type=int, default=5, help="repeats (mean +- std over them)")
     p.add_argument("--seed", type=int, default=0, help="first evaluation seed")
     p.add_argument("--num-envs", type=int, default=8, help="envs stepped in lockstep")
     p.add_argument("--save", default=None, help="write the stitched policy (.safetensors) here")

@@ -30,11 +30,11 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Union
 
+from ps_ray.config import short_name, trial_key
 from ps_ray.envs.robots import N_ARM, RobotSpec, resolve_robot
 from ps_ray.envs.tasks import resolve_task
 from ps_ray.nets.modular import NetDims, method_spec
 from ps_ray.nets.sac import NET_NAMES, SACNets, build_sac_nets
-from ps_ray.config import short_name, trial_key
 from ps_ray.weights import Signature, load_policy, signature_of
 from ps_ray.zoo import POLICY_FILE, SPEC_FILE, ModuleZoo, ZooEntry
 
@@ -111,7 +111,7 @@ def resolve_target(task_src: Resolved, robot_src: Resolved, robot: str | Mapping
         raise ValueError(f"{src.path}: no spec.json beside it to tell the target {what}; give --{what}")
     task = task_src.spec["task"] if task is None else task
     if robot is None:
-        robot = same_robot(robot_src.spec["robot"], robot_src.spec["task"], task)
+        robot = default_target({"task": task}, robot_src.spec)[0]
     return robot, task
 
 

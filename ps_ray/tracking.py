@@ -22,7 +22,6 @@ from typing import TYPE_CHECKING, Any
 
 from ray.tune import Callback
 
-from ps_ray.config import short_name as _short  # noqa: F401 (kept for the zoo, see below)
 from ps_ray.config import trial_key
 
 if TYPE_CHECKING:

@@ -19,12 +19,13 @@ import json
 from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
-
-import pandas as pd
+from typing import TYPE_CHECKING, Any
 
 from ps_ray.config import short_name, trial_key
 from ps_ray.weights import Signature, read_signature
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 POLICY_FILE = "policy.safetensors"
 SPEC_FILE = "spec.json"
@@ -170,6 +171,8 @@ class ModuleZoo:
 
     def table(self) -> pd.DataFrame:
         """One row per policy: key fields, stage, signature and path."""
+        import pandas as pd
+
         rows = [{"key": str(e.key), "method": e.key.method, "robot": e.key.robot,
                  "task": e.key.task, "seed": e.key.seed, "interface_dim": e.key.interface_dim,
                  "stage": e.stage, "hidden": e.signature.hidden,

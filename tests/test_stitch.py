@@ -1,0 +1,411 @@
+"""Module zoo, stitching and the `ps-ray stitch` command: real policy files, real nets, no mocks."""
+
+from __future__ import annotations
+
+import dataclasses
+import itertools
+import json
+import os
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+import yaml
+from safetensors.torch import save_file
+
+from ps_ray import cli
+from ps_ray.envs import make
+from ps_ray.nets.modular import NetDims, update_normalizers
+from ps_ray.nets.obs import dims_from_spaces
+from ps_ray.nets.sac import NET_NAMES, SACNets, build_sac_nets
+from ps_ray.stitch import (
+    PANDA_L3_GRIPPER,
+    PAPER_COMBOS,
+    check_stitchable,
+    combos,
+    default_target,
+    effective_gripper,
+    env_dims,
+    stitch_policies,
+)
+from ps_ray.weights import Signature, load_policy, nets_state, save_policy, signature_of
+from ps_ray.zoo import ModuleZoo
+
+torch.set_num_threads(1)
+
+PUSH, PICK, REACH = NetDims(15, 8, 7), NetDims(15, 8, 8), NetDims(3, 8, 7)
+K = 8  # interface dim = number of anchors
+
+
+def anchors_for(k: int = K, task_dim: int = 15, seed: int = 0) -> np.ndarray:
+    return np.random.default_rng(seed).normal(size=(k, task_dim)).astype(np.float32)
+
+
+ANCHORS, OTHER_ANCHORS = anchors_for(), anchors_for(seed=1)
+SEEDS = itertools.count(10)
+
+
+def make_nets(method: str = "ps", dims: NetDims = PUSH, *, interface_dim: int = K, hidden: int = 16,
+              anchors: np.ndarray | None = ANCHORS, seed: int = 0) -> tuple[SACNets, Signature]:
+    """Random nets with non-trivial normaliser statistics and targets that differ from the critics."""
+    torch.manual_seed(seed)
+    nets = build_sac_nets(method, dims, interface_dim=interface_dim, hidden=hidden,
+                          anchors=anchors if method == "ps" else None)
+    g = torch.Generator().manual_seed(seed)
+    update_normalizers(nets, 2 * torch.randn(64, dims.task_dim, generator=g) + 1,
+                       torch.randn(64, dims.robot_dim, generator=g))
+    with torch.no_grad():
+        for p in [*nets.target_critic.parameters(), *nets.target_critic_twin.parameters()]:
+            p.add_(0.05 * torch.randn(p.shape, generator=g))
+    return nets, signature_of(nets, method, interface_dim, hidden)
+
+
+def spec(method: str, robot, task: str, seed: int = 1, interface_dim: int = K) -> dict:
+    return {"method": method, "robot": robot, "task": task, "seed": seed,
+            "interface_dim": interface_dim, "hidden": 16, "env_steps": 300}
+
+
+def write_trial(root: Path, stage_dir: str, trial_spec: dict, *, checkpoint: int = 2,
+                trial: str | None = None, seed: int | None = None) -> Path:
+    """A Tune-like trial checkpoint of random nets: policy.safetensors, signature.json, spec.json."""
+    dims = env_dims(trial_spec["robot"], trial_spec["task"])
+    k = trial_spec["interface_dim"]
+    nets = make_nets(trial_spec["method"], dims, interface_dim=k, anchors=anchors_for(k, dims.task_dim),
+                     seed=next(SEEDS) if seed is None else seed)
+    name = trial or f"sweep_trial_{next(SEEDS):05d}"
+    directory = root / stage_dir / name / f"checkpoint_{checkpoint:06d}"
+    save_policy(directory / "policy.safetensors", *nets)
+    (directory / "signature.json").write_text(json.dumps(dataclasses.asdict(nets[1])))
+    (directory / "spec.json").write_text(json.dumps(trial_spec))
+    return directory / "policy.safetensors"
+
+
+def inputs(dims: NetDims, batch: int = 16, seed: int = 3):
+    g = torch.Generator().manual_seed(seed)
+    return (3 * torch.randn(batch, dims.task_dim, generator=g),
+            torch.randn(batch, dims.robot_dim, generator=g),
+            torch.rand(batch, dims.action_dim, generator=g) * 2 - 1)
+
+
+def outputs(nets: SACNets, dims: NetDims) -> dict[str, torch.Tensor]:
+    task, robot, action = inputs(dims)
+    with torch.no_grad():
+        out = dict(zip(("mean", "log_std"), nets.actor.eval()(task, robot)))
+        for name in NET_NAMES[1:]:
+            out[name] = getattr(nets, name).eval()(task, robot, action)
+    return out
+
+
+# -- zoo ------------------------------------------------------------------------------------------
+@pytest.fixture
+def sweep(tmp_path) -> Path:
+    root = tmp_path / "store" / "fake"
+    for robot in ("panda", "panda_l3"):
+        for task in ("push", "pick_cube"):
+            write_trial(root, "tune", spec("ps", robot, task))
+            write_trial(root, "tune", spec("ablation", robot, task))
+    write_trial(root, "tune", spec("ps", PANDA_L3_GRIPPER, "push"))
+    write_trial(root, "tune", spec("ps", "panda", "push", seed=2))
+    write_trial(root, "tune", spec("ps", "panda", "push", interface_dim=16))
+    write_trial(root, "tune_plain", spec("plain", "panda", "push"))
+    return root
+
+
+def test_zoo_indexes_a_tune_tree(sweep):
+    zoo = ModuleZoo.from_sweep(sweep)
+    keys = {str(k) for k in zoo.keys()}
+    assert "ps/panda/push/1/i8" in keys and "ablation/panda_l3/pick_cube/1/i8" in keys
+    assert 'ps/panda_l3{"gripper":true}/push/1/i8' in keys
+    assert "ps/panda/push/1/i16" in keys and "plain/panda/push/1/i8" in keys
+    assert len(zoo) == 12
+    entry = zoo.get("ps/panda_l3/pick_cube/1/i8")
+    assert entry.robot == "panda_l3" and entry.task == "pick_cube" and entry.stage == "train"
+    assert entry.signature.action_dim == 8 and entry.signature.anchor_hash
+    assert zoo.get("plain/panda/push/1/i8").stage == "plain_source"
+    table = zoo.table()
+    assert list(table.columns[:7]) == ["key", "method", "robot", "task", "seed", "interface_dim", "stage"]
+    assert len(table) == 12 and set(table["method"]) == {"ps", "ablation", "plain"}
+    assert table.set_index("key").loc["ps/panda/pick_cube/1/i8", "action_dim"] == 8
+
+
+def test_zoo_uses_the_latest_checkpoint_and_prefers_train_entries(tmp_path):
+    root = tmp_path / "sweep"
+    old = write_trial(root, "tune", spec("plain", "panda", "push"), checkpoint=1, trial="t0", seed=1)
+    new = write_trial(root, "tune", spec("plain", "panda", "push"), checkpoint=12, trial="t0", seed=2)
+    write_trial(root, "tune_plain", spec("plain", "panda", "push"), trial="p0", seed=3)
+    zoo = ModuleZoo.from_sweep(root)
+    assert len(zoo) == 1 and zoo.get("plain/panda/push/1/i8").path == new != old
+
+
+def test_zoo_get_unknown_key_names_close_keys(sweep):
+    zoo = ModuleZoo.from_sweep(sweep)
+    with pytest.raises(ValueError, match=r"no policy 'ps/panda/psuh/1/i8'.*close keys: .*ps/panda/push/1/i8"):
+        zoo.get("ps/panda/psuh/1/i8")
+    with pytest.raises(ValueError, match="ps/panda/push/1/i16"):
+        zoo.get("ps/panda/push/1")  # no default-dim policy; the i16 one is close
+
+
+def test_zoo_refuses_corrupt_files_unless_lenient(sweep, tmp_path):
+    bad = write_trial(sweep, "tune", spec("ps", "panda_l5", "push"))
+    bad.write_bytes(b"not a safetensors file")
+    with pytest.raises(ValueError, match=re.escape(f"{bad}: not a ps_ray policy file")):
+        ModuleZoo.from_sweep(sweep)
+    zoo = ModuleZoo.from_sweep(sweep, strict=False)
+    assert len(zoo) == 12 and len(zoo.problems) == 1 and str(bad) in zoo.problems[0]
+    with pytest.raises(ValueError, match="no trained policies"):
+        ModuleZoo.from_sweep(tmp_path / "empty")
+
+
+def test_zoo_from_run_dirs(tmp_path):
+    path = write_trial(tmp_path, "runs", spec("ablation", "panda", "reach", seed=5), trial="r")
+    zoo = ModuleZoo.from_paths(path.parent, path)
+    assert [str(k) for k in zoo.keys()] == ["ablation/panda/reach/5/i8"]
+    path.with_name("spec.json").unlink()
+    with pytest.raises(ValueError, match="spec.json: missing or unreadable training spec"):
+        ModuleZoo.from_paths(path)
+
+
+def test_zoo_from_a_real_tiny_sweep(tmp_path, ray_local):
+    from ps_ray.config import load_sweep
+    from ps_ray.sweep import run_sweep, sweep_dir
+
+    train = {"env_steps": 300, "hidden": 32, "learning_starts": 100, "random_episodes": 2,
+             "eval_every": 2, "eval_episodes": 2, "checkpoint_every": 2, "batch_size": 32}
+    path = tmp_path / "tiny.yaml"
+    path.write_text(yaml.safe_dump({
+        "name": "tiny", "methods": ["ps"], "robots": ["panda", "panda_l3"],
+        "tasks": ["reach"], "seeds": [1], "interface_dims": [8], "train": train,
+        "anchors": {"episodes": 12}, "max_concurrent": 2, "storage": str(tmp_path / "store")}))
+    spec_ = load_sweep(path)
+    grid = run_sweep(spec_, progress=False)
+    assert not [r for r in grid if r.error]
+    zoo = ModuleZoo.from_sweep(sweep_dir(spec_))
+    assert {str(k) for k in zoo.keys()} == {  # the plain anchor source policy included
+        "ps/panda/reach/1/i8", "ps/panda_l3/reach/1/i8", "plain/panda/reach/1/i8"}
+    assert zoo.get("plain/panda/reach/1/i8").stage == "plain_source"
+    a, b = zoo.get("ps/panda/reach/1/i8"), zoo.get("ps/panda_l3/reach/1/i8")
+    assert a.signature.anchor_hash == b.signature.anchor_hash  # one anchor set per sweep
+    nets, signature = stitch_policies(a, b)
+    from ps_ray.evaluate import evaluate
+
+    result = evaluate((nets, signature), "panda_l3", "reach", episodes=2, repeats=1, num_envs=2)
+    assert 0.0 <= result["success_mean"] <= 1.0
+
+
+# -- stitching ------------------------------------------------------------------------------------
+@pytest.mark.parametrize("method", ["ps", "ablation", "devin", "plain"])
+def test_self_stitch_is_identity(method):
+    nets, signature = make_nets(method)
+    stitched, stitched_sig = stitch_policies((nets, signature), (nets, signature))
+    assert stitched_sig == signature
+    for name in NET_NAMES:
+        mine, theirs = getattr(stitched, name).state_dict(), getattr(nets, name).state_dict()
+        assert mine.keys() == theirs.keys()
+        assert all(torch.equal(mine[k], theirs[k]) for k in mine)
+    expected, got = outputs(nets, PUSH), outputs(stitched, PUSH)
+    assert all(torch.equal(expected[k], got[k]) for k in expected)
+
+
+def test_stitch_takes_task_modules_from_one_robot_modules_from_the_other(tmp_path):
+    a, sig_a = make_nets("ps", PUSH, seed=1)  # push: 7-D actions
+    b, sig_b = make_nets("ps", PICK, seed=2)  # pick: 8-D actions, same anchors
+    path_a = save_policy(tmp_path / "a.safetensors", a, sig_a)
+    path_b = save_policy(tmp_path / "b.safetensors", b, sig_b)
+    nets, signature = stitch_policies(path_a, path_b)
+    assert signature.dims == PICK and signature.anchor_hash == sig_a.anchor_hash
+    for name in NET_NAMES:
+        for part, source in (("task", a), ("robot", b)):
+            got = getattr(getattr(nets, name), part).state_dict()
+            want = getattr(getattr(source, name), part).state_dict()
+            assert all(torch.equal(got[k], want[k]) for k in want), (name, part)
+    task, robot, action = inputs(PICK)
+    with torch.no_grad():
+        assert torch.equal(nets.actor(task, robot)[0], b.actor.robot(a.actor.task(task), robot)[0])
+        assert torch.equal(nets.target_critic(task, robot, action),
+                           b.target_critic.robot(a.target_critic.task(task), robot, action))
+    # saved and loaded back: the same nets, strictly checked against the signature
+    loaded, loaded_sig = load_policy(save_policy(tmp_path / "s.safetensors", nets, signature))
+    assert loaded_sig == signature
+    assert all(torch.equal(x, y)
+               for x, y in zip(outputs(loaded, PICK).values(), outputs(nets, PICK).values()))
+
+
+@pytest.mark.parametrize("task_side, robot_side, target, expected", [
+    (("ps", PUSH, {}), ("ablation", PUSH, {}), None, ["method: task module 'ps' vs robot module 'ablation'"]),
+    (("ablation", PUSH, {}), ("ablation", PUSH, {"interface_dim": 16}), None,
+     ["interface dim: task module 8 vs robot module 16"]),
+    (("ps", PUSH, {}), ("ps", PUSH, {"anchors": OTHER_ANCHORS}), None, ["anchor set: task module"]),
+    (("ablation", PUSH, {}), ("ablation", PUSH, {"hidden": 32}), None,
+     ["hidden: task module 16 vs robot module 32"]),
+    (("plain", PUSH, {}), ("plain", PICK, {}), None,
+     ["action dim (plain needs equal dims): task module 7 vs robot module 8"]),
+    (("ps", PUSH, {}), ("ps", PUSH, {}), ("panda", "pick_cube"),
+     ["action dim: policy 7 vs target env (panda, pick_cube) 8"]),
+    (("ps", PUSH, {}), ("ps", PUSH, {}), ({"name": "panda", "gripper": False}, "pick_cube"),
+     ["pick_cube needs the gripper"]),
+    (("ps", PUSH, {}), ("ps", PICK, {}), ("panda", "reach"),
+     ["task dim: policy 15 vs target env (panda, reach) 3"]),
+    (("ps", PUSH, {}), ("ablation", PUSH, {"hidden": 32}), None, ["method:", "hidden:", "anchor set:"]),
+])
+def test_mismatches_are_named_in_one_error(task_side, robot_side, target, expected):
+    sig_t = make_nets(task_side[0], task_side[1], **task_side[2])[1]
+    sig_r = make_nets(robot_side[0], robot_side[1], **robot_side[2])[1]
+    with pytest.raises(ValueError, match="^cannot stitch: ") as err:
+        check_stitchable(sig_t, sig_r, target)
+    for text in expected:
+        assert text in str(err.value)
+    assert "\n" not in str(err.value)
+
+
+def test_devin_stitches_across_interface_dims():
+    # devin's bottleneck is fixed at 16 whatever interface_dim says: the latent widths agree
+    sig_t, sig_r = make_nets("devin", interface_dim=8)[1], make_nets("devin", interface_dim=128)[1]
+    assert check_stitchable(sig_t, sig_r).interface_dim == 8
+
+
+def test_corrupt_foreign_and_missing_files_are_refused(tmp_path):
+    good, sig = make_nets("ps")
+    garbage = tmp_path / "garbage.safetensors"
+    garbage.write_bytes(os.urandom(64))
+    foreign = tmp_path / "foreign.safetensors"
+    save_file({"w": torch.zeros(2)}, str(foreign))
+    tampered = tmp_path / "tampered.safetensors"
+    save_file({k: v for k, v in nets_state(good).items() if ".robot." not in k}, str(tampered),
+              metadata={"format": "ps_ray.policy/1", "signature": json.dumps(dataclasses.asdict(sig))})
+    cases = [(garbage, "not a ps_ray policy file"), (foreign, "not a ps_ray policy file"),
+             (tampered, "tensors do not match the signature"), (tmp_path / "nope", "no such policy file")]
+    for path, message in cases:
+        with pytest.raises(ValueError, match=message) as err:
+            stitch_policies(path, (good, sig))
+        assert str(path) in str(err.value)
+
+
+# -- matrix and paper combinations ---------------------------------------------------------------
+def test_env_dims_match_real_envs():
+    for robot in ("panda", "panda_l5", PANDA_L3_GRIPPER, {"name": "panda", "gripper": False}):
+        for task in ("reach", "push", "push_rocks", "pick_stick"):
+            env = make(robot, task)
+            assert env_dims(robot, task) == dims_from_spaces(env.observation_space, env.action_space)
+            env.close()
+
+
+def test_combos_is_the_valid_matrix(sweep):
+    zoo = ModuleZoo.from_sweep(sweep)
+    found = {(c.label, json.dumps(c.robot), c.task) for c in combos(zoo, "ps", 1)}
+    gripper = json.dumps(PANDA_L3_GRIPPER)
+    assert found == {
+        # pick robot modules drive the gripper-enabled robot on push
+        ("t: push-panda & r: pick_cube-panda_l3", gripper, "push"),
+        ("t: push-panda_l3 & r: pick_cube-panda", json.dumps({"name": "panda", "gripper": True}), "push"),
+        ('t: pick_cube-panda & r: push-panda_l3{"gripper":true}', gripper, "pick_cube"),
+        ('t: push-panda_l3{"gripper":true} & r: pick_cube-panda',
+         json.dumps({"name": "panda", "gripper": True}), "push"),
+        # t: pick_cube-panda_l3 x r: push-panda -> pick without a gripper: refused; i16 / seed 2
+        # policies have other anchors or seeds; same-arm pairs are not stitching
+    }
+    assert {c.task_from.key.interface_dim for c in combos(zoo, "ps", 1, interface_dim=16)} <= {16}
+    assert len(combos(zoo, "ablation", 1)) == 2
+
+
+def test_combos_over_task_variants_given_as_mappings(tmp_path):
+    q1, q3 = {"name": "reach", "goal_region": "q1"}, {"name": "reach", "goal_region": "q3"}
+    for robot in ("panda", "panda_l3", "panda_l5"):
+        for task in (q1, q3):
+            write_trial(tmp_path, "tune", spec("ps", robot, task))
+    found = combos(ModuleZoo.from_sweep(tmp_path), "ps", 1)
+    assert len(found) == 3 * 2 * 2  # (Ra, X) x (Rb != Ra, Y != X)
+    c = next(c for c in found if c.task_from.key.robot == "panda" and c.robot_from.key.robot == "panda_l5"
+             and c.task == q1)
+    assert c.robot == "panda_l5" and c.robot_from.task == q3
+    assert c.label == 't: reach{"goal_region":"q1"}-panda & r: reach{"goal_region":"q3"}-panda_l5'
+
+
+def test_paper_combos_are_e1_to_e8_consistent_with_the_reference():
+    names = {"Pu1": "push", "Pu2": "push_slippery", "Pu3": "push_rocks", "Pi1": "pick_cube",
+             "Pi2": "pick_stick", "R1": "panda", "R2": "panda_l3", "R3": "panda_l5"}
+    reference = {  # REFERENCE.md §10: task module, robot module, target env
+        "E1": ("Pu1-R1", "Pu2-R2", "Pu1-R2"), "E2": ("Pu2-R1", "Pu1-R2", "Pu2-R2"),
+        "E3": ("Pu1-R3", "Pu3-R1", "Pu1-R1"), "E4": ("Pu3-R1", "Pu1-R2", "Pu3-R2"),
+        "E5": ("Pi1-R1", "Pu1-R2", "Pi1-R2"), "E6": ("Pu1-R3", "Pi1-R2", "Pu1-R2"),
+        "E7": ("Pi2-R1", "Pi1-R3", "Pi2-R3"), "E8": ("Pi1-R3", "Pi2-R1", "Pi1-R1"),
+    }
+    assert [c.name for c in PAPER_COMBOS] == list(reference)
+    arm = arm_name
+    for combo in PAPER_COMBOS:
+        t, r, target = (s.split("-") for s in reference[combo.name])
+        assert combo.label == f"t: {'-'.join(t)} & r: {'-'.join(r)}"
+        assert (combo.task_from.task, arm(combo.task_from.robot)) == (names[t[0]], names[t[1]])
+        assert (combo.robot_from.task, arm(combo.robot_from.robot)) == (names[r[0]], names[r[1]])
+        assert (combo.target.task, arm(combo.target.robot)) == (names[target[0]], names[target[1]])
+        assert combo.target.task == combo.task_from.task
+        # the robot module drives its own robot: same arm, same gripper as trained
+        assert effective_gripper(combo.target.robot, combo.target.task) == \
+            effective_gripper(combo.robot_from.robot, combo.robot_from.task)
+        robot, task = default_target({"task": combo.task_from.task},
+                                     {"robot": combo.robot_from.robot, "task": combo.robot_from.task})
+        assert task == combo.target.task and env_dims(robot, task) == env_dims(combo.target.robot, task)
+        # stitchable for modular methods, and the stitched dims are the target env's
+        sig_t = make_nets("ps", env_dims(combo.task_from.robot, combo.task_from.task))[1]
+        sig_r = make_nets("ps", env_dims(combo.robot_from.robot, combo.robot_from.task))[1]
+        stitched = check_stitchable(sig_t, sig_r, (combo.target.robot, combo.target.task))
+        env = make(combo.target.robot, combo.target.task)
+        assert stitched.dims == dims_from_spaces(env.observation_space, env.action_space)
+        env.close()
+    assert PAPER_COMBOS[4].robot_from.robot == PANDA_L3_GRIPPER  # E5: push robot module with gripper
+    assert PAPER_COMBOS[5].target.robot == PANDA_L3_GRIPPER  # E6: pick robot module on push
+
+
+def arm_name(robot) -> str:
+    from ps_ray.envs.robots import ROBOTS, resolve_robot
+
+    locked = resolve_robot(robot).locked_joints
+    return next(name for name, spec in ROBOTS.items() if spec.locked_joints == locked)
+
+
+def test_paper_combo_sources_are_trials_of_the_few_shot_sweep():
+    from ps_ray.config import load_sweep
+
+    trials = {t.label() for t in load_sweep("sweeps/few_shot.yaml").trials()}
+    for combo in PAPER_COMBOS:
+        for method in ("ps", "ablation", "devin", "devin_large", "plain"):
+            task_key, robot_key = combo.keys(method, 101)
+            assert task_key in trials and robot_key in trials, (combo.name, method)
+
+
+# -- the command ----------------------------------------------------------------------------------
+def test_cli_stitches_evaluates_and_saves(sweep, tmp_path, capsys):
+    out = tmp_path / "stitched.safetensors"
+    rc = cli.main(["stitch", "--sweep", str(sweep), "--task-from", "ps/panda/push/1/i8",
+                   "--robot-from", "ps/panda_l3/pick_cube/1/i8", "--episodes", "2", "--repeats", "2",
+                   "--num-envs", "2", "--save", str(out)])
+    text = capsys.readouterr().out
+    assert rc == 0, text
+    assert "touching" in text and 'robot panda_l3{"gripper":true}, task push' in text
+    nets, signature = load_policy(out)
+    assert signature.action_dim == 8
+    # a file path works too; the target is given explicitly
+    rc = cli.main(["stitch", "--task-from", str(out), "--robot-from", str(out), "--robot",
+                   json.dumps(PANDA_L3_GRIPPER), "--task", "push", "--episodes", "1", "--repeats", "1"])
+    assert rc == 0
+
+
+@pytest.mark.parametrize("args, message", [
+    ("ps/panda/push/1/i8 ablation/panda_l3/push/1/i8", "method: task module 'ps'"),
+    ("ps/panda/psuh/1/i8 ps/panda_l3/push/1/i8", "close keys: ps/panda/push/1/i8"),
+    ("ps/panda/pick_cube/1/i8 ps/panda_l3/push/1/i8", "needs the gripper"),
+    ("CORRUPT ps/panda_l3/push/1/i8 --robot panda --task push", "not a ps_ray policy file"),
+    ("ps/panda/push/1/i8 ps/panda_l3/push/1/i8 --robot {bad", "Expecting"),
+    ("ps/panda/push/1/i8 ps/panda_l3/push/1/i8 --robot panda_l9", "unknown robot"),
+])
+def test_cli_bad_input_one_line_exit_2_nothing_written(sweep, tmp_path, capsys, args, message):
+    corrupt = tmp_path / "corrupt.safetensors"
+    corrupt.write_bytes(b"\x00" * 32)
+    out = tmp_path / "never.safetensors"
+    task_from, robot_from, *rest = [str(corrupt) if a == "CORRUPT" else a for a in args.split()]
+    rc = cli.main(["stitch", "--sweep", str(sweep), "--task-from", task_from, "--robot-from", robot_from,
+                   *rest, "--episodes", "1", "--save", str(out)])
+    err = capsys.readouterr().err
+    assert rc == 2 and message in err and err.count("\n") == 1, err
+    assert not out.exists()

@@ -43,6 +43,16 @@ def _sweep_parser(sub) -> None:
     p.add_argument("--check", action="store_true", help="validate the spec, list trials, run nothing")
 
 
+def _zero_shot_parser(sub) -> None:
+    p = sub.add_parser("zero-shot", help="evaluate every stitched pair of a trained sweep (Tune)")
+    p.add_argument("sweep", help="the sweep YAML whose trained policies are stitched")
+    p.add_argument("--methods", nargs="+", default=None, help="default: the sweep's methods")
+    p.add_argument("--episodes", type=int, default=200)
+    p.add_argument("--repeats", type=int, default=5)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--storage", default=None, help="override the spec's storage directory")
+
+
 def _render_parser(sub) -> None:
     p = sub.add_parser("render", help="roll out one episode headless and save a PNG and/or GIF")
     p.add_argument("--robot", default="panda")
@@ -107,6 +117,21 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     return 1 if errors else 0
 
 
+def cmd_zero_shot(args: argparse.Namespace) -> int:
+    from ps_ray.config import load_sweep
+    from ps_ray.zero_shot import run_zero_shot, summary
+
+    spec = load_sweep(args.sweep)
+    if args.storage:
+        spec = dataclasses.replace(spec, storage=args.storage)
+    table = run_zero_shot(spec, methods=args.methods, episodes=args.episodes,
+                          repeats=args.repeats, seed=args.seed)
+    columns = ["method", "label", "success_mean", "success_std", "touching_mean", "touching_std"]
+    print(table[columns].to_string(index=False, float_format=lambda x: f"{x:.2f}"))
+    print(summary(table).to_string(float_format=lambda x: f"{x:.2f}"))
+    return 0
+
+
 def cmd_render(args: argparse.Namespace) -> int:
     from ps_ray.envs.render import record
     from ps_ray.policy import GreedyPolicy
@@ -161,12 +186,13 @@ def main(argv: list[str] | None = None) -> int:
     sub = parser.add_subparsers(dest="command", required=True)
     _train_parser(sub)
     _sweep_parser(sub)
+    _zero_shot_parser(sub)
     _render_parser(sub)
     _bench_parser(sub)
     _stitch_parser(sub)
     args = parser.parse_args(argv)
     try:
-        return {"train": cmd_train, "sweep": cmd_sweep, "render": cmd_render,
+        return {"train": cmd_train, "sweep": cmd_sweep, "zero-shot": cmd_zero_shot, "render": cmd_render,
                 "bench": cmd_bench, "stitch": cmd_stitch}[args.command](args)
     except (SpecError, ValueError, json.JSONDecodeError) as e:
         print(f"ps-ray {args.command}: error: {e}", file=sys.stderr)

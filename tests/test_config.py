@@ -48,7 +48,7 @@ def test_resumable_changes_keep_the_identity():
     assert TrainSpec(seed=102).digest() != base.digest()
 
 
-@pytest.mark.parametrize("name, n_trials", [("smoke", 4), ("latent_reach", 72),
+@pytest.mark.parametrize("name, n_trials", [("smoke", 8), ("latent_reach", 72),
                                              ("zero_shot", 225), ("few_shot", 375)])
 def test_shipped_sweeps_load_and_expand_to_trials(name, n_trials):
     sweep = load_sweep(SWEEPS / f"{name}.yaml")

@@ -1,0 +1,41 @@
+"""`ps-ray zero-shot`: the stitching matrix of a trained sweep as Tune trials, into MLflow."""
+
+from __future__ import annotations
+
+import mlflow
+import yaml
+
+from ps_ray.config import load_sweep
+from ps_ray.sweep import run_sweep, sweep_dir
+from ps_ray.zero_shot import pairs, run_zero_shot, summary
+
+from .test_sweep import TINY_TRAIN
+
+
+def test_zero_shot_matrix_of_a_sweep(tmp_path, ray_local):
+    path = tmp_path / "matrix.yaml"
+    path.write_text(yaml.safe_dump({
+        "name": "matrix", "methods": ["ablation"], "robots": ["panda", "panda_l3"],
+        "tasks": [{"name": "reach", "goal_region": "q1"}, {"name": "reach", "goal_region": "q3"}],
+        "seeds": [1], "interface_dims": [8], "train": TINY_TRAIN, "max_concurrent": 2,
+        "storage": str(tmp_path / "store")}))
+    spec = load_sweep(path)
+    assert not any(r.error for r in run_sweep(spec, progress=False))
+
+    found = pairs(spec)
+    # task module of (region X, arm A) with robot module of (region Y != X, arm B != A)
+    assert len(found) == 4
+    for pair in found:
+        assert pair["task"] != "reach" and pair["robot"] in ("panda", "panda_l3")
+        assert pair["task_from"].split("/")[1] != pair["robot"]
+
+    table = run_zero_shot(spec, episodes=4, repeats=2, progress=False)
+    assert len(table) == 4 and set(table["method"]) == {"ablation"}
+    assert table["success_mean"].between(0, 1).all()
+    assert (sweep_dir(spec) / "zero_shot.csv").exists()
+    assert summary(table).loc["ablation", "pairs"] == 4
+
+    client = mlflow.MlflowClient(f"sqlite:///{sweep_dir(spec) / 'mlflow.db'}")
+    experiment = client.get_experiment_by_name("matrix")
+    stages = [r.data.tags["ps_ray.stage"] for r in client.search_runs([experiment.experiment_id])]
+    assert stages.count("zero_shot") == 4 and stages.count("train") == 4

@@ -53,6 +53,18 @@ def _zero_shot_parser(sub) -> None:
     p.add_argument("--storage", default=None, help="override the spec's storage directory")
 
 
+def _few_shot_parser(sub) -> None:
+    p = sub.add_parser("few-shot", help="fine-tune stitched policies of a sweep, beside from-scratch runs")
+    p.add_argument("sweep", help="the sweep YAML whose trained policies are stitched")
+    p.add_argument("--env-steps", type=int, required=True, help="fine-tuning budget per trial")
+    p.add_argument("--collect-steps", type=int, default=1000,
+                   help="env steps collected before the first update (the paper: 10 epochs)")
+    p.add_argument("--methods", nargs="+", default=None)
+    p.add_argument("--max-pairs", type=int, default=None)
+    p.add_argument("--resume", action="store_true")
+    p.add_argument("--storage", default=None)
+
+
 def _render_parser(sub) -> None:
     p = sub.add_parser("render", help="roll out one episode headless and save a PNG and/or GIF")
     p.add_argument("--robot", default="panda")
@@ -132,6 +144,20 @@ def cmd_zero_shot(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_few_shot(args: argparse.Namespace) -> int:
+    from ps_ray.config import load_sweep
+    from ps_ray.few_shot import curves, run_few_shot
+
+    spec = load_sweep(args.sweep)
+    if args.storage:
+        spec = dataclasses.replace(spec, storage=args.storage)
+    results = run_few_shot(spec, env_steps=args.env_steps, collect_steps=args.collect_steps,
+                           methods=args.methods, max_pairs=args.max_pairs, resume=args.resume)
+    for key, points in sorted(curves(results).items()):
+        print(key, " ".join(f"{steps}:{success:.2f}" for steps, success in points))
+    return 1 if any(r.error for r in results) else 0
+
+
 def cmd_render(args: argparse.Namespace) -> int:
     from ps_ray.envs.render import record
     from ps_ray.policy import GreedyPolicy
@@ -187,12 +213,14 @@ def main(argv: list[str] | None = None) -> int:
     _train_parser(sub)
     _sweep_parser(sub)
     _zero_shot_parser(sub)
+    _few_shot_parser(sub)
     _render_parser(sub)
     _bench_parser(sub)
     _stitch_parser(sub)
     args = parser.parse_args(argv)
     try:
-        return {"train": cmd_train, "sweep": cmd_sweep, "zero-shot": cmd_zero_shot, "render": cmd_render,
+        return {"train": cmd_train, "sweep": cmd_sweep, "zero-shot": cmd_zero_shot, "few-shot": cmd_few_shot,
+                "render": cmd_render,
                 "bench": cmd_bench, "stitch": cmd_stitch}[args.command](args)
     except (SpecError, ValueError, json.JSONDecodeError) as e:
         print(f"ps-ray {args.command}: error: {e}", file=sys.stderr)

@@ -105,12 +105,18 @@ def sweep_trial(config: dict[str, Any]) -> None:
     import ray
     from ray import tune
 
-    from ps_ray.anchors import load_anchor_set
+    from ps_ray.anchors import AnchorSet, load_anchor_set
     from ps_ray.train import TrainingRun
+    from ps_ray.weights import policy_anchors
 
     trial = config["trial"]
     spec = TrainSpec.from_mapping(trial["spec"])
-    anchor_set = load_anchor_set(trial["anchors"]) if trial["anchors"] else None
+    if trial["anchors"]:
+        anchor_set = load_anchor_set(trial["anchors"])
+    elif spec.init_policy is not None and spec.method == "ps":  # anchors inside the policy file
+        anchor_set = AnchorSet.of(policy_anchors(spec.init_policy), {"source": spec.init_policy})
+    else:
+        anchor_set = None
     run = TrainingRun(spec, anchor_set)
     checkpoint = tune.get_checkpoint()
     if checkpoint is not None:
@@ -172,7 +178,7 @@ def run_sweep(spec: SweepSpec, *, resume: bool = False, progress: bool = True):
     needs_anchors = any(not Path(p).exists() for p in _anchor_paths(spec, root))
     if spec.anchors.policy == "plain" and needs_anchors and not spec.anchors.file:
         sources = anchor_sources(spec)
-        grid = _run_tune([{"spec": s.to_dict(), "anchors": None} for s in sources],
+        grid = run_tune([{"spec": s.to_dict(), "anchors": None} for s in sources],
                          name=PLAIN_TUNE_DIR, stage="anchors_plain", **tune_args)
         _raise_on_errors(grid, "plain source policies")
         plain_policies = {TrainSpec.from_mapping(r.config["trial"]["spec"]).label():
@@ -181,7 +187,7 @@ def run_sweep(spec: SweepSpec, *, resume: bool = False, progress: bool = True):
     trials = [{"spec": t.to_dict(),
                "anchors": anchors[(task_input_dim(t.task), t.interface_dim)]
                if t.method == "ps" else None} for t in spec.trials()]
-    return _run_tune(trials, name=TUNE_DIR, stage="train", **tune_args)
+    return run_tune(trials, name=TUNE_DIR, stage="train", **tune_args)
 
 
 def _anchor_paths(spec: SweepSpec, root: Path) -> list[Path]:
@@ -195,8 +201,9 @@ def _raise_on_errors(grid, what: str) -> None:
         raise RuntimeError(f"{len(errors)} of the {what} failed: {errors[0].error}")
 
 
-def _run_tune(trials: list[dict], *, name: str, stage: str, spec: SweepSpec, root: Path,
-              tracking: tuple[str, str], resume: bool, progress: bool):
+def run_tune(trials: list[dict], *, name: str, stage: str, spec: SweepSpec, root: Path,
+             tracking: tuple[str, str], resume: bool, progress: bool, key_fn=None):
+    """Training trials (sweep_trial) as one Tune experiment `root/name`, tracked in MLflow."""
     from ray import tune
 
     from ps_ray.tracking import MLflowTuneCallback, git_commit
@@ -204,7 +211,7 @@ def _run_tune(trials: list[dict], *, name: str, stage: str, spec: SweepSpec, roo
     callback = MLflowTuneCallback(
         *tracking, metric_keys=METRIC_KEYS + ("final_success", "final_touching"),
         tags={"ps_ray.sweep": spec.name, "ps_ray.stage": stage, "git_commit": git_commit() or ""},
-        artifacts_fn=_trial_artifacts)
+        artifacts_fn=_trial_artifacts, **({"key_fn": key_fn} if key_fn else {}))
     trainable = tune.with_resources(sweep_trial, {"cpu": 1})
     path = root / name
     if resume and tune.Tuner.can_restore(str(path)):

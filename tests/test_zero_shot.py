@@ -1,18 +1,25 @@
-"""`ps-ray zero-shot`: the stitching matrix of a trained sweep as Tune trials, into MLflow."""
+"""Zero-shot matrix and few-shot fine-tuning of a trained sweep, as Tune trials into MLflow."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import mlflow
+import pytest
 import yaml
 
 from ps_ray.config import load_sweep
 from ps_ray.sweep import run_sweep, sweep_dir
+from ps_ray.few_shot import curves, run_few_shot
+from ps_ray.weights import read_signature
 from ps_ray.zero_shot import pairs, run_zero_shot, summary
 
 from .test_sweep import TINY_TRAIN
 
 
-def test_zero_shot_matrix_of_a_sweep(tmp_path, ray_local):
+@pytest.fixture(scope="module")
+def trained_matrix(tmp_path_factory, ray_local):
+    tmp_path = tmp_path_factory.mktemp("matrix")
     path = tmp_path / "matrix.yaml"
     path.write_text(yaml.safe_dump({
         "name": "matrix", "methods": ["ablation"], "robots": ["panda", "panda_l3"],
@@ -21,7 +28,11 @@ def test_zero_shot_matrix_of_a_sweep(tmp_path, ray_local):
         "storage": str(tmp_path / "store")}))
     spec = load_sweep(path)
     assert not any(r.error for r in run_sweep(spec, progress=False))
+    return spec
 
+
+def test_zero_shot_matrix_of_a_sweep(trained_matrix):
+    spec = trained_matrix
     found = pairs(spec)
     # task module of (region X, arm A) with robot module of (region Y != X, arm B != A)
     assert len(found) == 4
@@ -39,3 +50,17 @@ def test_zero_shot_matrix_of_a_sweep(tmp_path, ray_local):
     experiment = client.get_experiment_by_name("matrix")
     stages = [r.data.tags["ps_ray.stage"] for r in client.search_runs([experiment.experiment_id])]
     assert stages.count("zero_shot") == 4 and stages.count("train") == 4
+
+
+def test_few_shot_trials_start_from_stitched_weights_beside_scratch_runs(trained_matrix):
+    spec = trained_matrix
+    results = run_few_shot(spec, env_steps=300, collect_steps=200, max_pairs=1, progress=False)
+    assert not any(r.error for r in results)
+    keys = sorted(r.config["trial"]["key"] for r in results)
+    assert len(keys) == 2 and keys[0].startswith("few_shot/t: ") and keys[1].startswith("scratch/")
+    stitched = next(r for r in results if r.config["trial"]["key"].startswith("few_shot/"))
+    start = stitched.config["trial"]["spec"]["init_policy"]
+    assert start and Path(start).exists()
+    assert read_signature(start)[1]["task_from"] == pairs(spec)[0]["task_from"]
+    for points in curves(results).values():
+        assert points and points[-1][0] >= 300

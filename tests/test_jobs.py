@@ -33,6 +33,11 @@ def ray_head(tmp_path):
     head = subprocess.Popen(
         [str(BIN / "ray"), "start", "--head", "--block", f"--port={free_port()}", "--num-cpus=2",
          "--dashboard-host=127.0.0.1", f"--dashboard-port={dashboard}",
+         # Own ports for every agent: another Ray instance on this machine (the test session's)
+         # must not keep the job agent from starting.
+         *(f"--{name}={free_port()}" for name in (
+             "dashboard-agent-listen-port", "dashboard-agent-grpc-port", "metrics-export-port",
+             "runtime-env-agent-port", "ray-client-server-port")),
          f"--temp-dir={Path('/tmp') / f'ps_ray_head_{dashboard}'}", "--include-dashboard=true"],
         env=env, stdout=subprocess.DEVNULL, stderr=subprocess.STDOUT, start_new_session=True)
     address = f"http://127.0.0.1:{dashboard}"
@@ -64,16 +69,19 @@ def test_sweep_submitted_as_a_ray_job_lands_in_mlflow(ray_head, tmp_path):
         "seeds": [1], "interface_dims": [8], "storage": str(storage),
         "train": {"env_steps": 200, "hidden": 32, "learning_starts": 100, "random_episodes": 2,
                   "eval_every": 2, "eval_episodes": 2, "checkpoint_every": 2, "batch_size": 32}}))
-    submit = subprocess.run(
-        [str(BIN / "ray"), "job", "submit", "--address", address, "--working-dir", str(REPO), "--",
-         str(BIN / "ps-ray"), "sweep", str(sweep)],
-        env=env, capture_output=True, text=True, timeout=600)
+    command = [str(BIN / "ray"), "job", "submit", "--address", address, "--working-dir", str(REPO),
+               "--", str(BIN / "ps-ray"), "sweep", str(sweep)]
+    for _ in range(30):  # the job agent may come up a little after the dashboard answers
+        submit = subprocess.run(command, env=env, capture_output=True, text=True, timeout=600)
+        if "No available agent" not in submit.stderr + submit.stdout:
+            break
+        time.sleep(3)
     assert submit.returncode == 0, submit.stdout[-3000:] + submit.stderr[-2000:]
     assert "succeeded" in submit.stdout
     client = mlflow.MlflowClient(f"sqlite:///{storage / 'job' / 'mlflow.db'}")
     experiment = client.get_experiment_by_name("job")
     (run,) = client.search_runs([experiment.experiment_id])
-    assert run.info.run_name == "ablation/panda/reach/1"
+    assert run.info.run_name == "ablation/panda/reach/1/i8"
     assert run.info.status == "FINISHED"
     assert run.data.metrics["env_steps"] >= 200
 

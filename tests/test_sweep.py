@@ -57,7 +57,7 @@ def test_sweep_tracks_one_mlflow_run_per_trial_with_artifacts(tmp_path):
     out, _ = proc.communicate(timeout=600)
     assert proc.returncode == 0, out[-3000:]
     found = runs(path)
-    assert sorted(found) == ["ablation/panda/reach/1", "ps/panda/reach/1"]
+    assert sorted(found) == ["ablation/panda/reach/1/i8", "ps/panda/reach/1/i8"]
     client = mlflow.MlflowClient(f"sqlite:///{sweep_dir(load_sweep(path)) / 'mlflow.db'}")
     for name, run in found.items():
         assert run.info.status == "FINISHED"
@@ -67,7 +67,7 @@ def test_sweep_tracks_one_mlflow_run_per_trial_with_artifacts(tmp_path):
         assert history(path, run, "env_steps")[-1][1] >= 300
         artifacts = {a.path for a in client.list_artifacts(run.info.run_id)}
         assert {"policy.safetensors", "signature.json", "spec.json"} <= artifacts
-    ps_artifacts = {a.path for a in client.list_artifacts(found["ps/panda/reach/1"].info.run_id)}
+    ps_artifacts = {a.path for a in client.list_artifacts(found["ps/panda/reach/1/i8"].info.run_id)}
     assert any(a.startswith("anchors_3d") for a in ps_artifacts)
 
 
@@ -92,7 +92,7 @@ def test_resume_after_sigkill_finishes_only_missing_trials(tmp_path):
     out, _ = resumed.communicate(timeout=600)
     assert resumed.returncode == 0, out[-3000:]
     after = runs(path)
-    assert sorted(after) == [f"ablation/panda/reach/{s}" for s in (1, 2, 3)]  # one run per trial
+    assert sorted(after) == [f"ablation/panda/reach/{s}/i8" for s in (1, 2, 3)]  # one run per trial
     assert all(r.info.status == "FINISHED" for r in after.values())
     assert history(path, after[done_name], "env_steps") == done_history  # not rerun
 

@@ -57,7 +57,11 @@ def test_sweep_tracks_one_mlflow_run_per_trial_with_artifacts(tmp_path):
     out, _ = proc.communicate(timeout=600)
     assert proc.returncode == 0, out[-3000:]
     found = runs(path)
-    assert sorted(found) == ["ablation/panda/reach/1/i8", "ps/panda/reach/1/i8"]
+    # the plain source policy of the anchor stage is tracked too
+    assert sorted(found) == ["ablation/panda/reach/1/i8", "plain/panda/reach/1/i8",
+                             "ps/panda/reach/1/i8"]
+    assert found["plain/panda/reach/1/i8"].data.tags["ps_ray.stage"] == "anchors_plain"
+    found.pop("plain/panda/reach/1/i8")
     client = mlflow.MlflowClient(f"sqlite:///{sweep_dir(load_sweep(path)) / 'mlflow.db'}")
     for name, run in found.items():
         assert run.info.status == "FINISHED"
@@ -122,6 +126,8 @@ def test_trials_spread_over_two_nodes(tmp_path):
     from ps_ray.sweep import run_sweep
 
     path = write_sweep(tmp_path, "nodes", seeds=(1, 2))
+    if ray.is_initialized():  # the session's single-node instance
+        ray.shutdown()
     cluster = Cluster(initialize_head=True, head_node_args={"num_cpus": 1})
     cluster.add_node(num_cpus=1)
     try:

@@ -51,25 +51,15 @@ def few_shot_trials(spec: SweepSpec, *, env_steps: int, collect_steps: int,
 def run_few_shot(spec: SweepSpec, *, env_steps: int, collect_steps: int,
                  methods: list[str] | None = None, max_pairs: int | None = None,
                  resume: bool = False, progress: bool = True):
-    import os
-
-    import ray
-
-    from ps_ray.sweep import run_tune
-    from ps_ray.tracking import default_tracking_uri, ensure_experiment
+    from ps_ray.sweep import connect, run_tune
 
     root = sweep_dir(spec)
     trials = few_shot_trials(spec, env_steps=env_steps, collect_steps=collect_steps,
                              methods=methods, max_pairs=max_pairs)
     if not trials:
         raise ValueError(f"{root}: no stitchable pairs (train the sweep first: ps-ray sweep)")
-    if not ray.is_initialized():
-        ray.init(address=os.environ.get("RAY_ADDRESS", "local"), include_dashboard=False,
-                 log_to_driver=False, configure_logging=False)
-    tracking_uri = spec.tracking_uri or default_tracking_uri(root)
-    tracking = (tracking_uri, ensure_experiment(tracking_uri, spec.name, root / "mlartifacts"))
     return run_tune(trials, name="tune_few_shot", stage="few_shot", spec=spec, root=root,
-                    tracking=tracking, resume=resume, progress=progress,
+                    tracking=connect(spec), resume=resume, progress=progress,
                     key_fn=lambda trial: trial.config["trial"]["key"])
 
 

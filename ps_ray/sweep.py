@@ -152,11 +152,9 @@ def run_sweep(spec: SweepSpec, *, resume: bool = False, progress: bool = True):
     Stage 2: anchor sets, made by the driver. Stage 3: every trial of the grid, as Tune trials.
     A stage whose outputs exist is skipped, so a killed sweep resumes where it stopped.
     """
-    import ray
     import yaml
 
     from ps_ray.envs.registry import register
-    from ps_ray.tracking import default_tracking_uri, ensure_experiment
 
     root = sweep_dir(spec)
     spec_file = root / "sweep.yaml"
@@ -165,14 +163,9 @@ def run_sweep(spec: SweepSpec, *, resume: bool = False, progress: bool = True):
         raise SpecError(f"{root} holds a different sweep spec; resume needs the same file")
     root.mkdir(parents=True, exist_ok=True)
     spec_file.write_text(resolved)
-    if not ray.is_initialized():
-        ray.init(address=os.environ.get("RAY_ADDRESS", "local"), include_dashboard=False,
-                 log_to_driver=False, configure_logging=False)
     register()
-    tracking_uri = spec.tracking_uri or default_tracking_uri(root)
-    experiment_id = ensure_experiment(tracking_uri, spec.name, root / "mlartifacts")
-    tune_args = dict(spec=spec, root=root, tracking=(tracking_uri, experiment_id),
-                     resume=resume, progress=progress)
+    tune_args = dict(spec=spec, root=root, tracking=connect(spec), resume=resume,
+                     progress=progress)
 
     plain_policies = None
     needs_anchors = any(not Path(p).exists() for p in _anchor_paths(spec, root))
@@ -188,6 +181,22 @@ def run_sweep(spec: SweepSpec, *, resume: bool = False, progress: bool = True):
                "anchors": anchors[(task_input_dim(t.task), t.interface_dim)]
                if t.method == "ps" else None} for t in spec.trials()]
     return run_tune(trials, name=TUNE_DIR, stage="train", **tune_args)
+
+
+def connect(spec: SweepSpec) -> tuple[str, str]:
+    """Join (or start) Ray and open the sweep's MLflow experiment: (tracking URI, experiment id).
+
+    The driver creates the store and experiment once, before any trial could race for it."""
+    import ray
+
+    from ps_ray.tracking import default_tracking_uri, ensure_experiment
+
+    if not ray.is_initialized():
+        ray.init(address=os.environ.get("RAY_ADDRESS", "local"), include_dashboard=False,
+                 log_to_driver=False, configure_logging=False)
+    root = sweep_dir(spec)
+    tracking_uri = spec.tracking_uri or default_tracking_uri(root)
+    return tracking_uri, ensure_experiment(tracking_uri, spec.name, root / "mlartifacts")
 
 
 def _anchor_paths(spec: SweepSpec, root: Path) -> list[Path]:

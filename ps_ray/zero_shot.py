@@ -52,24 +52,17 @@ def zero_shot_trial(config: dict[str, Any]) -> None:
 
 def run_zero_shot(spec: SweepSpec, *, methods: list[str] | None = None, episodes: int = 200,
                   repeats: int = 5, seed: int = 0, progress: bool = True) -> pd.DataFrame:
-    import os
-
-    import ray
     from ray import tune
 
-    from ps_ray.tracking import MLflowTuneCallback, default_tracking_uri, ensure_experiment, git_commit
+    from ps_ray.sweep import connect
+    from ps_ray.tracking import MLflowTuneCallback, git_commit
 
     root = sweep_dir(spec)
     trials = pairs(spec, methods)
     if not trials:
         raise ValueError(f"{root}: no stitchable pairs (train the sweep first: ps-ray sweep)")
-    if not ray.is_initialized():
-        ray.init(address=os.environ.get("RAY_ADDRESS", "local"), include_dashboard=False,
-                 log_to_driver=False, configure_logging=False)
-    tracking_uri = spec.tracking_uri or default_tracking_uri(root)
     callback = MLflowTuneCallback(
-        tracking_uri, ensure_experiment(tracking_uri, spec.name, root / "mlartifacts"),
-        metric_keys=RESULT_KEYS,
+        *connect(spec), metric_keys=RESULT_KEYS,
         key_fn=lambda trial: f"zero_shot/{trial.config['pair']['method']}/"
                              f"{trial.config['pair']['label']}/{trial.config['pair']['seed']}",
         params_fn=lambda trial: {k: short_name(v) for k, v in trial.config["pair"].items()

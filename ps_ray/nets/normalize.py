@@ -10,7 +10,8 @@ class RunningNorm(nn.Module):
     """``clamp((x - mean) / max(std, eps), -clip, clip)`` with statistics in buffers, never trained.
 
     The statistics change only through :meth:`update` (parallel Welford / Chan et al. merge of a
-    batch into the running count, mean and population variance, accumulated in float64), never
+    batch into the running count, mean and population variance, merged in float64 and stored in
+    float32: RLlib's checkpoints turn float64 state into float32, which must lose nothing), never
     in ``forward``, so train/eval mode does not matter and target copies can share them by
     ``load_state_dict``. Before the first update (count 0, mean 0, var 1) it only clips.
     """
@@ -24,9 +25,9 @@ class RunningNorm(nn.Module):
         if dim < 1:
             raise ValueError(f"RunningNorm needs dim >= 1, got {dim}")
         self.dim, self.clip, self.eps = dim, clip, eps
-        self.register_buffer("count", torch.zeros((), dtype=torch.float64))
-        self.register_buffer("mean", torch.zeros(dim, dtype=torch.float64))
-        self.register_buffer("var", torch.ones(dim, dtype=torch.float64))
+        self.register_buffer("count", torch.zeros(()))
+        self.register_buffer("mean", torch.zeros(dim))
+        self.register_buffer("var", torch.ones(dim))
 
     @torch.no_grad()
     def update(self, x: Tensor) -> None:
@@ -49,8 +50,8 @@ class RunningNorm(nn.Module):
         self.count.copy_(n)
 
     def forward(self, x: Tensor) -> Tensor:
-        std = self.var.sqrt().clamp_min(self.eps).to(x.dtype)
-        return ((x - self.mean.to(x.dtype)) / std).clamp(-self.clip, self.clip)
+        std = self.var.sqrt().clamp_min(self.eps)
+        return ((x - self.mean) / std).clamp(-self.clip, self.clip)
 
     def extra_repr(self) -> str:
         return f"{self.dim}, clip={self.clip}, eps={self.eps}"

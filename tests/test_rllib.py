@@ -98,13 +98,16 @@ def test_sac_her_learns_the_point_goal_env(ray_local):
     spec = TrainSpec(method="ablation", updates_per_step=0.5, lr=1e-3, **SMALL)
     algo = algo_config(spec).build_algo()
     try:
-        while algo.counters["env_steps"] < 7000:
+        untrained = algo.evaluate_greedy(40)
+        while algo.counters["env_steps"] < 8000:
             algo.train()
-        stats = algo.evaluate_greedy(40)
+        trained = algo.evaluate_greedy(40)
     finally:
         algo.stop()
-    # A random policy essentially never ends within 5 cm of a goal drawn from [-0.5, 0.5]^2.
-    assert stats["success"] >= 0.8, stats
+    # Goals are drawn from [-0.5, 0.5]^2 and must be reached within 5 cm: an untrained policy
+    # essentially never does; after 8k env steps most greedy episodes end on the goal.
+    assert untrained["success"] <= 0.1, untrained
+    assert trained["success"] >= 0.6, trained
 
 
 def test_training_episodes_get_fresh_goals_and_evaluations_fixed_ones(ray_local):

@@ -266,47 +266,39 @@ def _check_compatible(task: TaskModule, robot: _RobotModule) -> None:
         raise ValueError("cannot combine task module and robot module: " + "; ".join(problems))
 
 
+Net = TypeVar("Net", Actor, Critic)
+
+
 def _build(
+    net_type: type[Net],
     method: str,
     dims: NetDims,
-    critic: bool,
-    interface_dim: int,
-    hidden: int,
-    anchors: Tensor | None,
-    anchor_grad: bool,
-) -> tuple[TaskModule, _RobotModule]:
+    *,
+    interface_dim: int = 128,
+    hidden: int = 256,
+    anchors: Tensor | None = None,
+    anchor_grad: bool = True,
+) -> Net:
+    """The one builder: an Actor or a Critic of `method` from its MethodSpec row."""
     spec = method_spec(method)
+    critic = net_type is Critic
     latent_dim = spec.latent_dim(interface_dim, hidden)
     task = TaskModule(
         spec, dims, latent_dim, hidden,
         anchors=anchors, anchor_grad=anchor_grad, sees_action=critic and not spec.modular,
     )
     robot_type = CriticRobotModule if critic else ActorRobotModule
-    return task, robot_type(spec, dims, latent_dim, hidden)
+    return net_type(task, robot_type(spec, dims, latent_dim, hidden))
 
 
-def build_actor(
-    method: str,
-    dims: NetDims,
-    *,
-    interface_dim: int = 128,
-    hidden: int = 256,
-    anchors: Tensor | None = None,
-    anchor_grad: bool = True,
-) -> Actor:
-    return Actor(*_build(method, dims, False, interface_dim, hidden, anchors, anchor_grad))
+def build_actor(method: str, dims: NetDims, **options) -> Actor:
+    """Options: interface_dim (128), hidden (256), anchors (PS), anchor_grad (True)."""
+    return _build(Actor, method, dims, **options)
 
 
-def build_critic(
-    method: str,
-    dims: NetDims,
-    *,
-    interface_dim: int = 128,
-    hidden: int = 256,
-    anchors: Tensor | None = None,
-    anchor_grad: bool = True,
-) -> Critic:
-    return Critic(*_build(method, dims, True, interface_dim, hidden, anchors, anchor_grad))
+def build_critic(method: str, dims: NetDims, **options) -> Critic:
+    """Options as for :func:`build_actor`."""
+    return _build(Critic, method, dims, **options)
 
 
 @torch.no_grad()
@@ -317,8 +309,6 @@ def update_normalizers(module: nn.Module, task_in: Tensor, robot_in: Tensor) -> 
         if isinstance(sub, (TaskModule, _RobotModule)):
             sub.update_norm(task_in, robot_in)
 
-
-Net = TypeVar("Net", Actor, Critic)
 
 
 def stitch(task_from: Net, robot_from: Net) -> Net:

@@ -105,16 +105,16 @@ def sweep_trial(config: dict[str, Any]) -> None:
     import ray
     from ray import tune
 
-    from ps_ray.anchors import AnchorSet, load_anchor_set
+    from ps_ray.anchors import load_anchor_set
     from ps_ray.train import TrainingRun
-    from ps_ray.weights import policy_anchors
+    from ps_ray.weights import policy_anchor_set
 
     trial = config["trial"]
     spec = TrainSpec.from_mapping(trial["spec"])
     if trial["anchors"]:
         anchor_set = load_anchor_set(trial["anchors"])
     elif spec.init_policy is not None and spec.method == "ps":  # anchors inside the policy file
-        anchor_set = AnchorSet.of(policy_anchors(spec.init_policy), {"source": spec.init_policy})
+        anchor_set = policy_anchor_set(spec.init_policy)
     else:
         anchor_set = None
     run = TrainingRun(spec, anchor_set)

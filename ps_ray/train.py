@@ -53,9 +53,9 @@ def prepare_anchors(spec: TrainSpec, run_dir: Path):
     if path.exists():
         return load_anchor_set(path)
     if spec.init_policy is not None:  # the anchors travel inside the policy file
-        from ps_ray.weights import policy_anchors
+        from ps_ray.weights import policy_anchor_set
 
-        anchor_set = AnchorSet.of(policy_anchors(spec.init_policy), {"source": spec.init_policy})
+        anchor_set = policy_anchor_set(spec.init_policy)
     elif spec.anchors is not None:
         anchor_set = anchors_from_file(spec.anchors, spec.interface_dim, seed=0)
     else:

@@ -20,7 +20,7 @@ from safetensors import SafetensorError, safe_open
 from safetensors.torch import save_file
 from torch import nn
 
-from ps_ray.anchors import anchor_hash
+from ps_ray.anchors import AnchorSet, anchor_hash
 from ps_ray.nets.modular import NetDims
 from ps_ray.nets.sac import NET_NAMES, SACNets, build_sac_nets
 
@@ -125,13 +125,13 @@ def load_nets_state(nets: nn.Module, state: dict[str, torch.Tensor]) -> None:
             {k[len(prefix):]: v for k, v in state.items() if k.startswith(prefix)}, strict=True)
 
 
-def policy_anchors(path: str | Path) -> np.ndarray:
-    """The anchor array stored in a PS policy file."""
+def policy_anchor_set(path: str | Path) -> AnchorSet:
+    """The anchor set stored in a PS policy file (e.g. a stitched start for few-shot)."""
     signature, _ = read_signature(path)
     with safe_open(str(path), framework="pt") as f:
         if ANCHORS_KEY not in f.keys():
             raise ValueError(f"{path}: a {signature.method!r} policy has no anchors")
-        return f.get_tensor(ANCHORS_KEY).numpy()
+        return AnchorSet.of(f.get_tensor(ANCHORS_KEY).numpy(), {"source": str(path)})
 
 
 def load_policy(path: str | Path) -> tuple[SACNets, Signature]:

@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Set-up and entry points for a fresh machine; each command installs what it needs first.
-#   ./run.sh smoke   the smoke sweep on 2 CPUs (plain sources, k-means anchors, PS/ablation trials, MLflow)
+#   ./run.sh smoke   the whole smoke pipeline on 2 CPUs (train, zero-shot, few-shot, report; MLflow)
 #   ./run.sh test    the test suite (slow learning checks included; add -m "not slow" to skip)
+#                    it also installs Debian's chromium (headless screenshot of the report)
 #   ./run.sh setup   only create .venv and install ps_ray
 set -euo pipefail
 cd "$(dirname "$0")"
@@ -17,6 +18,17 @@ setup() {
   touch "$VENV/.installed"
 }
 
+browser() {
+  if command -v chromium >/dev/null 2>&1; then return; fi
+  if ! command -v apt-get >/dev/null 2>&1; then
+    echo "run.sh: no chromium and no apt-get; install Chromium for the report screenshot test" >&2
+    return
+  fi
+  local sudo=""; [ "$(id -u)" = 0 ] || sudo="sudo"
+  $sudo env DEBIAN_FRONTEND=noninteractive apt-get update -q >/dev/null
+  $sudo env DEBIAN_FRONTEND=noninteractive apt-get install -y -q --no-install-recommends chromium >/dev/null
+}
+
 cmd="${1:-}"
 shift || true
 case "$cmd" in
@@ -25,11 +37,11 @@ case "$cmd" in
     setup
     out="${PS_RAY_OUT:-runs}"
     "$VENV/bin/ps-ray" render --robot panda_l3 --task push --gif "$out/smoke_render/push_random.gif"
-    "$VENV/bin/ps-ray" sweep sweeps/smoke.yaml --storage "$out/sweeps" "$@"
-    echo "MLflow: $VENV/bin/mlflow ui --backend-store-uri sqlite:///$(cd "$out" && pwd)/sweeps/smoke/mlflow.db"
+    "$VENV/bin/ps-ray" run sweeps/smoke.yaml --storage "$out/sweeps" "$@"
     ;;
   test)
     setup
+    browser
     "$VENV/bin/python" -m pytest -q "$@"
     ;;
   *)

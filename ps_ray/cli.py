@@ -6,9 +6,11 @@ import argparse
 import dataclasses
 import json
 import sys
+import time
 from pathlib import Path
 
 from ps_ray.config import SpecError, TrainSpec
+from ps_ray.pipeline import StageError
 
 
 def _train_parser(sub) -> None:
@@ -46,23 +48,41 @@ def _sweep_parser(sub) -> None:
 def _zero_shot_parser(sub) -> None:
     p = sub.add_parser("zero-shot", help="evaluate every stitched pair of a trained sweep (Tune)")
     p.add_argument("sweep", help="the sweep YAML whose trained policies are stitched")
-    p.add_argument("--methods", nargs="+", default=None, help="default: the sweep's methods")
-    p.add_argument("--episodes", type=int, default=200)
-    p.add_argument("--repeats", type=int, default=5)
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--methods", nargs="+", default=None, help="default: the spec's zero_shot.methods")
+    p.add_argument("--episodes", type=int, default=None, help="default: the spec's (200)")
+    p.add_argument("--repeats", type=int, default=None, help="default: the spec's (5)")
+    p.add_argument("--seed", type=int, default=None, help="first evaluation seed")
+    p.add_argument("--resume", action="store_true", help="finish an interrupted matrix")
     p.add_argument("--storage", default=None, help="override the spec's storage directory")
 
 
 def _few_shot_parser(sub) -> None:
     p = sub.add_parser("few-shot", help="fine-tune stitched policies of a sweep, beside from-scratch runs")
     p.add_argument("sweep", help="the sweep YAML whose trained policies are stitched")
-    p.add_argument("--env-steps", type=int, required=True, help="fine-tuning budget per trial")
-    p.add_argument("--collect-steps", type=int, default=1000,
+    p.add_argument("--env-steps", type=int, default=None, help="fine-tuning budget per trial")
+    p.add_argument("--collect-steps", type=int, default=None,
                    help="env steps collected before the first update (the paper: 10 epochs)")
     p.add_argument("--methods", nargs="+", default=None)
-    p.add_argument("--max-pairs", type=int, default=None)
+    p.add_argument("--max-pairs", type=int, default=None, help="stitched pairs per method")
     p.add_argument("--resume", action="store_true")
     p.add_argument("--storage", default=None)
+
+
+def _run_parser(sub) -> None:
+    p = sub.add_parser("run", help="the whole pipeline of a sweep YAML: train, zero-shot, few-shot, "
+                                   "report (its 'stages'); finished stages are skipped")
+    p.add_argument("sweep", help="path to a sweep YAML, e.g. sweeps/smoke.yaml")
+    p.add_argument("--storage", default=None, help="override the spec's storage directory")
+    p.add_argument("--tracking-uri", default=None, help="override the MLflow tracking URI")
+
+
+def _report_parser(sub) -> None:
+    p = sub.add_parser("report", help="rebuild a sweep's report from its stored results")
+    p.add_argument("sweep", help="a sweep YAML, or a sweep folder (<storage>/<name>)")
+    p.add_argument("--storage", default=None, help="override the spec's storage directory")
+    p.add_argument("--no-mlflow", action="store_true", help="write the folder only")
+    p.add_argument("--screenshot", default=None,
+                   help="also save a headless-Chromium screenshot of the page (PNG)")
 
 
 def _render_parser(sub) -> None:
@@ -108,12 +128,7 @@ def cmd_train(args: argparse.Namespace) -> int:
 
 
 def cmd_sweep(args: argparse.Namespace) -> int:
-    from ps_ray.config import load_sweep
-
-    spec = load_sweep(args.sweep)
-    overrides = {k: v for k, v in (("storage", args.storage), ("tracking_uri", args.tracking_uri)) if v}
-    if overrides:
-        spec = dataclasses.replace(spec, **overrides)
+    spec = _load(args)
     trials = spec.trials()
     print(f"sweep {spec.name!r}: {len(trials)} training trials")
     if args.check:
@@ -129,15 +144,37 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     return 1 if errors else 0
 
 
-def cmd_zero_shot(args: argparse.Namespace) -> int:
+def _load(args: argparse.Namespace):
+    """The sweep spec named on the command line, with --storage/--tracking-uri applied."""
     from ps_ray.config import load_sweep
+
+    path = Path(args.sweep)
+    if path.is_dir():  # a sweep folder: its resolved spec, stored where the folder is
+        from ps_ray.sweep import SPEC_FILE
+
+        if not (path / SPEC_FILE).exists():
+            raise ValueError(f"{path}: not a sweep folder (no {SPEC_FILE})")
+        spec = dataclasses.replace(load_sweep(path / SPEC_FILE),
+                                   storage=str(path.resolve().parent))
+    else:
+        spec = load_sweep(path)
+    overrides = {k: v for k, v in (("storage", args.storage),
+                                   ("tracking_uri", getattr(args, "tracking_uri", None))) if v}
+    return dataclasses.replace(spec, **overrides) if overrides else spec
+
+
+def _given(args: argparse.Namespace, *names: str) -> dict:
+    out = {n: getattr(args, n) for n in names if getattr(args, n) is not None}
+    if "methods" in out:
+        out["methods"] = tuple(out["methods"])
+    return out
+
+
+def cmd_zero_shot(args: argparse.Namespace) -> int:
     from ps_ray.zero_shot import run_zero_shot, summary
 
-    spec = load_sweep(args.sweep)
-    if args.storage:
-        spec = dataclasses.replace(spec, storage=args.storage)
-    table = run_zero_shot(spec, methods=args.methods, episodes=args.episodes,
-                          repeats=args.repeats, seed=args.seed)
+    table = run_zero_shot(_load(args), resume=args.resume,
+                          **_given(args, "methods", "episodes", "repeats", "seed"))
     columns = ["method", "label", "success_mean", "success_std", "touching_mean", "touching_std"]
     print(table[columns].to_string(index=False, float_format=lambda x: f"{x:.2f}"))
     print(summary(table).to_string(float_format=lambda x: f"{x:.2f}"))
@@ -145,17 +182,42 @@ def cmd_zero_shot(args: argparse.Namespace) -> int:
 
 
 def cmd_few_shot(args: argparse.Namespace) -> int:
-    from ps_ray.config import load_sweep
     from ps_ray.few_shot import curves, run_few_shot
 
-    spec = load_sweep(args.sweep)
-    if args.storage:
-        spec = dataclasses.replace(spec, storage=args.storage)
-    results = run_few_shot(spec, env_steps=args.env_steps, collect_steps=args.collect_steps,
-                           methods=args.methods, max_pairs=args.max_pairs, resume=args.resume)
+    results = run_few_shot(_load(args), resume=args.resume, **_given(
+        args, "env_steps", "collect_steps", "methods", "max_pairs"))
     for key, points in sorted(curves(results).items()):
         print(key, " ".join(f"{steps}:{success:.2f}" for steps, success in points))
     return 1 if any(r.error for r in results) else 0
+
+
+def cmd_run(args: argparse.Namespace) -> int:
+    from ps_ray.pipeline import run_pipeline
+    from ps_ray.sweep import sweep_dir
+
+    spec = _load(args)
+    started = time.time()
+    print(f"sweep {spec.name!r}: stages {', '.join(spec.stages)}; results in {sweep_dir(spec)}")
+    summaries = run_pipeline(spec)
+    print(f"sweep {spec.name!r}: all stages done in {(time.time() - started) / 60:.1f} min")
+    if "report" in summaries:
+        print(f"report: {sweep_dir(spec) / 'report' / 'index.html'}")
+    uri = spec.tracking_uri or f"sqlite:///{sweep_dir(spec) / 'mlflow.db'}"
+    print(f"MLflow: .venv/bin/mlflow ui --backend-store-uri {uri}")
+    return 0
+
+
+def cmd_report(args: argparse.Namespace) -> int:
+    from ps_ray.analysis.report import build_report
+
+    spec = _load(args)
+    page = build_report(spec, log_to_mlflow=not args.no_mlflow)
+    print(f"report: {page}")
+    if args.screenshot:
+        from ps_ray.analysis.browser import screenshot
+
+        print(f"screenshot: {screenshot(page, args.screenshot)}")
+    return 0
 
 
 def cmd_render(args: argparse.Namespace) -> int:
@@ -217,14 +279,21 @@ def main(argv: list[str] | None = None) -> int:
     _render_parser(sub)
     _bench_parser(sub)
     _stitch_parser(sub)
+    _run_parser(sub)
+    _report_parser(sub)
     args = parser.parse_args(argv)
     try:
-        return {"train": cmd_train, "sweep": cmd_sweep, "zero-shot": cmd_zero_shot, "few-shot": cmd_few_shot,
-                "render": cmd_render,
-                "bench": cmd_bench, "stitch": cmd_stitch}[args.command](args)
+        return {"train": cmd_train, "sweep": cmd_sweep, "zero-shot": cmd_zero_shot,
+                "few-shot": cmd_few_shot, "run": cmd_run, "report": cmd_report,
+                "render": cmd_render, "bench": cmd_bench, "stitch": cmd_stitch}[args.command](args)
     except (SpecError, ValueError, json.JSONDecodeError) as e:
         print(f"ps-ray {args.command}: error: {e}", file=sys.stderr)
         return 2
+    except StageError as e:  # trials failed: the first error's last line, the rest is in Tune's logs
+        lines = str(e).strip().splitlines()
+        print(f"ps-ray {args.command}: error: {lines[0]} ... {lines[-1]}" if len(lines) > 1
+              else f"ps-ray {args.command}: error: {lines[0]}", file=sys.stderr)
+        return 1
 
 
 if __name__ == "__main__":

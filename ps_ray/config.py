@@ -145,7 +145,8 @@ def _plain(value: Any) -> Any:
 
 
 ANCHOR_POLICIES = ("plain", "random")
-STAGES = ("train",)  # grows with the pipeline: anchors, stitch, analyze
+# Pipeline stages in order; "train" covers plain sources, anchors and the grid (ps_ray.sweep).
+STAGES = ("train", "zero_shot", "few_shot", "report")
 
 
 @dataclass(frozen=True)
@@ -174,6 +175,58 @@ class AnchorSpec:
             raise SpecError("anchors: episodes must be positive and steps non-empty")
 
 
+def _positive(where: str, **values: int | None) -> None:
+    for key, value in values.items():
+        if value is not None and value <= 0:
+            raise SpecError(f"{where}.{key} must be positive, got {value}")
+
+
+@dataclass(frozen=True)
+class ZeroShotSpec:
+    """The zero-shot stage: every stitched pair evaluated on fixed seeds (episodes x repeats)."""
+
+    episodes: int = 200                 # the paper: 200 episodes x 5 repeats
+    repeats: int = 5
+    seed: int = 0                       # first evaluation seed
+    methods: tuple[str, ...] = ()       # default: the sweep's methods
+
+    def __post_init__(self) -> None:
+        _positive("zero_shot", episodes=self.episodes, repeats=self.repeats)
+
+
+@dataclass(frozen=True)
+class FewShotSpec:
+    """The few-shot stage: stitched starts fine-tuned with SAC + HER beside from-scratch runs."""
+
+    env_steps: int = 20000
+    collect_steps: int = 1000           # env steps before the first update (the paper: 10 epochs)
+    max_pairs: int | None = None        # per method; default: every stitched pair
+    methods: tuple[str, ...] = ()       # default: the sweep's methods
+    scratch: bool = True                # also train each target env from scratch
+
+    def __post_init__(self) -> None:
+        _positive("few_shot", env_steps=self.env_steps, max_pairs=self.max_pairs)
+        if not 0 <= self.collect_steps < self.env_steps:
+            raise SpecError(f"few_shot.collect_steps must be in [0, env_steps), got {self.collect_steps}")
+
+
+@dataclass(frozen=True)
+class ReportSpec:
+    """The analysis stage: interface dumps on fixed probe states, plots, tables, HTML report."""
+
+    probes_per_group: int = 250         # task states per goal quadrant
+    seed: int = 0                       # probe-state seed
+
+    def __post_init__(self) -> None:
+        _positive("report", probes_per_group=self.probes_per_group)
+
+
+SUB_SPECS = {"anchors": AnchorSpec, "zero_shot": ZeroShotSpec, "few_shot": FewShotSpec,
+             "report": ReportSpec}
+# Settings that do not change what the training stage produces (a resumed sweep may change them).
+NOT_TRAINING = ("stages", "zero_shot", "few_shot", "report", "max_concurrent", "max_failures")
+
+
 @dataclass(frozen=True)
 class SweepSpec:
     """A grid of training trials (methods x robots x tasks x seeds) run as Ray Tune trials."""
@@ -187,6 +240,9 @@ class SweepSpec:
     interface_dims: tuple[int, ...] = (128,)
     train: Mapping[str, Any] = dataclasses.field(default_factory=dict)  # TrainSpec settings
     anchors: AnchorSpec = AnchorSpec()
+    zero_shot: ZeroShotSpec = ZeroShotSpec()
+    few_shot: FewShotSpec = FewShotSpec()
+    report: ReportSpec = ReportSpec()
     max_concurrent: int | None = None   # default: one trial per available CPU
     max_failures: int = 2               # retries of a crashed trial, from its last checkpoint
     storage: str = "runs/sweeps"
@@ -201,7 +257,20 @@ class SweepSpec:
         for key in ("methods", "robots", "tasks", "seeds", "interface_dims"):
             if not getattr(self, key):
                 raise SpecError(f"{key} must be a non-empty list")
+        for stage in (self.zero_shot, self.few_shot):
+            for method in stage.methods:
+                if method not in self.methods:
+                    raise SpecError(f"{type(stage).__name__}: method {method!r} is not trained by "
+                                    f"this sweep; valid: {', '.join(self.methods)}")
         self.trials()  # every trial's TrainSpec is validated before anything starts
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain JSON-able data (tuples as lists)."""
+        return json.loads(json.dumps(dataclasses.asdict(self)))
+
+    def training_identity(self) -> dict[str, Any]:
+        """What the training stage's outputs depend on (a resumed sweep must keep it)."""
+        return {k: v for k, v in self.to_dict().items() if k not in NOT_TRAINING}
 
     def trials(self) -> list[TrainSpec]:
         overrides = dict(self.train)
@@ -226,18 +295,29 @@ class SweepSpec:
             if key in fields:
                 value = fields[key]
                 fields[key] = tuple(value) if isinstance(value, (list, tuple)) else (value,)
-        if "anchors" in fields:
-            anchors = fields["anchors"] or {}
-            bad = [k for k in anchors if k not in {f.name for f in dataclasses.fields(AnchorSpec)}]
-            if bad:
-                raise SpecError(f"{where}: unknown key {bad[0]!r} in anchors; valid keys: "
-                                f"{', '.join(f.name for f in dataclasses.fields(AnchorSpec))}")
-            fields["anchors"] = AnchorSpec(**{k: tuple(v) if isinstance(v, list) else v
-                                              for k, v in anchors.items()})
+        for key, sub in SUB_SPECS.items():
+            if key in fields:
+                fields[key] = _sub_spec(sub, fields[key], f"{where}: {key}")
         try:
             return cls(**fields)
         except TypeError as e:
             raise SpecError(f"{where}: {e}") from None
+
+
+def _sub_spec(cls, data: Any, where: str):
+    """A nested mapping as a typed spec; unknown keys fail with the valid ones listed."""
+    names = [f.name for f in dataclasses.fields(cls)]
+    if data is None:
+        data = {}
+    if not isinstance(data, Mapping):
+        raise SpecError(f"{where}: expected a mapping, got {data!r}")
+    bad = [k for k in data if k not in names]
+    if bad:
+        raise SpecError(f"{where}: unknown key {bad[0]!r}; valid keys: {', '.join(names)}")
+    try:
+        return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in data.items()})
+    except TypeError as e:
+        raise SpecError(f"{where}: {e}") from None
 
 
 def load_sweep(path: str | Path) -> SweepSpec:

@@ -8,57 +8,67 @@ from scratch runs beside it, so MLflow holds both learning curves (success vs en
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
+from collections import Counter
 from typing import Any
 
-from ps_ray.config import SweepSpec, TrainSpec, trial_key
-from ps_ray.sweep import sweep_dir
+from ps_ray.config import FewShotSpec, SweepSpec, TrainSpec, trial_key
+from ps_ray.sweep import anchor_path, sweep_dir, task_input_dim
 
 FEW_SHOT_DIR = "few_shot"
+TUNE_DIR = "tune_few_shot"
 
 
-def few_shot_trials(spec: SweepSpec, *, env_steps: int, collect_steps: int,
-                    methods: list[str] | None = None, max_pairs: int | None = None,
-                    scratch: bool = True) -> list[dict[str, Any]]:
+def few_shot_trials(spec: SweepSpec, settings: FewShotSpec) -> list[dict[str, Any]]:
     """Trial configs for `sweep_trial`: stitched starts, plus from-scratch baselines."""
     from ps_ray.stitch import stitch_policies
     from ps_ray.weights import save_policy
     from ps_ray.zero_shot import pairs
 
     root = sweep_dir(spec) / FEW_SHOT_DIR
-    selected = pairs(spec, methods)[:max_pairs]
+    selected, taken = [], Counter()
+    for pair in pairs(spec, list(settings.methods) or None):
+        if settings.max_pairs is None or taken[pair["method"]] < settings.max_pairs:
+            taken[pair["method"]] += 1
+            selected.append(pair)
     trials, targets = [], {}
     for pair in selected:
         nets, signature = stitch_policies(pair["task_from_path"], pair["robot_from_path"])
         digest = hashlib.sha256(f"{pair['task_from']}|{pair['robot_from']}".encode()).hexdigest()
         path = root / "stitched" / f"{digest[:16]}.safetensors"
-        save_policy(path, nets, signature, extra={"task_from": pair["task_from"],
-                                                  "robot_from": pair["robot_from"]})
+        if not path.exists():  # a resumed stage keeps the files its trials started from
+            save_policy(path, nets, signature, extra={"task_from": pair["task_from"],
+                                                      "robot_from": pair["robot_from"]})
         base = TrainSpec.from_mapping({
             **dict(spec.train), "method": pair["method"], "robot": pair["robot"],
             "task": pair["task"], "seed": pair["seed"], "interface_dim": signature.interface_dim,
-            "env_steps": env_steps, "learning_starts": collect_steps, "random_episodes": 0})
+            "env_steps": settings.env_steps, "learning_starts": settings.collect_steps,
+            "random_episodes": 0})
         stitched = TrainSpec.from_mapping({**base.to_dict(), "init_policy": str(path)})
         trials.append({"spec": stitched.to_dict(), "anchors": None,
-                       "key": f"few_shot/{pair['label']}/{trial_key(base.to_dict())}"})
+                       "key": f"few_shot/{pair['label']}/{trial_key(base.to_dict())}",
+                       "label": pair["label"], "kind": "stitched"})
         targets.setdefault(trial_key(base.to_dict()), base)
-    if scratch:
-        trials += [{"spec": base.to_dict(), "anchors": None, "key": f"scratch/{key}"}
+    if settings.scratch:  # PS from scratch uses the sweep's anchor set, as its stitched sources
+        trials += [{"spec": base.to_dict(), "key": f"scratch/{key}", "label": key, "kind": "scratch",
+                    "anchors": str(anchor_path(sweep_dir(spec), task_input_dim(base.task),
+                                               base.interface_dim)) if base.method == "ps" else None}
                    for key, base in targets.items()]
     return trials
 
 
-def run_few_shot(spec: SweepSpec, *, env_steps: int, collect_steps: int,
-                 methods: list[str] | None = None, max_pairs: int | None = None,
-                 resume: bool = False, progress: bool = True):
+def run_few_shot(spec: SweepSpec, *, resume: bool = False, progress: bool = True,
+                 **overrides: Any):
+    """Settings from ``spec.few_shot`` (``overrides`` replace fields); returns the ResultGrid."""
     from ps_ray.sweep import connect, run_tune
 
+    settings = dataclasses.replace(spec.few_shot, **overrides)
     root = sweep_dir(spec)
-    trials = few_shot_trials(spec, env_steps=env_steps, collect_steps=collect_steps,
-                             methods=methods, max_pairs=max_pairs)
+    trials = few_shot_trials(spec, settings)
     if not trials:
         raise ValueError(f"{root}: no stitchable pairs (train the sweep first: ps-ray sweep)")
-    return run_tune(trials, name="tune_few_shot", stage="few_shot", spec=spec, root=root,
+    return run_tune(trials, name=TUNE_DIR, stage="few_shot", spec=spec, root=root / FEW_SHOT_DIR,
                     tracking=connect(spec), resume=resume, progress=progress,
                     key_fn=lambda trial: trial.config["trial"]["key"])
 

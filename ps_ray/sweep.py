@@ -18,6 +18,7 @@ from typing import Any
 
 from ps_ray.config import SpecError, SweepSpec, TrainSpec
 
+SPEC_FILE = "sweep.yaml"
 TUNE_DIR = "tune"
 PLAIN_TUNE_DIR = "tune_plain"
 # Test hook for FailureConfig: a marker path; the first trial to find it absent after saving a
@@ -157,12 +158,15 @@ def run_sweep(spec: SweepSpec, *, resume: bool = False, progress: bool = True):
     from ps_ray.envs.registry import register
 
     root = sweep_dir(spec)
-    spec_file = root / "sweep.yaml"
-    resolved = yaml.safe_dump(json.loads(json.dumps(_spec_dict(spec))), sort_keys=True)
-    if spec_file.exists() and spec_file.read_text() != resolved and resume:
-        raise SpecError(f"{root} holds a different sweep spec; resume needs the same file")
+    spec_file = root / SPEC_FILE
+    if resume and spec_file.exists():
+        stored = yaml.safe_load(spec_file.read_text()) or {}
+        changed = sorted(k for k, v in spec.training_identity().items() if stored.get(k) != v)
+        if changed:
+            raise SpecError(f"{root} was trained from a different sweep spec (changed: "
+                            f"{', '.join(changed)}); resume needs the same training settings")
     root.mkdir(parents=True, exist_ok=True)
-    spec_file.write_text(resolved)
+    spec_file.write_text(yaml.safe_dump(spec.to_dict(), sort_keys=True))
     register()
     tune_args = dict(spec=spec, root=root, tracking=connect(spec), resume=resume,
                      progress=progress)
@@ -248,9 +252,3 @@ def _trial_artifacts(trial) -> list[Path]:
     if anchors:
         paths.append(Path(anchors))
     return [p for p in paths if p.exists()]
-
-
-def _spec_dict(spec: SweepSpec) -> dict[str, Any]:
-    import dataclasses
-
-    return dataclasses.asdict(spec)

@@ -7,6 +7,8 @@ on identical episodes. The table goes to <sweep>/zero_shot.csv and to MLflow (st
 
 from __future__ import annotations
 
+import dataclasses
+from pathlib import Path
 from typing import Any
 
 import pandas as pd
@@ -14,6 +16,8 @@ import pandas as pd
 from ps_ray.config import SweepSpec, short_name
 from ps_ray.sweep import sweep_dir
 
+TUNE_DIR = "tune_zero_shot"
+RESULT_FILE = "zero_shot.csv"
 RESULT_KEYS = ("success_mean", "success_std", "touching_mean", "touching_std", "contact_mean",
                "episodes_per_s")
 
@@ -50,15 +54,19 @@ def zero_shot_trial(config: dict[str, Any]) -> None:
     tune.report({k: result[k] for k in RESULT_KEYS})
 
 
-def run_zero_shot(spec: SweepSpec, *, methods: list[str] | None = None, episodes: int = 200,
-                  repeats: int = 5, seed: int = 0, progress: bool = True) -> pd.DataFrame:
+def run_zero_shot(spec: SweepSpec, *, resume: bool = False, progress: bool = True,
+                  **overrides: Any) -> pd.DataFrame:
+    """The matrix as Tune trials, settings from ``spec.zero_shot`` (``overrides`` replace fields).
+
+    ``resume`` finishes an interrupted matrix (restores ``tune_zero_shot``)."""
     from ray import tune
 
     from ps_ray.sweep import connect
     from ps_ray.tracking import MLflowTuneCallback, git_commit
 
+    settings = dataclasses.replace(spec.zero_shot, **overrides)
     root = sweep_dir(spec)
-    trials = pairs(spec, methods)
+    trials = pairs(spec, list(settings.methods) or None)
     if not trials:
         raise ValueError(f"{root}: no stitchable pairs (train the sweep first: ps-ray sweep)")
     callback = MLflowTuneCallback(
@@ -66,22 +74,34 @@ def run_zero_shot(spec: SweepSpec, *, methods: list[str] | None = None, episodes
         key_fn=lambda trial: f"zero_shot/{trial.config['pair']['method']}/"
                              f"{trial.config['pair']['label']}/{trial.config['pair']['seed']}",
         params_fn=lambda trial: {k: short_name(v) for k, v in trial.config["pair"].items()
-                                 if not k.endswith("_path")} | {"episodes": episodes,
-                                                                 "repeats": repeats},
+                                 if not k.endswith("_path")} | {"episodes": settings.episodes,
+                                                                 "repeats": settings.repeats},
         tags={"ps_ray.sweep": spec.name, "ps_ray.stage": "zero_shot",
               "git_commit": git_commit() or ""})
-    tuner = tune.Tuner(
-        tune.with_resources(zero_shot_trial, {"cpu": 1}),
-        param_space={"pair": tune.grid_search(trials),
-                     "eval": {"episodes": episodes, "repeats": repeats, "seed": seed}},
-        tune_config=tune.TuneConfig(max_concurrent_trials=spec.max_concurrent),
-        run_config=tune.RunConfig(name="tune_zero_shot", storage_path=str(root),
-                                  callbacks=[callback], verbose=1 if progress else 0))
+    trainable = tune.with_resources(zero_shot_trial, {"cpu": 1})
+    path = root / TUNE_DIR
+    if resume and tune.Tuner.can_restore(str(path)):
+        tuner = tune.Tuner.restore(str(path), trainable=trainable, resume_unfinished=True,
+                                   resume_errored=True)
+    else:
+        tuner = tune.Tuner(
+            trainable,
+            param_space={"pair": tune.grid_search(trials),
+                         "eval": {"episodes": settings.episodes, "repeats": settings.repeats,
+                                  "seed": settings.seed}},
+            tune_config=tune.TuneConfig(max_concurrent_trials=spec.max_concurrent),
+            run_config=tune.RunConfig(name=TUNE_DIR, storage_path=str(root),
+                                      callbacks=[callback], verbose=1 if progress else 0))
     results = tuner.fit()
+    errors = [r.error for r in results if r.error]
+    if errors:
+        from ps_ray.pipeline import StageError
+
+        raise StageError(f"{len(errors)} of {len(results)} zero-shot trials failed: {errors[0]}")
     rows = [{**{k: short_name(v) for k, v in r.config["pair"].items() if not k.endswith("_path")},
-             **{k: r.metrics.get(k) for k in RESULT_KEYS}} for r in results if not r.error]
-    table = pd.DataFrame(rows).sort_values(["method", "label"]).reset_index(drop=True)
-    table.to_csv(root / "zero_shot.csv", index=False)
+             **{k: r.metrics.get(k) for k in RESULT_KEYS}} for r in results]
+    table = pd.DataFrame(rows).sort_values(["method", "seed", "label"]).reset_index(drop=True)
+    write_atomic_csv(table, root / RESULT_FILE)
     return table
 
 
@@ -91,3 +111,9 @@ def summary(table: pd.DataFrame) -> pd.DataFrame:
     return pd.DataFrame({"pairs": grouped.size(), "success": grouped["success_mean"].mean(),
                          "touching": grouped["touching_mean"].mean()})
 
+
+def write_atomic_csv(table: pd.DataFrame, path: Path) -> None:
+    """Write beside, then rename: a reader never sees half a table."""
+    partial = path.with_name(path.name + ".partial")
+    table.to_csv(partial, index=False)
+    partial.replace(path)

@@ -48,7 +48,7 @@ def test_resumable_changes_keep_the_identity():
     assert TrainSpec(seed=102).digest() != base.digest()
 
 
-@pytest.mark.parametrize("name, n_trials", [("smoke", 8), ("latent_reach", 72),
+@pytest.mark.parametrize("name, n_trials", [("smoke", 16), ("latent_reach", 72),
                                              ("zero_shot", 225), ("few_shot", 375)])
 def test_shipped_sweeps_load_and_expand_to_trials(name, n_trials):
     sweep = load_sweep(SWEEPS / f"{name}.yaml")
@@ -78,8 +78,13 @@ seeds: [1]
     (GOOD.replace("[panda]", "[{base: panda, locked_joints: [8]}]"), "8"),
     (GOOD + "train: {env_steps: -1}\n", "env_steps must be a positive integer, got -1"),
     (GOOD + "train: {method: ps}\n", "train.method is set by the sweep grid"),
-    (GOOD + "stages: [train, fly]\n", "unknown stage 'fly'; valid stages: train"),
-    (GOOD + "anchors: {epizodes: 3}\n", "unknown key 'epizodes' in anchors"),
+    (GOOD + "stages: [train, fly]\n", "unknown stage 'fly'; valid stages: train, zero_shot, few_shot, report"),
+    (GOOD + "anchors: {epizodes: 3}\n", "anchors: unknown key 'epizodes'; valid keys: file"),
+    (GOOD + "zero_shot: {episodes: 0}\n", "zero_shot.episodes must be positive, got 0"),
+    (GOOD + "few_shot: {env_steps: 100, collect_steps: 200}\n",
+     "few_shot.collect_steps must be in [0, env_steps), got 200"),
+    (GOOD + "few_shot: {methods: [plain]}\n", "method 'plain' is not trained by this sweep; valid: ps"),
+    (GOOD + "report: [1, 2]\n", "report: expected a mapping, got [1, 2]"),
     ("name: t\nmethods: [ps\n", "malformed YAML at line"),
     ("- just\n- a list\n", "expected a mapping at the top level"),
     (GOOD.replace("seeds: [1]", "seeds: []"), "seeds must be a non-empty list"),

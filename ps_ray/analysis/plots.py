@@ -1,0 +1,124 @@
+"""Figures of the report (matplotlib, Agg): distance heatmaps, interface PCA, curves, bars.
+
+Every function draws one figure and writes a PNG; it returns the path. Colours of goal
+quadrants are fixed so that the same region has the same colour in every panel.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+import pandas as pd  # noqa: E402
+
+from ps_ray.analysis.latent import QUADRANTS, Group, Probes, mean_matrix, shared_pca  # noqa: E402
+
+QUADRANT_COLOURS = dict(zip(QUADRANTS, ("tab:red", "tab:blue", "tab:green", "tab:orange")))
+METRIC_TITLES = {"cosine": "cosine distance", "l2": "L2 distance"}
+
+
+def _save(fig, path: Path) -> Path:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=90, bbox_inches="tight", metadata={"Software": None})
+    plt.close(fig)
+    return path
+
+
+def distance_heatmaps(by_method: Mapping[str, Sequence[Group]], title: str, path: Path) -> Path:
+    """Rows: methods; columns: cosine and L2. Each cell: the mean matrix of the method's groups."""
+    methods = list(by_method)
+    fig, axes = plt.subplots(len(methods), 2, figsize=(8, 3.4 * len(methods)), squeeze=False)
+    for row, method in enumerate(methods):
+        for col, metric in enumerate(("cosine", "l2")):
+            matrix = mean_matrix(by_method[method], metric)
+            ax = axes[row, col]
+            vmax = max(1.0, float(matrix.to_numpy().max())) if metric == "cosine" else None
+            image = ax.imshow(matrix.to_numpy(), cmap="viridis", vmin=0, vmax=vmax)
+            ax.set_xticks(range(len(matrix)), matrix.columns, rotation=30, ha="right")
+            ax.set_yticks(range(len(matrix)), matrix.index)
+            for (i, j), value in np.ndenumerate(matrix.to_numpy()):
+                ax.text(j, i, f"{value:.3f}" if metric == "cosine" else f"{value:.2f}",
+                        ha="center", va="center", fontsize=8,
+                        color="white" if value < 0.6 * (vmax or matrix.to_numpy().max() or 1) else "black")
+            ax.set_title(f"{method}: {METRIC_TITLES[metric]}")
+            fig.colorbar(image, ax=ax, fraction=0.046)
+    fig.suptitle(title)
+    fig.tight_layout()
+    return _save(fig, path)
+
+
+def interface_scatter(group: Group, probes: Probes, title: str, path: Path) -> Path:
+    """One panel per member: the interface on the probe states, coloured by goal quadrant.
+
+    3-D interfaces are drawn raw in 3-D; wider ones on a PCA basis shared by the whole group."""
+    names = list(group.members)
+    values = [group.members[n].values for n in names]
+    three_d = values[0].shape[1] == 3
+    points = values if three_d else shared_pca(values)
+    fig = plt.figure(figsize=(3.2 * len(names), 3.3))
+    for index, (name, xy) in enumerate(zip(names, points)):
+        ax = fig.add_subplot(1, len(names), index + 1, projection="3d" if three_d else None)
+        for quadrant in QUADRANTS:
+            mask = probes.labels == quadrant
+            coords = [xy[mask, c] for c in range(xy.shape[1])]
+            ax.scatter(*coords, s=4, color=QUADRANT_COLOURS[quadrant], label=quadrant)
+        ax.set_title(f"{group.comparison[:-1]} {name}", fontsize=9)
+        ax.tick_params(labelsize=6)
+        if index == 0:
+            ax.legend(fontsize=6, markerscale=2, loc="best")
+    fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    return _save(fig, path)
+
+
+def learning_curves(curves: pd.DataFrame, *, x: str, y: str, panel: str, line: str, title: str,
+                    path: Path, ylabel: str = "greedy success") -> Path:
+    """One panel per ``panel`` value; one line per ``line`` value: the mean over the rows' runs
+    (column ``run``) at each x, with the min-max band."""
+    panels = list(dict.fromkeys(curves[panel]))
+    columns = min(3, len(panels))
+    rows = -(-len(panels) // columns)
+    fig, axes = plt.subplots(rows, columns, figsize=(4.6 * columns, 3.2 * rows), squeeze=False)
+    for ax, name in zip(axes.flat, panels):
+        part = curves[curves[panel] == name]
+        for label, lines in part.groupby(line, sort=True):
+            stats = lines.groupby(x)[y].agg(["mean", "min", "max"])
+            ax.plot(stats.index, stats["mean"], label=f"{label} ({lines['run'].nunique()})")
+            ax.fill_between(stats.index, stats["min"], stats["max"], alpha=0.2)
+        ax.set_title(str(name), fontsize=9)
+        ax.set_xlabel(x.replace("_", " "))
+        ax.set_ylabel(ylabel)
+        ax.set_ylim(-0.05, 1.05)
+        ax.legend(fontsize=7)
+    for ax in list(axes.flat)[len(panels):]:
+        ax.axis("off")
+    fig.suptitle(title)
+    fig.tight_layout()
+    return _save(fig, path)
+
+
+def zero_shot_bars(table: pd.DataFrame, path: Path) -> Path:
+    """Success and touching per stitched combination (rows), one bar per method (mean over
+    seeds, error bar: pooled std)."""
+    labels = list(dict.fromkeys(table["label"]))
+    methods = list(dict.fromkeys(table["method"]))
+    fig, axes = plt.subplots(1, 2, figsize=(12, 0.45 * len(labels) * len(methods) + 1.5),
+                             sharey=True)
+    height = 0.8 / len(methods)
+    for ax, metric in zip(axes, ("success", "touching")):
+        for index, method in enumerate(methods):
+            part = table[table["method"] == method].set_index("label").reindex(labels)
+            ax.barh(np.arange(len(labels)) + index * height, part[f"{metric}_mean"], height,
+                    xerr=part[f"{metric}_std"], label=method, capsize=2)
+        ax.set_yticks(np.arange(len(labels)) + 0.4 - height / 2, labels, fontsize=7)
+        ax.set_xlim(0, 1)
+        ax.set_xlabel(f"zero-shot {metric} rate")
+        ax.invert_yaxis()
+    axes[0].legend(fontsize=8)
+    fig.tight_layout()
+    return _save(fig, path)

@@ -1,0 +1,266 @@
+"""The analysis stage: a sweep's stored results -> figures, tables, one self-contained HTML page,
+and one MLflow run per sweep (``report``) holding them. Nothing is retrained.
+
+Layout under ``<sweep>/report/`` (rebuilt in ``report.partial/`` and swapped in when complete):
+  index.html                 self-contained report (figures embedded), opens offline
+  figures/*.png              every figure of the page
+  tables/*.csv               every table of the page, as numbers
+  interfaces.safetensors     probe states and the interface dump of every modular module
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+import shutil
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import pandas as pd
+
+from ps_ray.analysis import latent, plots, results, tables
+from ps_ray.config import SweepSpec, short_name
+
+REPORT_DIR = "report"
+REPORT_RUN = "report"  # the MLflow run's trial key
+
+
+@dataclass
+class Section:
+    title: str
+    intro: str = ""
+    items: list[tuple[str, object]] = field(default_factory=list)  # ("figure", Path) | ("table", (caption, frame))
+
+
+@dataclass
+class Report:
+    """What the page shows, in order; files are written under ``root`` as they are added."""
+
+    root: Path
+    sections: list[Section] = field(default_factory=list)
+    metrics: dict[str, float] = field(default_factory=dict)
+
+    def section(self, title: str, intro: str = "") -> Section:
+        self.sections.append(Section(title, intro))
+        return self.sections[-1]
+
+    def figure(self, section: Section, name: str, draw: Callable[[Path], Path]) -> None:
+        section.items.append(("figure", draw(self.root / "figures" / f"{name}.png")))
+
+    def table(self, section: Section, name: str, caption: str, frame: pd.DataFrame,
+              numbers: pd.DataFrame | None = None) -> None:
+        path = self.root / "tables" / f"{name}.csv"
+        path.parent.mkdir(parents=True, exist_ok=True)
+        (frame if numbers is None else numbers).to_csv(path)
+        section.items.append(("table", (caption, frame)))
+
+    def figures(self) -> list[Path]:
+        return [item for s in self.sections for kind, item in s.items if kind == "figure"]
+
+
+def build_report(spec: SweepSpec, *, progress: bool = True, log_to_mlflow: bool = True) -> Path:
+    """Rebuild ``<sweep>/report/`` from the stored results; returns the path of ``index.html``."""
+    from ps_ray.sweep import sweep_dir
+
+    root = sweep_dir(spec)
+    say = print if progress else (lambda *a, **k: None)
+    partial = root / f"{REPORT_DIR}.partial"
+    shutil.rmtree(partial, ignore_errors=True)
+    report = Report(partial)
+    _training(report, root, say)
+    _latent(report, spec, root, say)
+    _zero_shot(report, root, say)
+    _few_shot(report, root, say)
+    (partial / "index.html").write_text(render_html(spec, report))
+    final = root / REPORT_DIR
+    shutil.rmtree(final, ignore_errors=True)
+    partial.rename(final)
+    if log_to_mlflow:
+        log_report(spec, final, report.metrics)
+        say(f"report: logged to MLflow run {REPORT_RUN!r} of experiment {spec.name!r}")
+    return final / "index.html"
+
+
+# -- sections -------------------------------------------------------------------------------------
+def _training(report: Report, root: Path, say) -> None:
+    frame = results.curves(root / "tune")
+    section = report.section("Training", "Greedy success of the sweep's policies during training "
+                             "(mean over robots and seeds; band: min to max).")
+    if frame.empty:
+        section.intro = "No training results yet."
+        return
+    frame["panel"] = frame["task"] + (", interface " + frame["interface_dim"].astype(str)
+                                      if frame["interface_dim"].nunique() > 1 else "")
+    report.figure(section, "training_curves", lambda p: plots.learning_curves(
+        frame, x="env_steps", y="success", panel="panel", line="method",
+        title="training: greedy success", path=p))
+    final = results.final_success(frame)
+    report.table(section, "training_final", "Final greedy success per method, task and interface",
+                 tables.training_table(final))
+    say(f"report: training curves of {frame['run'].nunique()} runs")
+
+
+def _latent(report: Report, spec: SweepSpec, root: Path, say) -> None:
+    from ps_ray.zoo import ModuleZoo
+
+    section = report.section(
+        "Latent alignment", "Average pairwise cosine and L2 distances between the interfaces of "
+        "modules that differ only in their training seed or only in their robot, on fixed probe "
+        "task states (the paper's appendix tables; PS: relative vector, others: raw latent). "
+        "Scatter plots: the interface on the probe states coloured by goal quadrant, on one PCA "
+        "basis per group (3-D interfaces drawn raw).")
+    try:
+        zoo = ModuleZoo.from_sweep(root)
+    except ValueError:
+        section.intro = "No trained modules yet."
+        return
+    entries = [e for e in zoo if e.stage == "train"]
+    probes: dict[str, latent.Probes] = {}
+
+    def probes_for(task) -> latent.Probes:
+        name = short_name(task)
+        if name not in probes:
+            probes[name] = latent.probe_states(task, spec.report.probes_per_group, spec.report.seed)
+        return probes[name]
+
+    dumps = latent.dump_interfaces(entries, probes_for)
+    say(f"report: interfaces of {len(dumps)} modular modules on "
+        f"{sum(len(p.states) for p in probes.values())} probe states")
+    if not dumps:
+        section.intro = "No modular modules in this sweep (plain has no task-only interface)."
+        return
+    latent.save_dumps(report.root / "interfaces.safetensors", probes, dumps)
+    all_groups = {c: latent.groups(dumps, c) for c in latent.COMPARISONS}
+    distances = latent.distance_table([g for gs in all_groups.values() for g in gs])
+    if distances.empty:
+        section.intro += " Distances need two or more seeds or robots per method."
+        return
+    report.table(section, "latent_distances", "All distances (mean and std over pairs)",
+                 distances.round(5), numbers=distances)
+    for _, row in distances.iterrows():
+        base = f"latent.{row['comparison']}.i{row['interface_dim']}.{row['method']}"
+        report.metrics[f"{base}.cosine"] = float(row["cosine_mean"])
+        report.metrics[f"{base}.l2"] = float(row["l2_mean"])
+    for comparison, found in all_groups.items():
+        for dim in sorted({g.interface_dim for g in found}):
+            chosen = [g for g in found if g.interface_dim == dim]
+            what = f"across {comparison}, interface {dim}"
+            report.table(section, f"latent_{comparison}_i{dim}", f"Distances {what}",
+                         tables.latent_table(distances, comparison, dim))
+            by_method = {m: [g for g in chosen if g.method == m]
+                         for m in sorted({g.method for g in chosen}, key=tables._method_key)}
+            report.figure(section, f"heatmap_{comparison}_i{dim}", lambda p: plots.distance_heatmaps(
+                by_method, f"mean pairwise distance {what}", p))
+            for method, method_groups in by_method.items():
+                group = method_groups[0]
+                report.figure(section, f"interface_{comparison}_i{dim}_{method}",
+                              lambda p: plots.interface_scatter(
+                                  group, probes[group.members[next(iter(group.members))].task],
+                                  f"{method}, {what} ({group.fixed})", p))
+    say(f"report: latent distances of {sum(map(len, all_groups.values()))} groups")
+
+
+def _zero_shot(report: Report, root: Path, say) -> None:
+    from ps_ray.zero_shot import RESULT_FILE
+
+    table = results.zero_shot_results(root / RESULT_FILE)
+    if table is None:
+        return
+    section = report.section("Zero-shot stitching", "Stitched policies (task module of one "
+                             "robot-task pair, robot module of another) in their target env "
+                             "without training: touching and success, mean ± std over repeats "
+                             "and seeds, identical evaluation episodes for every method.")
+    report.table(section, "zero_shot", "Zero-shot results (Table 1 layout)",
+                 tables.zero_shot_table(table), numbers=tables.pool_seeds(table))
+    summary = tables.zero_shot_summary(table)
+    report.table(section, "zero_shot_summary", "Mean over combinations", summary.round(3),
+                 numbers=summary)
+    for method, row in summary.iterrows():
+        report.metrics[f"zero_shot.{method}.success"] = float(row["success"])
+        report.metrics[f"zero_shot.{method}.touching"] = float(row["touching"])
+    report.figure(section, "zero_shot", lambda p: plots.zero_shot_bars(tables.pool_seeds(table), p))
+    say(f"report: zero-shot table of {len(table)} stitched pairs")
+
+
+def _few_shot(report: Report, root: Path, say) -> None:
+    from ps_ray.few_shot import FEW_SHOT_DIR, TUNE_DIR
+
+    frame = results.curves(root / FEW_SHOT_DIR / TUNE_DIR)
+    if frame.empty:
+        return
+    section = report.section("Few-shot fine-tuning", "Stitched policies fine-tuned in their "
+                             "target env (after a collection phase without updates) beside the "
+                             "same env trained from scratch: greedy success vs env steps.")
+    frame["target"] = frame["robot"] + " / " + frame["task"]
+    frame["line"] = frame["kind"] + ": " + frame["method"]
+    report.figure(section, "few_shot_curves", lambda p: plots.learning_curves(
+        frame, x="env_steps", y="success", panel="target", line="line",
+        title="few-shot: greedy success in the target env", path=p))
+    final = results.final_success(frame)
+    summary = final.groupby(["target", "line"])["success"].mean().unstack("line")
+    report.table(section, "few_shot_final", "Final greedy success per target env",
+                 summary.round(3), numbers=summary)
+    say(f"report: few-shot curves of {frame['run'].nunique()} runs")
+
+
+# -- HTML -----------------------------------------------------------------------------------------
+STYLE = """
+body { font-family: system-ui, sans-serif; margin: 2em auto; max-width: 1200px; color: #222; }
+h1 { border-bottom: 2px solid #444; } h2 { margin-top: 2em; border-bottom: 1px solid #bbb; }
+table { border-collapse: collapse; margin: 0.5em 0 1.5em; font-size: 0.9em; }
+th, td { border: 1px solid #ccc; padding: 3px 8px; text-align: right; }
+th { background: #f0f0f0; } caption { font-weight: bold; text-align: left; padding: 4px 0; }
+img { max-width: 100%; display: block; margin: 1em 0; } .meta td { text-align: left; }
+"""
+
+
+def render_html(spec: SweepSpec, report: Report) -> str:
+    """One page, figures embedded as data URIs, so the file opens anywhere without its folder."""
+    from ps_ray.tracking import git_commit
+
+    esc = html.escape
+    meta = {"methods": ", ".join(spec.methods), "robots": ", ".join(map(short_name, spec.robots)),
+            "tasks": ", ".join(map(short_name, spec.tasks)),
+            "seeds": ", ".join(map(str, spec.seeds)),
+            "interface dims": ", ".join(map(str, spec.interface_dims)),
+            "stages": ", ".join(spec.stages), "code": git_commit() or "unknown"}
+    parts = [f"<!DOCTYPE html><html><head><meta charset='utf-8'>"
+             f"<title>ps_ray report: {esc(spec.name)}</title><style>{STYLE}</style></head><body>",
+             f"<h1>ps_ray report: {esc(spec.name)}</h1>", "<table class='meta'>",
+             *(f"<tr><th>{esc(k)}</th><td>{esc(v)}</td></tr>" for k, v in meta.items()), "</table>"]
+    parts.append("<ul>" + "".join(f"<li><a href='#s{i}'>{esc(s.title)}</a></li>"
+                                  for i, s in enumerate(report.sections)) + "</ul>")
+    for index, section in enumerate(report.sections):
+        parts.append(f"<h2 id='s{index}'>{esc(section.title)}</h2><p>{esc(section.intro)}</p>")
+        for kind, item in section.items:
+            if kind == "figure":
+                data = base64.b64encode(item.read_bytes()).decode()
+                parts.append(f"<img alt='{esc(item.stem)}' src='data:image/png;base64,{data}'>")
+            else:
+                caption, frame = item
+                head, rest = frame.to_html(border=0, na_rep="–").split(">", 1)
+                parts.append(f"{head}><caption>{esc(caption)}</caption>{rest}")
+    parts.append("</body></html>")
+    return "\n".join(parts)
+
+
+# -- MLflow ---------------------------------------------------------------------------------------
+def log_report(spec: SweepSpec, report_dir: Path, metrics: dict[str, float]) -> str:
+    """One run per sweep (found again by its key), holding the report folder and headline
+    numbers; a rebuild overwrites the same artifacts. Returns the run id."""
+    from ps_ray.sweep import sweep_dir
+    from ps_ray.tracking import (STAGE_TAG, TrialTracker, default_tracking_uri, ensure_experiment,
+                                 git_commit)
+
+    root = sweep_dir(spec)
+    uri = spec.tracking_uri or default_tracking_uri(root)
+    experiment = ensure_experiment(uri, spec.name, root / "mlartifacts")
+    tracker = TrialTracker(uri, experiment, REPORT_RUN, params={"sweep": spec.name},
+                           tags={STAGE_TAG: "report", "ps_ray.sweep": spec.name,
+                                 "git_commit": git_commit() or ""})
+    tracker.log_metrics(metrics, step=0)
+    for path in sorted(report_dir.iterdir()):
+        tracker.log_artifact(path)
+    tracker.close()
+    return tracker.run_id

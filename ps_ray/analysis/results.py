@@ -1,0 +1,61 @@
+"""Stored results of a sweep, read back without Ray: Tune trial folders and the zero-shot table.
+
+A Tune trial folder holds ``params.json`` (the trial config) and ``result.json`` (one JSON result
+per line); both are plain JSON written by this sweep's own trials.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pandas as pd
+
+from ps_ray.config import short_name, trial_key
+
+CURVE_COLUMNS = ["run", "kind", "label", "method", "robot", "task", "seed", "interface_dim",
+                 "env_steps", "success"]
+
+
+def _results(trial_dir: Path) -> list[dict]:
+    path = trial_dir / "result.json"
+    if not path.exists():
+        return []
+    rows = []
+    for line in path.read_text().splitlines():
+        try:
+            rows.append(json.loads(line))
+        except json.JSONDecodeError:  # a line cut short by a killed trial
+            continue
+    return rows
+
+
+def curves(stage_dir: Path) -> pd.DataFrame:
+    """Greedy success vs env steps of every trial in a Tune stage folder (``tune``,
+    ``tune_few_shot``): the periodic evaluations, then the final evaluation at the last step."""
+    records = []
+    for params_path in sorted(stage_dir.glob("*/params.json")):
+        trial = json.loads(params_path.read_text())["trial"]
+        spec = trial["spec"]
+        run = trial.get("key") or trial_key(spec)
+        fields = {"run": run, "kind": trial.get("kind", "train"), "label": trial.get("label", run),
+                  "method": spec["method"], "robot": short_name(spec["robot"]),
+                  "task": short_name(spec["task"]), "seed": spec["seed"],
+                  "interface_dim": spec["interface_dim"]}
+        for row in _results(params_path.parent):
+            for key in ("eval_success", "final_success"):
+                if row.get(key) is not None:
+                    records.append({**fields, "env_steps": row["env_steps"], "success": row[key]})
+    frame = pd.DataFrame(records, columns=CURVE_COLUMNS)
+    # a final evaluation at the step of a periodic one replaces it (more episodes)
+    return frame.drop_duplicates(["run", "env_steps"], keep="last").reset_index(drop=True)
+
+
+def final_success(curves_frame: pd.DataFrame) -> pd.DataFrame:
+    """The last point of every run."""
+    return curves_frame.sort_values("env_steps").groupby("run", sort=True).tail(1)
+
+
+def zero_shot_results(path: Path) -> pd.DataFrame | None:
+    """``zero_shot.csv`` of a sweep, or None when the stage has not run."""
+    return pd.read_csv(path) if path.exists() else None

@@ -1,0 +1,92 @@
+"""Tables of the report: latent distances (the paper's appendix layout), zero-shot results
+(Table 1 layout: combinations as rows, methods as columns, touching and success) and training."""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+
+from ps_ray.config import short_name
+
+METHOD_ORDER = ("ps", "ablation", "devin", "devin_large", "plain")
+
+
+def pm(mean: float, std: float, digits: int = 2) -> str:
+    """``mean ± std`` with ``digits`` decimals."""
+    return f"{mean:.{digits}f} ± {std:.{digits}f}"
+
+
+def _method_key(method: str) -> int:
+    return METHOD_ORDER.index(method) if method in METHOD_ORDER else len(METHOD_ORDER)
+
+
+def latent_table(distances: pd.DataFrame, comparison: str, interface_dim: int) -> pd.DataFrame:
+    """One of the paper's appendix tables: rows = methods, columns = cosine and L2 distance."""
+    part = distances[(distances["comparison"] == comparison)
+                     & (distances["interface_dim"] == interface_dim)]
+    part = part.sort_values("method", key=lambda s: s.map(_method_key))
+    return pd.DataFrame({
+        "pairs": part["pairs"].to_numpy(),
+        "cosine distance": [pm(m, s, 4) for m, s in zip(part["cosine_mean"], part["cosine_std"])],
+        "L2 distance": [pm(m, s, 3) for m, s in zip(part["l2_mean"], part["l2_std"])],
+    }, index=pd.Index(part["method"].to_numpy(), name="method"))
+
+
+def pool_seeds(table: pd.DataFrame) -> pd.DataFrame:
+    """Zero-shot rows of several seeds per (method, label) -> one row: the mean of the seeds'
+    means, and the pooled std over every repeat (within-seed variance + between-seed variance)."""
+    out = []
+    for (method, label), part in table.groupby(["method", "label"], sort=False):
+        row = {"method": method, "label": label, "seeds": len(part)}
+        for metric in ("success", "touching"):
+            means, stds = part[f"{metric}_mean"].to_numpy(float), part[f"{metric}_std"].to_numpy(float)
+            row[f"{metric}_mean"] = float(np.mean(means))
+            row[f"{metric}_std"] = float(np.sqrt(np.mean(stds ** 2) + np.var(means)))
+        out.append(row)
+    return pd.DataFrame(out)
+
+
+def paper_names() -> dict[str, str]:
+    """ps_ray-style combination label -> the paper's name, e.g. ``E1 (t: Pu1-R1 & r: Pu2-R2)``."""
+    from ps_ray.stitch import PAPER_COMBOS
+
+    names = {}
+    for combo in PAPER_COMBOS:
+        t, r = combo.task_from, combo.robot_from
+        label = f"t: {t.task}-{short_name(t.robot)} & r: {r.task}-{short_name(r.robot)}"
+        names[label] = f"{combo.name} ({combo.label})"
+    return names
+
+
+def zero_shot_table(table: pd.DataFrame) -> pd.DataFrame:
+    """Table 1 layout: one row per stitched combination (paper E-names where they apply), columns
+    (method, touching | success) holding ``mean ± std`` pooled over seeds."""
+    pooled = pool_seeds(table)
+    names = paper_names()
+    pooled["row"] = pooled["label"].map(lambda label: names.get(label, label))
+    methods = sorted(pooled["method"].unique(), key=_method_key)
+    rows = sorted(pooled["row"].unique())
+    columns = pd.MultiIndex.from_product([methods, ["touching", "success"]])
+    out = pd.DataFrame("–", index=pd.Index(rows, name="task module & robot module"),
+                       columns=columns)
+    for _, r in pooled.iterrows():
+        for metric in ("touching", "success"):
+            out.loc[r["row"], (r["method"], metric)] = pm(r[f"{metric}_mean"], r[f"{metric}_std"])
+    return out
+
+
+def zero_shot_summary(table: pd.DataFrame) -> pd.DataFrame:
+    """Per method: the number of combinations and the mean success and touching over them."""
+    pooled = pool_seeds(table)
+    grouped = pooled.groupby("method")
+    out = pd.DataFrame({"combinations": grouped.size(), "success": grouped["success_mean"].mean(),
+                        "touching": grouped["touching_mean"].mean()})
+    return out.sort_index(key=lambda s: s.map(_method_key))
+
+
+def training_table(final: pd.DataFrame) -> pd.DataFrame:
+    """Final greedy success per (method, task, interface dim): mean ± std over robots and seeds."""
+    grouped = final.groupby(["method", "task", "interface_dim"])["success"]
+    out = pd.DataFrame({"runs": grouped.size(), "final success": grouped.agg(
+        lambda s: pm(float(s.mean()), float(s.std(ddof=0))))})
+    return out.sort_index(level=0, key=lambda s: s.map(_method_key) if s.name == "method" else s)

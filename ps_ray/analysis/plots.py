@@ -61,8 +61,12 @@ def interface_scatter(group: Group, probes: Probes, title: str, path: Path) -> P
     three_d = values[0].shape[1] == 3
     points = values if three_d else shared_pca(values)
     fig = plt.figure(figsize=(3.2 * len(names), 3.3))
+    first = None
     for index, (name, xy) in enumerate(zip(names, points)):
-        ax = fig.add_subplot(1, len(names), index + 1, projection="3d" if three_d else None)
+        shared = {} if three_d or first is None else {"sharex": first, "sharey": first}
+        ax = fig.add_subplot(1, len(names), index + 1, projection="3d" if three_d else None,
+                             **shared)
+        first = first or ax
         for quadrant in QUADRANTS:
             mask = probes.labels == quadrant
             coords = [xy[mask, c] for c in range(xy.shape[1])]

@@ -1,0 +1,118 @@
+"""Latent distances, grouping and the report's tables on hand-made inputs."""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import pytest
+import torch
+from scipy.spatial.distance import cdist
+from scipy.stats import special_ortho_group
+
+from ps_ray.analysis import latent, tables
+from ps_ray.nets.relative import RelativeProjection
+
+
+def _dump(values, method="ps", robot="panda", task="reach", seed=1, dim=16):
+    key = f"{method}/{robot}/{task}/{seed}"
+    return latent.Dump(key, method, robot, task, seed, dim, np.asarray(values, np.float32))
+
+
+def test_distances_of_identical_interfaces_are_zero():
+    x = np.random.default_rng(0).normal(size=(50, 16))
+    assert latent.cosine_distance(x, x) == pytest.approx(0.0, abs=1e-12)
+    assert latent.l2_distance(x, x) == 0.0
+
+
+def test_distances_match_the_paper_definitions_row_by_row():
+    rng = np.random.default_rng(1)
+    a, b = rng.normal(size=(40, 8)), rng.normal(size=(40, 8))
+    assert latent.cosine_distance(a, b) == pytest.approx(np.mean(np.diag(cdist(a, b, "cosine"))))
+    assert latent.l2_distance(a, b) == pytest.approx(np.mean(np.diag(cdist(a, b))))
+    assert latent.cosine_distance(a, -a) == pytest.approx(2.0)
+
+
+def test_a_rotated_latent_moves_the_raw_interface_but_not_the_relative_one():
+    """Two 'networks' whose latents differ by a rotation and a scale (the paper's isometry):
+    the raw latents are far apart, their relative vectors against the same anchors coincide."""
+    rng = np.random.default_rng(2)
+    weight = torch.as_tensor(rng.normal(size=(3, 16)), dtype=torch.float32)
+    rotation = torch.as_tensor(special_ortho_group.rvs(16, random_state=3), dtype=torch.float32)
+    net_a = lambda x: torch.tanh(x @ weight)  # noqa: E731
+    net_b = lambda x: 2.5 * net_a(x) @ rotation  # noqa: E731
+    states = torch.as_tensor(rng.uniform(-0.15, 0.15, size=(200, 3)), dtype=torch.float32)
+    projection = RelativeProjection(torch.as_tensor(rng.uniform(-0.15, 0.15, (16, 3))))
+
+    raw_cos = latent.cosine_distance(net_a(states).numpy(), net_b(states).numpy())
+    rel_a, rel_b = (projection(net, states).detach().numpy() for net in (net_a, net_b))
+    assert raw_cos > 0.5
+    assert latent.cosine_distance(rel_a, rel_b) < 1e-5
+    assert latent.l2_distance(rel_a, rel_b) < 1e-4
+    assert latent.l2_distance(net_a(states).numpy(), net_b(states).numpy()) > 1.0
+
+
+def test_shape_mismatch_is_refused():
+    with pytest.raises(ValueError, match=r"one shape, got \(3, 2\) and \(3, 4\)"):
+        latent.cosine_distance(np.ones((3, 2)), np.ones((3, 4)))
+
+
+def test_groups_compare_only_modules_that_differ_in_the_compared_field():
+    x = np.eye(4)[:, :3]
+    dumps = [_dump(x, seed=s, robot=r) for s in (1, 2, 3) for r in ("panda", "panda_l3")]
+    dumps.append(_dump(x, method="ablation", seed=1))  # alone in its group: left out
+    by_seed = latent.groups(dumps, "seeds")
+    assert [(g.method, g.fixed, list(g.members)) for g in by_seed] == [
+        ("ps", "panda, reach", ["1", "2", "3"]), ("ps", "panda_l3, reach", ["1", "2", "3"])]
+    by_robot = latent.groups(dumps, "robots")
+    assert len(by_robot) == 3 and all(list(g.members) == ["panda", "panda_l3"] for g in by_robot)
+
+
+def test_distance_table_pools_pairs_and_matrices_are_symmetric():
+    rng = np.random.default_rng(4)
+    dumps = [_dump(rng.normal(size=(30, 4)), seed=s) for s in (1, 2, 3, 4)]
+    (group,) = latent.groups(dumps, "seeds")
+    matrix = group.matrix("cosine")
+    assert matrix.shape == (4, 4) and np.allclose(matrix, matrix.T) and np.all(np.diag(matrix) == 0)
+    table = latent.distance_table([group])
+    row = table.iloc[0]
+    assert row["pairs"] == 6  # 4 seeds: the paper's 6 pairs
+    assert row["cosine_mean"] == pytest.approx(latent.upper_values(matrix).mean())
+    shown = tables.latent_table(table, "seeds", 16)
+    assert list(shown.columns) == ["pairs", "cosine distance", "L2 distance"]
+    assert shown.loc["ps", "cosine distance"] == tables.pm(row["cosine_mean"], row["cosine_std"], 4)
+
+
+def test_zero_shot_table_has_combinations_as_rows_and_methods_as_columns():
+    label_e1 = "t: push-panda & r: push_slippery-panda_l3"
+    frame = pd.DataFrame([
+        {"method": m, "seed": s, "label": label, "success_mean": sm, "success_std": 0.1,
+         "touching_mean": 0.5, "touching_std": 0.0}
+        for m, sm in (("ablation", 0.2), ("ps", 0.6)) for s in (1, 2)
+        for label in (label_e1, "t: reach-panda & r: reach-panda_l5")])
+    frame.loc[(frame["method"] == "ps") & (frame["seed"] == 2), "success_mean"] = 0.8
+    table = tables.zero_shot_table(frame)
+    assert list(table.columns) == [("ps", "touching"), ("ps", "success"),
+                                   ("ablation", "touching"), ("ablation", "success")]
+    assert list(table.index) == ["E1 (t: Pu1-R1 & r: Pu2-R2)", "t: reach-panda & r: reach-panda_l5"]
+    # mean of the seeds' means; std pooled: sqrt(mean within-seed var + between-seed var)
+    assert table.loc["E1 (t: Pu1-R1 & r: Pu2-R2)", ("ps", "success")] == tables.pm(
+        0.7, np.sqrt(0.01 + 0.01))
+    assert table.loc["E1 (t: Pu1-R1 & r: Pu2-R2)", ("ablation", "touching")] == "0.50 ± 0.00"
+
+
+def test_goal_quadrants_follow_the_reach_regions():
+    from ps_ray.envs.tasks.reach import GOAL_REGIONS
+
+    for name in latent.QUADRANTS:
+        region = GOAL_REGIONS[name]
+        assert latent.goal_quadrant(np.asarray(region["center"])) == name
+
+
+def test_probe_states_are_fixed_and_labelled_by_region():
+    probes = latent.probe_states({"name": "reach", "goal_region": "q1"}, per_group=5, seed=3)
+    again = latent.probe_states("reach", per_group=5, seed=3)
+    assert probes.states.shape == (20, 3) and np.array_equal(probes.states, again.states)
+    for state, label in zip(probes.states, probes.labels):
+        assert latent.goal_quadrant(state) == label
+    push = latent.probe_states("push", per_group=3)
+    assert push.states.shape == (12, 15) and sorted(set(push.labels)) == list(latent.QUADRANTS)

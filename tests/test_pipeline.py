@@ -1,0 +1,164 @@
+"""`ps-ray run sweeps/smoke.yaml` end to end (the README's pipeline), killed once and resumed;
+`ps-ray report` rebuilt idempotently and opened in headless Chromium."""
+
+from __future__ import annotations
+
+import base64
+import dataclasses
+import hashlib
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import matplotlib.image
+import mlflow
+import numpy as np
+import pandas as pd
+import pytest
+
+from ps_ray.analysis.browser import find_chromium
+from ps_ray.config import load_sweep
+from ps_ray.pipeline import stage_state
+
+from .test_sweep import cli
+
+SMOKE = Path(__file__).resolve().parents[1] / "sweeps" / "smoke.yaml"
+FIGURES = {"training_curves", "heatmap_seeds_i16", "heatmap_robots_i16", "zero_shot",
+           "few_shot_curves"} | {f"interface_{c}_i16_{m}" for c in ("seeds", "robots")
+                                 for m in ("ps", "ablation")}
+
+
+@pytest.fixture(scope="module")
+def smoke(tmp_path_factory):
+    """The smoke pipeline, SIGKILLed once its zero-shot stage has started, then run again."""
+    storage = tmp_path_factory.mktemp("pipeline") / "sweeps"
+    root = storage / "smoke"
+    log = storage.parent / "first_run.log"
+    with log.open("w") as sink:  # a file, not a pipe nobody reads while waiting (it would fill)
+        first = subprocess.Popen([sys.executable, "-m", "ps_ray.cli", "run", str(SMOKE),
+                                  "--storage", str(storage)], stdout=sink, stderr=subprocess.STDOUT,
+                                 start_new_session=True)
+        deadline = time.time() + 1200
+        while not (root / "stages" / "zero_shot.started.json").exists():
+            assert first.poll() is None, log.read_text()[-3000:]
+            assert time.time() < deadline, "the zero-shot stage did not start in time"
+            time.sleep(0.5)
+        time.sleep(8)
+        os.killpg(first.pid, signal.SIGKILL)  # the driver and the Ray processes it started
+        first.wait()
+    second = cli("run", str(SMOKE), "--storage", str(storage))
+    out, _ = second.communicate(timeout=1200)
+    assert second.returncode == 0, out[-3000:]
+    spec = dataclasses.replace(load_sweep(SMOKE), storage=str(storage))
+    return spec, root, out
+
+
+def _runs(root: Path, stage: str):
+    client = mlflow.MlflowClient(f"sqlite:///{root / 'mlflow.db'}")
+    experiment = client.get_experiment_by_name("smoke")
+    return [r for r in client.search_runs([experiment.experiment_id])
+            if r.data.tags.get("ps_ray.stage") == stage]
+
+
+def test_a_killed_pipeline_resumes_without_redoing_finished_work(smoke):
+    spec, root, out = smoke
+    assert "[1/4] train: done earlier, skipped (16 training trials)" in out
+    assert "[2/4] zero_shot: resuming" in out
+    assert "[3/4] few_shot: starting" in out and "[4/4] report: done" in out
+    assert f"report: {root / 'report' / 'index.html'}" in out
+    assert len(_runs(root, "train")) == 16  # one MLflow run per trial, none duplicated
+    assert len(_runs(root, "zero_shot")) == 16
+    assert len(_runs(root, "few_shot")) == 4  # one stitched pair per method + their scratch runs
+    assert len(pd.read_csv(root / "zero_shot.csv")) == 16
+    assert all(stage_state(spec, s) == "done" for s in spec.stages)
+
+
+def test_rerunning_a_finished_pipeline_skips_every_stage(smoke):
+    spec, root, _ = smoke
+    before = (root / "report" / "index.html").stat().st_mtime
+    proc = cli("run", str(SMOKE), "--storage", str(root.parent))
+    out, _ = proc.communicate(timeout=300)
+    assert proc.returncode == 0, out[-3000:]
+    assert out.count("done earlier, skipped") == 4
+    assert (root / "report" / "index.html").stat().st_mtime == before
+
+
+def test_changed_stage_settings_rerun_that_stage_and_later_ones_only(smoke):
+    spec, root, _ = smoke
+    changed = dataclasses.replace(spec, few_shot=dataclasses.replace(spec.few_shot, env_steps=2000))
+    assert [stage_state(changed, s) for s in spec.stages] == ["done", "done", "new", "new"]
+    (root / "stages" / "report.json").rename(root / "stages" / "report.moved")
+    try:
+        assert stage_state(spec, "report") == "interrupted"  # started, never finished
+    finally:
+        (root / "stages" / "report.moved").rename(root / "stages" / "report.json")
+
+
+def test_report_embeds_every_figure_and_table(smoke):
+    _, root, _ = smoke
+    page = (root / "report" / "index.html").read_text()
+    figures = {p.stem: p for p in (root / "report" / "figures").glob("*.png")}
+    assert set(figures) == FIGURES
+    for name, path in figures.items():
+        assert f"alt='{name}' src='data:image/png;base64,{base64.b64encode(path.read_bytes()).decode()}'" in page
+    for section in ("Training", "Latent alignment", "Zero-shot stitching", "Few-shot fine-tuning"):
+        assert f">{section}</h2>" in page
+    assert "Zero-shot results (Table 1 layout)" in page and "task module &amp; robot module" in page
+    distances = pd.read_csv(root / "report" / "tables" / "latent_distances.csv", index_col=0)
+    assert set(distances["comparison"]) == {"seeds", "robots"}
+    # the paper's finding, which holds even at smoke budgets: relative interfaces agree more
+    for comparison, part in distances.groupby("comparison"):
+        cos = part.set_index("method")["cosine_mean"]
+        assert cos["ps"] < cos["ablation"], comparison
+    report_runs = _runs(root, "report")
+    assert len(report_runs) == 1
+    assert report_runs[0].data.metrics["latent.seeds.i16.ps.cosine"] == pytest.approx(
+        distances.query("comparison == 'seeds' and method == 'ps'")["cosine_mean"].item())
+
+
+def _digests(folder: Path) -> dict[str, str]:
+    return {str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest()
+            for p in sorted(folder.rglob("*")) if p.is_file()}
+
+
+def test_report_command_is_idempotent(smoke):
+    _, root, _ = smoke
+    outputs = []
+    for _ in range(2):
+        proc = cli("report", str(root))
+        out, _ = proc.communicate(timeout=300)
+        assert proc.returncode == 0, out[-3000:]
+        outputs.append(_digests(root / "report"))
+    assert outputs[0] == outputs[1]
+    assert {"index.html", "interfaces.safetensors", "tables/zero_shot.csv"} <= set(outputs[0])
+    assert len(_runs(root, "report")) == 1  # the same MLflow run, rebuilt
+    client = mlflow.MlflowClient(f"sqlite:///{root / 'mlflow.db'}")
+    logged = {a.path for a in client.list_artifacts(_runs(root, "report")[0].info.run_id)}
+    assert {"index.html", "figures", "tables", "interfaces.safetensors"} <= logged
+
+
+def test_report_of_a_folder_that_is_not_a_sweep_fails_with_one_line(tmp_path):
+    proc = cli("report", str(tmp_path))
+    out, _ = proc.communicate(timeout=120)
+    assert proc.returncode == 2
+    assert out.strip().splitlines()[-1] == f"ps-ray report: error: {tmp_path}: not a sweep folder (no sweep.yaml)"
+
+
+def test_report_opens_in_headless_chromium(smoke, tmp_path):
+    _, root, _ = smoke
+    assert find_chromium(), "Chromium is needed for this check (./run.sh test installs it)"
+    shot = tmp_path / "report.png"
+    proc = cli("report", str(root), "--no-mlflow", "--screenshot", str(shot))
+    out, _ = proc.communicate(timeout=300)
+    assert proc.returncode == 0, out[-3000:]
+    pixels = matplotlib.image.imread(shot)[..., :3]
+    assert pixels.shape[1] == 1280
+    ink = (pixels < 0.9).any(-1).mean()
+    colour = (pixels.max(-1) - pixels.min(-1) > 0.3).mean()  # plots are coloured, text is not
+    assert ink > 0.05 and colour > 0.01, (ink, colour)
+    top = pixels[:400]
+    assert (top < 0.5).any(-1).mean() > 0.002  # the title and overview table are drawn
+    assert np.isfinite(pixels).all()

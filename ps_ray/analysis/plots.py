@@ -30,21 +30,27 @@ def _save(fig, path: Path) -> Path:
 
 
 def distance_heatmaps(by_method: Mapping[str, Sequence[Group]], title: str, path: Path) -> Path:
-    """Rows: methods; columns: cosine and L2. Each cell: the mean matrix of the method's groups."""
+    """Rows: methods; columns: cosine and L2. Each cell: the mean matrix of the method's groups.
+    Methods share one colour scale per metric (cosine from 0 to at least 1), so they compare."""
     methods = list(by_method)
+    matrices = {(m, metric): mean_matrix(by_method[m], metric)
+                for m in methods for metric in ("cosine", "l2")}
+    top = {metric: max(float(matrices[m, metric].to_numpy().max()) for m in methods)
+           for metric in ("cosine", "l2")}
+    top["cosine"] = max(1.0, top["cosine"])
     fig, axes = plt.subplots(len(methods), 2, figsize=(8, 3.4 * len(methods)), squeeze=False)
     for row, method in enumerate(methods):
         for col, metric in enumerate(("cosine", "l2")):
-            matrix = mean_matrix(by_method[method], metric)
+            matrix = matrices[method, metric]
             ax = axes[row, col]
-            vmax = max(1.0, float(matrix.to_numpy().max())) if metric == "cosine" else None
+            vmax = top[metric] or 1.0
             image = ax.imshow(matrix.to_numpy(), cmap="viridis", vmin=0, vmax=vmax)
             ax.set_xticks(range(len(matrix)), matrix.columns, rotation=30, ha="right")
             ax.set_yticks(range(len(matrix)), matrix.index)
             for (i, j), value in np.ndenumerate(matrix.to_numpy()):
                 ax.text(j, i, f"{value:.3f}" if metric == "cosine" else f"{value:.2f}",
                         ha="center", va="center", fontsize=8,
-                        color="white" if value < 0.6 * (vmax or matrix.to_numpy().max() or 1) else "black")
+                        color="white" if value < 0.6 * vmax else "black")
             ax.set_title(f"{method}: {METRIC_TITLES[metric]}")
             fig.colorbar(image, ax=ax, fraction=0.046)
     fig.suptitle(title)

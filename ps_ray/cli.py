@@ -156,6 +156,9 @@ def _load(args: argparse.Namespace):
             raise ValueError(f"{path}: not a sweep folder (no {SPEC_FILE})")
         spec = dataclasses.replace(load_sweep(path / SPEC_FILE),
                                    storage=str(path.resolve().parent))
+        if spec.name != path.resolve().name:
+            raise ValueError(f"{path}: holds sweep {spec.name!r}; a sweep folder must keep its "
+                             f"sweep's name (rename it back to {spec.name!r})")
     else:
         spec = load_sweep(path)
     overrides = {k: v for k, v in (("storage", args.storage),

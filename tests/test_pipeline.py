@@ -162,3 +162,16 @@ def test_report_opens_in_headless_chromium(smoke, tmp_path):
     top = pixels[:400]
     assert (top < 0.5).any(-1).mean() > 0.002  # the title and overview table are drawn
     assert np.isfinite(pixels).all()
+
+
+def test_report_of_a_renamed_sweep_folder_fails_with_one_line(tmp_path):
+    folder = tmp_path / "renamed"
+    folder.mkdir()
+    (folder / "sweep.yaml").write_text(SMOKE.read_text())  # the spec names sweep 'smoke'
+    proc = cli("report", str(folder))
+    out, _ = proc.communicate(timeout=120)
+    assert proc.returncode == 2
+    assert out.strip().splitlines()[-1] == (
+        f"ps-ray report: error: {folder}: holds sweep 'smoke'; a sweep folder must keep its "
+        "sweep's name (rename it back to 'smoke')")
+    assert sorted(p.name for p in folder.iterdir()) == ["sweep.yaml"]  # nothing written

@@ -115,12 +115,17 @@ def learning_curves(curves: pd.DataFrame, *, x: str, y: str, panel: str, line: s
 def zero_shot_bars(table: pd.DataFrame, path: Path) -> Path:
     """Success and touching per stitched combination (rows), one bar per method (mean over
     seeds, error bar: pooled std)."""
+    from ps_ray.analysis.tables import method_order
+
     labels = list(dict.fromkeys(table["label"]))
-    methods = list(dict.fromkeys(table["method"]))
-    fig, axes = plt.subplots(1, 2, figsize=(12, 0.45 * len(labels) * len(methods) + 1.5),
-                             sharey=True)
+    methods = method_order(table["method"])
+    metrics = ["success"] + (["touching"] if table["touching_mean"].gt(0).any() else [])
+    fig, axes = plt.subplots(1, len(metrics), figsize=(6 * len(metrics) + 3,
+                                                      0.3 * len(labels) * len(methods) + 1.5),
+                             sharey=True, squeeze=False)
+    axes = axes[0]
     height = 0.8 / len(methods)
-    for ax, metric in zip(axes, ("success", "touching")):
+    for ax, metric in zip(axes, metrics):
         for index, method in enumerate(methods):
             part = table[table["method"] == method].set_index("label").reindex(labels)
             ax.barh(np.arange(len(labels)) + index * height, part[f"{metric}_mean"], height,

@@ -67,6 +67,7 @@ def build_report(spec: SweepSpec, *, progress: bool = True, log_to_mlflow: bool 
     say = print if progress else (lambda *a, **k: None)
     partial = root / f"{REPORT_DIR}.partial"
     shutil.rmtree(partial, ignore_errors=True)
+    partial.mkdir(parents=True)
     report = Report(partial)
     _training(report, root, say)
     _latent(report, spec, root, say)
@@ -149,7 +150,7 @@ def _latent(report: Report, spec: SweepSpec, root: Path, say) -> None:
             report.table(section, f"latent_{comparison}_i{dim}", f"Distances {what}",
                          tables.latent_table(distances, comparison, dim))
             by_method = {m: [g for g in chosen if g.method == m]
-                         for m in sorted({g.method for g in chosen}, key=tables._method_key)}
+                         for m in tables.method_order(g.method for g in chosen)}
             report.figure(section, f"heatmap_{comparison}_i{dim}", lambda p: plots.distance_heatmaps(
                 by_method, f"mean pairwise distance {what}", p))
             for method, method_groups in by_method.items():

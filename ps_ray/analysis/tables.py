@@ -20,6 +20,11 @@ def _method_key(method: str) -> int:
     return METHOD_ORDER.index(method) if method in METHOD_ORDER else len(METHOD_ORDER)
 
 
+def method_order(methods) -> list[str]:
+    """Distinct methods, PS first, then the baselines in the paper's order."""
+    return sorted(set(methods), key=_method_key)
+
+
 def latent_table(distances: pd.DataFrame, comparison: str, interface_dim: int) -> pd.DataFrame:
     """One of the paper's appendix tables: rows = methods, columns = cosine and L2 distance."""
     part = distances[(distances["comparison"] == comparison)
@@ -64,7 +69,7 @@ def zero_shot_table(table: pd.DataFrame) -> pd.DataFrame:
     pooled = pool_seeds(table)
     names = paper_names()
     pooled["row"] = pooled["label"].map(lambda label: names.get(label, label))
-    methods = sorted(pooled["method"].unique(), key=_method_key)
+    methods = method_order(pooled["method"])
     rows = sorted(pooled["row"].unique())
     columns = pd.MultiIndex.from_product([methods, ["touching", "success"]])
     out = pd.DataFrame("–", index=pd.Index(rows, name="task module & robot module"),

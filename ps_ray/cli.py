@@ -10,7 +10,7 @@ import time
 from pathlib import Path
 
 from ps_ray.config import SpecError, TrainSpec
-from ps_ray.pipeline import StageError
+from ps_ray.sweep import StageError
 
 
 def _train_parser(sub) -> None:

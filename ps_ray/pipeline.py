@@ -22,13 +22,9 @@ from collections.abc import Callable
 from pathlib import Path
 
 from ps_ray.config import STAGES, SweepSpec
-from ps_ray.sweep import sweep_dir
+from ps_ray.sweep import raise_on_errors, sweep_dir
 
 MARKER_DIR = "stages"
-
-
-class StageError(RuntimeError):
-    """A stage's trials failed; the message names how many and the first error."""
 
 # The settings each stage's outputs depend on, besides those of the earlier stages.
 STAGE_SETTINGS = {"train": None, "zero_shot": "zero_shot", "few_shot": "few_shot",
@@ -78,9 +74,7 @@ def _train(spec: SweepSpec, resume: bool, progress: bool) -> str:
 
     # the training stage always resumes: run_sweep refuses a folder trained with other settings
     grid = run_sweep(spec, resume=True, progress=progress)
-    failed = [r for r in grid if r.error]
-    if failed:
-        raise StageError(f"{len(failed)} of {len(grid)} training trials failed: {failed[0].error}")
+    raise_on_errors(grid, "training trials")
     return f"{len(grid)} training trials"
 
 
@@ -101,9 +95,7 @@ def _few_shot(spec: SweepSpec, resume: bool, progress: bool) -> str:
     if not resume:
         shutil.rmtree(sweep_dir(spec) / FEW_SHOT_DIR, ignore_errors=True)
     grid = run_few_shot(spec, resume=resume, progress=progress)
-    failed = [r for r in grid if r.error]
-    if failed:
-        raise StageError(f"{len(failed)} of {len(grid)} few-shot trials failed: {failed[0].error}")
+    raise_on_errors(grid, "few-shot trials")
     return f"{len(grid)} fine-tuning trials"
 
 

@@ -177,7 +177,7 @@ def run_sweep(spec: SweepSpec, *, resume: bool = False, progress: bool = True):
         sources = anchor_sources(spec)
         grid = run_tune([{"spec": s.to_dict(), "anchors": None} for s in sources],
                          name=PLAIN_TUNE_DIR, stage="anchors_plain", **tune_args)
-        _raise_on_errors(grid, "plain source policies")
+        raise_on_errors(grid, "plain source policies")
         plain_policies = {TrainSpec.from_mapping(r.config["trial"]["spec"]).label():
                           Path(r.checkpoint.path) / "policy.safetensors" for r in grid}
     anchors = prepare_sweep_anchors(spec, root, plain_policies)
@@ -208,10 +208,15 @@ def _anchor_paths(spec: SweepSpec, root: Path) -> list[Path]:
             for t in spec.trials() if t.method == "ps"]
 
 
-def _raise_on_errors(grid, what: str) -> None:
+class StageError(RuntimeError):
+    """Trials of a stage failed; the message names how many and the first error."""
+
+
+def raise_on_errors(grid, what: str) -> None:
+    """StageError if any trial of a Tune ResultGrid failed."""
     errors = [r for r in grid if r.error]
     if errors:
-        raise RuntimeError(f"{len(errors)} of the {what} failed: {errors[0].error}")
+        raise StageError(f"{len(errors)} of {len(grid)} {what} failed: {errors[0].error}")
 
 
 def run_tune(trials: list[dict], *, name: str, stage: str, spec: SweepSpec, root: Path,

@@ -14,7 +14,7 @@ from typing import Any
 import pandas as pd
 
 from ps_ray.config import SweepSpec, short_name
-from ps_ray.sweep import sweep_dir
+from ps_ray.sweep import raise_on_errors, sweep_dir
 
 TUNE_DIR = "tune_zero_shot"
 RESULT_FILE = "zero_shot.csv"
@@ -93,11 +93,7 @@ def run_zero_shot(spec: SweepSpec, *, resume: bool = False, progress: bool = Tru
             run_config=tune.RunConfig(name=TUNE_DIR, storage_path=str(root),
                                       callbacks=[callback], verbose=1 if progress else 0))
     results = tuner.fit()
-    errors = [r.error for r in results if r.error]
-    if errors:
-        from ps_ray.pipeline import StageError
-
-        raise StageError(f"{len(errors)} of {len(results)} zero-shot trials failed: {errors[0]}")
+    raise_on_errors(results, "zero-shot trials")
     rows = [{**{k: short_name(v) for k, v in r.config["pair"].items() if not k.endswith("_path")},
              **{k: r.metrics.get(k) for k in RESULT_KEYS}} for r in results]
     table = pd.DataFrame(rows).sort_values(["method", "seed", "label"]).reset_index(drop=True)

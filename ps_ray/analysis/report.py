@@ -55,9 +55,6 @@ class Report:
         (frame if numbers is None else numbers).to_csv(path)
         section.items.append(("table", (caption, frame)))
 
-    def figures(self) -> list[Path]:
-        return [item for s in self.sections for kind, item in s.items if kind == "figure"]
-
 
 def build_report(spec: SweepSpec, *, progress: bool = True, log_to_mlflow: bool = True) -> Path:
     """Rebuild ``<sweep>/report/`` from the stored results; returns the path of ``index.html``."""
@@ -163,7 +160,7 @@ def _latent(report: Report, spec: SweepSpec, root: Path, say) -> None:
 
 
 def _zero_shot(report: Report, root: Path, say) -> None:
-    from ps_ray.zero_shot import RESULT_FILE
+    from ps_ray.zero_shot import RESULT_FILE, summary as zero_shot_summary
 
     table = results.zero_shot_results(root / RESULT_FILE)
     if table is None:
@@ -174,7 +171,8 @@ def _zero_shot(report: Report, root: Path, say) -> None:
                              "and seeds, identical evaluation episodes for every method.")
     report.table(section, "zero_shot", "Zero-shot results (Table 1 layout)",
                  tables.zero_shot_table(table), numbers=tables.pool_seeds(table))
-    summary = tables.zero_shot_summary(table)
+    summary = zero_shot_summary(table)
+    summary = summary.loc[tables.method_order(summary.index)]
     report.table(section, "zero_shot_summary", "Mean over combinations", summary.round(3),
                  numbers=summary)
     for method, row in summary.iterrows():

@@ -80,15 +80,6 @@ def zero_shot_table(table: pd.DataFrame) -> pd.DataFrame:
     return out
 
 
-def zero_shot_summary(table: pd.DataFrame) -> pd.DataFrame:
-    """Per method: the number of combinations and the mean success and touching over them."""
-    pooled = pool_seeds(table)
-    grouped = pooled.groupby("method")
-    out = pd.DataFrame({"combinations": grouped.size(), "success": grouped["success_mean"].mean(),
-                        "touching": grouped["touching_mean"].mean()})
-    return out.sort_index(key=lambda s: s.map(_method_key))
-
-
 def training_table(final: pd.DataFrame) -> pd.DataFrame:
     """Final greedy success per (method, task, interface dim): mean ± std over robots and seeds."""
     grouped = final.groupby(["method", "task", "interface_dim"])["success"]

@@ -18,7 +18,8 @@ from ps_ray.nets.modular import METHODS
 POINT_TASK = "point"  # the physics-free PointGoalEnv (robot is ignored), for fast checks
 
 
-RESUMABLE_CHANGES = ("env_steps", "eval_every", "eval_episodes", "checkpoint_every")
+RESUMABLE_CHANGES = ("env_steps", "eval_every", "eval_episodes", "checkpoint_every",
+                     "target_success", "target_evals")
 
 
 class SpecError(ValueError):
@@ -35,7 +36,9 @@ class TrainSpec:
     seed: int = 101
     interface_dim: int = 128
     hidden: int = 256
-    env_steps: int = 50_000          # training budget
+    env_steps: int = 50_000          # training budget (a cap when target_success is set)
+    target_success: float | None = None  # stop early at this greedy success ...
+    target_evals: int = 2            # ... reached in this many evaluations in a row
     episodes_per_step: int = 2       # whole episodes collected per training step
     num_envs: int = 2                # vectorised envs in the env runner
     updates_per_step: float = 0.4    # gradient updates per collected env step (authors: 0.4)
@@ -64,7 +67,8 @@ class TrainSpec:
             except (ValueError, TypeError) as e:
                 raise SpecError(str(e)) from None
         positive = ("interface_dim", "hidden", "env_steps", "episodes_per_step", "num_envs",
-                    "batch_size", "eval_episodes", "checkpoint_every", "anchor_episodes")
+                    "batch_size", "eval_episodes", "checkpoint_every", "anchor_episodes",
+                    "target_evals")
         for name in positive:
             value = getattr(self, name)
             if not isinstance(value, int) or isinstance(value, bool) or value <= 0:
@@ -74,6 +78,10 @@ class TrainSpec:
                 raise SpecError(f"{name} must be a positive number, got {getattr(self, name)!r}")
         if not 0 < self.gamma < 1:
             raise SpecError(f"gamma must be in (0, 1), got {self.gamma!r}")
+        target = self.target_success
+        if target is not None and (isinstance(target, bool) or not isinstance(target, (int, float))
+                                   or not 0 < target <= 1):
+            raise SpecError(f"target_success must be a number in (0, 1] or null, got {target!r}")
 
     @classmethod
     def from_mapping(cls, data: Mapping[str, Any], where: str = "train spec") -> TrainSpec:

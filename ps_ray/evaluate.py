@@ -29,13 +29,13 @@ from typing import Any, Union
 
 import numpy as np
 import torch
-import torch.nn.functional as F
 from torch import nn
 
 from ps_ray.config import short_name
 from ps_ray.envs import make
 from ps_ray.nets.modular import Actor, NetDims
 from ps_ray.nets.obs import dims_from_spaces, split_obs
+from ps_ray.nets.relative import AnchorReference
 from ps_ray.nets.sac import SACNets
 from ps_ray.weights import Signature
 
@@ -58,18 +58,19 @@ class EpisodeRecord:
 
 # -- the policy -----------------------------------------------------------------------------------
 class _GreedyNet(nn.Module):
-    """tanh(mean) of an actor; with ``anchor_z`` the PS anchors' normalised embeddings are given
+    """tanh(mean) of an actor; with ``reference`` the relative projection's anchor side is given
     (computed once) instead of re-embedded at every forward."""
 
-    def __init__(self, actor: Actor, anchor_z: torch.Tensor | None) -> None:
+    def __init__(self, actor: Actor, reference: AnchorReference | None) -> None:
         super().__init__()
-        self.actor, self.anchor_z = actor, anchor_z
+        self.actor, self.reference = actor, reference
 
     def forward(self, task_in: torch.Tensor, robot_in: torch.Tensor) -> torch.Tensor:
-        if self.anchor_z is None:
+        if self.reference is None:
             mean, _ = self.actor(task_in, robot_in)
-        else:  # RelativeProjection's cosine similarities, anchors precomputed
-            latent = F.normalize(self.actor.task.encode(task_in), dim=-1) @ self.anchor_z.T
+        else:
+            task = self.actor.task
+            latent = task.relative.project(task.encode(task_in), self.reference)
             mean, _ = self.actor.robot(latent, robot_in)
         return torch.tanh(mean)
 
@@ -87,11 +88,12 @@ class BatchedGreedy:
     def __init__(self, actor: Actor, fast: bool = True) -> None:
         actor = copy.deepcopy(actor).eval()  # the caller's module keeps its mode
         self.dims: NetDims = actor.dims
-        anchor_z = None
+        reference = None
         with torch.no_grad():
             if fast and actor.task.relative is not None:
-                anchor_z = F.normalize(actor.task.encode(actor.task.relative.anchors), dim=-1)
-            self.net: nn.Module = _GreedyNet(actor, anchor_z).eval()
+                relative = actor.task.relative
+                reference = relative.reference(actor.task.encode(relative.anchors))
+            self.net: nn.Module = _GreedyNet(actor, reference).eval()
             if fast:
                 self.net = _traced(self.net, (torch.zeros(2, self.dims.task_dim),
                                               torch.zeros(2, self.dims.robot_dim)))

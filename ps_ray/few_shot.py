@@ -15,6 +15,7 @@ from typing import Any
 
 from ps_ray.config import FewShotSpec, SweepSpec, TrainSpec, trial_key
 from ps_ray.sweep import anchor_path, sweep_dir, task_input_dim
+from ps_ray.nets.modular import uses_anchors
 
 FEW_SHOT_DIR = "few_shot"
 TUNE_DIR = "tune_few_shot"
@@ -53,7 +54,7 @@ def few_shot_trials(spec: SweepSpec, settings: FewShotSpec) -> list[dict[str, An
     if settings.scratch:  # PS from scratch uses the sweep's anchor set, as its stitched sources
         trials += [{"spec": base.to_dict(), "key": f"scratch/{key}", "label": key, "kind": "scratch",
                     "anchors": str(anchor_path(sweep_dir(spec), task_input_dim(base.task),
-                                               base.interface_dim)) if base.method == "ps" else None}
+                                               base.interface_dim)) if uses_anchors(base.method) else None}
                    for key, base in targets.items()]
     return trials
 

@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from ps_ray.config import SpecError, SweepSpec, TrainSpec
+from ps_ray.nets.modular import uses_anchors
 
 SPEC_FILE = "sweep.yaml"
 TUNE_DIR = "tune"
@@ -45,7 +46,7 @@ def anchor_path(root: Path, dim: int, k: int) -> Path:
 
 def anchor_sources(spec: SweepSpec) -> list[TrainSpec]:
     """The plain trials whose greedy rollouts give the anchor states (policy: plain)."""
-    ps = [t for t in spec.trials() if t.method == "ps"]
+    ps = [t for t in spec.trials() if uses_anchors(t.method)]
     tasks = list(spec.anchors.source_tasks) or list(dict.fromkeys(_name(t.task) for t in ps))
     return [TrainSpec.from_mapping({**t.to_dict(), "method": "plain", "robot": spec.anchors.robot,
                                     "task": _task(task), "seed": spec.seeds[0]})
@@ -63,7 +64,7 @@ def prepare_sweep_anchors(spec: SweepSpec, root: Path,
     from ps_ray.envs import make
     from ps_ray.policy import GreedyPolicy
 
-    ps = [t for t in spec.trials() if t.method == "ps"]
+    ps = [t for t in spec.trials() if uses_anchors(t.method)]
     sources = anchor_sources(spec) if ps else []
     paths: dict[tuple[int, int], str] = {}
     for dim, k in sorted({(task_input_dim(t.task), t.interface_dim) for t in ps}):
@@ -114,7 +115,7 @@ def sweep_trial(config: dict[str, Any]) -> None:
     spec = TrainSpec.from_mapping(trial["spec"])
     if trial["anchors"]:
         anchor_set = load_anchor_set(trial["anchors"])
-    elif spec.init_policy is not None and spec.method == "ps":  # anchors inside the policy file
+    elif spec.init_policy is not None and uses_anchors(spec.method):  # anchors inside the policy file
         anchor_set = policy_anchor_set(spec.init_policy)
     else:
         anchor_set = None
@@ -130,7 +131,8 @@ def sweep_trial(config: dict[str, Any]) -> None:
             with tempfile.TemporaryDirectory() as directory:
                 run.save(Path(directory))
                 if run.done:
-                    row.update({f"final_{k}": v for k, v in run.final_eval().items()})
+                    row.update({f"final_{k}": v for k, v in run.final_eval().items()},
+                               converged=run.converged)
                 tune.report(row, checkpoint=tune.Checkpoint.from_directory(directory))
             _maybe_crash()
         elif row.get("eval_success") is not None:
@@ -183,7 +185,7 @@ def run_sweep(spec: SweepSpec, *, resume: bool = False, progress: bool = True):
     anchors = prepare_sweep_anchors(spec, root, plain_policies)
     trials = [{"spec": t.to_dict(),
                "anchors": anchors[(task_input_dim(t.task), t.interface_dim)]
-               if t.method == "ps" else None} for t in spec.trials()]
+               if uses_anchors(t.method) else None} for t in spec.trials()]
     return run_tune(trials, name=TUNE_DIR, stage="train", **tune_args)
 
 
@@ -205,7 +207,7 @@ def connect(spec: SweepSpec) -> tuple[str, str]:
 
 def _anchor_paths(spec: SweepSpec, root: Path) -> list[Path]:
     return [anchor_path(root, task_input_dim(t.task), t.interface_dim)
-            for t in spec.trials() if t.method == "ps"]
+            for t in spec.trials() if uses_anchors(t.method)]
 
 
 class StageError(RuntimeError):

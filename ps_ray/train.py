@@ -23,11 +23,13 @@ import numpy as np
 import torch
 
 from ps_ray.config import SpecError, TrainSpec
+from ps_ray.nets.modular import uses_anchors
 
 CHECKPOINT_DIR = "checkpoint"
 POLICY_FILE = "policy.safetensors"
 BEST_POLICY_FILE = "best_policy.safetensors"
 METRICS_FILE = "metrics.csv"
+PROGRESS_FILE = "progress.json"  # early-stop streak, so a resumed run stops where it would have
 METRIC_FIELDS = ["iteration", "env_steps", "updates", "train_success", "train_touching",
                  "eval_success", "eval_touching", "wall_s"]
 
@@ -95,6 +97,7 @@ class TrainingRun:
             method=spec.method, interface_dim=spec.interface_dim, hidden=spec.hidden,
             anchor_hash="" if anchor_set is None else anchor_set.hash, **self.algo.replay_dims)
         self.start, self.start_steps = time.time(), 0
+        self.streak = 0  # evaluations in a row at or above spec.target_success
         if spec.init_policy is not None:
             self.algo.load_policy_weights(spec.init_policy)
 
@@ -103,14 +106,21 @@ class TrainingRun:
         return self.algo.counters["env_steps"]
 
     @property
+    def converged(self) -> bool:
+        """The success target was met in ``target_evals`` evaluations in a row."""
+        return self.spec.target_success is not None and self.streak >= self.spec.target_evals
+
+    @property
     def done(self) -> bool:
-        return self.env_steps >= self.spec.env_steps
+        return self.converged or self.env_steps >= self.spec.env_steps
 
     def step(self) -> dict[str, Any]:
         result = self.algo.train()
         ours = result.get("ps_ray", {})
         row = {k: ours.get(k) for k in METRIC_FIELDS if k in ours}
         row.update(iteration=result["training_iteration"], wall_s=round(time.time() - self.start, 1))
+        if row.get("eval_success") is not None and self.spec.target_success is not None:
+            self.streak = self.streak + 1 if row["eval_success"] >= self.spec.target_success else 0
         return row
 
     def save(self, directory: Path) -> None:
@@ -122,10 +132,14 @@ class TrainingRun:
         (Path(directory) / "signature.json").write_text(
             json.dumps(dataclasses.asdict(self.signature), indent=2))
         (Path(directory) / "spec.json").write_text(json.dumps(self.spec.to_dict(), indent=2))
+        (Path(directory) / PROGRESS_FILE).write_text(json.dumps({"streak": self.streak}))
 
     def restore(self, directory: Path) -> None:
         self.algo.load_checkpoint(str(directory))
         self.start_steps = self.env_steps
+        progress = Path(directory) / PROGRESS_FILE
+        if progress.is_file():
+            self.streak = int(json.loads(progress.read_text()).get("streak", 0))
 
     def final_eval(self) -> dict[str, float]:
         return self.algo.evaluate_greedy(self.spec.eval_episodes * 2)
@@ -160,7 +174,7 @@ def train(spec: TrainSpec, run_dir: str | Path, *, progress: bool = True) -> dic
 
     run_dir = Path(run_dir).resolve()  # RLlib's checkpoint writer needs absolute paths
     _check_run_dir(spec, run_dir)
-    anchor_set = prepare_anchors(spec, run_dir) if spec.method == "ps" else None
+    anchor_set = prepare_anchors(spec, run_dir) if uses_anchors(spec.method) else None
     if not ray.is_initialized():
         ray.init(address="local", num_cpus=max(1, os.cpu_count() or 1), include_dashboard=False,
                  log_to_driver=False, configure_logging=False)
@@ -189,7 +203,8 @@ def train(spec: TrainSpec, run_dir: str | Path, *, progress: bool = True) -> dic
                     print(run.progress_line(row), flush=True)
     _save_atomically(run, run_dir)
     final = run.final_eval()
-    row = {**row, **{f"final_{k}": v for k, v in final.items()}, "best_eval_success": best}
+    row = {**row, **{f"final_{k}": v for k, v in final.items()}, "best_eval_success": best,
+           "converged": run.converged}
     (run_dir / "result.json").write_text(json.dumps(row, indent=2))
     run.stop()
     if progress:

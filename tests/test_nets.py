@@ -16,6 +16,7 @@ from ps_ray.nets import (
     Critic,
     NetDims,
     RelativeProjection,
+    RelativeSpec,
     RunningNorm,
     build_actor,
     build_critic,
@@ -150,7 +151,7 @@ def _encoder_grad(anchor_grad: bool, detach_anchor_path: bool = False) -> torch.
         z_a = nn.functional.normalize(encoder(anchors).detach(), dim=-1)
         out = nn.functional.normalize(encoder(x), dim=-1) @ z_a.T
     else:
-        out = RelativeProjection(anchors, anchor_grad=anchor_grad)(encoder, x)
+        out = RelativeProjection(anchors, RelativeSpec(anchor_grad=anchor_grad))(encoder, x)
     (out * torch.arange(out.numel()).reshape(out.shape)).sum().backward()
     return encoder.weight.grad.clone()
 

@@ -7,8 +7,9 @@ import numpy as np
 import pandas as pd
 
 from ps_ray.config import short_name
+from ps_ray.nets.modular import METHODS
 
-METHOD_ORDER = ("ps", "ablation", "devin", "devin_large", "plain")
+METHOD_ORDER = tuple(METHODS)  # the method table's order: ps, its variants, then the baselines
 
 
 def pm(mean: float, std: float, digits: int = 2) -> str:

@@ -24,6 +24,7 @@ from ps_ray.envs import make
 from ps_ray.evaluate import evaluate
 from ps_ray.nets.obs import dims_from_spaces
 from ps_ray.nets.sac import build_sac_nets
+from ps_ray.nets.modular import uses_anchors
 
 
 def env_rate(robot: str, task: str, steps: int, seed: int = 0) -> float:
@@ -50,7 +51,7 @@ def policy_nets(robot: str, task: str, method: str, interface_dim: int, hidden: 
     env.close()
     torch.manual_seed(0)
     return build_sac_nets(method, dims, interface_dim=interface_dim, hidden=hidden,
-                          anchors=np.stack(states) if method == "ps" else None)
+                          anchors=np.stack(states) if uses_anchors(method) else None)
 
 
 def run(robot: str = "panda", task: str = "push", method: str = "ps", episodes: int = 24,

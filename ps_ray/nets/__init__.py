@@ -18,7 +18,7 @@ from ps_ray.nets.modular import (
     update_normalizers,
 )
 from ps_ray.nets.normalize import RunningNorm
-from ps_ray.nets.relative import RelativeProjection
+from ps_ray.nets.relative import RelativeProjection, RelativeSpec
 
 __all__ = [
     "METHODS",
@@ -29,6 +29,7 @@ __all__ = [
     "MethodSpec",
     "NetDims",
     "RelativeProjection",
+    "RelativeSpec",
     "RunningNorm",
     "TaskModule",
     "build_actor",

@@ -18,6 +18,7 @@ configured from a :class:`MethodSpec` and :class:`NetDims`. Architecture (hidden
 from __future__ import annotations
 
 import copy
+import dataclasses
 from dataclasses import dataclass
 from typing import TypeVar
 
@@ -26,7 +27,7 @@ from torch import Tensor, nn
 
 from ps_ray.nets.mlp import mlp
 from ps_ray.nets.normalize import RunningNorm
-from ps_ray.nets.relative import RelativeProjection
+from ps_ray.nets.relative import RelativeProjection, RelativeSpec
 
 LOG_STD_MIN, LOG_STD_MAX = -9.0, 2.0
 
@@ -36,13 +37,13 @@ class MethodSpec:
     """One row per method; a baseline is a row of settings, not a class."""
 
     name: str
-    relative: bool  # cosine projection onto anchors (PS)
+    relative: RelativeSpec | None  # projection onto anchors (PS and its variants), None: raw latent
     modular: bool  # False for plain: the bottom half sees the whole state
     interface_dim: int | None  # fixed bottleneck width, or None = the caller's interface_dim
     dropout: float  # dropout on the latent, applied at the robot module's input
 
     def __post_init__(self) -> None:
-        if self.relative and not self.modular:
+        if self.relative is not None and not self.modular:
             raise ValueError(f"method {self.name!r}: a relative interface needs a modular network")
 
     def latent_dim(self, interface_dim: int, hidden: int) -> int:
@@ -52,14 +53,24 @@ class MethodSpec:
         return self.interface_dim if self.interface_dim is not None else interface_dim
 
 
+def _ps(name: str, **relative) -> MethodSpec:
+    return MethodSpec(name, RelativeSpec(**relative), modular=True, interface_dim=None, dropout=0.0)
+
+
+# ps is the paper's method, unchanged; ps_* are the variants measured in docs/alignment.md.
 METHODS: dict[str, MethodSpec] = {
     spec.name: spec
     for spec in (
-        MethodSpec("ps", relative=True, modular=True, interface_dim=None, dropout=0.0),
-        MethodSpec("ablation", relative=False, modular=True, interface_dim=None, dropout=0.0),
-        MethodSpec("devin", relative=False, modular=True, interface_dim=16, dropout=0.25),
-        MethodSpec("devin_large", relative=False, modular=True, interface_dim=None, dropout=0.25),
-        MethodSpec("plain", relative=False, modular=False, interface_dim=None, dropout=0.0),
+        _ps("ps"),
+        _ps("ps_ln", norm="layer"),
+        _ps("ps_center", center=True),
+        _ps("ps_center_ln", center=True, norm="layer"),
+        _ps("ps_nograd", anchor_grad=False),
+        _ps("ps_scaled", scale=4.0),
+        MethodSpec("ablation", None, modular=True, interface_dim=None, dropout=0.0),
+        MethodSpec("devin", None, modular=True, interface_dim=16, dropout=0.25),
+        MethodSpec("devin_large", None, modular=True, interface_dim=None, dropout=0.25),
+        MethodSpec("plain", None, modular=False, interface_dim=None, dropout=0.0),
     )
 }
 
@@ -78,6 +89,11 @@ def method_spec(method: str) -> MethodSpec:
         raise ValueError(f"unknown method {method!r}; expected one of {sorted(METHODS)}") from None
 
 
+def uses_anchors(method: str) -> bool:
+    """Whether a method's interface is relative to an anchor set (PS and its variants)."""
+    return method_spec(method).relative is not None
+
+
 class TaskModule(nn.Module):
     """g_k: task input -> latent (B x D). For plain it is the bottom half and also sees robot_in
     (and, in a critic, the action)."""
@@ -90,7 +106,7 @@ class TaskModule(nn.Module):
         hidden: int = 256,
         *,
         anchors: Tensor | None = None,
-        anchor_grad: bool = True,
+        anchor_grad: bool | None = None,
         sees_action: bool = False,
     ) -> None:
         super().__init__()
@@ -132,9 +148,9 @@ class TaskModule(nn.Module):
 
 
 def _relative_projection(
-    spec: MethodSpec, dims: NetDims, latent_dim: int, anchors: Tensor | None, anchor_grad: bool
+    spec: MethodSpec, dims: NetDims, latent_dim: int, anchors: Tensor | None, anchor_grad: bool | None
 ) -> RelativeProjection | None:
-    if not spec.relative:
+    if spec.relative is None:
         return None  # anchors, if given, mean nothing to a non-relative method
     expected = (latent_dim, dims.task_dim)
     if anchors is None:
@@ -145,7 +161,9 @@ def _relative_projection(
             f"method {spec.name!r}: anchors have shape {tuple(anchors.shape)}, expected {expected} "
             f"(K = interface dim {latent_dim}, task_dim {dims.task_dim})"
         )
-    return RelativeProjection(anchors, anchor_grad=anchor_grad)
+    relative = spec.relative if anchor_grad is None else dataclasses.replace(
+        spec.relative, anchor_grad=anchor_grad)
+    return RelativeProjection(anchors, relative)
 
 
 class _RobotModule(nn.Module):
@@ -277,7 +295,7 @@ def _build(
     interface_dim: int = 128,
     hidden: int = 256,
     anchors: Tensor | None = None,
-    anchor_grad: bool = True,
+    anchor_grad: bool | None = None,
 ) -> Net:
     """The one builder: an Actor or a Critic of `method` from its MethodSpec row."""
     spec = method_spec(method)
@@ -292,7 +310,7 @@ def _build(
 
 
 def build_actor(method: str, dims: NetDims, **options) -> Actor:
-    """Options: interface_dim (128), hidden (256), anchors (PS), anchor_grad (True)."""
+    """Options: interface_dim (128), hidden (256), anchors (PS), anchor_grad (None: the method's)."""
     return _build(Actor, method, dims, **options)
 
 

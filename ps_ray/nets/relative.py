@@ -1,43 +1,109 @@
-"""Relative representation: cosine similarity of an embedding to embedded anchors (Moschella et al.)."""
+"""Relative representation: cosine similarity of an embedding to embedded anchors (Moschella et al.).
+
+The paper's projection and the variants measured against it (docs/alignment.md) are settings of
+one :class:`RelativeSpec`, a field of a method's row in :data:`ps_ray.nets.modular.METHODS`.
+"""
 
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import dataclass
+from typing import NamedTuple
 
 import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
+REL_NORMS = ("none", "layer")
+SCALE_EPS = 1e-6
+
+
+@dataclass(frozen=True)
+class RelativeSpec:
+    """How the interface is computed from the embeddings of a batch and of the anchors.
+
+    - ``center``: centre and standard-scale both embeddings by the anchor embeddings' per-dimension
+      mean and std before the cosine (R3L, Ricciardi et al. 2025). Removes the common direction
+      every ReLU embedding shares, so the cosines spread over [-1, 1] instead of clustering near 1.
+    - ``norm``: ``"layer"`` applies a parameter-free LayerNorm over the K similarities of each
+      state (relreps' default output norm). Parameter-free, so it is a fixed function of the
+      similarity vector and two aligned vectors stay aligned after it.
+    - ``scale``: a fixed multiplier on the result (an inverse temperature).
+    - ``anchor_grad``: gradients flow through the anchor embeddings (the authors' way) or the
+      anchors are embedded under ``torch.no_grad()`` (relreps' way). Values are equal either way.
+    """
+
+    center: bool = False
+    norm: str = "none"
+    scale: float = 1.0
+    anchor_grad: bool = True
+
+    def __post_init__(self) -> None:
+        if self.norm not in REL_NORMS:
+            raise ValueError(f"unknown relative norm {self.norm!r}; expected one of {list(REL_NORMS)}")
+        if not self.scale > 0:
+            raise ValueError(f"relative scale must be positive, got {self.scale!r}")
+
+
+PAPER = RelativeSpec()  # the authors' projection: cosine only, gradients through the anchors
+
+
+class AnchorReference(NamedTuple):
+    """What a projection needs from the anchors: centring statistics (or None) and the unit
+    anchor directions (K x D). Fixed weights give a fixed reference, so evaluation computes it once."""
+
+    mean: Tensor | None
+    std: Tensor | None
+    directions: Tensor
+
 
 class RelativeProjection(nn.Module):
-    """Maps ``x`` (..., task_dim) to cosine similarities (..., K) against K fixed anchor inputs.
+    """Maps ``x`` (..., task_dim) to similarities (..., K) against K fixed anchor inputs.
 
-    Choices (REFERENCE §3, §9):
-    - The anchors are raw inputs (K x task_dim), stored as a persistent buffer, so they travel in
-      the state_dict with the module; they are re-embedded by the *same* encoder on every forward
-      pass. The encoder therefore applies its own input normalisation to the anchors too.
-    - ``anchor_grad=True`` (default, as the authors): batch and anchors go through the encoder in
-      one call, and gradients flow through the anchor embeddings.
-      ``anchor_grad=False`` (as relreps): the anchors are embedded in a separate call under
-      ``torch.no_grad()``. The encoder must not use batch statistics, so both give equal values.
-    - Both embeddings are L2-normalised (``F.normalize``, eps 1e-12) before the inner product; no
-      output normalisation, so values lie in [-1, 1] up to float rounding.
+    The anchors are raw inputs (K x task_dim) in a persistent buffer, so they travel in the
+    state_dict; they are re-embedded by the *same* encoder (its input normalisation included) on
+    every forward pass. Both embeddings are L2-normalised (eps 1e-12) before the inner product, so
+    without ``norm`` and ``scale`` the values lie in [-1, 1].
     """
 
     anchors: Tensor
 
-    def __init__(self, anchors: Tensor, anchor_grad: bool = True) -> None:
+    def __init__(self, anchors: Tensor, spec: RelativeSpec = PAPER) -> None:
         super().__init__()
         anchors = torch.as_tensor(anchors, dtype=torch.get_default_dtype())
         if anchors.ndim != 2 or anchors.shape[0] < 1:
             shape = tuple(anchors.shape)
             raise ValueError(f"anchors must be a non-empty (K, input_dim) matrix, got shape {shape}")
+        if spec.center and anchors.shape[0] < 2:
+            raise ValueError("centring by anchor statistics needs at least 2 anchors")
         self.register_buffer("anchors", anchors.detach().clone())
-        self.anchor_grad = anchor_grad
+        self.spec = spec
 
     @property
     def num_anchors(self) -> int:
         return self.anchors.shape[0]
+
+    @property
+    def anchor_grad(self) -> bool:
+        return self.spec.anchor_grad
+
+    def reference(self, anchor_z: Tensor) -> AnchorReference:
+        """The anchor side of the projection from the anchors' embeddings (K x D)."""
+        mean = std = None
+        if self.spec.center:
+            mean = anchor_z.mean(0)
+            std = anchor_z.std(0, unbiased=False) + SCALE_EPS
+            anchor_z = (anchor_z - mean) / std
+        return AnchorReference(mean, std, F.normalize(anchor_z, dim=-1))
+
+    def project(self, z: Tensor, ref: AnchorReference) -> Tensor:
+        """Embeddings (B x D) -> relative vectors (B x K) against a reference."""
+        if ref.mean is not None:
+            z = (z - ref.mean) / ref.std
+        rel = F.normalize(z, dim=-1) @ ref.directions.T
+        if self.spec.norm == "layer":
+            rel = F.layer_norm(rel, rel.shape[-1:])
+        return rel * self.spec.scale if self.spec.scale != 1.0 else rel
 
     def forward(self, encoder: Callable[[Tensor], Tensor], x: Tensor) -> Tensor:
         if x.shape[-1] != self.anchors.shape[-1]:
@@ -45,15 +111,14 @@ class RelativeProjection(nn.Module):
             raise ValueError(f"input last dim {in_dim} does not match anchor dim {anchor_dim}")
         lead, flat = x.shape[:-1], x.reshape(-1, x.shape[-1])
         anchors = self.anchors.to(flat.dtype)
-        if self.anchor_grad:
+        if self.spec.anchor_grad:
             embedded = encoder(torch.cat([flat, anchors], 0))
             z_x, z_a = embedded[: flat.shape[0]], embedded[flat.shape[0] :]
         else:
             z_x = encoder(flat)
             with torch.no_grad():
                 z_a = encoder(anchors)
-        cos = F.normalize(z_x, dim=-1) @ F.normalize(z_a, dim=-1).T
-        return cos.reshape(*lead, self.num_anchors)
+        return self.project(z_x, self.reference(z_a)).reshape(*lead, self.num_anchors)
 
     def extra_repr(self) -> str:
-        return f"anchors={tuple(self.anchors.shape)}, anchor_grad={self.anchor_grad}"
+        return f"anchors={tuple(self.anchors.shape)}, {self.spec}"

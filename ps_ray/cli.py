@@ -110,6 +110,11 @@ def _stitch_parser(sub) -> None:
     p.add_argument("--seed", type=int, default=0, help="first evaluation seed")
     p.add_argument("--num-envs", type=int, default=8, help="envs stepped in lockstep")
     p.add_argument("--save", default=None, help="write the stitched policy (.safetensors) here")
+    p.add_argument("--translate", default=None, choices=["orthogonal", "affine"],
+                   help="fit a latent translation from the task module's latent to the robot "
+                        "module's on reset task states of both sources' tasks (no env steps)")
+    p.add_argument("--fit-states", type=int, default=128,
+                   help="reset task states per goal quadrant and task for --translate")
 
 
 def _mapping_or_name(value: str):
@@ -252,7 +257,16 @@ def cmd_stitch(args: argparse.Namespace) -> int:
     robot, task = resolve_target(task_src, robot_src,
                                  robot=args.robot and _mapping_or_name(args.robot),
                                  task=args.task and _mapping_or_name(args.task))
-    nets, signature = stitch_policies(task_src.path, robot_src.path, target=(robot, task))
+    states = None
+    if args.translate:
+        from ps_ray.zero_shot import fit_states
+
+        if args.fit_states <= 0:
+            raise ValueError(f"--fit-states must be positive, got {args.fit_states}")
+        tasks = [task] + ([robot_src.spec["task"]] if robot_src.spec is not None else [])
+        states = fit_states(tasks, args.fit_states, args.seed)
+    nets, signature = stitch_policies(task_src.path, robot_src.path, target=(robot, task),
+                                      translation=args.translate, fit_states=states)
     if args.save:
         path = save_policy(args.save, nets, signature,
                            extra=stitch_metadata(args.task_from, args.robot_from))

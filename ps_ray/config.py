@@ -197,9 +197,33 @@ class ZeroShotSpec:
     repeats: int = 5
     seed: int = 0                       # first evaluation seed
     methods: tuple[str, ...] = ()       # default: the sweep's methods
+    # method -> latent translations also evaluated for its pairs, e.g. {ablation: [affine]};
+    # shown as rows "ablation+affine" (ps_ray.nets.translation)
+    translate: Mapping[str, tuple[str, ...]] = dataclasses.field(default_factory=dict)
+    fit_states_per_quadrant: int = 128  # reset task states per goal quadrant and source task
 
     def __post_init__(self) -> None:
-        _positive("zero_shot", episodes=self.episodes, repeats=self.repeats)
+        from ps_ray.nets.translation import TRANSLATIONS
+
+        _positive("zero_shot", episodes=self.episodes, repeats=self.repeats,
+                  fit_states_per_quadrant=self.fit_states_per_quadrant)
+        if not isinstance(self.translate, Mapping):
+            raise SpecError(f"zero_shot.translate must map methods to translations, got {self.translate!r}")
+        for method, kinds in self.translate.items():
+            kinds = [kinds] if isinstance(kinds, str) else kinds
+            if not isinstance(kinds, (list, tuple)) or not kinds:
+                raise SpecError(f"zero_shot.translate.{method}: expected a list of translations, "
+                                f"got {kinds!r}; valid: {', '.join(TRANSLATIONS)}")
+            for kind in kinds:
+                if kind not in TRANSLATIONS:
+                    raise SpecError(f"zero_shot.translate.{method}: unknown translation {kind!r}; "
+                                    f"valid: {', '.join(TRANSLATIONS)}")
+            if len(set(kinds)) != len(kinds):
+                raise SpecError(f"zero_shot.translate.{method}: duplicate translation in {list(kinds)}")
+
+    def translations(self, method: str) -> tuple[str, ...]:
+        kinds = self.translate.get(method, ())
+        return (kinds,) if isinstance(kinds, str) else tuple(kinds)
 
 
 @dataclass(frozen=True)
@@ -266,7 +290,7 @@ class SweepSpec:
             if not getattr(self, key):
                 raise SpecError(f"{key} must be a non-empty list")
         for stage in (self.zero_shot, self.few_shot):
-            for method in stage.methods:
+            for method in (*stage.methods, *getattr(stage, "translate", ())):
                 if method not in self.methods:
                     raise SpecError(f"{type(stage).__name__}: method {method!r} is not trained by "
                                     f"this sweep; valid: {', '.join(self.methods)}")

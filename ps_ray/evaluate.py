@@ -71,7 +71,7 @@ class _GreedyNet(nn.Module):
         else:
             task = self.actor.task
             latent = task.relative.project(task.encode(task_in), self.reference)
-            mean, _ = self.actor.robot(latent, robot_in)
+            mean, _ = self.actor.robot(self.actor.to_robot(latent), robot_in)
         return torch.tanh(mean)
 
 

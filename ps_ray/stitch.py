@@ -30,11 +30,16 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Union
 
+import numpy as np
+import torch
+from torch import nn
+
 from ps_ray.config import short_name, trial_key
 from ps_ray.envs.robots import N_ARM, RobotSpec, resolve_robot
 from ps_ray.envs.tasks import resolve_task
 from ps_ray.nets.modular import NetDims, method_spec
 from ps_ray.nets.sac import NET_NAMES, SACNets, build_sac_nets
+from ps_ray.nets.translation import LatentTranslation, check_kind
 from ps_ray.weights import Signature, load_policy, signature_of
 from ps_ray.zoo import POLICY_FILE, SPEC_FILE, ModuleZoo, ZooEntry
 
@@ -193,16 +198,29 @@ def load_source(source: PolicySource) -> tuple[SACNets, Signature]:
 
 
 def stitch_policies(task_from: PolicySource, robot_from: PolicySource, *,
-                    target: EnvSpec | None = None) -> tuple[SACNets, Signature]:
+                    target: EnvSpec | None = None, translation: str | None = None,
+                    fit_states: np.ndarray | None = None) -> tuple[SACNets, Signature]:
     """New nets: every net's task module from ``task_from``, its robot module from ``robot_from``.
 
     The results own copies of the tensors (normaliser statistics and anchors included); target
     critics are stitched from the sources' target critics. Stitching a policy with itself gives
-    back exactly that policy.
+    back exactly that policy. ``translation`` ("orthogonal" or "affine") fits a latent map per net
+    on ``fit_states`` (task inputs, N x task_dim) between the two policies' task modules
+    (:mod:`ps_ray.nets.translation`); the signature names it.
     """
     nets_t, sig_t = load_source(task_from)
     nets_r, sig_r = load_source(robot_from)
+    if sig_t.translation or sig_r.translation:
+        raise ValueError("cannot stitch a policy that is itself a translated stitch; use its sources")
     signature = check_stitchable(sig_t, sig_r, target)
+    if translation is not None:
+        check_kind(translation)
+        if fit_states is None:
+            raise ValueError("a translated stitch needs fit_states (task inputs for the fit)")
+        if sig_t.task_dim != sig_r.task_dim:
+            raise ValueError(f"cannot translate: the robot module's own task module takes "
+                             f"{sig_r.task_dim}-D task inputs, the target task has {sig_t.task_dim}")
+        signature = dataclasses.replace(signature, translation=translation)
     anchors = nets_t.actor.anchors
     nets = build_sac_nets(signature.method, signature.dims, interface_dim=signature.interface_dim,
                           hidden=signature.hidden,
@@ -211,10 +229,36 @@ def stitch_policies(task_from: PolicySource, robot_from: PolicySource, *,
         net = getattr(nets, name)
         net.task.load_state_dict(getattr(nets_t, name).task.state_dict(), strict=True)
         net.robot.load_state_dict(getattr(nets_r, name).robot.state_dict(), strict=True)
-    rebuilt = signature_of(nets, signature.method, signature.interface_dim, signature.hidden)
+        if translation is not None:
+            net.translate = fit_net_translation(
+                getattr(nets_t, name), getattr(nets_r, name), fit_states, translation)
+    rebuilt = signature_of(nets, signature.method, signature.interface_dim, signature.hidden,
+                           translation=signature.translation)
     if rebuilt != signature:  # the anchors the nets carry are the ones the signature names
         raise ValueError(f"stitched nets do not match their signature: {rebuilt.mismatches(signature)}")
     return nets, signature
+
+
+@torch.no_grad()
+def fit_net_translation(net_t: nn.Module, net_r: nn.Module, states: np.ndarray,
+                        kind: str, seed: int = 0) -> LatentTranslation:
+    """The map from ``net_t``'s task-module latent to ``net_r``'s on the same inputs.
+
+    Modular task modules see task inputs only. Plain's bottom half also sees the robot state (and,
+    in a critic, the action): those are drawn from the robot source's own normaliser statistics
+    (its Gaussian approximation of the robot states it was trained on) and uniform actions, the
+    same draw for both sides."""
+    task_in = torch.as_tensor(np.asarray(states, np.float32))
+    robot_in = action = None
+    if not net_r.spec.modular:
+        g = torch.Generator().manual_seed(seed)
+        norm, task_dim = net_r.task.norm, net_t.dims.task_dim
+        mean, std = norm.mean[task_dim:], norm.var[task_dim:].sqrt()
+        robot_in = mean + std * torch.randn(len(task_in), len(mean), generator=g)
+        if net_r.task.sees_action:
+            action = torch.rand(len(task_in), net_r.dims.action_dim, generator=g) * 2 - 1
+    src, dst = (net.task(task_in, robot_in, action).double().numpy() for net in (net_t, net_r))
+    return LatentTranslation.fitted(src, dst, kind)
 
 
 # -- the stitching matrix of a sweep --------------------------------------------------------------

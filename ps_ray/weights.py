@@ -39,6 +39,7 @@ class Signature:
     task_dim: int
     robot_dim: int
     action_dim: int
+    translation: str = ""  # a stitched policy's fitted latent translation ("" none, or its kind)
 
     @property
     def dims(self) -> NetDims:
@@ -50,12 +51,17 @@ class Signature:
                 for n in names if getattr(self, n) != getattr(other, n)]
 
 
-def signature_of(nets: nn.Module, method: str, interface_dim: int, hidden: int) -> Signature:
+def signature_of(nets: nn.Module, method: str, interface_dim: int, hidden: int,
+                 translation: str = "") -> Signature:
     dims = nets.actor.dims
+    if bool(translation) != (getattr(nets.actor, "translate", None) is not None):
+        raise ValueError(f"nets {'lack' if translation else 'carry'} a latent translation, "
+                         f"signature says {translation or 'none'!r}")
     return Signature(method=method, interface_dim=interface_dim, hidden=hidden,
                      anchor_hash="" if nets.actor.anchors is None
                      else anchor_hash(nets.actor.anchors.detach().cpu().numpy()),
-                     task_dim=dims.task_dim, robot_dim=dims.robot_dim, action_dim=dims.action_dim)
+                     task_dim=dims.task_dim, robot_dim=dims.robot_dim, action_dim=dims.action_dim,
+                     translation=translation)
 
 
 def nets_state(nets: nn.Module) -> dict[str, torch.Tensor]:
@@ -107,6 +113,8 @@ def nets_from_state(state: dict[str, torch.Tensor], signature: Signature,
                               anchors=None if anchors is None else anchors.numpy())
     except ValueError as e:
         raise ValueError(f"{source}: {e}") from None
+    if signature.translation:
+        attach_translations(nets)
     expected = nets_state(nets)
     missing, unexpected = sorted(expected.keys() - state.keys()), sorted(state.keys() - expected.keys())
     wrong_shape = [k for k in expected.keys() & state.keys() if expected[k].shape != state[k].shape]
@@ -115,6 +123,15 @@ def nets_from_state(state: dict[str, torch.Tensor], signature: Signature,
                          f"unexpected {unexpected[:3]}, wrong shape {wrong_shape[:3]})")
     load_nets_state(nets, state)
     return nets
+
+
+def attach_translations(nets: nn.Module) -> None:
+    """Give every net an (identity) latent translation of its latent width, to be loaded or fitted."""
+    from ps_ray.nets.translation import LatentTranslation
+
+    for name in NET_NAMES:
+        net = getattr(nets, name)
+        net.translate = LatentTranslation(net.latent_dim, net.latent_dim)
 
 
 def load_nets_state(nets: nn.Module, state: dict[str, torch.Tensor]) -> None:

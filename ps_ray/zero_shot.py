@@ -11,6 +11,7 @@ import dataclasses
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pandas as pd
 
 from ps_ray.config import SweepSpec, short_name
@@ -22,34 +23,54 @@ RESULT_KEYS = ("success_mean", "success_std", "touching_mean", "touching_std", "
                "episodes_per_s")
 
 
-def pairs(spec: SweepSpec, methods: list[str] | None = None) -> list[dict[str, Any]]:
-    """One trial config per stitched pair of the sweep's trained policies."""
+def pairs(spec: SweepSpec, methods: list[str] | None = None,
+          translate: bool = False) -> list[dict[str, Any]]:
+    """One trial config per stitched pair of the sweep's trained policies; with ``translate``,
+    also one per latent translation that ``spec.zero_shot.translate`` names for the method
+    (its method shown as ``<method>+<translation>``)."""
     from ps_ray.stitch import combos
     from ps_ray.zoo import ModuleZoo
 
     zoo = ModuleZoo.from_sweep(sweep_dir(spec))
     out = []
     for method in methods or spec.methods:
+        kinds = ("", *spec.zero_shot.translations(method)) if translate else ("",)
         for seed in spec.seeds:
             for combo in combos(zoo, method, seed):
-                out.append({
-                    "method": method, "seed": seed, "label": combo.label,
-                    "task_from": str(combo.task_from.key), "robot_from": str(combo.robot_from.key),
-                    "task_from_path": str(combo.task_from.path),
-                    "robot_from_path": str(combo.robot_from.path),
-                    "robot": combo.robot, "task": combo.task})
+                for kind in kinds:
+                    out.append({
+                        "method": f"{method}+{kind}" if kind else method, "translation": kind,
+                        "seed": seed, "label": combo.label,
+                        "task_from": str(combo.task_from.key), "robot_from": str(combo.robot_from.key),
+                        "task_from_path": str(combo.task_from.path),
+                        "robot_from_path": str(combo.robot_from.path),
+                        "fit_tasks": [combo.task_from.spec["task"], combo.robot_from.spec["task"]],
+                        "robot": combo.robot, "task": combo.task})
     return out
 
 
+def fit_states(tasks: list, per_quadrant: int, seed: int) -> np.ndarray:
+    """Task inputs for fitting a latent translation: env resets of every given task (the target
+    task and the robot source's task, so both task modules see familiar states), per goal
+    quadrant. Resets only: no env steps are taken."""
+    from ps_ray.analysis.latent import probe_states
+
+    return np.concatenate([probe_states(task, per_quadrant, seed).states for task in tasks])
+
+
 def zero_shot_trial(config: dict[str, Any]) -> None:
-    """Tune function trainable: stitch one pair and evaluate it."""
+    """Tune function trainable: stitch one pair (translated, if the pair says so) and evaluate it."""
     from ray import tune
 
     from ps_ray.evaluate import evaluate
     from ps_ray.stitch import stitch_policies
 
     pair, settings = config["pair"], config["eval"]
-    stitched = stitch_policies(pair["task_from_path"], pair["robot_from_path"])
+    translation = pair.get("translation") or None
+    states = (fit_states(pair["fit_tasks"], config["fit_states_per_quadrant"], settings["seed"])
+              if translation else None)
+    stitched = stitch_policies(pair["task_from_path"], pair["robot_from_path"],
+                               translation=translation, fit_states=states)
     result = evaluate(stitched, pair["robot"], pair["task"], **settings)
     tune.report({k: result[k] for k in RESULT_KEYS})
 
@@ -66,7 +87,7 @@ def run_zero_shot(spec: SweepSpec, *, resume: bool = False, progress: bool = Tru
 
     settings = dataclasses.replace(spec.zero_shot, **overrides)
     root = sweep_dir(spec)
-    trials = pairs(spec, list(settings.methods) or None)
+    trials = pairs(spec, list(settings.methods) or None, translate=True)
     if not trials:
         raise ValueError(f"{root}: no stitchable pairs (train the sweep first: ps-ray sweep)")
     callback = MLflowTuneCallback(
@@ -74,7 +95,7 @@ def run_zero_shot(spec: SweepSpec, *, resume: bool = False, progress: bool = Tru
         key_fn=lambda trial: f"zero_shot/{trial.config['pair']['method']}/"
                              f"{trial.config['pair']['label']}/{trial.config['pair']['seed']}",
         params_fn=lambda trial: {k: short_name(v) for k, v in trial.config["pair"].items()
-                                 if not k.endswith("_path")} | {"episodes": settings.episodes,
+                                 if not k.endswith("_path") and k != "fit_tasks"} | {"episodes": settings.episodes,
                                                                  "repeats": settings.repeats},
         tags={"ps_ray.sweep": spec.name, "ps_ray.stage": "zero_shot",
               "git_commit": git_commit() or ""})
@@ -88,13 +109,15 @@ def run_zero_shot(spec: SweepSpec, *, resume: bool = False, progress: bool = Tru
             trainable,
             param_space={"pair": tune.grid_search(trials),
                          "eval": {"episodes": settings.episodes, "repeats": settings.repeats,
-                                  "seed": settings.seed}},
+                                  "seed": settings.seed},
+                         "fit_states_per_quadrant": settings.fit_states_per_quadrant},
             tune_config=tune.TuneConfig(max_concurrent_trials=spec.max_concurrent),
             run_config=tune.RunConfig(name=TUNE_DIR, storage_path=str(root),
                                       callbacks=[callback], verbose=1 if progress else 0))
     results = tuner.fit()
     raise_on_errors(results, "zero-shot trials")
-    rows = [{**{k: short_name(v) for k, v in r.config["pair"].items() if not k.endswith("_path")},
+    rows = [{**{k: short_name(v) for k, v in r.config["pair"].items()
+                if not k.endswith("_path") and k != "fit_tasks"},
              **{k: r.metrics.get(k) for k in RESULT_KEYS}} for r in results]
     table = pd.DataFrame(rows).sort_values(["method", "seed", "label"]).reset_index(drop=True)
     write_atomic_csv(table, root / RESULT_FILE)

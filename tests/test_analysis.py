@@ -78,7 +78,8 @@ def test_distance_table_pools_pairs_and_matrices_are_symmetric():
     assert row["pairs"] == 6  # 4 seeds: the paper's 6 pairs
     assert row["cosine_mean"] == pytest.approx(latent.upper_values(matrix).mean())
     shown = tables.latent_table(table, "seeds", 16)
-    assert list(shown.columns) == ["pairs", "cosine distance", "L2 distance"]
+    assert list(shown.columns) == ["pairs", "cosine distance", "L2 distance", "cosine 95% CI",
+                                   "retrieval MRR [95% CI]", "top-1"]
     assert shown.loc["ps", "cosine distance"] == tables.pm(row["cosine_mean"], row["cosine_std"], 4)
 
 

@@ -23,7 +23,8 @@ def test_train_spec_defaults_are_valid_and_label_names_the_trial():
 
 
 @pytest.mark.parametrize("fields, message", [
-    ({"method": "psx"}, "unknown method 'psx'; valid methods: ps, ablation, devin, devin_large, plain"),
+    ({"method": "psx"}, "unknown method 'psx'; valid methods: ps, ps_ln, ps_center, ps_center_ln, "
+                        "ps_mean_ln, ps_nograd, ps_scaled, ablation, devin, devin_large, plain"),
     ({"robot": "pandaa"}, "unknown robot 'pandaa'; valid robots: panda, panda_l3, panda_l5"),
     ({"task": "pushh"}, "unknown task 'pushh'"),
     ({"robot": {"base": "panda", "locked_joints": [9]}}, "9"),

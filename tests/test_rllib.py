@@ -31,9 +31,9 @@ def _learner_module(algo):
     return algo.learner_group._learner.module["default_policy"]
 
 
-@pytest.fixture(scope="module")
-def trained(ray_local, tmp_path_factory):
-    spec = TrainSpec(method="ps", anchors=None, **SMALL)
+@pytest.fixture(scope="module", params=["ps", "ps_center_ln"])
+def trained(ray_local, tmp_path_factory, request):
+    spec = TrainSpec(method=request.param, anchors=None, **SMALL)
     anchors = np.random.default_rng(0).uniform(-0.5, 0.5, (16, 2)).astype(np.float32)
     algo = algo_config(spec, anchors).build_algo()
     for _ in range(4):
@@ -81,7 +81,7 @@ def test_checkpoint_round_trip_restores_every_net_and_the_replay(trained):
 
 def test_policy_file_round_trip_keeps_actions_q_and_targets(trained, tmp_path):
     spec, anchors, algo, _ = trained
-    signature = Signature(method="ps", interface_dim=16, hidden=64,
+    signature = Signature(method=spec.method, interface_dim=16, hidden=64,
                           anchor_hash=anchor_hash(anchors), **algo.replay_dims)
     algo.export_policy(tmp_path / "policy.safetensors", signature)
     nets, loaded_signature = load_policy(tmp_path / "policy.safetensors")

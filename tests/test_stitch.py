@@ -17,7 +17,7 @@ from safetensors.torch import save_file
 
 from ps_ray import cli
 from ps_ray.envs import make
-from ps_ray.nets.modular import NetDims, update_normalizers
+from ps_ray.nets.modular import NetDims, update_normalizers, uses_anchors
 from ps_ray.nets.obs import dims_from_spaces
 from ps_ray.nets.sac import NET_NAMES, SACNets, build_sac_nets
 from ps_ray.stitch import (
@@ -52,7 +52,7 @@ def make_nets(method: str = "ps", dims: NetDims = PUSH, *, interface_dim: int = 
     """Random nets with non-trivial normaliser statistics and targets that differ from the critics."""
     torch.manual_seed(seed)
     nets = build_sac_nets(method, dims, interface_dim=interface_dim, hidden=hidden,
-                          anchors=anchors if method == "ps" else None)
+                          anchors=anchors if uses_anchors(method) else None)
     g = torch.Generator().manual_seed(seed)
     update_normalizers(nets, 2 * torch.randn(64, dims.task_dim, generator=g) + 1,
                        torch.randn(64, dims.robot_dim, generator=g))

@@ -197,22 +197,54 @@ def groups(dumps: Iterable[Dump], comparison: str) -> list[Group]:
     return out
 
 
-def distance_table(all_groups: Iterable[Group]) -> pd.DataFrame:
-    """Mean and std over the distinct pairs of every group, per (comparison, interface dim, method):
-    the paper's appendix tables (rows PS / ablation, columns cosine and L2)."""
-    pooled: dict[tuple, dict[str, list[float]]] = {}
+def pair_cells(all_groups: Iterable[Group]) -> pd.DataFrame:
+    """One row per compared pair of modules: the paper's distances and the retrieval scores.
+    ``cluster`` is what the pair's group holds fixed ("robot, task" across seeds, "task, seed"
+    across robots): the unit the confidence intervals resample."""
+    from ps_ray.analysis.alignment import retrieval
+
+    records = []
     for group in all_groups:
-        row = pooled.setdefault((group.comparison, group.interface_dim, group.method),
-                                {"cosine": [], "l2": []})
-        for metric in DISTANCES:
-            row[metric].extend(upper_values(group.matrix(metric)))
-    records = [{"comparison": c, "interface_dim": d, "method": m, "pairs": len(v["cosine"]),
-                "cosine_mean": np.mean(v["cosine"]), "cosine_std": np.std(v["cosine"]),
-                "l2_mean": np.mean(v["l2"]), "l2_std": np.std(v["l2"])}
-               for (c, d, m), v in sorted(pooled.items())]
-    columns = ["comparison", "interface_dim", "method", "pairs", "cosine_mean", "cosine_std",
-               "l2_mean", "l2_std"]
+        for x, y in combinations(list(group.members), 2):
+            a, b = group.members[x].values, group.members[y].values
+            records.append({"comparison": group.comparison, "interface_dim": group.interface_dim,
+                            "method": group.method, "cluster": group.fixed, "a": x, "b": y,
+                            **{m: fn(a, b) for m, fn in DISTANCES.items()}, **retrieval(a, b)})
+    columns = ["comparison", "interface_dim", "method", "cluster", "a", "b", *DISTANCES, "mrr", "top1"]
     return pd.DataFrame(records, columns=columns)
+
+
+ALIGNMENT_METRICS = (*DISTANCES, "mrr", "top1")
+
+
+def distance_table(all_groups: Iterable[Group]) -> pd.DataFrame:
+    """Per (comparison, interface dim, method): mean and std over the distinct pairs of every
+    group (the paper's appendix tables: cosine and L2), the same for the retrieval MRR and top-1,
+    and 95% CIs of the means resampling the groups' fixed parts (:mod:`ps_ray.analysis.stats`)."""
+    from ps_ray.analysis.stats import estimate
+
+    cells = pair_cells(all_groups)
+    records = []
+    for (c, d, m), part in cells.groupby(["comparison", "interface_dim", "method"], sort=True):
+        row = {"comparison": c, "interface_dim": d, "method": m, "pairs": len(part)}
+        for metric in ALIGNMENT_METRICS:
+            values = part[metric].to_numpy()
+            e = estimate(values, part["cluster"].to_numpy())
+            row.update({f"{metric}_mean": e.mean, f"{metric}_std": float(np.std(values)),
+                        f"{metric}_lo": e.mean_lo, f"{metric}_hi": e.mean_hi})
+        records.append(row)
+    columns = ["comparison", "interface_dim", "method", "pairs",
+               *(f"{m}_{s}" for m in ALIGNMENT_METRICS for s in ("mean", "std", "lo", "hi"))]
+    return pd.DataFrame(records, columns=columns)
+
+
+def spread_table(dumps: Iterable[Dump]) -> pd.DataFrame:
+    """Within-network spread of every dump and whether it is flagged as collapsed."""
+    from ps_ray.analysis.alignment import collapsed, spread
+
+    return pd.DataFrame([{"key": d.key, "method": d.method, "interface_dim": d.interface_dim,
+                          "spread": spread(d.values), "collapsed": collapsed(d.values)}
+                         for d in dumps], columns=["key", "method", "interface_dim", "spread", "collapsed"])
 
 
 def mean_matrix(all_groups: Iterable[Group], metric: str) -> pd.DataFrame:

@@ -40,6 +40,7 @@ class Report:
     root: Path
     sections: list[Section] = field(default_factory=list)
     metrics: dict[str, float] = field(default_factory=dict)
+    headline: dict[str, pd.DataFrame] = field(default_factory=dict)  # per-method figures for the top
 
     def section(self, title: str, intro: str = "") -> Section:
         self.sections.append(Section(title, intro))
@@ -66,10 +67,12 @@ def build_report(spec: SweepSpec, *, progress: bool = True, log_to_mlflow: bool 
     shutil.rmtree(partial, ignore_errors=True)
     partial.mkdir(parents=True)
     report = Report(partial)
-    _training(report, root, say)
+    target = source_target(spec)
+    _training(report, root, target, say)
     _latent(report, spec, root, say)
-    _zero_shot(report, root, say)
+    _zero_shot(report, root, target, say)
     _few_shot(report, root, say)
+    _summary(report, spec, target)
     (partial / "index.html").write_text(render_html(spec, report))
     final = root / REPORT_DIR
     shutil.rmtree(final, ignore_errors=True)
@@ -81,7 +84,13 @@ def build_report(spec: SweepSpec, *, progress: bool = True, log_to_mlflow: bool 
 
 
 # -- sections -------------------------------------------------------------------------------------
-def _training(report: Report, root: Path, say) -> None:
+def source_target(spec: SweepSpec) -> float:
+    """The success a source must reach to be trusted: the sweep's early-stop target, else 0.9."""
+    target = spec.train.get("target_success")
+    return float(target) if target is not None else 0.9
+
+
+def _training(report: Report, root: Path, target: float, say) -> None:
     frame = results.curves(root / "tune")
     section = report.section("Training", "Greedy success of the sweep's policies during training "
                              "(mean over robots and seeds; band: min to max).")
@@ -96,7 +105,14 @@ def _training(report: Report, root: Path, say) -> None:
     final = results.final_success(frame)
     report.table(section, "training_final", "Final greedy success per method, task and interface",
                  tables.training_table(final))
-    say(f"report: training curves of {frame['run'].nunique()} runs")
+    sources = final.set_index("run")[["method", "robot", "task", "seed", "env_steps", "success"]]
+    sources = sources.assign(below_target=sources["success"] < target)
+    report.table(section, "training_sources", f"Every source policy's final greedy success "
+                 f"(below_target: under {target:.2f}; stitched pairs built on it are flagged)",
+                 sources, numbers=sources)
+    report.headline["sources"] = sources
+    say(f"report: training curves of {frame['run'].nunique()} runs "
+        f"({int(sources['below_target'].sum())} below the {target:.2f} target)")
 
 
 def _latent(report: Report, spec: SweepSpec, root: Path, say) -> None:
@@ -129,6 +145,13 @@ def _latent(report: Report, spec: SweepSpec, root: Path, say) -> None:
         section.intro = "No modular modules in this sweep (plain has no task-only interface)."
         return
     latent.save_dumps(report.root / "interfaces.safetensors", probes, dumps)
+    spreads = latent.spread_table(dumps)
+    flagged = spreads[spreads["collapsed"]]
+    report.table(section, "interface_spread", "Within-network spread of every interface "
+                 "(sqrt(total variance) / RMS norm; below 0.05 is flagged as collapsed: its "
+                 f"distances say nothing) — {len(flagged)} of {len(spreads)} flagged",
+                 spreads.round(4), numbers=spreads)
+    report.headline["collapsed"] = spreads.groupby("method")["collapsed"].sum()
     all_groups = {c: latent.groups(dumps, c) for c in latent.COMPARISONS}
     distances = latent.distance_table([g for gs in all_groups.values() for g in gs])
     if distances.empty:
@@ -136,10 +159,11 @@ def _latent(report: Report, spec: SweepSpec, root: Path, say) -> None:
         return
     report.table(section, "latent_distances", "All distances (mean and std over pairs)",
                  distances.round(5), numbers=distances)
+    report.headline["alignment"] = distances
     for _, row in distances.iterrows():
         base = f"latent.{row['comparison']}.i{row['interface_dim']}.{row['method']}"
-        report.metrics[f"{base}.cosine"] = float(row["cosine_mean"])
-        report.metrics[f"{base}.l2"] = float(row["l2_mean"])
+        for metric in latent.ALIGNMENT_METRICS:
+            report.metrics[f"{base}.{metric}"] = float(row[f"{metric}_mean"])
     for comparison, found in all_groups.items():
         for dim in sorted({g.interface_dim for g in found}):
             chosen = [g for g in found if g.interface_dim == dim]
@@ -159,8 +183,8 @@ def _latent(report: Report, spec: SweepSpec, root: Path, say) -> None:
     say(f"report: latent distances of {sum(map(len, all_groups.values()))} groups")
 
 
-def _zero_shot(report: Report, root: Path, say) -> None:
-    from ps_ray.zero_shot import RESULT_FILE, summary as zero_shot_summary
+def _zero_shot(report: Report, root: Path, target: float, say) -> None:
+    from ps_ray.zero_shot import RESULT_FILE
 
     table = results.zero_shot_results(root / RESULT_FILE)
     if table is None:
@@ -171,13 +195,25 @@ def _zero_shot(report: Report, root: Path, say) -> None:
                              "and seeds, identical evaluation episodes for every method.")
     report.table(section, "zero_shot", "Zero-shot results (Table 1 layout)",
                  tables.zero_shot_table(table), numbers=tables.pool_seeds(table))
-    summary = zero_shot_summary(table)
-    summary = summary.loc[tables.method_order(summary.index)]
-    report.table(section, "zero_shot_summary", "Mean over combinations", summary.round(3),
-                 numbers=summary)
-    for method, row in summary.iterrows():
-        report.metrics[f"zero_shot.{method}.success"] = float(row["success"])
-        report.metrics[f"zero_shot.{method}.touching"] = float(row["touching"])
+    sources = report.headline.get("sources")
+    if sources is not None:
+        weak = set(sources.index[sources["below_target"]])
+        table = table.assign(weak_source=table["task_from"].isin(weak) | table["robot_from"].isin(weak))
+        flagged = table[table["weak_source"]]
+        report.table(section, "zero_shot_weak_sources", f"{len(flagged)} of {len(table)} stitched "
+                     f"pairs are built on a source below the {target:.2f} target",
+                     flagged[["method", "seed", "label", "task_from", "robot_from", "success_mean"]])
+    numbers = tables.zero_shot_estimates(table)
+    report.table(section, "zero_shot_summary", "Per method over (pair, seed) cells: mean and IQM "
+                 "with bootstrap 95% CIs resampling seeds", tables.estimates_text(numbers),
+                 numbers=numbers)
+    report.headline["zero_shot"] = numbers
+    for method, row in numbers.iterrows():
+        for metric in ("success", "touching"):
+            for stat in ("mean", "mean_lo", "mean_hi", "iqm"):
+                if f"{metric}_{stat}" in row:
+                    name = metric if stat == "mean" else f"{metric}_{stat}"
+                    report.metrics[f"zero_shot.{method}.{name}"] = float(row[f"{metric}_{stat}"])
     report.figure(section, "zero_shot", lambda p: plots.zero_shot_bars(tables.pool_seeds(table), p))
     say(f"report: zero-shot table of {len(table)} stitched pairs")
 
@@ -201,6 +237,57 @@ def _few_shot(report: Report, root: Path, say) -> None:
     report.table(section, "few_shot_final", "Final greedy success per target env",
                  summary.round(3), numbers=summary)
     say(f"report: few-shot curves of {frame['run'].nunique()} runs")
+
+
+def _summary(report: Report, spec: SweepSpec, target: float) -> None:
+    """The answer first: per method, zero-shot success and touching with CIs, cross-robot
+    alignment and training success, with the budget in one sentence; put at the top."""
+    h = report.headline
+    rows = {}
+    for method in tables.method_order(spec.methods):
+        row: dict[str, str] = {}
+        zs = h.get("zero_shot")
+        if zs is not None and method in zs.index:
+            r = zs.loc[method]
+            row["zero-shot success, mean [95% CI]"] = f"{r['success_mean']:.2f} " + tables.ci(
+                r["success_mean_lo"], r["success_mean_hi"])
+            row["zero-shot success IQM"] = f"{r['success_iqm']:.2f}"
+            if "touching_mean" in r and r["touching_mean"] == r["touching_mean"]:
+                row["touching, mean [95% CI]"] = f"{r['touching_mean']:.2f} " + tables.ci(
+                    r["touching_mean_lo"], r["touching_mean_hi"])
+            row["cells"] = str(int(r["success_cells"]))
+        al = h.get("alignment")
+        if al is not None:
+            part = al[(al["method"] == method) & (al["comparison"] == "robots")]
+            if len(part):
+                r = part.sort_values("interface_dim").iloc[-1]
+                row["across robots: MRR"] = f"{r['mrr_mean']:.3f}"
+                row["across robots: cosine dist."] = f"{r['cosine_mean']:.4f}"
+        if h.get("collapsed") is not None and method in h["collapsed"].index:
+            row["collapsed interfaces"] = str(int(h["collapsed"][method]))
+        src = h.get("sources")
+        if src is not None and (src["method"] == method).any():
+            mine = src[src["method"] == method]
+            row["training success (mean)"] = f"{mine['success'].mean():.2f}"
+            row[f"sources < {target:.2f}"] = f"{int(mine['below_target'].sum())}/{len(mine)}"
+        if row:
+            rows[method] = row
+    if not rows:
+        return
+    train = spec.train
+    budget = (f"Budget: {len(spec.seeds)} seed(s), up to {train.get('env_steps', 'default')} env "
+              f"steps per source" + (f", stopping early at greedy success {train['target_success']}"
+                                     if train.get("target_success") is not None else "") + ". ")
+    section = Section("Summary", budget + "Zero-shot: stitched pairs in their target env, no "
+                      "training; CIs resample seeds (fewer than two seeds: n/a). MRR: retrieval of "
+                      "the same probe state across networks (1 = perfect; a collapsed interface "
+                      "cannot score).")
+    frame = pd.DataFrame.from_dict(rows, orient="index").fillna("–")
+    frame.index.name = "method"
+    path = report.root / "tables" / "summary.csv"
+    frame.to_csv(path)
+    section.items.append(("table", ("Headline per method", frame)))
+    report.sections.insert(0, section)
 
 
 # -- HTML -----------------------------------------------------------------------------------------

@@ -17,8 +17,15 @@ def pm(mean: float, std: float, digits: int = 2) -> str:
     return f"{mean:.{digits}f} ± {std:.{digits}f}"
 
 
-def _method_key(method: str) -> int:
-    return METHOD_ORDER.index(method) if method in METHOD_ORDER else len(METHOD_ORDER)
+def ci(lo: float, hi: float, digits: int = 2) -> str:
+    """``[lo, hi]``, or ``[n/a]`` where there is no interval (fewer than two seeds)."""
+    return "[n/a]" if np.isnan(lo) else f"[{lo:.{digits}f}, {hi:.{digits}f}]"
+
+
+def _method_key(method: str) -> tuple[int, str]:
+    """The method table's order; a translated stitch ("ablation+affine") right after its method."""
+    base, _, translation = method.partition("+")
+    return (METHOD_ORDER.index(base) if base in METHOD_ORDER else len(METHOD_ORDER), translation)
 
 
 def method_order(methods) -> list[str]:
@@ -35,6 +42,10 @@ def latent_table(distances: pd.DataFrame, comparison: str, interface_dim: int) -
         "pairs": part["pairs"].to_numpy(),
         "cosine distance": [pm(m, s, 4) for m, s in zip(part["cosine_mean"], part["cosine_std"])],
         "L2 distance": [pm(m, s, 3) for m, s in zip(part["l2_mean"], part["l2_std"])],
+        "cosine 95% CI": [ci(lo, hi, 4) for lo, hi in zip(part["cosine_lo"], part["cosine_hi"])],
+        "retrieval MRR [95% CI]": [f"{m:.3f} {ci(lo, hi, 3)}" for m, lo, hi
+                                   in zip(part["mrr_mean"], part["mrr_lo"], part["mrr_hi"])],
+        "top-1": [f"{m:.3f}" for m in part["top1_mean"]],
     }, index=pd.Index(part["method"].to_numpy(), name="method"))
 
 
@@ -87,3 +98,34 @@ def training_table(final: pd.DataFrame) -> pd.DataFrame:
     out = pd.DataFrame({"runs": grouped.size(), "final success": grouped.agg(
         lambda s: pm(float(s.mean()), float(s.std(ddof=0))))})
     return out.sort_index(level=0, key=lambda s: s.map(_method_key) if s.name == "method" else s)
+
+
+def zero_shot_estimates(table: pd.DataFrame) -> pd.DataFrame:
+    """Per method, over (pair, seed) cells: mean and IQM of success and touching with 95% CIs
+    that resample seeds (:mod:`ps_ray.analysis.stats`), as numbers."""
+    from ps_ray.analysis.stats import estimates
+
+    frames = []
+    for metric in ("success", "touching"):
+        cells = table.dropna(subset=[f"{metric}_mean"])
+        if cells.empty:
+            continue
+        est = estimates(cells, f"{metric}_mean")
+        frames.append(est.drop(columns=["cells", "seeds"] if frames else []).add_prefix(f"{metric}_"))
+    out = pd.concat(frames, axis=1) if frames else pd.DataFrame()
+    return out.loc[method_order(out.index)] if not out.empty else out
+
+
+def estimates_text(numbers: pd.DataFrame, metrics=("success", "touching")) -> pd.DataFrame:
+    """The shown form of :func:`zero_shot_estimates`: ``mean [CI]`` and ``IQM [CI]`` columns."""
+    out = pd.DataFrame(index=numbers.index)
+    out["cells (pairs x seeds)"] = numbers["success_cells"].astype(int)
+    out["seeds"] = numbers["success_seeds"].astype(int)
+    for metric in metrics:
+        if f"{metric}_mean" not in numbers:
+            continue
+        for stat in ("mean", "iqm"):
+            out[f"{metric} {stat.upper() if stat == 'iqm' else stat} [95% CI]"] = [
+                f"{r[f'{metric}_{stat}']:.2f} {ci(r[f'{metric}_{stat}_lo'], r[f'{metric}_{stat}_hi'])}"
+                for _, r in numbers.iterrows()]
+    return out

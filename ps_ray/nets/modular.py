@@ -63,8 +63,9 @@ METHODS: dict[str, MethodSpec] = {
     for spec in (
         _ps("ps"),
         _ps("ps_ln", norm="layer"),
-        _ps("ps_center", center=True),
-        _ps("ps_center_ln", center=True, norm="layer"),
+        _ps("ps_center", center="standard"),
+        _ps("ps_center_ln", center="standard", norm="layer"),
+        _ps("ps_mean_ln", center="mean", norm="layer"),
         _ps("ps_nograd", anchor_grad=False),
         _ps("ps_scaled", scale=4.0),
         MethodSpec("ablation", None, modular=True, interface_dim=None, dropout=0.0),
@@ -221,13 +222,19 @@ class _Modular(nn.Module):
 
     robot_type: type[_RobotModule]
 
-    def __init__(self, task: TaskModule, robot: _RobotModule) -> None:
+    def __init__(self, task: TaskModule, robot: _RobotModule,
+                 translate: nn.Module | None = None) -> None:
         super().__init__()
         if not isinstance(robot, self.robot_type):
             wanted, got = self.robot_type.__name__, type(robot).__name__
             raise ValueError(f"{type(self).__name__} needs a {wanted}, got {got}")
         _check_compatible(task, robot)
         self.task, self.robot = task, robot
+        self.translate = translate  # a stitched policy's fitted latent translation, if any
+
+    def to_robot(self, latent: Tensor) -> Tensor:
+        """The task module's latent as the robot module takes it (translated, if stitched so)."""
+        return latent if self.translate is None else self.translate(latent)
 
     @property
     def spec(self) -> MethodSpec:
@@ -251,7 +258,7 @@ class Actor(_Modular):
 
     def forward(self, task_in: Tensor, robot_in: Tensor) -> tuple[Tensor, Tensor]:
         """Pre-tanh Gaussian (mean, log_std)."""
-        return self.robot(self.task(task_in, robot_in), robot_in)
+        return self.robot(self.to_robot(self.task(task_in, robot_in)), robot_in)
 
     def interface(self, task_in: Tensor, robot_in: Tensor) -> Tensor:
         """The latent at the cut (the relative vector for PS)."""
@@ -262,7 +269,7 @@ class Critic(_Modular):
     robot_type = CriticRobotModule
 
     def forward(self, task_in: Tensor, robot_in: Tensor, action: Tensor) -> Tensor:
-        return self.robot(self.task(task_in, robot_in, action), robot_in, action)
+        return self.robot(self.to_robot(self.task(task_in, robot_in, action)), robot_in, action)
 
     def interface(self, task_in: Tensor, robot_in: Tensor, action: Tensor) -> Tensor:
         return self.task(task_in, robot_in, action)

@@ -15,6 +15,7 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 REL_NORMS = ("none", "layer")
+CENTERINGS = ("none", "mean", "standard")
 SCALE_EPS = 1e-6
 
 
@@ -22,9 +23,12 @@ SCALE_EPS = 1e-6
 class RelativeSpec:
     """How the interface is computed from the embeddings of a batch and of the anchors.
 
-    - ``center``: centre and standard-scale both embeddings by the anchor embeddings' per-dimension
-      mean and std before the cosine (R3L, Ricciardi et al. 2025). Removes the common direction
-      every ReLU embedding shares, so the cosines spread over [-1, 1] instead of clustering near 1.
+    - ``center``: before the cosine, subtract the anchor embeddings' mean from both embeddings
+      (``"mean"``), or also divide by their per-dimension std (``"standard"``, R3L, Ricciardi et
+      al. 2025). Removes the common direction every ReLU embedding shares, so the cosines spread
+      over [-1, 1] instead of clustering near 1. ``"mean"`` keeps the relative vector invariant to
+      rotations, scalings *and* translations of the embedding space; ``"standard"`` gives up the
+      rotation invariance (per-dimension scaling changes angles).
     - ``norm``: ``"layer"`` applies a parameter-free LayerNorm over the K similarities of each
       state (relreps' default output norm). Parameter-free, so it is a fixed function of the
       similarity vector and two aligned vectors stay aligned after it.
@@ -33,12 +37,14 @@ class RelativeSpec:
       anchors are embedded under ``torch.no_grad()`` (relreps' way). Values are equal either way.
     """
 
-    center: bool = False
+    center: str = "none"
     norm: str = "none"
     scale: float = 1.0
     anchor_grad: bool = True
 
     def __post_init__(self) -> None:
+        if self.center not in CENTERINGS:
+            raise ValueError(f"unknown centring {self.center!r}; expected one of {list(CENTERINGS)}")
         if self.norm not in REL_NORMS:
             raise ValueError(f"unknown relative norm {self.norm!r}; expected one of {list(REL_NORMS)}")
         if not self.scale > 0:
@@ -74,7 +80,7 @@ class RelativeProjection(nn.Module):
         if anchors.ndim != 2 or anchors.shape[0] < 1:
             shape = tuple(anchors.shape)
             raise ValueError(f"anchors must be a non-empty (K, input_dim) matrix, got shape {shape}")
-        if spec.center and anchors.shape[0] < 2:
+        if spec.center != "none" and anchors.shape[0] < 2:
             raise ValueError("centring by anchor statistics needs at least 2 anchors")
         self.register_buffer("anchors", anchors.detach().clone())
         self.spec = spec
@@ -90,16 +96,20 @@ class RelativeProjection(nn.Module):
     def reference(self, anchor_z: Tensor) -> AnchorReference:
         """The anchor side of the projection from the anchors' embeddings (K x D)."""
         mean = std = None
-        if self.spec.center:
+        if self.spec.center != "none":
             mean = anchor_z.mean(0)
+            anchor_z = anchor_z - mean
+        if self.spec.center == "standard":
             std = anchor_z.std(0, unbiased=False) + SCALE_EPS
-            anchor_z = (anchor_z - mean) / std
+            anchor_z = anchor_z / std
         return AnchorReference(mean, std, F.normalize(anchor_z, dim=-1))
 
     def project(self, z: Tensor, ref: AnchorReference) -> Tensor:
         """Embeddings (B x D) -> relative vectors (B x K) against a reference."""
         if ref.mean is not None:
-            z = (z - ref.mean) / ref.std
+            z = z - ref.mean
+        if ref.std is not None:
+            z = z / ref.std
         rel = F.normalize(z, dim=-1) @ ref.directions.T
         if self.spec.norm == "layer":
             rel = F.layer_norm(rel, rel.shape[-1:])

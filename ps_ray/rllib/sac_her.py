@@ -95,6 +95,10 @@ class ModularSAC(SAC):
         from ps_ray.weights import load_policy
 
         nets, signature = load_policy(path)
+        if signature.translation:
+            raise ValueError(f"{path}: a stitch with a fitted latent translation "
+                             f"({signature.translation}) is for zero-shot use; fine-tune an "
+                             f"untranslated stitch instead")
         ours = {k: self.replay_dims[k] for k in ("task_dim", "robot_dim", "action_dim")}
         theirs = {k: getattr(signature, k) for k in ours}
         if ours != theirs:

@@ -1,0 +1,83 @@
+"""Post-hoc latent translation (Maiorca et al., NeurIPS 2023; SAPS, Ricciardi et al. 2025).
+
+At stitch time, a map from task module A's latent to the latent that robot module B expects is
+fitted on matched pairs: the same task states through A's task module and through B's own task
+module. No env steps, no gradient steps. Each side is centred and scaled by one number (the RMS
+of its centred vectors) over the fit states; the map is fitted between the scaled spaces, then
+de-scaled into B's space. Isotropic scaling, not per-dimension: per-dimension scaling distorts
+angles, so a rotation between two spaces would no longer be a rotation between the scaled ones. The result is one affine map ``z_B = z_A @ weight + bias`` held as buffers of a
+:class:`LatentTranslation`, so it is saved with the stitched policy's tensors.
+
+- ``orthogonal``: Procrustes, R = U V^T from the SVD of X^T Y (a rotation/reflection only);
+- ``affine``: least squares [X, 1] W = Y (any linear map plus an offset).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+from torch import Tensor, nn
+
+TRANSLATIONS = ("orthogonal", "affine")
+SCALE_EPS = 1e-8
+
+
+def check_kind(kind: str) -> str:
+    if kind not in TRANSLATIONS:
+        raise ValueError(f"unknown translation {kind!r}; expected one of {list(TRANSLATIONS)}")
+    return kind
+
+
+def fit_translation(src: np.ndarray, dst: np.ndarray, kind: str) -> tuple[np.ndarray, np.ndarray]:
+    """(weight, bias) with ``dst ≈ src @ weight + bias`` for matched rows of src (N x Da), dst (N x Db)."""
+    check_kind(kind)
+    src, dst = np.asarray(src, np.float64), np.asarray(dst, np.float64)
+    if src.ndim != 2 or dst.ndim != 2 or len(src) != len(dst) or len(src) < 2:
+        raise ValueError(f"need matched (N, D) latents with N >= 2, got {src.shape} and {dst.shape}")
+    mu_a, mu_b = src.mean(0), dst.mean(0)
+    sd_a, sd_b = _rms(src - mu_a), _rms(dst - mu_b)
+    x, y = (src - mu_a) / sd_a, (dst - mu_b) / sd_b
+    if kind == "orthogonal":
+        width = max(x.shape[1], y.shape[1])  # zero-pad the narrower side
+        xp = np.pad(x, ((0, 0), (0, width - x.shape[1])))
+        yp = np.pad(y, ((0, 0), (0, width - y.shape[1])))
+        u, _, vt = np.linalg.svd(xp.T @ yp)
+        linear = (u @ vt)[: x.shape[1], : y.shape[1]]
+        offset = np.zeros(y.shape[1])
+    else:
+        solution, *_ = np.linalg.lstsq(np.hstack([x, np.ones((len(x), 1))]), y, rcond=None)
+        linear, offset = solution[:-1], solution[-1]
+    # de-scale: z_b = ((z_a - mu_a) / sd_a @ linear + offset) * sd_b + mu_b
+    weight = linear * (sd_b / sd_a)
+    bias = (offset - (mu_a / sd_a) @ linear) * sd_b + mu_b
+    return weight, bias
+
+
+def _rms(centred: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(np.sum(centred ** 2, axis=1)))) + SCALE_EPS
+
+
+class LatentTranslation(nn.Module):
+    """``z @ weight + bias``; fitted, never trained (buffers, not parameters)."""
+
+    weight: Tensor
+    bias: Tensor
+
+    def __init__(self, in_dim: int, out_dim: int) -> None:
+        super().__init__()
+        self.register_buffer("weight", torch.eye(in_dim, out_dim))
+        self.register_buffer("bias", torch.zeros(out_dim))
+
+    @classmethod
+    def fitted(cls, src: np.ndarray, dst: np.ndarray, kind: str) -> LatentTranslation:
+        weight, bias = fit_translation(src, dst, kind)
+        module = cls(*weight.shape)
+        module.weight.copy_(torch.as_tensor(weight))
+        module.bias.copy_(torch.as_tensor(bias))
+        return module
+
+    def forward(self, z: Tensor) -> Tensor:
+        return z @ self.weight.to(z.dtype) + self.bias.to(z.dtype)
+
+    def extra_repr(self) -> str:
+        return f"{self.weight.shape[0]} -> {self.weight.shape[1]}"

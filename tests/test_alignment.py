@@ -1,0 +1,257 @@
+"""Alignment beyond the paper: latent translation, retrieval scores, collapse flag, bootstrap CIs,
+and the relative-projection variants."""
+
+from __future__ import annotations
+
+import copy
+
+import numpy as np
+import pytest
+import torch
+
+from ps_ray.analysis import stats
+from ps_ray.analysis.alignment import chance_mrr, collapsed, retrieval, spread
+from ps_ray.nets.modular import METHODS, NetDims, update_normalizers, uses_anchors
+from ps_ray.nets.relative import RelativeProjection, RelativeSpec
+from ps_ray.nets.sac import NET_NAMES, build_sac_nets
+from ps_ray.nets.translation import fit_translation
+from ps_ray.stitch import stitch_policies
+from ps_ray.weights import load_policy, save_policy, signature_of
+
+RNG = np.random.default_rng(0)
+PUSH = NetDims(15, 8, 7)
+
+
+def latents(n: int = 400, d: int = 16, seed: int = 0) -> np.ndarray:
+    """Anisotropic, off-centre, correlated latents (like a ReLU network's)."""
+    g = np.random.default_rng(seed)
+    return g.normal(size=(n, d)) @ g.normal(size=(d, d)) * g.uniform(0.2, 3, d) + g.normal(size=d)
+
+
+# -- translation ----------------------------------------------------------------------------------
+def test_translation_recovers_a_known_orthogonal_map():
+    x = latents()
+    q, _ = np.linalg.qr(np.random.default_rng(1).normal(size=(16, 16)))
+    y = 2.5 * x @ q + 4.0  # rotation/reflection, isotropic scale, offset
+    weight, bias = fit_translation(x, y, "orthogonal")
+    assert np.abs(x @ weight + bias - y).max() < 1e-4
+    # fitted on part of the states, it maps states it has not seen
+    weight, bias = fit_translation(x[:200], y[:200], "orthogonal")
+    assert np.abs(x[200:] @ weight + bias - y[200:]).max() < 1e-4
+
+
+def test_translation_recovers_a_known_affine_map_between_widths():
+    x = latents(d=16)
+    a, b = np.random.default_rng(2).normal(size=(16, 8)), np.random.default_rng(3).normal(size=8)
+    weight, bias = fit_translation(x[:300], x[:300] @ a + b, "affine")
+    assert weight.shape == (16, 8)
+    assert np.abs(x[300:] @ weight + bias - (x[300:] @ a + b)).max() < 1e-4
+
+
+def test_orthogonal_translation_cannot_fit_a_shear():
+    x = latents()
+    shear = np.eye(16) + np.triu(np.random.default_rng(4).normal(size=(16, 16)), 1)
+    weight, bias = fit_translation(x, x @ shear, "orthogonal")
+    assert np.abs(x @ weight + bias - x @ shear).max() > 0.1
+
+
+def test_unknown_translation_is_named():
+    with pytest.raises(ValueError, match="unknown translation 'rotate'; expected one of"):
+        fit_translation(latents(), latents(), "rotate")
+
+
+def _nets(method: str, seed: int = 0):
+    torch.manual_seed(seed)
+    anchors = np.random.default_rng(0).normal(size=(8, 15)).astype(np.float32)
+    nets = build_sac_nets(method, PUSH, interface_dim=8, hidden=16,
+                          anchors=anchors if uses_anchors(method) else None)
+    update_normalizers(nets, 2 * torch.randn(256, 15) + 1, torch.randn(256, 8))
+    return nets.eval(), signature_of(nets, method, 8, 16)
+
+
+def _rotated(nets, q: torch.Tensor):
+    """A copy whose task modules output the latent rotated by q (z -> z q) and whose robot
+    modules take it back: the same policy behind an exactly recoverable misalignment."""
+    other = copy.deepcopy(nets)
+    width = q.shape[0]
+    with torch.no_grad():
+        for name in NET_NAMES:
+            net = getattr(other, name)
+            last = net.task.body[-1]
+            last.weight.copy_(q.T @ last.weight)
+            last.bias.copy_(last.bias @ q)
+            if net.task.relative is None:  # a relative vector is unchanged by the rotation
+                first = net.robot.head[0]
+                first.weight[:, :width] = first.weight[:, :width] @ q
+    return other
+
+
+@pytest.mark.parametrize("method", ["ablation", "devin", "ps", "ps_mean_ln"])
+def test_translated_stitch_undoes_a_rotated_task_module(method, tmp_path):
+    """Stitching A's task module onto B's robot module, where B is A behind a rotation of the
+    latent: without translation the raw-latent methods break, with it every method gives A's
+    outputs back; the fitted map travels in the policy file and its signature."""
+    a, sig = _nets(method)
+    q = torch.linalg.qr(torch.randn(a.actor.latent_dim, a.actor.latent_dim,
+                                    generator=torch.Generator().manual_seed(5)))[0]
+    b = _rotated(a, q)
+    states = (2 * torch.randn(512, 15) + 1).numpy()
+    task, robot = torch.randn(32, 15), torch.randn(32, 8)
+    with torch.no_grad():
+        want = a.actor(task, robot)[0]
+        torch.testing.assert_close(b.actor(task, robot)[0], want, atol=1e-4, rtol=1e-4)
+        untranslated, _ = stitch_policies((a, sig), (b, sig))
+        translated, tsig = stitch_policies((a, sig), (b, sig), translation="orthogonal",
+                                           fit_states=states)
+        if not uses_anchors(method):
+            assert (untranslated.actor.eval()(task, robot)[0] - want).abs().max() > 1e-2
+        torch.testing.assert_close(translated.eval().actor(task, robot)[0], want, atol=1e-4, rtol=1e-4)
+    assert tsig.translation == "orthogonal" and tsig.method == method
+    loaded, loaded_sig = load_policy(save_policy(tmp_path / "t.safetensors", translated, tsig))
+    assert loaded_sig == tsig
+    with torch.no_grad():
+        torch.testing.assert_close(loaded.eval().actor(task, robot)[0], want, atol=1e-4, rtol=1e-4)
+
+
+@pytest.mark.parametrize("kind", ["orthogonal", "affine"])
+def test_translated_self_stitch_of_plain_keeps_the_policy(kind):
+    """Plain's bottom half also sees the robot state: the fit draws robot states from the robot
+    source's normaliser; a self-stitch fits the identity and keeps every net's output."""
+    nets, sig = _nets("plain")
+    states = (2 * torch.randn(512, 15) + 1).numpy()
+    stitched, _ = stitch_policies((nets, sig), (nets, sig), translation=kind, fit_states=states)
+    task, robot, action = torch.randn(32, 15), torch.randn(32, 8), torch.rand(32, 7) * 2 - 1
+    with torch.no_grad():
+        torch.testing.assert_close(stitched.eval().actor(task, robot)[0], nets.actor(task, robot)[0],
+                                   atol=1e-4, rtol=1e-4)
+        torch.testing.assert_close(stitched.target_critic(task, robot, action),
+                                   nets.target_critic(task, robot, action), atol=1e-4, rtol=1e-4)
+
+
+def test_translation_needs_fit_states_and_refuses_restitching():
+    nets, sig = _nets("ablation")
+    with pytest.raises(ValueError, match="needs fit_states"):
+        stitch_policies((nets, sig), (nets, sig), translation="affine")
+    states = np.random.default_rng(0).normal(size=(64, 15)).astype(np.float32)
+    stitched, tsig = stitch_policies((nets, sig), (nets, sig), translation="affine", fit_states=states)
+    with pytest.raises(ValueError, match="itself a translated stitch"):
+        stitch_policies((stitched, tsig), (nets, sig))
+
+
+# -- retrieval and collapse -----------------------------------------------------------------------
+def _relative(z: np.ndarray, anchor_rows: np.ndarray) -> np.ndarray:
+    """A relative space of absolute latents z, anchors = the given rows of z."""
+    projection = RelativeProjection(torch.as_tensor(z[anchor_rows]), RelativeSpec())
+    return projection(lambda x: x, torch.as_tensor(z)).numpy()
+
+
+def test_retrieval_is_perfect_for_identical_spaces_and_chance_for_shuffled_probes():
+    x = latents(n=300)
+    assert retrieval(x, x) == {"mrr": 1.0, "top1": 1.0}
+    shuffled = retrieval(x, x[np.random.default_rng(1).permutation(300)])
+    assert shuffled["mrr"] < 3 * chance_mrr(300) and shuffled["top1"] < 0.03
+
+
+def test_retrieval_of_relative_spaces_is_invariant_to_rotation_and_scaling():
+    z = latents(n=300)
+    q, _ = np.linalg.qr(np.random.default_rng(2).normal(size=(16, 16)))
+    anchors = np.arange(0, 300, 10)
+    same, moved = _relative(z, anchors), _relative(3.7 * z @ q, anchors)
+    np.testing.assert_allclose(same, moved, atol=1e-5)
+    assert retrieval(same, moved) == {"mrr": 1.0, "top1": 1.0}
+    # the absolute spaces themselves are not aligned: retrieval drops
+    assert retrieval(z, 3.7 * z @ q)["mrr"] < 0.5
+
+
+def test_a_collapsed_interface_is_flagged_and_cannot_score_retrieval():
+    x = latents(n=200)
+    constant = np.ones_like(x)
+    assert collapsed(constant) and not collapsed(x)
+    assert spread(constant) == pytest.approx(0.0, abs=1e-12)
+    assert 0.5 < spread(x - x.mean(0)) <= 1.0 + 1e-12
+    # two collapsed interfaces are "close" by the paper's distances, yet retrieve nothing
+    assert retrieval(constant, constant)["mrr"] == pytest.approx(1 / 200)
+    nearly = 1.0 + 1e-4 * latents(n=200, seed=7)
+    assert collapsed(nearly)
+
+
+# -- bootstrap confidence intervals ---------------------------------------------------------------
+def _cells(seeds: int, pairs: int = 6, seed: int = 0):
+    g = np.random.default_rng(seed)
+    seed_effect = g.normal(0, 0.1, seeds)
+    values = np.clip(0.4 + seed_effect[:, None] + g.normal(0, 0.1, (seeds, pairs)), 0, 1)
+    return values.ravel(), np.repeat(np.arange(seeds), pairs)
+
+
+def test_bootstrap_ci_covers_the_mean_and_narrows_with_more_seeds():
+    widths = []
+    for n in (3, 10, 40):
+        values, seeds = _cells(n)
+        e = stats.estimate(values, seeds)
+        assert e.mean == pytest.approx(values.mean())
+        assert e.mean_lo <= e.mean <= e.mean_hi and e.iqm_lo <= e.iqm <= e.iqm_hi
+        assert (e.cells, e.seeds) == (len(values), n)
+        widths.append(e.mean_hi - e.mean_lo)
+    assert widths[0] > widths[1] > widths[2]
+
+
+def test_bootstrap_resamples_seeds_not_cells():
+    """Cells of one seed move together: the CI must be as wide as the spread of seed means
+    implies, far wider than treating the 40 cells as independent would give."""
+    values = np.repeat([0.1, 0.5, 0.9, 0.3], 10)
+    seeds = np.repeat(np.arange(4), 10)
+    e = stats.estimate(values, seeds)
+    assert e.mean_hi - e.mean_lo > 0.3
+    assert stats.iqm(np.array([0, 0.5, 0.5, 0.5, 0.5, 0.5, 0.5, 1.0])) == pytest.approx(0.5)
+
+
+def test_one_seed_has_no_interval():
+    e = stats.estimate([0.2, 0.4, 0.6], [101, 101, 101])
+    assert np.isnan(e.mean_lo) and e.text() == "0.40 [n/a]"
+    with pytest.raises(ValueError, match="one seed per value"):
+        stats.estimate([0.1, 0.2], [1])
+
+
+# -- the relative-projection variants ------------------------------------------------------------
+def test_ps_is_the_papers_projection_and_variants_differ_only_in_settings():
+    assert METHODS["ps"].relative == RelativeSpec()
+    variants = [m for m, spec in METHODS.items() if spec.relative is not None and m != "ps"]
+    assert variants and all(METHODS[m].relative != RelativeSpec() for m in variants)
+
+
+def test_centring_spreads_the_similarities_and_layer_norm_standardises_them():
+    """At initialisation a ReLU encoder puts every embedding in one cone: the paper's cosines
+    cluster well above 0. Centring by the anchors spreads them around 0; LayerNorm gives each
+    state's similarity vector zero mean and unit variance."""
+    torch.manual_seed(0)
+    encoder = torch.nn.Sequential(torch.nn.Linear(6, 64), torch.nn.ReLU(), torch.nn.Linear(64, 64),
+                                  torch.nn.ReLU(), torch.nn.Linear(64, 32))
+    x, anchors = torch.randn(500, 6), torch.randn(32, 6)
+    with torch.no_grad():
+        paper = RelativeProjection(anchors)(encoder, x)
+        centred = RelativeProjection(anchors, RelativeSpec(center="mean"))(encoder, x)
+        normed = RelativeProjection(anchors, RelativeSpec(center="standard", norm="layer"))(encoder, x)
+    assert paper.mean() > 0.3 and abs(centred.mean()) < 0.1
+    assert centred.std(0).mean() > 1.5 * paper.std(0).mean()
+    torch.testing.assert_close(normed.mean(-1), torch.zeros(500), atol=1e-5, rtol=0)
+    torch.testing.assert_close(normed.std(-1, unbiased=False), torch.ones(500), atol=1e-3, rtol=0)
+
+
+def test_mean_centring_keeps_rotation_invariance_and_standard_scaling_does_not():
+    z = torch.as_tensor(latents(n=200))
+    q = torch.linalg.qr(torch.randn(16, 16, generator=torch.Generator().manual_seed(3)))[0].double()
+    moved = 2.0 * z @ q + 5.0  # rotate, scale and translate the embedding space
+    anchors = torch.arange(0, 200, 8)
+    for center, invariant in (("none", False), ("mean", True), ("standard", False)):
+        projection = RelativeProjection(torch.zeros(len(anchors), 16), RelativeSpec(center=center))
+        rel = [projection.project(e, projection.reference(e[anchors])) for e in (z, moved)]
+        assert torch.allclose(rel[0], rel[1], atol=1e-6) == invariant, center
+
+
+def test_relative_spec_rejects_bad_settings():
+    with pytest.raises(ValueError, match="unknown centring 'yes'"):
+        RelativeSpec(center="yes")
+    with pytest.raises(ValueError, match="unknown relative norm 'batch'"):
+        RelativeSpec(norm="batch")
+    with pytest.raises(ValueError, match="scale must be positive"):
+        RelativeSpec(scale=0)

@@ -21,7 +21,7 @@ def _train_parser(sub) -> None:
             p.add_argument(f"--{f.name}", default=getattr(defaults, f.name),
                            help=f"built-in name or a JSON mapping (default {getattr(defaults, f.name)})")
             continue
-        kind = type(getattr(defaults, f.name)) if getattr(defaults, f.name) is not None else str
+        kind = next((t for t in (float, int, str) if t.__name__ in str(f.type)), str)
         p.add_argument(f"--{f.name.replace('_', '-')}", dest=f.name, type=kind,
                        default=getattr(defaults, f.name))
     p.add_argument("--run-dir", default=None,

@@ -10,6 +10,7 @@ import sys
 import time
 
 import pandas as pd
+import pytest
 
 from ps_ray.weights import load_policy
 
@@ -61,3 +62,24 @@ def test_a_run_directory_refuses_another_policy(tmp_path):
     assert proc.returncode == 2
     assert "holds a run of another spec (differs in" in proc.stderr
     assert "method" in proc.stderr
+
+
+@pytest.mark.slow
+def test_training_stops_early_at_the_success_target(tmp_path):
+    """A source stops once greedy success reaches the target in two evaluations in a row, well
+    before its budget cap; the result says so and the metrics end at that evaluation."""
+    run_dir = tmp_path / "run"
+    cmd = [sys.executable, "-m", "ps_ray.cli", "train", "--task", "point", "--method", "ablation",
+           "--interface-dim", "16", "--hidden", "64", "--learning-starts", "200",
+           "--random-episodes", "2", "--episodes-per-step", "4", "--batch-size", "64",
+           "--updates-per-step", "0.5", "--eval-every", "5", "--eval-episodes", "20",
+           "--target-success", "0.5", "--target-evals", "2", "--env-steps", "40000",
+           "--run-dir", str(run_dir), "--quiet"]
+    done = subprocess.run(cmd, capture_output=True, text=True, timeout=900)
+    assert done.returncode == 0, done.stdout[-2000:] + done.stderr[-2000:]
+    result = json.loads((run_dir / "result.json").read_text())
+    evals = pd.read_csv(run_dir / "metrics.csv").dropna(subset=["eval_success"])
+    assert result["converged"] is True
+    assert result["env_steps"] < 40000
+    assert (evals["eval_success"].iloc[-2:] >= 0.5).all()
+    assert evals["env_steps"].iloc[-1] == pd.read_csv(run_dir / "metrics.csv")["env_steps"].iloc[-1]

@@ -255,3 +255,16 @@ def test_relative_spec_rejects_bad_settings():
         RelativeSpec(norm="batch")
     with pytest.raises(ValueError, match="scale must be positive"):
         RelativeSpec(scale=0)
+
+
+@pytest.mark.parametrize("method", sorted(m for m in METHODS if uses_anchors(m)))
+def test_every_relative_variant_survives_a_policy_file_round_trip(method, tmp_path):
+    nets, sig = _nets(method)
+    loaded, loaded_sig = load_policy(save_policy(tmp_path / "p.safetensors", nets, sig))
+    assert loaded_sig == sig and loaded.actor.task.relative.spec == METHODS[method].relative
+    task, robot, action = torch.randn(16, 15), torch.randn(16, 8), torch.rand(16, 7) * 2 - 1
+    with torch.no_grad():
+        for name in NET_NAMES[1:]:
+            assert torch.equal(getattr(loaded, name).eval()(task, robot, action),
+                               getattr(nets, name)(task, robot, action)), name
+        assert torch.equal(loaded.actor.eval()(task, robot)[0], nets.actor(task, robot)[0])

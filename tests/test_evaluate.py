@@ -8,6 +8,8 @@ import numpy as np
 import pytest
 import torch
 
+from ps_ray.nets.modular import uses_anchors
+
 from ps_ray.envs import make
 from ps_ray.evaluate import BatchedGreedy, EpisodeRecord, evaluate, summarize
 from ps_ray.nets.modular import NetDims
@@ -21,7 +23,7 @@ PUSH = NetDims(15, 8, 7)
 
 def nets_for(method: str, dims: NetDims = PUSH, seed: int = 0):
     torch.manual_seed(seed)
-    anchors = np.random.default_rng(seed).normal(size=(8, dims.task_dim)) if method == "ps" else None
+    anchors = np.random.default_rng(seed).normal(size=(8, dims.task_dim)) if uses_anchors(method) else None
     return build_sac_nets(method, dims, interface_dim=8, hidden=16, anchors=anchors)
 
 
@@ -99,9 +101,21 @@ def test_every_policy_sees_the_same_episodes_and_num_envs_changes_nothing():
     assert one["records"] == four["records"]
 
 
-@pytest.mark.parametrize("method", ["ps", "ablation", "devin", "plain"])
-def test_fast_actions_match_the_actor(method):
+@pytest.mark.parametrize("method, translation", [
+    ("ps", None), ("ps_center_ln", None), ("ps_mean_ln", None), ("ablation", None),
+    ("devin", None), ("plain", None), ("ps_center_ln", "affine"), ("ablation", "orthogonal")])
+def test_fast_actions_match_the_actor(method, translation):
     nets = nets_for(method)
+    if translation:  # a translated stitch of the policy with another seed of it
+        from ps_ray.stitch import stitch_policies
+        from ps_ray.weights import signature_of
+
+        sig = signature_of(nets, method, 8, 16)
+        other = nets_for(method, seed=0)
+        states = np.random.default_rng(0).normal(size=(256, PUSH.task_dim)).astype(np.float32)
+        nets, _ = stitch_policies((nets, sig), (other, sig), translation=translation, fit_states=states)
+        with torch.no_grad():  # far from the identity, so a path that skipped it would show
+            nets.actor.translate.weight.normal_(generator=torch.Generator().manual_seed(1))
     env = make("panda", "push")
     obs = [env.reset(seed=s)[0] for s in range(5)]
     env.close()

@@ -39,13 +39,14 @@ import json
 import logging
 import operator
 import os
-import tempfile
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from ps_ray.atomic import atomic_file
 
 __all__ = [
     "AnchorSet",
@@ -375,20 +376,9 @@ def save_anchor_set(path: str | os.PathLike, anchor_set: AnchorSet) -> None:
     path = Path(path)
     meta = json.dumps({"format": FORMAT, "version": FORMAT_VERSION, "hash": anchor_set.hash,
                        "provenance": anchor_set.provenance}, sort_keys=True, allow_nan=False)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            np.savez(fh, **{_ANCHOR_KEY: np.ascontiguousarray(anchor_set.anchors, "<f4"),
-                            _META_KEY: np.array(meta)})
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except FileNotFoundError:
-            pass
-        raise
+    with atomic_file(path) as fh:
+        np.savez(fh, **{_ANCHOR_KEY: np.ascontiguousarray(anchor_set.anchors, "<f4"),
+                        _META_KEY: np.array(meta)})
 
 
 class _BadFile(Exception):

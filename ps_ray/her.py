@@ -14,12 +14,13 @@ Pure numpy: no torch, no Ray. Checkpoints are plain ``.npz`` files read with
 from __future__ import annotations
 
 import json
-import os
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from ps_ray.atomic import atomic_file
 
 __all__ = ["HindsightReplay", "ObsSpec", "RewardFn", "stack_episodes"]
 
@@ -215,10 +216,8 @@ class HindsightReplay:
         arrays = {f"obs/{k}": a[:n] for k, a in self._obs.items()}  # slots fill from 0 upward
         arrays["actions"] = self._actions[:n]
         arrays["meta"] = np.array(json.dumps(self._meta()))  # 0-d unicode array, not pickled
-        tmp = path.with_name(path.name + ".tmp")
-        with open(tmp, "wb") as f:  # a file object: np.savez must not append ".npz"
+        with atomic_file(path) as f:  # a file object: np.savez must not append ".npz"
             np.savez(f, **arrays)
-        os.replace(tmp, path)
 
     @staticmethod
     def _read(path: str | Path) -> tuple[dict[str, Any], dict[str, np.ndarray]]:

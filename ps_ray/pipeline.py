@@ -21,6 +21,7 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
+from ps_ray.atomic import write_text
 from ps_ray.config import STAGES, SweepSpec
 from ps_ray.sweep import raise_on_errors, sweep_dir
 
@@ -47,10 +48,7 @@ def _marker(root: Path, stage: str, suffix: str = "") -> Path:
 
 
 def _write_json(path: Path, data: dict) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    partial = path.with_name(path.name + ".partial")
-    partial.write_text(json.dumps(data, indent=1, sort_keys=True))
-    partial.replace(path)
+    write_text(path, json.dumps(data, indent=1, sort_keys=True))
 
 
 def _read_fingerprint(path: Path) -> str | None:

@@ -12,6 +12,7 @@ A run directory holds:
 from __future__ import annotations
 
 import csv
+import io
 import json
 import os
 import shutil
@@ -22,6 +23,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from ps_ray.atomic import atomic_file, atomic_path, fsync_dir
 from ps_ray.config import SpecError, TrainSpec
 from ps_ray.nets.modular import uses_anchors
 
@@ -155,17 +157,66 @@ class TrainingRun:
                 f"  {rate:.0f} steps/s")
 
 
+def _checkpoint_dirs(run_dir: Path) -> tuple[Path, Path, Path]:
+    return (run_dir / f"{CHECKPOINT_DIR}.tmp", run_dir / CHECKPOINT_DIR,
+            run_dir / f"{CHECKPOINT_DIR}.old")
+
+
 def _save_atomically(run: TrainingRun, run_dir: Path) -> None:
-    """Checkpoint into a fresh directory, then swap it in: a kill never leaves half a checkpoint."""
-    tmp, final, old = (run_dir / f"{CHECKPOINT_DIR}.tmp", run_dir / CHECKPOINT_DIR,
-                       run_dir / f"{CHECKPOINT_DIR}.old")
+    """Checkpoint into a fresh directory, then swap it in: a kill never leaves half a checkpoint.
+    Between the two renames only ``checkpoint.old`` exists; :func:`_latest_checkpoint` reads it
+    then, so no moment makes a started run look unstarted."""
+    tmp, final, old = _checkpoint_dirs(run_dir)
     shutil.rmtree(tmp, ignore_errors=True)
     run.save(tmp)
+    fsync_dir(tmp)
     if final.exists():
+        shutil.rmtree(old, ignore_errors=True)
         os.replace(final, old)
     os.replace(tmp, final)
+    fsync_dir(run_dir)
     shutil.rmtree(old, ignore_errors=True)
-    shutil.copy2(final / POLICY_FILE, run_dir / POLICY_FILE)
+    with atomic_path(run_dir / POLICY_FILE) as partial:
+        shutil.copyfile(final / POLICY_FILE, partial)
+
+
+def _latest_checkpoint(run_dir: Path) -> Path | None:
+    """The complete checkpoint of a run folder: ``checkpoint/``, else ``checkpoint.old/`` (a kill
+    between the swap's two renames); ``checkpoint.tmp/`` is never complete."""
+    _, final, old = _checkpoint_dirs(run_dir)
+    return next((d for d in (final, old) if d.is_dir()), None)
+
+
+def _metrics_up_to(run_dir: Path, env_steps: int) -> None:
+    """Drop metrics rows written after the checkpoint a run resumes from: they will be written
+    again, and must not be there twice."""
+    path = run_dir / METRICS_FILE
+    if not path.exists():
+        return
+    with open(path, newline="") as f:
+        rows = list(csv.DictReader(f))
+    kept = [r for r in rows if r.get("env_steps") and int(r["env_steps"]) <= env_steps]
+    if len(kept) == len(rows):
+        return
+    with atomic_file(path) as f:
+        text = io.StringIO()
+        writer = csv.DictWriter(text, METRIC_FIELDS)
+        writer.writeheader()
+        writer.writerows(kept)
+        f.write(text.getvalue().encode())
+
+
+def _best_so_far(run_dir: Path) -> float:
+    """The greedy success of ``best_policy.safetensors`` (stored in its metadata), -1 if none."""
+    from ps_ray.weights import read_signature
+
+    path = run_dir / BEST_POLICY_FILE
+    if not path.exists():
+        return -1.0
+    try:
+        return float(read_signature(path)[1].get("eval_success", -1.0))
+    except ValueError:
+        return -1.0
 
 
 def train(spec: TrainSpec, run_dir: str | Path, *, progress: bool = True) -> dict[str, Any]:
@@ -179,12 +230,14 @@ def train(spec: TrainSpec, run_dir: str | Path, *, progress: bool = True) -> dic
         ray.init(address="local", num_cpus=max(1, os.cpu_count() or 1), include_dashboard=False,
                  log_to_driver=False, configure_logging=False)
     run = TrainingRun(spec, anchor_set)
-    if (run_dir / CHECKPOINT_DIR).exists():
-        run.restore(run_dir / CHECKPOINT_DIR)
+    checkpoint = _latest_checkpoint(run_dir)
+    if checkpoint is not None:
+        run.restore(checkpoint)
         if progress:
             print(f"[{spec.label()}] resumed at {run.env_steps} env steps", flush=True)
+    _metrics_up_to(run_dir, run.env_steps)
     row: dict[str, Any] = {}
-    best = -1.0
+    best = _best_so_far(run_dir)
     with open(run_dir / METRICS_FILE, "a", newline="") as f:
         writer = csv.DictWriter(f, METRIC_FIELDS)
         if f.tell() == 0:
@@ -198,7 +251,9 @@ def train(spec: TrainSpec, run_dir: str | Path, *, progress: bool = True) -> dic
             if row.get("eval_success") is not None:
                 if row["eval_success"] > best:  # keep the best greedy policy seen so far
                     best = row["eval_success"]
-                    run.algo.export_policy(run_dir / BEST_POLICY_FILE, run.signature)
+                    run.algo.export_policy(run_dir / BEST_POLICY_FILE, run.signature,
+                                           extra={"eval_success": repr(best),
+                                                  "env_steps": str(row["env_steps"])})
                 if progress:
                     print(run.progress_line(row), flush=True)
     _save_atomically(run, run_dir)

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import os
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -20,6 +19,7 @@ from safetensors import SafetensorError, safe_open
 from safetensors.torch import save_file
 from torch import nn
 
+from ps_ray.atomic import atomic_path
 from ps_ray.anchors import AnchorSet, anchor_hash
 from ps_ray.nets.modular import NetDims
 from ps_ray.nets.sac import NET_NAMES, SACNets, build_sac_nets
@@ -77,9 +77,8 @@ def save_policy(path: str | Path, nets: nn.Module, signature: Signature,
     path.parent.mkdir(parents=True, exist_ok=True)
     metadata = {"format": FORMAT, "signature": json.dumps(dataclasses.asdict(signature)),
                 **(extra or {})}
-    tmp = path.with_name(path.name + ".tmp")
-    save_file(nets_state(nets), str(tmp), metadata=metadata)
-    os.replace(tmp, path)
+    with atomic_path(path) as tmp:
+        save_file(nets_state(nets), str(tmp), metadata=metadata)
     return path
 
 

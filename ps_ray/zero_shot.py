@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from ps_ray.atomic import atomic_path
 from ps_ray.config import SweepSpec, short_name
 from ps_ray.sweep import raise_on_errors, sweep_dir
 
@@ -133,6 +134,5 @@ def summary(table: pd.DataFrame) -> pd.DataFrame:
 
 def write_atomic_csv(table: pd.DataFrame, path: Path) -> None:
     """Write beside, then rename: a reader never sees half a table."""
-    partial = path.with_name(path.name + ".partial")
-    table.to_csv(partial, index=False)
-    partial.replace(path)
+    with atomic_path(path) as partial:
+        table.to_csv(partial, index=False)

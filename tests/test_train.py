@@ -12,7 +12,7 @@ import time
 import pandas as pd
 import pytest
 
-from ps_ray.weights import load_policy
+from ps_ray.weights import load_policy, read_signature
 
 ARGS = ["--task", "point", "--method", "ps", "--interface-dim", "8", "--hidden", "32",
         "--learning-starts", "200", "--random-episodes", "2", "--episodes-per-step", "4",
@@ -83,3 +83,26 @@ def test_training_stops_early_at_the_success_target(tmp_path):
     assert result["env_steps"] < 40000
     assert (evals["eval_success"].iloc[-2:] >= 0.5).all()
     assert evals["env_steps"].iloc[-1] == pd.read_csv(run_dir / "metrics.csv")["env_steps"].iloc[-1]
+
+
+def test_resume_after_a_kill_between_the_checkpoint_renames_keeps_rows_and_best(tmp_path):
+    """A kill can land between moving checkpoint/ aside and moving the new one in: the run
+    resumes from checkpoint.old, metrics.csv has no row twice, and best-so-far is kept."""
+    run_dir = tmp_path / "run"
+    first = subprocess.run(train_cmd(run_dir, 1200), capture_output=True, text=True, timeout=300)
+    assert first.returncode == 0, first.stdout[-2000:] + first.stderr[-2000:]
+    best_before = float(read_signature(run_dir / "best_policy.safetensors")[1]["eval_success"])
+    saved = json.loads((run_dir / "checkpoint" / "ps_ray_state.json").read_text())["env_steps"]
+    os.replace(run_dir / "checkpoint", run_dir / "checkpoint.old")  # the moment of the kill
+    with open(run_dir / "metrics.csv", "a") as f:  # a row written after that checkpoint
+        f.write(f"999,{saved + 100},1,0.0,,,,1.0\n")
+    second = subprocess.run(train_cmd(run_dir, saved + 400), capture_output=True, text=True,
+                            timeout=300)
+    assert second.returncode == 0, second.stdout[-2000:] + second.stderr[-2000:]
+    assert f"resumed at {saved} env steps" in second.stdout
+    metrics = pd.read_csv(run_dir / "metrics.csv")
+    assert not metrics["env_steps"].duplicated().any() and 999 not in metrics["iteration"].values
+    assert metrics["env_steps"].is_monotonic_increasing
+    best_after = float(read_signature(run_dir / "best_policy.safetensors")[1]["eval_success"])
+    assert best_after >= best_before
+    assert (run_dir / "checkpoint").is_dir() and not (run_dir / "checkpoint.old").exists()

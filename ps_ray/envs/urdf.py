@@ -13,6 +13,8 @@ from pathlib import Path
 import numpy as np
 import pybullet_data
 
+from ps_ray.atomic import write_text
+
 PANDA_URDF = os.path.join(pybullet_data.getDataPath(), "franka_panda", "panda.urdf")
 CACHE_DIR = Path(tempfile.gettempdir()) / "ps_ray_urdf"
 
@@ -22,10 +24,7 @@ def cached_urdf(text: str, stem: str) -> str:
     digest = hashlib.sha256(text.encode()).hexdigest()[:16]
     path = CACHE_DIR / f"{stem}-{digest}.urdf"
     if not path.exists():
-        CACHE_DIR.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_suffix(f".{os.getpid()}.tmp")
-        tmp.write_text(text)
-        os.replace(tmp, path)
+        write_text(path, text)
     return str(path)
 
 

@@ -110,8 +110,8 @@ class ModularSAC(SAC):
         self.env_runner_group.sync_weights(from_worker_or_learner_group=self.learner_group,
                                            inference_only=True)
 
-    def export_policy(self, path, signature) -> None:
-        save_policy(path, nets_from_state(self.learner_state(), signature), signature)
+    def export_policy(self, path, signature, extra: dict[str, str] | None = None) -> None:
+        save_policy(path, nets_from_state(self.learner_state(), signature), signature, extra)
 
     def evaluate_greedy(self, episodes: int) -> dict[str, float]:
         return episode_stats(self._collect(explore=False, random=False, n=episodes))

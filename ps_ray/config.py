@@ -286,9 +286,13 @@ class SweepSpec:
         for stage in self.stages:
             if stage not in STAGES:
                 raise SpecError(f"unknown stage {stage!r}; valid stages: {', '.join(STAGES)}")
-        for key in ("methods", "robots", "tasks", "seeds", "interface_dims"):
-            if not getattr(self, key):
+        for key in ("methods", "robots", "tasks", "seeds", "interface_dims", "stages"):
+            if not getattr(self, key) and key != "stages":
                 raise SpecError(f"{key} must be a non-empty list")
+            values = [json.dumps(v, sort_keys=True) for v in getattr(self, key)]
+            repeated = sorted({v for v in values if values.count(v) > 1})
+            if repeated:  # two trials would share one run folder, MLflow run and zoo key
+                raise SpecError(f"{key}: duplicate entries {', '.join(repeated)}; list each once")
         for stage in (self.zero_shot, self.few_shot):
             for method in (*stage.methods, *getattr(stage, "translate", ())):
                 if method not in self.methods:
@@ -361,6 +365,10 @@ def load_sweep(path: str | Path) -> SweepSpec:
         data = yaml.safe_load(path.read_text())
     except FileNotFoundError:
         raise SpecError(f"{path}: no such sweep file") from None
+    except IsADirectoryError:
+        raise SpecError(f"{path}: is a folder, not a sweep file") from None
+    except UnicodeDecodeError as e:
+        raise SpecError(f"{path}: not a UTF-8 text file (byte {e.start}); a sweep is YAML text") from None
     except yaml.YAMLError as e:
         mark = getattr(e, "problem_mark", None)
         where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""

@@ -97,7 +97,32 @@ def read_signature(path: str | Path) -> tuple[Signature, dict[str, str]]:
         signature = Signature(**json.loads(metadata["signature"]))
     except (KeyError, TypeError, json.JSONDecodeError) as e:
         raise ValueError(f"{path}: corrupt policy signature ({e})") from None
+    problem = signature_problem(signature)
+    if problem:
+        raise ValueError(f"{path}: bad policy signature: {problem}")
     return signature, metadata
+
+
+MAX_WIDTH = 8192  # no ps_ray network is wider; a larger size in a file is corrupt or hostile
+
+
+def signature_problem(signature: Signature) -> str | None:
+    """What makes a signature unusable (wrong types, absurd sizes, unknown names), or None."""
+    from ps_ray.nets.modular import METHODS
+    from ps_ray.nets.translation import TRANSLATIONS
+
+    if signature.method not in METHODS:
+        return f"unknown method {signature.method!r}; valid methods: {', '.join(METHODS)}"
+    for name in ("interface_dim", "hidden", "task_dim", "robot_dim", "action_dim"):
+        value = getattr(signature, name)
+        if isinstance(value, bool) or not isinstance(value, int) or not 0 < value <= MAX_WIDTH:
+            return f"{name} must be an integer in 1..{MAX_WIDTH}, got {value!r}"
+    if not isinstance(signature.anchor_hash, str):
+        return f"anchor_hash must be a string, got {signature.anchor_hash!r}"
+    if signature.translation not in ("", *TRANSLATIONS):
+        return (f"unknown translation {signature.translation!r}; valid: none, "
+                f"{', '.join(TRANSLATIONS)}")
+    return None
 
 
 def nets_from_state(state: dict[str, torch.Tensor], signature: Signature,

@@ -50,7 +50,8 @@ def test_resumable_changes_keep_the_identity():
 
 
 @pytest.mark.parametrize("name, n_trials", [("smoke", 16), ("latent_reach", 72),
-                                             ("zero_shot", 225), ("few_shot", 375)])
+                                             ("zero_shot", 225), ("few_shot", 375),
+                                             ("alignment_reach", 72), ("stitch_push", 32)])
 def test_shipped_sweeps_load_and_expand_to_trials(name, n_trials):
     sweep = load_sweep(SWEEPS / f"{name}.yaml")
     trials = sweep.trials()
@@ -89,6 +90,14 @@ seeds: [1]
     ("name: t\nmethods: [ps\n", "malformed YAML at line"),
     ("- just\n- a list\n", "expected a mapping at the top level"),
     (GOOD.replace("seeds: [1]", "seeds: []"), "seeds must be a non-empty list"),
+    (GOOD.replace("seeds: [1]", "seeds: [1, 2, 1]"), "seeds: duplicate entries 1; list each once"),
+    (GOOD.replace("[panda]", "[{base: panda, locked_joints: [0, 1, 2, 3, 4, 5, 6]}]"),
+     "all 7 arm joints locked leaves nothing to control; lock at most 6"),
+    (GOOD + "train: {target_success: 1.5}\n", "target_success must be a number in (0, 1] or null, got 1.5"),
+    (GOOD.replace("[ps]", "[ps, ablation]") + "zero_shot: {translate: {ablation: [warp]}}\n",
+     "zero_shot.translate.ablation: unknown translation 'warp'; valid: orthogonal, affine"),
+    (GOOD + "zero_shot: {translate: {plain: [affine]}}\n",
+     "method 'plain' is not trained by this sweep; valid: ps"),
 ])
 def test_bad_sweep_files_fail_with_one_line_naming_the_problem(tmp_path, text, message):
     path = _write(tmp_path, text)
@@ -120,3 +129,10 @@ def test_cli_rejects_bad_train_input(tmp_path):
 def test_sweep_spec_is_checked_before_anything_starts():
     with pytest.raises(SpecError, match="unknown task 'swim'"):
         SweepSpec(name="x", methods=("ps",), robots=("panda",), tasks=("swim",), seeds=(1,))
+
+
+def test_a_binary_sweep_file_is_refused_in_one_line(tmp_path):
+    path = tmp_path / "sweep.yaml"
+    path.write_bytes(b"\xff\xfe\x00name: t")
+    with pytest.raises(SpecError, match=r"sweep.yaml: not a UTF-8 text file \(byte 0\)"):
+        load_sweep(path)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import itertools
 import json
@@ -37,6 +38,16 @@ torch.set_num_threads(1)
 
 PUSH, PICK, REACH = NetDims(15, 8, 7), NetDims(15, 8, 8), NetDims(3, 8, 7)
 K = 8  # interface dim = number of anchors
+
+
+@contextlib.contextmanager
+def safe_open_pt(path):
+    """Every tensor and the metadata of a safetensors file, to rewrite it."""
+    from safetensors import safe_open
+
+    with safe_open(str(path), framework="pt") as f:
+        tensors, metadata = {k: f.get_tensor(k) for k in f.keys()}, dict(f.metadata())
+    yield tensors, metadata
 
 
 def anchors_for(k: int = K, task_dim: int = 15, seed: int = 0) -> np.ndarray:
@@ -409,3 +420,22 @@ def test_cli_bad_input_one_line_exit_2_nothing_written(sweep, tmp_path, capsys, 
     err = capsys.readouterr().err
     assert rc == 2 and message in err and err.count("\n") == 1, err
     assert not out.exists()
+
+
+@pytest.mark.parametrize("field, value, message", [
+    ("hidden", "64", "hidden must be an integer in 1..8192, got '64'"),
+    ("interface_dim", -3, "interface_dim must be an integer in 1..8192, got -3"),
+    ("hidden", 10**9, "hidden must be an integer in 1..8192, got 1000000000"),
+    ("method", "psx", "unknown method 'psx'; valid methods: ps"),
+    ("translation", "warp", "unknown translation 'warp'; valid: none, orthogonal, affine"),
+])
+def test_absurd_or_wrong_typed_signatures_are_refused_in_one_line(tmp_path, field, value, message):
+    nets, signature = make_nets("ps")
+    path = save_policy(tmp_path / "p.safetensors", nets, signature)
+    with safe_open_pt(path) as (tensors, metadata):
+        data = json.loads(metadata["signature"])
+        data[field] = value
+        metadata["signature"] = json.dumps(data)
+        save_file(tensors, str(path), metadata=metadata)
+    with pytest.raises(ValueError, match=re.escape(f"{path}: bad policy signature: {message}")):
+        load_policy(path)

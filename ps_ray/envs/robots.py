@@ -55,6 +55,9 @@ class RobotSpec:
                     f"bad locked joint {j!r}; valid locked joints: 0-based arm joint indices 0..{N_ARM - 1}"
                 )
         object.__setattr__(self, "locked_joints", tuple(sorted({int(j) for j in joints})))
+        if len(self.locked_joints) == N_ARM:
+            raise ValueError(f"bad locked joints {list(self.locked_joints)}: all {N_ARM} arm joints "
+                             f"locked leaves nothing to control; lock at most {N_ARM - 1}")
         if self.gripper not in (None, True, False):
             raise ValueError(f"bad gripper {self.gripper!r}; valid grippers: None, True, False")
 

@@ -117,3 +117,22 @@ def test_probe_states_are_fixed_and_labelled_by_region():
         assert latent.goal_quadrant(state) == label
     push = latent.probe_states("push", per_group=3)
     assert push.states.shape == (12, 15) and sorted(set(push.labels)) == list(latent.QUADRANTS)
+
+
+def test_steps_to_target_counts_unreached_runs_at_their_last_step():
+    rows = []
+    for seed, hit in ((1, 3000), (2, 5000), (3, None)):
+        for step in range(1000, 8001, 1000):
+            success = 0.95 if hit is not None and step >= hit else 0.3
+            rows.append({"run": f"ps/{seed}", "method": "ps", "seed": seed, "env_steps": step,
+                         "success": success})
+            rows.append({"run": f"ablation/{seed}", "method": "ablation", "seed": seed,
+                         "env_steps": step, "success": 0.95 if step >= 2000 else 0.0})
+    per_run = tables.steps_to_target(pd.DataFrame(rows), 0.9)
+    assert per_run.set_index("run").loc["ps/1", "steps"] == 3000
+    assert np.isnan(per_run.set_index("run").loc["ps/3", "steps"])
+    shown, numbers = tables.steps_to_target_table(per_run, 0.9)
+    assert list(numbers.index) == ["ps", "ablation"]
+    assert numbers.loc["ps", "reached"] == 2 and numbers.loc["ps", "steps_mean"] == (3000 + 5000 + 8000) / 3
+    assert numbers.loc["ablation", "steps_mean"] == 2000 and numbers.loc["ablation", "reached"] == 3
+    assert shown.loc["ps", "reached"] == "2/3" and shown.iloc[0, 1].startswith("≥ 5333")

@@ -105,6 +105,11 @@ def _training(report: Report, root: Path, target: float, say) -> None:
     final = results.final_success(frame)
     report.table(section, "training_final", "Final greedy success per method, task and interface",
                  tables.training_table(final))
+    shown, numbers = tables.steps_to_target_table(tables.steps_to_target(frame, target), target)
+    report.table(section, "training_steps_to_target", f"Env steps to greedy success {target:.2f} "
+                 "per method (first evaluation at or above it; a run that never got there counts "
+                 "as its last step, marked ≥)", shown, numbers=numbers)
+    report.headline["steps"] = numbers
     sources = final.set_index("run")[["method", "robot", "task", "seed", "env_steps", "success"]]
     sources = sources.assign(below_target=sources["success"] < target)
     report.table(section, "training_sources", f"Every source policy's final greedy success "
@@ -265,6 +270,11 @@ def _summary(report: Report, spec: SweepSpec, target: float) -> None:
                 row["across robots: cosine dist."] = f"{r['cosine_mean']:.4f}"
         if h.get("collapsed") is not None and method in h["collapsed"].index:
             row["collapsed interfaces"] = str(int(h["collapsed"][method]))
+        steps = h.get("steps")
+        if steps is not None and method in steps.index:
+            r = steps.loc[method]
+            row[f"env steps to {target:.2f}"] = (f"{r['steps_mean']:.0f} "
+                                                 f"({int(r['reached'])}/{int(r['runs'])} reached)")
         src = h.get("sources")
         if src is not None and (src["method"] == method).any():
             mine = src[src["method"] == method]

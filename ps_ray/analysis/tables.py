@@ -129,3 +129,38 @@ def estimates_text(numbers: pd.DataFrame, metrics=("success", "touching")) -> pd
                 f"{r[f'{metric}_{stat}']:.2f} {ci(r[f'{metric}_{stat}_lo'], r[f'{metric}_{stat}_hi'])}"
                 for _, r in numbers.iterrows()]
     return out
+
+
+def steps_to_target(curves: pd.DataFrame, target: float) -> pd.DataFrame:
+    """Per run: the env steps of its first greedy evaluation at or above ``target`` (NaN if it
+    never got there) and its last step (the cap it ran to)."""
+    rows = []
+    for run, part in curves.sort_values("env_steps").groupby("run", sort=True):
+        hit = part[part["success"] >= target]["env_steps"]
+        first = part.iloc[0]
+        rows.append({"run": run, "method": first["method"], "seed": first["seed"],
+                     "steps": float(hit.iloc[0]) if len(hit) else float("nan"),
+                     "last_step": float(part["env_steps"].max())})
+    return pd.DataFrame(rows, columns=["run", "method", "seed", "steps", "last_step"])
+
+
+def steps_to_target_table(per_run: pd.DataFrame, target: float) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """Per method: how many runs reached ``target``, and the env steps to it, mean with a
+    seed-resampling 95% CI, counting a run that never got there as its last step (a lower
+    bound, so the figure flatters slow methods). Returns (shown, numbers)."""
+    from ps_ray.analysis.stats import estimate
+
+    numbers, shown = [], []
+    for method in method_order(per_run["method"]):
+        part = per_run[per_run["method"] == method]
+        steps = part["steps"].fillna(part["last_step"]).to_numpy()
+        e = estimate(steps, part["seed"].to_numpy())
+        censored = int(part["steps"].isna().sum())
+        numbers.append({"method": method, "runs": len(part), "reached": len(part) - censored,
+                        "steps_mean": e.mean, "steps_lo": e.mean_lo, "steps_hi": e.mean_hi,
+                        "steps_iqm": e.iqm})
+        shown.append({"method": method, "reached": f"{len(part) - censored}/{len(part)}",
+                      f"env steps to {target:.2f}, mean [95% CI]":
+                          ("≥ " if censored else "") + f"{e.mean:.0f} {ci(e.mean_lo, e.mean_hi, 0)}",
+                      "IQM": f"{e.iqm:.0f}"})
+    return (pd.DataFrame(shown).set_index("method"), pd.DataFrame(numbers).set_index("method"))

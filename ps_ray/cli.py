@@ -10,6 +10,7 @@ import time
 from pathlib import Path
 
 from ps_ray.config import SpecError, TrainSpec
+from ps_ray.lock import folder_lock
 from ps_ray.sweep import StageError
 
 
@@ -142,7 +143,8 @@ def cmd_sweep(args: argparse.Namespace) -> int:
         return 0
     from ps_ray.sweep import run_sweep, sweep_dir
 
-    results = run_sweep(spec, resume=args.resume)
+    with folder_lock(sweep_dir(spec), "sweep"):
+        results = run_sweep(spec, resume=args.resume)
     errors = [r for r in results if r.error]
     print(f"sweep {spec.name!r}: {len(results) - len(errors)}/{len(results)} trials finished; "
           f"results in {sweep_dir(spec)}")
@@ -171,6 +173,13 @@ def _load(args: argparse.Namespace):
     return dataclasses.replace(spec, **overrides) if overrides else spec
 
 
+def _sweep_lock(spec):
+    """Held for the whole command: a second driver on the same sweep is refused in one line."""
+    from ps_ray.sweep import sweep_dir
+
+    return folder_lock(sweep_dir(spec), "sweep")
+
+
 def _given(args: argparse.Namespace, *names: str) -> dict:
     out = {n: getattr(args, n) for n in names if getattr(args, n) is not None}
     if "methods" in out:
@@ -181,8 +190,10 @@ def _given(args: argparse.Namespace, *names: str) -> dict:
 def cmd_zero_shot(args: argparse.Namespace) -> int:
     from ps_ray.zero_shot import run_zero_shot, summary
 
-    table = run_zero_shot(_load(args), resume=args.resume,
-                          **_given(args, "methods", "episodes", "repeats", "seed"))
+    spec = _load(args)
+    with _sweep_lock(spec):
+        table = run_zero_shot(spec, resume=args.resume,
+                              **_given(args, "methods", "episodes", "repeats", "seed"))
     columns = ["method", "label", "success_mean", "success_std", "touching_mean", "touching_std"]
     print(table[columns].to_string(index=False, float_format=lambda x: f"{x:.2f}"))
     print(summary(table).to_string(float_format=lambda x: f"{x:.2f}"))
@@ -192,8 +203,10 @@ def cmd_zero_shot(args: argparse.Namespace) -> int:
 def cmd_few_shot(args: argparse.Namespace) -> int:
     from ps_ray.few_shot import curves, run_few_shot
 
-    results = run_few_shot(_load(args), resume=args.resume, **_given(
-        args, "env_steps", "collect_steps", "methods", "max_pairs"))
+    spec = _load(args)
+    with _sweep_lock(spec):
+        results = run_few_shot(spec, resume=args.resume, **_given(
+            args, "env_steps", "collect_steps", "methods", "max_pairs"))
     for key, points in sorted(curves(results).items()):
         print(key, " ".join(f"{steps}:{success:.2f}" for steps, success in points))
     return 1 if any(r.error for r in results) else 0
@@ -206,7 +219,8 @@ def cmd_run(args: argparse.Namespace) -> int:
     spec = _load(args)
     started = time.time()
     print(f"sweep {spec.name!r}: stages {', '.join(spec.stages)}; results in {sweep_dir(spec)}")
-    summaries = run_pipeline(spec)
+    with _sweep_lock(spec):
+        summaries = run_pipeline(spec)
     print(f"sweep {spec.name!r}: all stages done in {(time.time() - started) / 60:.1f} min")
     if "report" in summaries:
         print(f"report: {sweep_dir(spec) / 'report' / 'index.html'}")
@@ -219,7 +233,8 @@ def cmd_report(args: argparse.Namespace) -> int:
     from ps_ray.analysis.report import build_report
 
     spec = _load(args)
-    page = build_report(spec, log_to_mlflow=not args.no_mlflow)
+    with _sweep_lock(spec):
+        page = build_report(spec, log_to_mlflow=not args.no_mlflow)
     print(f"report: {page}")
     if args.screenshot:
         from ps_ray.analysis.browser import screenshot

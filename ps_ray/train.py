@@ -23,8 +23,9 @@ from typing import Any
 import numpy as np
 import torch
 
-from ps_ray.atomic import atomic_file, atomic_path, fsync_dir
+from ps_ray.atomic import atomic_file, atomic_path, fsync_dir, write_text
 from ps_ray.config import SpecError, TrainSpec
+from ps_ray.lock import folder_lock
 from ps_ray.nets.modular import uses_anchors
 
 CHECKPOINT_DIR = "checkpoint"
@@ -72,7 +73,7 @@ def prepare_anchors(spec: TrainSpec, run_dir: Path):
     return anchor_set
 
 
-def _check_run_dir(spec: TrainSpec, run_dir: Path) -> None:
+def _check_run_dir(spec: TrainSpec, run_dir: Path, write: bool = True) -> None:
     """A run directory belongs to one policy; only the budget and reporting settings may change."""
     spec_file = run_dir / "spec.json"
     if spec_file.exists():
@@ -81,8 +82,8 @@ def _check_run_dir(spec: TrainSpec, run_dir: Path) -> None:
         if changed:
             raise SpecError(f"{run_dir} holds a run of another spec (differs in {', '.join(changed)});"
                             f" use another --run-dir")
-    run_dir.mkdir(parents=True, exist_ok=True)
-    spec_file.write_text(json.dumps(spec.to_dict(), indent=2))
+    if write:
+        write_text(spec_file, json.dumps(spec.to_dict(), indent=2))
 
 
 class TrainingRun:
@@ -220,16 +221,23 @@ def _best_so_far(run_dir: Path) -> float:
 
 
 def train(spec: TrainSpec, run_dir: str | Path, *, progress: bool = True) -> dict[str, Any]:
-    """Train (or resume) until spec.env_steps; returns the last metrics row with final_* figures."""
+    """Train (or resume) until spec.env_steps; returns the last metrics row with final_* figures.
+    One process at a time per run folder (:mod:`ps_ray.lock`)."""
+    run_dir = Path(run_dir).resolve()  # RLlib's checkpoint writer needs absolute paths
+    _check_run_dir(spec, run_dir, write=False)
+    with folder_lock(run_dir, "run"):
+        return _train(spec, run_dir, progress)
+
+
+def _train(spec: TrainSpec, run_dir: Path, progress: bool) -> dict[str, Any]:
     import ray
 
-    run_dir = Path(run_dir).resolve()  # RLlib's checkpoint writer needs absolute paths
-    _check_run_dir(spec, run_dir)
     anchor_set = prepare_anchors(spec, run_dir) if uses_anchors(spec.method) else None
     if not ray.is_initialized():
         ray.init(address="local", num_cpus=max(1, os.cpu_count() or 1), include_dashboard=False,
                  log_to_driver=False, configure_logging=False)
-    run = TrainingRun(spec, anchor_set)
+    run = TrainingRun(spec, anchor_set)  # loads --init-policy: a bad one fails before spec.json
+    _check_run_dir(spec, run_dir)
     checkpoint = _latest_checkpoint(run_dir)
     if checkpoint is not None:
         run.restore(checkpoint)

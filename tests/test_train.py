@@ -106,3 +106,26 @@ def test_resume_after_a_kill_between_the_checkpoint_renames_keeps_rows_and_best(
     best_after = float(read_signature(run_dir / "best_policy.safetensors")[1]["eval_success"])
     assert best_after >= best_before
     assert (run_dir / "checkpoint").is_dir() and not (run_dir / "checkpoint.old").exists()
+
+
+def test_a_second_process_on_the_same_run_folder_is_refused_in_one_line(tmp_path):
+    run_dir = tmp_path / "run"
+    first = subprocess.Popen(train_cmd(run_dir, 100_000), stdout=subprocess.DEVNULL,
+                             stderr=subprocess.DEVNULL, start_new_session=True)
+    try:
+        deadline = time.time() + 120
+        while not (run_dir / "metrics.csv").exists():
+            assert time.time() < deadline and first.poll() is None
+            time.sleep(0.5)
+        second = subprocess.run(train_cmd(run_dir, 100_000), capture_output=True, text=True,
+                                timeout=120)
+        assert second.returncode == 2
+        lines = second.stderr.strip().splitlines()
+        assert f"this run is being written by PID {first.pid} on " in lines[-1]
+        assert "Traceback" not in second.stderr
+    finally:
+        os.killpg(first.pid, signal.SIGKILL)
+        first.wait()
+    # the holder died: the lock went with it, and the next process resumes the run
+    third = subprocess.run(train_cmd(run_dir, 300), capture_output=True, text=True, timeout=300)
+    assert third.returncode == 0, third.stderr[-2000:]

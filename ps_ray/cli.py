@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import os
 import sys
 import time
 from pathlib import Path
@@ -38,6 +39,8 @@ def _bench_parser(sub) -> None:
 
 def _sweep_parser(sub) -> None:
     p = sub.add_parser("sweep", help="run a sweep YAML's training trials on Ray Tune")
+    p.add_argument("--verbose", action="store_true",
+                   help="Tune's tables and Ray's warnings on the terminal (default: a log file)")
     p.add_argument("sweep", help="path to a sweep YAML, e.g. sweeps/smoke.yaml")
     p.add_argument("--resume", action="store_true",
                    help="finish only the missing trials of an interrupted sweep")
@@ -48,6 +51,8 @@ def _sweep_parser(sub) -> None:
 
 def _zero_shot_parser(sub) -> None:
     p = sub.add_parser("zero-shot", help="evaluate every stitched pair of a trained sweep (Tune)")
+    p.add_argument("--verbose", action="store_true",
+                   help="Tune's tables and Ray's warnings on the terminal (default: a log file)")
     p.add_argument("sweep", help="the sweep YAML whose trained policies are stitched")
     p.add_argument("--methods", nargs="+", default=None, help="default: the spec's zero_shot.methods")
     p.add_argument("--episodes", type=int, default=None, help="default: the spec's (200)")
@@ -59,6 +64,8 @@ def _zero_shot_parser(sub) -> None:
 
 def _few_shot_parser(sub) -> None:
     p = sub.add_parser("few-shot", help="fine-tune stitched policies of a sweep, beside from-scratch runs")
+    p.add_argument("--verbose", action="store_true",
+                   help="Tune's tables and Ray's warnings on the terminal (default: a log file)")
     p.add_argument("sweep", help="the sweep YAML whose trained policies are stitched")
     p.add_argument("--env-steps", type=int, default=None, help="fine-tuning budget per trial")
     p.add_argument("--collect-steps", type=int, default=None,
@@ -72,6 +79,8 @@ def _few_shot_parser(sub) -> None:
 def _run_parser(sub) -> None:
     p = sub.add_parser("run", help="the whole pipeline of a sweep YAML: train, zero-shot, few-shot, "
                                    "report (its 'stages'); finished stages are skipped")
+    p.add_argument("--verbose", action="store_true",
+                   help="Tune's tables and Ray's warnings on the terminal (default: a log file)")
     p.add_argument("sweep", help="path to a sweep YAML, e.g. sweeps/smoke.yaml")
     p.add_argument("--storage", default=None, help="override the spec's storage directory")
     p.add_argument("--tracking-uri", default=None, help="override the MLflow tracking URI")
@@ -314,6 +323,10 @@ def main(argv: list[str] | None = None) -> int:
     _run_parser(sub)
     _report_parser(sub)
     args = parser.parse_args(argv)
+    if getattr(args, "verbose", False):
+        from ps_ray.progress import VERBOSE_ENV
+
+        os.environ[VERBOSE_ENV] = "1"  # Tune's tables and Ray's warnings on the terminal
     try:
         return {"train": cmd_train, "sweep": cmd_sweep, "zero-shot": cmd_zero_shot,
                 "few-shot": cmd_few_shot, "run": cmd_run, "report": cmd_report,

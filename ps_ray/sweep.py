@@ -10,6 +10,7 @@ Layout under <storage>/<name>/:
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import tempfile
@@ -232,21 +233,39 @@ def run_tune(trials: list[dict], *, name: str, stage: str, spec: SweepSpec, root
         *tracking, metric_keys=METRIC_KEYS + ("final_success", "final_touching"),
         tags={"ps_ray.sweep": spec.name, "ps_ray.stage": stage, "git_commit": git_commit() or ""},
         artifacts_fn=_trial_artifacts, **({"key_fn": key_fn} if key_fn else {}))
-    trainable = tune.with_resources(sweep_trial, {"cpu": 1})
+    return run_trials(sweep_trial, {"trial": trials}, name=name, stage=stage, spec=spec, root=root,
+                      callback=callback, resume=resume, progress=progress)
+
+
+def run_trials(trainable, grid: dict[str, list], *, name: str, stage: str, spec: SweepSpec,
+               root: Path, callback, resume: bool, progress: bool, constants: dict | None = None):
+    """The one Tune runner of every stage: a grid over ``grid``'s one key (plus ``constants``),
+    one CPU per trial, the sweep's retry policy, the MLflow ``callback``, a compact live view on
+    the terminal and Tune's own output in ``root/logs/<name>.log`` (:mod:`ps_ray.progress`).
+    ``resume`` restores the experiment ``root/name`` when it can."""
+    from ray import tune
+
+    from ps_ray.progress import StageProgress, quiet_tune, verbose
+
+    (key, trials), = grid.items()
+    trainable = tune.with_resources(trainable, {"cpu": 1})
     path = root / name
-    if resume and tune.Tuner.can_restore(str(path)):
-        tuner = tune.Tuner.restore(str(path), trainable=trainable, resume_unfinished=True,
-                                   resume_errored=True, restart_errored=False)
-    else:
-        tuner = tune.Tuner(
-            trainable, param_space={"trial": tune.grid_search(trials)},
-            tune_config=tune.TuneConfig(max_concurrent_trials=spec.max_concurrent),
-            run_config=tune.RunConfig(
-                name=name, storage_path=str(root),
-                failure_config=tune.FailureConfig(max_failures=spec.max_failures),
-                checkpoint_config=tune.CheckpointConfig(num_to_keep=1),
-                callbacks=[callback], verbose=1 if progress else 0))
-    return tuner.fit()
+    quiet = progress and not verbose()
+    with quiet_tune(root / "logs" / f"{name}.log") if quiet else contextlib.nullcontext():
+        if resume and tune.Tuner.can_restore(str(path)):
+            tuner = tune.Tuner.restore(str(path), trainable=trainable, resume_unfinished=True,
+                                       resume_errored=True, restart_errored=False)
+        else:
+            tuner = tune.Tuner(
+                trainable, param_space={key: tune.grid_search(trials), **(constants or {})},
+                tune_config=tune.TuneConfig(max_concurrent_trials=spec.max_concurrent),
+                run_config=tune.RunConfig(
+                    name=name, storage_path=str(root),
+                    failure_config=tune.FailureConfig(max_failures=spec.max_failures),
+                    checkpoint_config=tune.CheckpointConfig(num_to_keep=1),
+                    callbacks=[callback, *([StageProgress(stage)] if quiet else [])],
+                    verbose=1 if progress else 0))  # quiet: Tune's tables go to the log
+        return tuner.fit()
 
 
 def _trial_artifacts(trial) -> list[Path]:

@@ -81,9 +81,7 @@ def run_zero_shot(spec: SweepSpec, *, resume: bool = False, progress: bool = Tru
     """The matrix as Tune trials, settings from ``spec.zero_shot`` (``overrides`` replace fields).
 
     ``resume`` finishes an interrupted matrix (restores ``tune_zero_shot``)."""
-    from ray import tune
-
-    from ps_ray.sweep import connect
+    from ps_ray.sweep import connect, run_trials
     from ps_ray.tracking import MLflowTuneCallback, git_commit
 
     settings = dataclasses.replace(spec.zero_shot, **overrides)
@@ -100,22 +98,12 @@ def run_zero_shot(spec: SweepSpec, *, resume: bool = False, progress: bool = Tru
                                                                  "repeats": settings.repeats},
         tags={"ps_ray.sweep": spec.name, "ps_ray.stage": "zero_shot",
               "git_commit": git_commit() or ""})
-    trainable = tune.with_resources(zero_shot_trial, {"cpu": 1})
-    path = root / TUNE_DIR
-    if resume and tune.Tuner.can_restore(str(path)):
-        tuner = tune.Tuner.restore(str(path), trainable=trainable, resume_unfinished=True,
-                                   resume_errored=True)
-    else:
-        tuner = tune.Tuner(
-            trainable,
-            param_space={"pair": tune.grid_search(trials),
-                         "eval": {"episodes": settings.episodes, "repeats": settings.repeats,
-                                  "seed": settings.seed},
-                         "fit_states_per_quadrant": settings.fit_states_per_quadrant},
-            tune_config=tune.TuneConfig(max_concurrent_trials=spec.max_concurrent),
-            run_config=tune.RunConfig(name=TUNE_DIR, storage_path=str(root),
-                                      callbacks=[callback], verbose=1 if progress else 0))
-    results = tuner.fit()
+    results = run_trials(
+        zero_shot_trial, {"pair": trials}, name=TUNE_DIR, stage="zero_shot", spec=spec, root=root,
+        callback=callback, resume=resume, progress=progress,
+        constants={"eval": {"episodes": settings.episodes, "repeats": settings.repeats,
+                            "seed": settings.seed},
+                   "fit_states_per_quadrant": settings.fit_states_per_quadrant})
     raise_on_errors(results, "zero-shot trials")
     rows = [{**{k: short_name(v) for k, v in r.config["pair"].items()
                 if not k.endswith("_path") and k != "fit_tasks"},

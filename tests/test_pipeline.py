@@ -76,6 +76,18 @@ def test_a_killed_pipeline_resumes_without_redoing_finished_work(smoke):
     assert all(stage_state(spec, s) == "done" for s in spec.stages)
 
 
+def test_the_terminal_gets_a_compact_view_and_the_log_keeps_tunes_tables(smoke):
+    spec, root, out = smoke
+    lines = out.splitlines()
+    assert len(lines) <= 150, f"{len(lines)} lines"
+    assert "\x1b[" not in out  # no TTY here: plain lines, no control codes
+    assert "Trial status" not in out and "sweep_trial_" not in out
+    assert any(line.startswith("  zero_shot: ") and " done, " in line for line in lines)
+    assert any(line.startswith("  few_shot: 4 done, 0 running, 0 failed, 0 pending") for line in lines)
+    assert "Trial status" in (root / "logs" / "tune_zero_shot.log").read_text()
+    assert "Trial status" in (root / "few_shot" / "logs" / "tune_few_shot.log").read_text()
+
+
 def test_rerunning_a_finished_pipeline_skips_every_stage(smoke):
     spec, root, _ = smoke
     before = (root / "report" / "index.html").stat().st_mtime

@@ -3,6 +3,7 @@
 #   ./run.sh smoke   the whole smoke pipeline on 2 CPUs (train, zero-shot, few-shot, report; MLflow)
 #   ./run.sh test    the test suite (slow learning checks included; add -m "not slow" to skip)
 #                    it also installs Debian's chromium (headless screenshot of the report)
+#   ./run.sh lint    ruff: lint and format check (configured in pyproject.toml)
 #   ./run.sh setup   only create .venv and install ps_ray
 set -euo pipefail
 cd "$(dirname "$0")"
@@ -40,13 +41,18 @@ case "$cmd" in
     "$VENV/bin/ps-ray" render --robot panda_l3 --task push --gif "$out/smoke_render/push_random.gif"
     "$VENV/bin/ps-ray" run sweeps/smoke.yaml --storage "$out/sweeps" "$@"
     ;;
+  lint)
+    setup
+    "$VENV/bin/ruff" check ps_ray tests
+    "$VENV/bin/ruff" format --check ps_ray tests
+    ;;
   test)
     setup
     browser
     "$VENV/bin/python" -m pytest -q "$@"
     ;;
   *)
-    echo "usage: ./run.sh smoke|test|setup [args]" >&2
+    echo "usage: ./run.sh smoke|test|lint|setup [args]" >&2
     exit 2
     ;;
 esac

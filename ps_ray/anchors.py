@@ -143,13 +143,14 @@ def collect_task_states(
                     if action.ndim != 2 or action.shape[0] != 1:
                         raise ValueError(
                             f"policy must return actions of shape (1, A) for a batch of one "
-                            f"observation, got shape {action.shape}")
+                            f"observation, got shape {action.shape}"
+                        )
                     action = action[0]
                 obs, _, terminated, truncated, _ = env.step(action)
                 if (terminated or truncated) and t + 1 <= last:
                     raise ValueError(
-                        f"episode {ep} ended after {t + 1} steps, before the last recorded "
-                        f"step {last}")
+                        f"episode {ep} ended after {t + 1} steps, before the last recorded step {last}"
+                    )
             if report_every and (ep + 1) % report_every == 0:
                 log.info("collect_task_states: %d/%d episodes", ep + 1, episodes)
     finally:
@@ -175,8 +176,7 @@ def _as_states(states: Any, name: str = "states") -> np.ndarray:
     return arr
 
 
-def _make_distinct(centers: np.ndarray, states: np.ndarray, idx: np.ndarray,
-                   dist: np.ndarray) -> np.ndarray:
+def _make_distinct(centers: np.ndarray, states: np.ndarray, idx: np.ndarray, dist: np.ndarray) -> np.ndarray:
     """Reassign centroids whose nearest state is already taken (by value) by a closer centroid.
 
     Centroids are served in order of their distance to their nearest state; a centroid whose
@@ -208,8 +208,9 @@ def _make_distinct(centers: np.ndarray, states: np.ndarray, idx: np.ndarray,
     return out
 
 
-def select_anchor_indices(states: np.ndarray, k: int, *, seed: int = 0, n_init: int = 10,
-                          distinct: bool = True) -> np.ndarray:
+def select_anchor_indices(
+    states: np.ndarray, k: int, *, seed: int = 0, n_init: int = 10, distinct: bool = True
+) -> np.ndarray:
     """Row indices into ``states`` (cast to float32) of the ``k`` anchors, in centroid order.
 
     k-means (``KMeans(n_clusters=k, random_state=seed, n_init=n_init)``, k-means++), then the
@@ -226,7 +227,8 @@ def select_anchor_indices(states: np.ndarray, k: int, *, seed: int = 0, n_init: 
     if n_distinct < k:
         raise ValueError(
             f"cannot select {k} anchors from {x.shape[0]} states with only {n_distinct} "
-            f"distinct rows; collect more states or lower k")
+            f"distinct rows; collect more states or lower k"
+        )
     kmeans = KMeans(n_clusters=k, random_state=seed, n_init=n_init).fit(x)
     centers = kmeans.cluster_centers_.astype(np.float32, copy=False)
     idx, dist = pairwise_distances_argmin_min(centers, x)
@@ -236,8 +238,9 @@ def select_anchor_indices(states: np.ndarray, k: int, *, seed: int = 0, n_init: 
     return idx
 
 
-def select_anchors(states: np.ndarray, k: int, *, seed: int = 0, n_init: int = 10,
-                   distinct: bool = True) -> np.ndarray:
+def select_anchors(
+    states: np.ndarray, k: int, *, seed: int = 0, n_init: int = 10, distinct: bool = True
+) -> np.ndarray:
     """``(k, dim)`` float32 anchors: actual rows of ``states`` nearest to the k-means centroids.
 
     Raises ``ValueError`` when ``states`` has fewer than ``k`` distinct rows.
@@ -320,8 +323,11 @@ class AnchorSet:
     def __eq__(self, other: object) -> bool:
         if not isinstance(other, AnchorSet):
             return NotImplemented
-        return (self.hash == other.hash and self.provenance == other.provenance
-                and np.array_equal(self.anchors, other.anchors))
+        return (
+            self.hash == other.hash
+            and self.provenance == other.provenance
+            and np.array_equal(self.anchors, other.anchors)
+        )
 
     def __hash__(self) -> int:
         return hash(self.hash)
@@ -333,9 +339,15 @@ def _library_versions() -> dict[str, str]:
     return {"numpy": np.__version__, "sklearn": sklearn.__version__}
 
 
-def make_anchor_set(states_by_source: Mapping[str, np.ndarray], k: int, *, seed: int = 0,
-                    n_init: int = 10, distinct: bool = True,
-                    extra_provenance: Mapping[str, Any] | None = None) -> AnchorSet:
+def make_anchor_set(
+    states_by_source: Mapping[str, np.ndarray],
+    k: int,
+    *,
+    seed: int = 0,
+    n_init: int = 10,
+    distinct: bool = True,
+    extra_provenance: Mapping[str, Any] | None = None,
+) -> AnchorSet:
     """Pool the task states of several sources (in the given order) and select ``k`` anchors.
 
     The provenance records the sources with their state counts, the selection settings and
@@ -356,7 +368,10 @@ def make_anchor_set(states_by_source: Mapping[str, np.ndarray], k: int, *, seed:
         "sources": {name: int(p.shape[0]) for name, p in zip(states_by_source, parts)},
         "num_states": int(pooled.shape[0]),
         "dim": int(pooled.shape[1]),
-        "k": int(k), "seed": int(seed), "n_init": int(n_init), "distinct": bool(distinct),
+        "k": int(k),
+        "seed": int(seed),
+        "n_init": int(n_init),
+        "distinct": bool(distinct),
         "versions": _library_versions(),
     }
     provenance.update(dict(extra_provenance or {}))
@@ -374,11 +389,20 @@ def save_anchor_set(path: str | os.PathLike, anchor_set: AnchorSet) -> None:
     directory and renamed over ``path``, so a crash never leaves a half-written file there.
     """
     path = Path(path)
-    meta = json.dumps({"format": FORMAT, "version": FORMAT_VERSION, "hash": anchor_set.hash,
-                       "provenance": anchor_set.provenance}, sort_keys=True, allow_nan=False)
+    meta = json.dumps(
+        {
+            "format": FORMAT,
+            "version": FORMAT_VERSION,
+            "hash": anchor_set.hash,
+            "provenance": anchor_set.provenance,
+        },
+        sort_keys=True,
+        allow_nan=False,
+    )
     with atomic_file(path) as fh:
-        np.savez(fh, **{_ANCHOR_KEY: np.ascontiguousarray(anchor_set.anchors, "<f4"),
-                        _META_KEY: np.array(meta)})
+        np.savez(
+            fh, **{_ANCHOR_KEY: np.ascontiguousarray(anchor_set.anchors, "<f4"), _META_KEY: np.array(meta)}
+        )
 
 
 class _BadFile(Exception):
@@ -423,21 +447,25 @@ def _parse_anchor_npz(members: dict[str, np.ndarray]) -> AnchorSet:
     if not isinstance(meta, dict) or meta.get("format") != FORMAT:
         raise _BadFile(f"'meta' does not describe a {FORMAT} file")
     if meta.get("version") != FORMAT_VERSION:
-        raise _BadFile(f"unsupported {FORMAT} version {meta.get('version')!r} "
-                       f"(this code reads version {FORMAT_VERSION})")
+        raise _BadFile(
+            f"unsupported {FORMAT} version {meta.get('version')!r} (this code reads version {FORMAT_VERSION})"
+        )
     stored_hash, provenance = meta.get("hash"), meta.get("provenance")
     if not isinstance(stored_hash, str) or not isinstance(provenance, dict):
         raise _BadFile("'meta' lacks a string 'hash' or a dict 'provenance'")
     anchors = members[_ANCHOR_KEY]
     if anchors.dtype != np.float32 or anchors.ndim != 2 or 0 in anchors.shape:
-        raise _BadFile(f"'anchors' must be a non-empty 2-D float32 array, "
-                       f"got {anchors.dtype} {anchors.shape}")
+        raise _BadFile(
+            f"'anchors' must be a non-empty 2-D float32 array, got {anchors.dtype} {anchors.shape}"
+        )
     if not np.all(np.isfinite(anchors)):
         raise _BadFile("'anchors' contains NaN or infinite values")
     actual = anchor_hash(anchors)
     if actual != stored_hash:
-        raise _BadFile(f"hash mismatch: stored {stored_hash[:16]}..., anchors hash to "
-                       f"{actual[:16]}... (the file was modified)")
+        raise _BadFile(
+            f"hash mismatch: stored {stored_hash[:16]}..., anchors hash to "
+            f"{actual[:16]}... (the file was modified)"
+        )
     return AnchorSet(anchors, stored_hash, provenance)
 
 
@@ -451,8 +479,10 @@ def load_anchor_set(path: str | os.PathLike) -> AnchorSet:
     try:
         magic = _magic(path)
         if magic.startswith(_NPY_MAGIC):
-            raise _BadFile("it is a plain .npy array, not an anchor-set .npz "
-                           "(use anchors_from_file to select anchors from task states)")
+            raise _BadFile(
+                "it is a plain .npy array, not an anchor-set .npz "
+                "(use anchors_from_file to select anchors from task states)"
+            )
         if not magic.startswith(_ZIP_MAGIC):
             raise _BadFile("not an .npz archive")
         return _parse_anchor_npz(_read_npz(path))
@@ -468,8 +498,9 @@ def _file_sha256(path: Path) -> str:
     return h.hexdigest()
 
 
-def anchors_from_file(path: str | os.PathLike, k: int, *, seed: int = 0, n_init: int = 10,
-                      distinct: bool = True) -> AnchorSet:
+def anchors_from_file(
+    path: str | os.PathLike, k: int, *, seed: int = 0, n_init: int = 10, distinct: bool = True
+) -> AnchorSet:
     """An anchor set from "any file of task states".
 
     - an anchor-set ``.npz`` (:func:`save_anchor_set`): loaded and verified; it must have
@@ -505,8 +536,9 @@ def anchors_from_file(path: str | os.PathLike, k: int, *, seed: int = 0, n_init:
                     break
             else:
                 if len(members) != 1:
-                    raise _BadFile(f"expected one array (or a 'states' member) in the .npz, "
-                                   f"found {sorted(members)}")
+                    raise _BadFile(
+                        f"expected one array (or a 'states' member) in the .npz, found {sorted(members)}"
+                    )
                 member = next(iter(members))
             states = members[member]
         else:
@@ -525,9 +557,14 @@ def anchors_from_file(path: str | os.PathLike, k: int, *, seed: int = 0, n_init:
         raise ValueError(f"{path}: {exc}") from None
     provenance: dict[str, Any] = {
         "method": "kmeans_nearest_real_state",
-        "source_file": str(path), "source_sha256": _file_sha256(path),
-        "num_states": int(x.shape[0]), "dim": int(x.shape[1]),
-        "k": int(k), "seed": int(seed), "n_init": int(n_init), "distinct": bool(distinct),
+        "source_file": str(path),
+        "source_sha256": _file_sha256(path),
+        "num_states": int(x.shape[0]),
+        "dim": int(x.shape[1]),
+        "k": int(k),
+        "seed": int(seed),
+        "n_init": int(n_init),
+        "distinct": bool(distinct),
         "versions": _library_versions(),
     }
     if member is not None:

@@ -20,14 +20,21 @@ def _train_parser(sub) -> None:
     defaults = TrainSpec()
     for f in dataclasses.fields(TrainSpec):
         if f.name in ("robot", "task"):
-            p.add_argument(f"--{f.name}", default=getattr(defaults, f.name),
-                           help=f"built-in name or a JSON mapping (default {getattr(defaults, f.name)})")
+            p.add_argument(
+                f"--{f.name}",
+                default=getattr(defaults, f.name),
+                help=f"built-in name or a JSON mapping (default {getattr(defaults, f.name)})",
+            )
             continue
         kind = next((t for t in (float, int, str) if t.__name__ in str(f.type)), str)
-        p.add_argument(f"--{f.name.replace('_', '-')}", dest=f.name, type=kind,
-                       default=getattr(defaults, f.name))
-    p.add_argument("--run-dir", default=None,
-                   help="where checkpoints, policy and metrics go (default runs/<method>-<robot>-...)")
+        p.add_argument(
+            f"--{f.name.replace('_', '-')}", dest=f.name, type=kind, default=getattr(defaults, f.name)
+        )
+    p.add_argument(
+        "--run-dir",
+        default=None,
+        help="where checkpoints, policy and metrics go (default runs/<method>-<robot>-...)",
+    )
     p.add_argument("--quiet", action="store_true")
 
 
@@ -39,11 +46,15 @@ def _bench_parser(sub) -> None:
 
 def _sweep_parser(sub) -> None:
     p = sub.add_parser("sweep", help="run a sweep YAML's training trials on Ray Tune")
-    p.add_argument("--verbose", action="store_true",
-                   help="Tune's tables and Ray's warnings on the terminal (default: a log file)")
+    p.add_argument(
+        "--verbose",
+        action="store_true",
+        help="Tune's tables and Ray's warnings on the terminal (default: a log file)",
+    )
     p.add_argument("sweep", help="path to a sweep YAML, e.g. sweeps/smoke.yaml")
-    p.add_argument("--resume", action="store_true",
-                   help="finish only the missing trials of an interrupted sweep")
+    p.add_argument(
+        "--resume", action="store_true", help="finish only the missing trials of an interrupted sweep"
+    )
     p.add_argument("--storage", default=None, help="override the spec's storage directory")
     p.add_argument("--tracking-uri", default=None, help="override the MLflow tracking URI")
     p.add_argument("--check", action="store_true", help="validate the spec, list trials, run nothing")
@@ -51,8 +62,11 @@ def _sweep_parser(sub) -> None:
 
 def _zero_shot_parser(sub) -> None:
     p = sub.add_parser("zero-shot", help="evaluate every stitched pair of a trained sweep (Tune)")
-    p.add_argument("--verbose", action="store_true",
-                   help="Tune's tables and Ray's warnings on the terminal (default: a log file)")
+    p.add_argument(
+        "--verbose",
+        action="store_true",
+        help="Tune's tables and Ray's warnings on the terminal (default: a log file)",
+    )
     p.add_argument("sweep", help="the sweep YAML whose trained policies are stitched")
     p.add_argument("--methods", nargs="+", default=None, help="default: the spec's zero_shot.methods")
     p.add_argument("--episodes", type=int, default=None, help="default: the spec's (200)")
@@ -64,12 +78,19 @@ def _zero_shot_parser(sub) -> None:
 
 def _few_shot_parser(sub) -> None:
     p = sub.add_parser("few-shot", help="fine-tune stitched policies of a sweep, beside from-scratch runs")
-    p.add_argument("--verbose", action="store_true",
-                   help="Tune's tables and Ray's warnings on the terminal (default: a log file)")
+    p.add_argument(
+        "--verbose",
+        action="store_true",
+        help="Tune's tables and Ray's warnings on the terminal (default: a log file)",
+    )
     p.add_argument("sweep", help="the sweep YAML whose trained policies are stitched")
     p.add_argument("--env-steps", type=int, default=None, help="fine-tuning budget per trial")
-    p.add_argument("--collect-steps", type=int, default=None,
-                   help="env steps collected before the first update (the paper: 10 epochs)")
+    p.add_argument(
+        "--collect-steps",
+        type=int,
+        default=None,
+        help="env steps collected before the first update (the paper: 10 epochs)",
+    )
     p.add_argument("--methods", nargs="+", default=None)
     p.add_argument("--max-pairs", type=int, default=None, help="stitched pairs per method")
     p.add_argument("--resume", action="store_true")
@@ -77,10 +98,16 @@ def _few_shot_parser(sub) -> None:
 
 
 def _run_parser(sub) -> None:
-    p = sub.add_parser("run", help="the whole pipeline of a sweep YAML: train, zero-shot, few-shot, "
-                                   "report (its 'stages'); finished stages are skipped")
-    p.add_argument("--verbose", action="store_true",
-                   help="Tune's tables and Ray's warnings on the terminal (default: a log file)")
+    p = sub.add_parser(
+        "run",
+        help="the whole pipeline of a sweep YAML: train, zero-shot, few-shot, "
+        "report (its 'stages'); finished stages are skipped",
+    )
+    p.add_argument(
+        "--verbose",
+        action="store_true",
+        help="Tune's tables and Ray's warnings on the terminal (default: a log file)",
+    )
     p.add_argument("sweep", help="path to a sweep YAML, e.g. sweeps/smoke.yaml")
     p.add_argument("--storage", default=None, help="override the spec's storage directory")
     p.add_argument("--tracking-uri", default=None, help="override the MLflow tracking URI")
@@ -91,8 +118,9 @@ def _report_parser(sub) -> None:
     p.add_argument("sweep", help="a sweep YAML, or a sweep folder (<storage>/<name>)")
     p.add_argument("--storage", default=None, help="override the spec's storage directory")
     p.add_argument("--no-mlflow", action="store_true", help="write the folder only")
-    p.add_argument("--screenshot", default=None,
-                   help="also save a headless-Chromium screenshot of the page (PNG)")
+    p.add_argument(
+        "--screenshot", default=None, help="also save a headless-Chromium screenshot of the page (PNG)"
+    )
 
 
 def _render_parser(sub) -> None:
@@ -107,12 +135,20 @@ def _render_parser(sub) -> None:
 
 def _stitch_parser(sub) -> None:
     p = sub.add_parser("stitch", help="stitch a task module and a robot module; zero-shot evaluation")
-    p.add_argument("--task-from", required=True,
-                   help="policy file/run dir or zoo key (e.g. ps/panda/push/101) giving the task module")
-    p.add_argument("--robot-from", required=True,
-                   help="policy file/run dir or zoo key giving the robot module")
-    p.add_argument("--sweep", action="append", default=[],
-                   help="sweep directory (<storage>/<name>) to look keys up in; repeatable")
+    p.add_argument(
+        "--task-from",
+        required=True,
+        help="policy file/run dir or zoo key (e.g. ps/panda/push/101) giving the task module",
+    )
+    p.add_argument(
+        "--robot-from", required=True, help="policy file/run dir or zoo key giving the robot module"
+    )
+    p.add_argument(
+        "--sweep",
+        action="append",
+        default=[],
+        help="sweep directory (<storage>/<name>) to look keys up in; repeatable",
+    )
     p.add_argument("--robot", default=None, help="target robot (default: the robot module's robot)")
     p.add_argument("--task", default=None, help="target task (default: the task module's task)")
     p.add_argument("--episodes", type=int, default=200, help="episodes per repeat (0: no evaluation)")
@@ -120,11 +156,19 @@ def _stitch_parser(sub) -> None:
     p.add_argument("--seed", type=int, default=0, help="first evaluation seed")
     p.add_argument("--num-envs", type=int, default=8, help="envs stepped in lockstep")
     p.add_argument("--save", default=None, help="write the stitched policy (.safetensors) here")
-    p.add_argument("--translate", default=None, choices=["orthogonal", "affine"],
-                   help="fit a latent translation from the task module's latent to the robot "
-                        "module's on reset task states of both sources' tasks (no env steps)")
-    p.add_argument("--fit-states", type=int, default=128,
-                   help="reset task states per goal quadrant and task for --translate")
+    p.add_argument(
+        "--translate",
+        default=None,
+        choices=["orthogonal", "affine"],
+        help="fit a latent translation from the task module's latent to the robot "
+        "module's on reset task states of both sources' tasks (no env steps)",
+    )
+    p.add_argument(
+        "--fit-states",
+        type=int,
+        default=128,
+        help="reset task states per goal quadrant and task for --translate",
+    )
 
 
 def _mapping_or_name(value: str):
@@ -155,8 +199,10 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     with folder_lock(sweep_dir(spec), "sweep"):
         results = run_sweep(spec, resume=args.resume)
     errors = [r for r in results if r.error]
-    print(f"sweep {spec.name!r}: {len(results) - len(errors)}/{len(results)} trials finished; "
-          f"results in {sweep_dir(spec)}")
+    print(
+        f"sweep {spec.name!r}: {len(results) - len(errors)}/{len(results)} trials finished; "
+        f"results in {sweep_dir(spec)}"
+    )
     return 1 if errors else 0
 
 
@@ -170,15 +216,19 @@ def _load(args: argparse.Namespace):
 
         if not (path / SPEC_FILE).exists():
             raise ValueError(f"{path}: not a sweep folder (no {SPEC_FILE})")
-        spec = dataclasses.replace(load_sweep(path / SPEC_FILE),
-                                   storage=str(path.resolve().parent))
+        spec = dataclasses.replace(load_sweep(path / SPEC_FILE), storage=str(path.resolve().parent))
         if spec.name != path.resolve().name:
-            raise ValueError(f"{path}: holds sweep {spec.name!r}; a sweep folder must keep its "
-                             f"sweep's name (rename it back to {spec.name!r})")
+            raise ValueError(
+                f"{path}: holds sweep {spec.name!r}; a sweep folder must keep its "
+                f"sweep's name (rename it back to {spec.name!r})"
+            )
     else:
         spec = load_sweep(path)
-    overrides = {k: v for k, v in (("storage", args.storage),
-                                   ("tracking_uri", getattr(args, "tracking_uri", None))) if v}
+    overrides = {
+        k: v
+        for k, v in (("storage", args.storage), ("tracking_uri", getattr(args, "tracking_uri", None)))
+        if v
+    }
     return dataclasses.replace(spec, **overrides) if overrides else spec
 
 
@@ -201,8 +251,9 @@ def cmd_zero_shot(args: argparse.Namespace) -> int:
 
     spec = _load(args)
     with _sweep_lock(spec):
-        table = run_zero_shot(spec, resume=args.resume,
-                              **_given(args, "methods", "episodes", "repeats", "seed"))
+        table = run_zero_shot(
+            spec, resume=args.resume, **_given(args, "methods", "episodes", "repeats", "seed")
+        )
     columns = ["method", "label", "success_mean", "success_std", "touching_mean", "touching_std"]
     print(table[columns].to_string(index=False, float_format=lambda x: f"{x:.2f}"))
     print(summary(table).to_string(float_format=lambda x: f"{x:.2f}"))
@@ -214,8 +265,9 @@ def cmd_few_shot(args: argparse.Namespace) -> int:
 
     spec = _load(args)
     with _sweep_lock(spec):
-        results = run_few_shot(spec, resume=args.resume, **_given(
-            args, "env_steps", "collect_steps", "methods", "max_pairs"))
+        results = run_few_shot(
+            spec, resume=args.resume, **_given(args, "env_steps", "collect_steps", "methods", "max_pairs")
+        )
     for key, points in sorted(curves(results).items()):
         print(key, " ".join(f"{steps}:{success:.2f}" for steps, success in points))
     return 1 if any(r.error for r in results) else 0
@@ -262,8 +314,14 @@ def cmd_render(args: argparse.Namespace) -> int:
     for path in (args.png, args.gif):
         if path:
             Path(path).parent.mkdir(parents=True, exist_ok=True)
-    record(_mapping_or_name(args.robot), _mapping_or_name(args.task), policy, seed=args.seed,
-           png=args.png, gif=args.gif)
+    record(
+        _mapping_or_name(args.robot),
+        _mapping_or_name(args.task),
+        policy,
+        seed=args.seed,
+        png=args.png,
+        gif=args.gif,
+    )
     print(f"wrote {' and '.join(p for p in (args.png, args.gif) if p)}")
     return 0
 
@@ -278,9 +336,12 @@ def cmd_stitch(args: argparse.Namespace) -> int:
         raise ValueError(f"--episodes must be >= 0, got {args.episodes}")
     zoo = ModuleZoo.from_sweep(*args.sweep) if args.sweep else None
     task_src, robot_src = resolve_source(args.task_from, zoo), resolve_source(args.robot_from, zoo)
-    robot, task = resolve_target(task_src, robot_src,
-                                 robot=args.robot and _mapping_or_name(args.robot),
-                                 task=args.task and _mapping_or_name(args.task))
+    robot, task = resolve_target(
+        task_src,
+        robot_src,
+        robot=args.robot and _mapping_or_name(args.robot),
+        task=args.task and _mapping_or_name(args.task),
+    )
     states = None
     if args.translate:
         from ps_ray.zero_shot import fit_states
@@ -289,17 +350,30 @@ def cmd_stitch(args: argparse.Namespace) -> int:
             raise ValueError(f"--fit-states must be positive, got {args.fit_states}")
         tasks = [task] + ([robot_src.spec["task"]] if robot_src.spec is not None else [])
         states = fit_states(tasks, args.fit_states, args.seed)
-    nets, signature = stitch_policies(task_src.path, robot_src.path, target=(robot, task),
-                                      translation=args.translate, fit_states=states)
+    nets, signature = stitch_policies(
+        task_src.path, robot_src.path, target=(robot, task), translation=args.translate, fit_states=states
+    )
     if args.save:
-        path = save_policy(args.save, nets, signature,
-                           extra=stitch_metadata(args.task_from, args.robot_from))
+        path = save_policy(args.save, nets, signature, extra=stitch_metadata(args.task_from, args.robot_from))
         print(f"wrote {path}")
     if args.episodes > 0:
-        result = evaluate((nets, signature), robot, task, episodes=args.episodes,
-                          repeats=args.repeats, seed=args.seed, num_envs=args.num_envs, verbose=True)
-        print(format_result(result, f"zero-shot ({signature.method}): task module {args.task_from}, "
-                                    f"robot module {args.robot_from}"))
+        result = evaluate(
+            (nets, signature),
+            robot,
+            task,
+            episodes=args.episodes,
+            repeats=args.repeats,
+            seed=args.seed,
+            num_envs=args.num_envs,
+            verbose=True,
+        )
+        print(
+            format_result(
+                result,
+                f"zero-shot ({signature.method}): task module {args.task_from}, "
+                f"robot module {args.robot_from}",
+            )
+        )
     return 0
 
 
@@ -328,16 +402,28 @@ def main(argv: list[str] | None = None) -> int:
 
         os.environ[VERBOSE_ENV] = "1"  # Tune's tables and Ray's warnings on the terminal
     try:
-        return {"train": cmd_train, "sweep": cmd_sweep, "zero-shot": cmd_zero_shot,
-                "few-shot": cmd_few_shot, "run": cmd_run, "report": cmd_report,
-                "render": cmd_render, "bench": cmd_bench, "stitch": cmd_stitch}[args.command](args)
+        return {
+            "train": cmd_train,
+            "sweep": cmd_sweep,
+            "zero-shot": cmd_zero_shot,
+            "few-shot": cmd_few_shot,
+            "run": cmd_run,
+            "report": cmd_report,
+            "render": cmd_render,
+            "bench": cmd_bench,
+            "stitch": cmd_stitch,
+        }[args.command](args)
     except (SpecError, ValueError, json.JSONDecodeError) as e:
         print(f"ps-ray {args.command}: error: {e}", file=sys.stderr)
         return 2
     except StageError as e:  # trials failed: the first error's last line, the rest is in Tune's logs
         lines = str(e).strip().splitlines()
-        print(f"ps-ray {args.command}: error: {lines[0]} ... {lines[-1]}" if len(lines) > 1
-              else f"ps-ray {args.command}: error: {lines[0]}", file=sys.stderr)
+        print(
+            f"ps-ray {args.command}: error: {lines[0]} ... {lines[-1]}"
+            if len(lines) > 1
+            else f"ps-ray {args.command}: error: {lines[0]}",
+            file=sys.stderr,
+        )
         return 1
 
 

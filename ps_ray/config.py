@@ -7,8 +7,8 @@ import hashlib
 import json
 import re
 from collections.abc import Mapping
-from pathlib import Path
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 from ps_ray.envs.robots import resolve_robot
@@ -18,8 +18,14 @@ from ps_ray.nets.modular import METHODS
 POINT_TASK = "point"  # the physics-free PointGoalEnv (robot is ignored), for fast checks
 
 
-RESUMABLE_CHANGES = ("env_steps", "eval_every", "eval_episodes", "checkpoint_every",
-                     "target_success", "target_evals")
+RESUMABLE_CHANGES = (
+    "env_steps",
+    "eval_every",
+    "eval_episodes",
+    "checkpoint_every",
+    "target_success",
+    "target_evals",
+)
 
 
 class SpecError(ValueError):
@@ -36,26 +42,26 @@ class TrainSpec:
     seed: int = 101
     interface_dim: int = 128
     hidden: int = 256
-    env_steps: int = 50_000          # training budget (a cap when target_success is set)
+    env_steps: int = 50_000  # training budget (a cap when target_success is set)
     target_success: float | None = None  # stop early at this greedy success ...
-    target_evals: int = 2            # ... reached in this many evaluations in a row
-    episodes_per_step: int = 2       # whole episodes collected per training step
-    num_envs: int = 2                # vectorised envs in the env runner
-    updates_per_step: float = 0.4    # gradient updates per collected env step (authors: 0.4)
+    target_evals: int = 2  # ... reached in this many evaluations in a row
+    episodes_per_step: int = 2  # whole episodes collected per training step
+    num_envs: int = 2  # vectorised envs in the env runner
+    updates_per_step: float = 0.4  # gradient updates per collected env step (authors: 0.4)
     batch_size: int = 256
     lr: float = 1e-3
-    initial_alpha: float = 0.1       # entropy temperature at the start (auto-tuned after)
+    initial_alpha: float = 0.1  # entropy temperature at the start (auto-tuned after)
     gamma: float = 0.98
     tau: float = 0.005
     action_l2: float = 0.0
-    random_episodes: int = 10        # warm-up episodes with uniform random actions
-    learning_starts: int = 1000      # transitions before the first update
-    eval_every: int = 10             # training steps between greedy evaluations
+    random_episodes: int = 10  # warm-up episodes with uniform random actions
+    learning_starts: int = 1000  # transitions before the first update
+    eval_every: int = 10  # training steps between greedy evaluations
     eval_episodes: int = 10
-    checkpoint_every: int = 50       # training steps between checkpoints
-    anchors: str | None = None       # file of task states / an anchor set (PS); None: random rollouts
-    anchor_episodes: int = 200       # random-policy episodes collected for anchors when anchors=None
-    init_policy: str | None = None   # start from these weights (a stitched policy: few-shot)
+    checkpoint_every: int = 50  # training steps between checkpoints
+    anchors: str | None = None  # file of task states / an anchor set (PS); None: random rollouts
+    anchor_episodes: int = 200  # random-policy episodes collected for anchors when anchors=None
+    init_policy: str | None = None  # start from these weights (a stitched policy: few-shot)
 
     def __post_init__(self) -> None:
         if self.method not in METHODS:
@@ -66,9 +72,18 @@ class TrainSpec:
                 resolve_task(self.task)
             except (ValueError, TypeError) as e:
                 raise SpecError(str(e)) from None
-        positive = ("interface_dim", "hidden", "env_steps", "episodes_per_step", "num_envs",
-                    "batch_size", "eval_episodes", "checkpoint_every", "anchor_episodes",
-                    "target_evals")
+        positive = (
+            "interface_dim",
+            "hidden",
+            "env_steps",
+            "episodes_per_step",
+            "num_envs",
+            "batch_size",
+            "eval_episodes",
+            "checkpoint_every",
+            "anchor_episodes",
+            "target_evals",
+        )
         for name in positive:
             value = getattr(self, name)
             if not isinstance(value, int) or isinstance(value, bool) or value <= 0:
@@ -79,8 +94,9 @@ class TrainSpec:
         if not 0 < self.gamma < 1:
             raise SpecError(f"gamma must be in (0, 1), got {self.gamma!r}")
         target = self.target_success
-        if target is not None and (isinstance(target, bool) or not isinstance(target, (int, float))
-                                   or not 0 < target <= 1):
+        if target is not None and (
+            isinstance(target, bool) or not isinstance(target, (int, float)) or not 0 < target <= 1
+        ):
             raise SpecError(f"target_success must be a number in (0, 1] or null, got {target!r}")
 
     @classmethod
@@ -150,8 +166,6 @@ def _plain(value: Any) -> Any:
     return dict(value) if isinstance(value, Mapping) else value
 
 
-
-
 ANCHOR_POLICIES = ("plain", "random")
 # Pipeline stages in order; "train" covers plain sources, anchors and the grid (ps_ray.sweep).
 STAGES = ("train", "zero_shot", "few_shot", "report")
@@ -162,18 +176,17 @@ class AnchorSpec:
     """Where PS anchors come from: a file of task states / an anchor set, or rollouts of the
     source tasks (greedy trained plain policies, as the paper, or random actions)."""
 
-    file: str | None = None             # anchor set (.npz) or task-state array; overrides rollouts
+    file: str | None = None  # anchor set (.npz) or task-state array; overrides rollouts
     source_tasks: tuple[str, ...] = ()  # tasks whose states are pooled (default: the sweep's tasks)
     robot: str = "panda"
     episodes: int = 200
     steps: tuple[int, ...] = (5, 6, 7, 8, 9)
     seed: int = 0
-    policy: str = "plain"               # roll out trained plain policies (paper) or "random"
+    policy: str = "plain"  # roll out trained plain policies (paper) or "random"
 
     def __post_init__(self) -> None:
         if self.policy not in ANCHOR_POLICIES:
-            raise SpecError(f"unknown anchors.policy {self.policy!r}; valid: "
-                            f"{', '.join(ANCHOR_POLICIES)}")
+            raise SpecError(f"unknown anchors.policy {self.policy!r}; valid: {', '.join(ANCHOR_POLICIES)}")
         for task in self.source_tasks:
             try:
                 resolve_task(task)
@@ -193,10 +206,10 @@ def _positive(where: str, **values: int | None) -> None:
 class ZeroShotSpec:
     """The zero-shot stage: every stitched pair evaluated on fixed seeds (episodes x repeats)."""
 
-    episodes: int = 200                 # the paper: 200 episodes x 5 repeats
+    episodes: int = 200  # the paper: 200 episodes x 5 repeats
     repeats: int = 5
-    seed: int = 0                       # first evaluation seed
-    methods: tuple[str, ...] = ()       # default: the sweep's methods
+    seed: int = 0  # first evaluation seed
+    methods: tuple[str, ...] = ()  # default: the sweep's methods
     # method -> latent translations also evaluated for its pairs, e.g. {ablation: [affine]};
     # shown as rows "ablation+affine" (ps_ray.nets.translation)
     translate: Mapping[str, tuple[str, ...]] = dataclasses.field(default_factory=dict)
@@ -205,19 +218,27 @@ class ZeroShotSpec:
     def __post_init__(self) -> None:
         from ps_ray.nets.translation import TRANSLATIONS
 
-        _positive("zero_shot", episodes=self.episodes, repeats=self.repeats,
-                  fit_states_per_quadrant=self.fit_states_per_quadrant)
+        _positive(
+            "zero_shot",
+            episodes=self.episodes,
+            repeats=self.repeats,
+            fit_states_per_quadrant=self.fit_states_per_quadrant,
+        )
         if not isinstance(self.translate, Mapping):
             raise SpecError(f"zero_shot.translate must map methods to translations, got {self.translate!r}")
         for method, kinds in self.translate.items():
             kinds = [kinds] if isinstance(kinds, str) else kinds
             if not isinstance(kinds, (list, tuple)) or not kinds:
-                raise SpecError(f"zero_shot.translate.{method}: expected a list of translations, "
-                                f"got {kinds!r}; valid: {', '.join(TRANSLATIONS)}")
+                raise SpecError(
+                    f"zero_shot.translate.{method}: expected a list of translations, "
+                    f"got {kinds!r}; valid: {', '.join(TRANSLATIONS)}"
+                )
             for kind in kinds:
                 if kind not in TRANSLATIONS:
-                    raise SpecError(f"zero_shot.translate.{method}: unknown translation {kind!r}; "
-                                    f"valid: {', '.join(TRANSLATIONS)}")
+                    raise SpecError(
+                        f"zero_shot.translate.{method}: unknown translation {kind!r}; "
+                        f"valid: {', '.join(TRANSLATIONS)}"
+                    )
             if len(set(kinds)) != len(kinds):
                 raise SpecError(f"zero_shot.translate.{method}: duplicate translation in {list(kinds)}")
 
@@ -231,10 +252,10 @@ class FewShotSpec:
     """The few-shot stage: stitched starts fine-tuned with SAC + HER beside from-scratch runs."""
 
     env_steps: int = 20000
-    collect_steps: int = 1000           # env steps before the first update (the paper: 10 epochs)
-    max_pairs: int | None = None        # per method; default: every stitched pair
-    methods: tuple[str, ...] = ()       # default: the sweep's methods
-    scratch: bool = True                # also train each target env from scratch
+    collect_steps: int = 1000  # env steps before the first update (the paper: 10 epochs)
+    max_pairs: int | None = None  # per method; default: every stitched pair
+    methods: tuple[str, ...] = ()  # default: the sweep's methods
+    scratch: bool = True  # also train each target env from scratch
 
     def __post_init__(self) -> None:
         _positive("few_shot", env_steps=self.env_steps, max_pairs=self.max_pairs)
@@ -246,15 +267,14 @@ class FewShotSpec:
 class ReportSpec:
     """The analysis stage: interface dumps on fixed probe states, plots, tables, HTML report."""
 
-    probes_per_group: int = 250         # task states per goal quadrant
-    seed: int = 0                       # probe-state seed
+    probes_per_group: int = 250  # task states per goal quadrant
+    seed: int = 0  # probe-state seed
 
     def __post_init__(self) -> None:
         _positive("report", probes_per_group=self.probes_per_group)
 
 
-SUB_SPECS = {"anchors": AnchorSpec, "zero_shot": ZeroShotSpec, "few_shot": FewShotSpec,
-             "report": ReportSpec}
+SUB_SPECS = {"anchors": AnchorSpec, "zero_shot": ZeroShotSpec, "few_shot": FewShotSpec, "report": ReportSpec}
 # Settings that do not change what the training stage produces (a resumed sweep may change them).
 NOT_TRAINING = ("stages", "zero_shot", "few_shot", "report", "max_concurrent", "max_failures")
 
@@ -275,10 +295,10 @@ class SweepSpec:
     zero_shot: ZeroShotSpec = ZeroShotSpec()
     few_shot: FewShotSpec = FewShotSpec()
     report: ReportSpec = ReportSpec()
-    max_concurrent: int | None = None   # default: one trial per available CPU
-    max_failures: int = 2               # retries of a crashed trial, from its last checkpoint
+    max_concurrent: int | None = None  # default: one trial per available CPU
+    max_failures: int = 2  # retries of a crashed trial, from its last checkpoint
     storage: str = "runs/sweeps"
-    tracking_uri: str | None = None     # default: sqlite under <storage>/<name>/
+    tracking_uri: str | None = None  # default: sqlite under <storage>/<name>/
 
     def __post_init__(self) -> None:
         if not isinstance(self.name, str) or not self.name.replace("_", "").replace("-", "").isalnum():
@@ -296,8 +316,10 @@ class SweepSpec:
         for stage in (self.zero_shot, self.few_shot):
             for method in (*stage.methods, *getattr(stage, "translate", ())):
                 if method not in self.methods:
-                    raise SpecError(f"{type(stage).__name__}: method {method!r} is not trained by "
-                                    f"this sweep; valid: {', '.join(self.methods)}")
+                    raise SpecError(
+                        f"{type(stage).__name__}: method {method!r} is not trained by "
+                        f"this sweep; valid: {', '.join(self.methods)}"
+                    )
         self.trials()  # every trial's TrainSpec is validated before anything starts
 
     def to_dict(self) -> dict[str, Any]:
@@ -313,10 +335,17 @@ class SweepSpec:
         for key in ("method", "robot", "task", "seed", "interface_dim"):
             if key in overrides:
                 raise SpecError(f"train.{key} is set by the sweep grid; remove it from 'train'")
-        return [TrainSpec.from_mapping({**overrides, "method": m, "robot": r, "task": t,
-                                        "seed": s, "interface_dim": d}, where="sweep 'train'")
-                for m in self.methods for r in self.robots for t in self.tasks
-                for s in self.seeds for d in self.interface_dims]
+        return [
+            TrainSpec.from_mapping(
+                {**overrides, "method": m, "robot": r, "task": t, "seed": s, "interface_dim": d},
+                where="sweep 'train'",
+            )
+            for m in self.methods
+            for r in self.robots
+            for t in self.tasks
+            for s in self.seeds
+            for d in self.interface_dims
+        ]
 
     @classmethod
     def from_mapping(cls, data: Mapping[str, Any], where: str = "sweep") -> SweepSpec:

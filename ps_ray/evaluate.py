@@ -25,7 +25,7 @@ from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any, Union
+from typing import Any
 
 import numpy as np
 import torch
@@ -41,7 +41,7 @@ from ps_ray.weights import Signature
 
 Obs = dict[str, np.ndarray]
 ActionFn = Callable[[Obs], np.ndarray]  # batched Dict obs (leading axis) -> actions (B, A)
-PolicyLike = Union[str, Path, tuple[SACNets, Signature], SACNets, Actor, ActionFn]
+PolicyLike = str | Path | tuple[SACNets, Signature] | SACNets | Actor | ActionFn
 
 
 @dataclass(frozen=True)
@@ -95,8 +95,9 @@ class BatchedGreedy:
                 reference = relative.reference(actor.task.encode(relative.anchors))
             self.net: nn.Module = _GreedyNet(actor, reference).eval()
             if fast:
-                self.net = _traced(self.net, (torch.zeros(2, self.dims.task_dim),
-                                              torch.zeros(2, self.dims.robot_dim)))
+                self.net = _traced(
+                    self.net, (torch.zeros(2, self.dims.task_dim), torch.zeros(2, self.dims.robot_dim))
+                )
 
     @torch.inference_mode()
     def __call__(self, obs: Obs) -> np.ndarray:
@@ -129,8 +130,10 @@ def as_action_fn(policy: PolicyLike, fast: bool = True) -> tuple[ActionFn, NetDi
         return fn, fn.dims
     if callable(policy):
         return policy, None
-    raise ValueError(f"cannot evaluate a {type(policy).__name__}: give a policy file, SACNets, "
-                     f"an Actor or a batched action function")
+    raise ValueError(
+        f"cannot evaluate a {type(policy).__name__}: give a policy file, SACNets, "
+        f"an Actor or a batched action function"
+    )
 
 
 # -- aggregation ----------------------------------------------------------------------------------
@@ -148,8 +151,12 @@ def _mean_std(values: Sequence[float]) -> tuple[float, float]:
 def summarize(records: Sequence[EpisodeRecord]) -> dict[str, Any]:
     """Per-repeat success / touching / contact and their mean and std over repeats."""
     repeats = sorted({r.repeat for r in records})
-    out: dict[str, Any] = {"success_per_repeat": [], "touching_per_repeat": [],
-                           "contact_per_repeat": [], "initially_successful_per_repeat": []}
+    out: dict[str, Any] = {
+        "success_per_repeat": [],
+        "touching_per_repeat": [],
+        "contact_per_repeat": [],
+        "initially_successful_per_repeat": [],
+    }
     for rep in repeats:
         rows = [r for r in records if r.repeat == rep]
         eligible = [r for r in rows if not r.initially_successful]
@@ -179,8 +186,9 @@ def _stack(obs: Sequence[Obs]) -> Obs:
     return {k: np.stack([o[k] for o in obs]) for k in obs[0]}
 
 
-def _run_batch(envs: Sequence, seeds: Sequence[int], act: ActionFn, repeat_of: Callable[[int], int]
-               ) -> list[EpisodeRecord]:
+def _run_batch(
+    envs: Sequence, seeds: Sequence[int], act: ActionFn, repeat_of: Callable[[int], int]
+) -> list[EpisodeRecord]:
     """One episode per env, in lockstep: one batched forward per step."""
     resets = [env.reset(seed=s) for env, s in zip(envs, seeds)]
     obs = [o for o, _ in resets]
@@ -196,24 +204,45 @@ def _run_batch(envs: Sequence, seeds: Sequence[int], act: ActionFn, repeat_of: C
                 touched[i] |= info["touching"]
             contact[i] |= info["contact"]
             success[i] = info["is_success"]  # success after the last step counts
-    return [EpisodeRecord(repeat_of(s), s, bool(success[i]), bool(touched[i]), bool(contact[i]),
-                          bool(info["initially_successful"]),
-                          tuple(map(float, o["desired_goal"])), tuple(map(float, o["achieved_goal"])))
-            for i, (s, (o, info)) in enumerate(zip(seeds, resets))]
+    return [
+        EpisodeRecord(
+            repeat_of(s),
+            s,
+            bool(success[i]),
+            bool(touched[i]),
+            bool(contact[i]),
+            bool(info["initially_successful"]),
+            tuple(map(float, o["desired_goal"])),
+            tuple(map(float, o["achieved_goal"])),
+        )
+        for i, (s, (o, info)) in enumerate(zip(seeds, resets))
+    ]
 
 
 def check_dims(dims: NetDims, env) -> None:
     """ValueError naming each dim where the policy and the env disagree."""
     env_dims = dims_from_spaces(env.observation_space, env.action_space)
-    wrong = [f"{f} {getattr(dims, f)} vs env {getattr(env_dims, f)}"
-             for f in ("task_dim", "robot_dim", "action_dim") if getattr(dims, f) != getattr(env_dims, f)]
+    wrong = [
+        f"{f} {getattr(dims, f)} vs env {getattr(env_dims, f)}"
+        for f in ("task_dim", "robot_dim", "action_dim")
+        if getattr(dims, f) != getattr(env_dims, f)
+    ]
     if wrong:
         raise ValueError("policy does not fit the env: " + "; ".join(wrong))
 
 
-def evaluate(policy: PolicyLike, robot: str | Mapping = "panda", task: str | Mapping = "reach", *,
-             episodes: int = 200, repeats: int = 5, seed: int = 0, num_envs: int = 8,
-             verbose: bool = False, fast: bool = True) -> dict[str, Any]:
+def evaluate(
+    policy: PolicyLike,
+    robot: str | Mapping = "panda",
+    task: str | Mapping = "reach",
+    *,
+    episodes: int = 200,
+    repeats: int = 5,
+    seed: int = 0,
+    num_envs: int = 8,
+    verbose: bool = False,
+    fast: bool = True,
+) -> dict[str, Any]:
     """Zero-shot evaluation of a deterministic policy (see the module docstring).
 
     Returns success/touching/contact mean, std and per-repeat values, ``initially_successful``
@@ -238,9 +267,9 @@ def evaluate(policy: PolicyLike, robot: str | Mapping = "panda", task: str | Map
         loop_start = time.perf_counter()
         with torch_threads(1):
             for first in range(0, len(seeds), len(envs)):
-                chunk = seeds[first:first + len(envs)]
+                chunk = seeds[first : first + len(envs)]
                 done_before = len(records)
-                records += _run_batch(envs[:len(chunk)], chunk, act, repeat_of)
+                records += _run_batch(envs[: len(chunk)], chunk, act, repeat_of)
                 if verbose:
                     _progress(records, done_before, episodes, repeats, loop_start, label)
         loop_s = time.perf_counter() - loop_start
@@ -248,29 +277,44 @@ def evaluate(policy: PolicyLike, robot: str | Mapping = "panda", task: str | Map
     finally:
         for env in envs:
             env.close()
-    return {"robot": short_name(robot), "task": short_name(task), "episodes": episodes,
-            "repeats": repeats, "seed": seed, "num_envs": len(envs), **summarize(records),
-            "episodes_per_s": len(records) / loop_s, "env_steps_per_s": len(records) * steps / loop_s,
-            "wall_s": time.perf_counter() - started, "records": [asdict(r) for r in records]}
+    return {
+        "robot": short_name(robot),
+        "task": short_name(task),
+        "episodes": episodes,
+        "repeats": repeats,
+        "seed": seed,
+        "num_envs": len(envs),
+        **summarize(records),
+        "episodes_per_s": len(records) / loop_s,
+        "env_steps_per_s": len(records) * steps / loop_s,
+        "wall_s": time.perf_counter() - started,
+        "records": [asdict(r) for r in records],
+    }
 
 
-def _progress(records: list[EpisodeRecord], done_before: int, episodes: int, repeats: int,
-              loop_start: float, label: str) -> None:
+def _progress(
+    records: list[EpisodeRecord], done_before: int, episodes: int, repeats: int, loop_start: float, label: str
+) -> None:
     """One line per finished repeat."""
     for rep in range(done_before // episodes, len(records) // episodes):
         rows = summarize([r for r in records if r.repeat == rep])
         rate = len(records) / (time.perf_counter() - loop_start)
-        print(f"[evaluate {label}] repeat {rep + 1}/{repeats}: success "
-              f"{rows['success_mean']:.3f}, touching {rows['touching_mean']:.3f} "
-              f"({len(records)}/{episodes * repeats} episodes, {rate:.1f} episodes/s)", flush=True)
+        print(
+            f"[evaluate {label}] repeat {rep + 1}/{repeats}: success "
+            f"{rows['success_mean']:.3f}, touching {rows['touching_mean']:.3f} "
+            f"({len(records)}/{episodes * repeats} episodes, {rate:.1f} episodes/s)",
+            flush=True,
+        )
 
 
 def format_result(result: Mapping[str, Any], title: str = "") -> str:
     """A small table: mean +- std and per-repeat values of each rate."""
     lines = [title] if title else []
-    lines.append(f"target env: robot {result['robot']}, task {result['task']}; "
-                 f"{result['repeats']} x {result['episodes']} episodes from seed {result['seed']}; "
-                 f"{result['episodes_per_s']:.1f} episodes/s")
+    lines.append(
+        f"target env: robot {result['robot']}, task {result['task']}; "
+        f"{result['repeats']} x {result['episodes']} episodes from seed {result['seed']}; "
+        f"{result['episodes_per_s']:.1f} episodes/s"
+    )
     lines.append(f"{'':<10}{'mean':>8}{'std':>8}   per repeat")
     for name in ("success", "touching", "contact"):
         per = " ".join(f"{v:.3f}" for v in result[f"{name}_per_repeat"])

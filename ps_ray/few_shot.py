@@ -14,8 +14,8 @@ from collections import Counter
 from typing import Any
 
 from ps_ray.config import FewShotSpec, SweepSpec, TrainSpec, trial_key
-from ps_ray.sweep import anchor_path, sweep_dir, task_input_dim
 from ps_ray.nets.modular import uses_anchors
+from ps_ray.sweep import anchor_path, sweep_dir, task_input_dim
 
 FEW_SHOT_DIR = "few_shot"
 TUNE_DIR = "tune_few_shot"
@@ -39,28 +39,53 @@ def few_shot_trials(spec: SweepSpec, settings: FewShotSpec) -> list[dict[str, An
         digest = hashlib.sha256(f"{pair['task_from']}|{pair['robot_from']}".encode()).hexdigest()
         path = root / "stitched" / f"{digest[:16]}.safetensors"
         if not path.exists():  # a resumed stage keeps the files its trials started from
-            save_policy(path, nets, signature, extra={"task_from": pair["task_from"],
-                                                      "robot_from": pair["robot_from"]})
-        base = TrainSpec.from_mapping({
-            **dict(spec.train), "method": pair["method"], "robot": pair["robot"],
-            "task": pair["task"], "seed": pair["seed"], "interface_dim": signature.interface_dim,
-            "env_steps": settings.env_steps, "learning_starts": settings.collect_steps,
-            "random_episodes": 0})
+            save_policy(
+                path,
+                nets,
+                signature,
+                extra={"task_from": pair["task_from"], "robot_from": pair["robot_from"]},
+            )
+        base = TrainSpec.from_mapping(
+            {
+                **dict(spec.train),
+                "method": pair["method"],
+                "robot": pair["robot"],
+                "task": pair["task"],
+                "seed": pair["seed"],
+                "interface_dim": signature.interface_dim,
+                "env_steps": settings.env_steps,
+                "learning_starts": settings.collect_steps,
+                "random_episodes": 0,
+            }
+        )
         stitched = TrainSpec.from_mapping({**base.to_dict(), "init_policy": str(path)})
-        trials.append({"spec": stitched.to_dict(), "anchors": None,
-                       "key": f"few_shot/{pair['label']}/{trial_key(base.to_dict())}",
-                       "label": pair["label"], "kind": "stitched"})
+        trials.append(
+            {
+                "spec": stitched.to_dict(),
+                "anchors": None,
+                "key": f"few_shot/{pair['label']}/{trial_key(base.to_dict())}",
+                "label": pair["label"],
+                "kind": "stitched",
+            }
+        )
         targets.setdefault(trial_key(base.to_dict()), base)
     if settings.scratch:  # PS from scratch uses the sweep's anchor set, as its stitched sources
-        trials += [{"spec": base.to_dict(), "key": f"scratch/{key}", "label": key, "kind": "scratch",
-                    "anchors": str(anchor_path(sweep_dir(spec), task_input_dim(base.task),
-                                               base.interface_dim)) if uses_anchors(base.method) else None}
-                   for key, base in targets.items()]
+        trials += [
+            {
+                "spec": base.to_dict(),
+                "key": f"scratch/{key}",
+                "label": key,
+                "kind": "scratch",
+                "anchors": str(anchor_path(sweep_dir(spec), task_input_dim(base.task), base.interface_dim))
+                if uses_anchors(base.method)
+                else None,
+            }
+            for key, base in targets.items()
+        ]
     return trials
 
 
-def run_few_shot(spec: SweepSpec, *, resume: bool = False, progress: bool = True,
-                 **overrides: Any):
+def run_few_shot(spec: SweepSpec, *, resume: bool = False, progress: bool = True, **overrides: Any):
     """Settings from ``spec.few_shot`` (``overrides`` replace fields); returns the ResultGrid."""
     from ps_ray.sweep import connect, run_tune
 
@@ -69,9 +94,17 @@ def run_few_shot(spec: SweepSpec, *, resume: bool = False, progress: bool = True
     trials = few_shot_trials(spec, settings)
     if not trials:
         raise ValueError(f"{root}: no stitchable pairs (train the sweep first: ps-ray sweep)")
-    return run_tune(trials, name=TUNE_DIR, stage="few_shot", spec=spec, root=root / FEW_SHOT_DIR,
-                    tracking=connect(spec), resume=resume, progress=progress,
-                    key_fn=lambda trial: trial.config["trial"]["key"])
+    return run_tune(
+        trials,
+        name=TUNE_DIR,
+        stage="few_shot",
+        spec=spec,
+        root=root / FEW_SHOT_DIR,
+        tracking=connect(spec),
+        resume=resume,
+        progress=progress,
+        key_fn=lambda trial: trial.config["trial"]["key"],
+    )
 
 
 def curves(results) -> dict[str, list[tuple[int, float]]]:
@@ -82,8 +115,5 @@ def curves(results) -> dict[str, list[tuple[int, float]]]:
         if frame is None or "eval_success" not in frame:
             continue
         frame = frame.dropna(subset=["eval_success"])
-        out[result.config["trial"]["key"]] = list(zip(frame["env_steps"].astype(int),
-                                                      frame["eval_success"]))
+        out[result.config["trial"]["key"]] = list(zip(frame["env_steps"].astype(int), frame["eval_success"]))
     return out
-
-

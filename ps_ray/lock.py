@@ -38,12 +38,21 @@ def folder_lock(folder: str | Path, what: str = "folder") -> Iterator[None]:
             fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
             handle.seek(0)
-            raise FolderLocked(f"{folder}: this {what} is being written by {_holder(handle.read())}; "
-                               f"wait for it to finish or stop it") from None
+            raise FolderLocked(
+                f"{folder}: this {what} is being written by {_holder(handle.read())}; "
+                f"wait for it to finish or stop it"
+            ) from None
         handle.seek(0)
         handle.truncate()
-        handle.write(json.dumps({"host": socket.gethostname(), "pid": os.getpid(),
-                                 "since": time.strftime("%Y-%m-%d %H:%M:%S")}))
+        handle.write(
+            json.dumps(
+                {
+                    "host": socket.gethostname(),
+                    "pid": os.getpid(),
+                    "since": time.strftime("%Y-%m-%d %H:%M:%S"),
+                }
+            )
+        )
         handle.flush()
         yield
     finally:

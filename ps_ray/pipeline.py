@@ -28,15 +28,14 @@ from ps_ray.sweep import raise_on_errors, sweep_dir
 MARKER_DIR = "stages"
 
 # The settings each stage's outputs depend on, besides those of the earlier stages.
-STAGE_SETTINGS = {"train": None, "zero_shot": "zero_shot", "few_shot": "few_shot",
-                  "report": "report"}
+STAGE_SETTINGS = {"train": None, "zero_shot": "zero_shot", "few_shot": "few_shot", "report": "report"}
 
 
 def fingerprint(spec: SweepSpec, stage: str) -> str:
     """Hash of what ``stage``'s outputs depend on: training settings and every stage up to it."""
     data = spec.to_dict()
     parts = {"train": spec.training_identity()}
-    for name in STAGES[1:STAGES.index(stage) + 1]:
+    for name in STAGES[1 : STAGES.index(stage) + 1]:
         if name in spec.stages:
             parts[name] = data[STAGE_SETTINGS[name]]
     text = json.dumps(parts, sort_keys=True)
@@ -83,8 +82,7 @@ def _zero_shot(spec: SweepSpec, resume: bool, progress: bool) -> str:
         shutil.rmtree(sweep_dir(spec) / TUNE_DIR, ignore_errors=True)
     table = run_zero_shot(spec, resume=resume, progress=progress)
     means = summary(table)["success"].to_dict()
-    return f"{len(table)} stitched pairs; mean success " + ", ".join(
-        f"{m} {v:.2f}" for m, v in means.items())
+    return f"{len(table)} stitched pairs; mean success " + ", ".join(f"{m} {v:.2f}" for m, v in means.items())
 
 
 def _few_shot(spec: SweepSpec, resume: bool, progress: bool) -> str:
@@ -104,7 +102,11 @@ def _report(spec: SweepSpec, resume: bool, progress: bool) -> str:
 
 
 RUNNERS: dict[str, Callable[[SweepSpec, bool, bool], str]] = {
-    "train": _train, "zero_shot": _zero_shot, "few_shot": _few_shot, "report": _report}
+    "train": _train,
+    "zero_shot": _zero_shot,
+    "few_shot": _few_shot,
+    "report": _report,
+}
 
 
 def run_pipeline(spec: SweepSpec, *, progress: bool = True) -> dict[str, str]:
@@ -124,7 +126,9 @@ def run_pipeline(spec: SweepSpec, *, progress: bool = True) -> dict[str, str]:
         _write_json(_marker(root, stage, ".started"), {"fingerprint": fingerprint(spec, stage)})
         summaries[stage] = RUNNERS[stage](spec, state == "interrupted", progress)
         wall = time.time() - started
-        _write_json(_marker(root, stage), {"fingerprint": fingerprint(spec, stage),
-                                           "summary": summaries[stage], "wall_s": round(wall, 1)})
+        _write_json(
+            _marker(root, stage),
+            {"fingerprint": fingerprint(spec, stage), "summary": summaries[stage], "wall_s": round(wall, 1)},
+        )
         print(f"{head}: done in {wall / 60:.1f} min ({summaries[stage]})", flush=True)
     return summaries

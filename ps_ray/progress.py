@@ -74,8 +74,12 @@ class StageProgress(Callback):
     # -- view ----------------------------------------------------------------------------------
     def _update(self, trials, force: bool = False) -> None:
         states = [t.status for t in trials]
-        self.counts = {"total": len(trials), "done": states.count("TERMINATED"),
-                       "running": states.count("RUNNING"), "failed": states.count("ERROR")}
+        self.counts = {
+            "total": len(trials),
+            "done": states.count("TERMINATED"),
+            "running": states.count("RUNNING"),
+            "failed": states.count("ERROR"),
+        }
         self.env_steps = sum(int((t.last_result or {}).get("env_steps") or 0) for t in trials)
         self._show(force)
 
@@ -88,16 +92,24 @@ class StageProgress(Callback):
         eta = elapsed / finished * remaining if finished else None
         best = "–" if self.best is None else f"{self.best:.2f}"
         steps = f"  env steps {self.env_steps:,}" if self.env_steps else ""
-        return (f"{c.get('done', 0)} done, {c.get('running', 0)} running, {c.get('failed', 0)} "
-                f"failed, {pending} pending{steps}  best success {best}  elapsed "
-                f"{_clock(elapsed)}  ETA {'–' if eta is None else _clock(eta)}")
+        return (
+            f"{c.get('done', 0)} done, {c.get('running', 0)} running, {c.get('failed', 0)} "
+            f"failed, {pending} pending{steps}  best success {best}  elapsed "
+            f"{_clock(elapsed)}  ETA {'–' if eta is None else _clock(eta)}"
+        )
 
     def _show(self, force: bool = False) -> None:
         stream = view_stream()
         if stream.isatty():
             if self._bar is None:
-                self._bar = tqdm(total=self.counts["total"], desc=self.stage, unit="trial",
-                                 file=stream, leave=False, dynamic_ncols=True)
+                self._bar = tqdm(
+                    total=self.counts["total"],
+                    desc=self.stage,
+                    unit="trial",
+                    file=stream,
+                    leave=False,
+                    dynamic_ncols=True,
+                )
             self._bar.n = self.counts["done"] + self.counts["failed"]
             self._bar.set_postfix_str(self.status(), refresh=True)
             return
@@ -131,8 +143,12 @@ def quiet_tune(log_path: Path) -> Iterator[IO[str]]:
     _VIEW_STREAM.append(real_stdout)
     log_path.parent.mkdir(parents=True, exist_ok=True)
     with open(log_path, "a", buffering=1) as log:
-        handlers = [h for name in ("ray", "ray.tune", "ray.rllib")
-                    for h in logging.getLogger(name).handlers if isinstance(h, logging.StreamHandler)]
+        handlers = [
+            h
+            for name in ("ray", "ray.tune", "ray.rllib")
+            for h in logging.getLogger(name).handlers
+            if isinstance(h, logging.StreamHandler)
+        ]
         streams = [h.setStream(log) for h in handlers]
         try:
             with contextlib.redirect_stdout(log), contextlib.redirect_stderr(log):

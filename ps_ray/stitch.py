@@ -28,7 +28,6 @@ import json
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Union
 
 import numpy as np
 import torch
@@ -44,8 +43,8 @@ from ps_ray.weights import Signature, load_policy, signature_of
 from ps_ray.zoo import POLICY_FILE, SPEC_FILE, ModuleZoo, ZooEntry
 
 GOAL_DIM = 3
-PolicySource = Union[str, Path, ZooEntry, tuple[SACNets, Signature]]
-EnvSpec = tuple[Union[str, Mapping], Union[str, Mapping]]  # (robot, task) as make() takes them
+PolicySource = str | Path | ZooEntry | tuple[SACNets, Signature]
+EnvSpec = tuple[str | Mapping, str | Mapping]  # (robot, task) as make() takes them
 
 
 # -- target envs ----------------------------------------------------------------------------------
@@ -61,8 +60,9 @@ def env_dims(robot: str | Mapping, task: str | Mapping) -> NetDims:
     return NetDims(family.state_dim + GOAL_DIM, N_ARM + 1, N_ARM + int(effective_gripper(robot, task)))
 
 
-def same_robot(robot: str | Mapping, trained_task: str | Mapping,
-               target_task: str | Mapping) -> str | Mapping:
+def same_robot(
+    robot: str | Mapping, trained_task: str | Mapping, target_task: str | Mapping
+) -> str | Mapping:
     """``robot`` as trained on ``trained_task``, for ``target_task``: the gripper setting is pinned
     when the two tasks' defaults differ (pick-trained panda_l3 on push -> gripper-enabled)."""
     gripper = effective_gripper(robot, trained_task)
@@ -106,11 +106,18 @@ def resolve_source(ref: str, zoo: ModuleZoo | None = None) -> Resolved:
     return Resolved(entry.path, entry.spec)
 
 
-def resolve_target(task_src: Resolved, robot_src: Resolved, robot: str | Mapping | None = None,
-                   task: str | Mapping | None = None) -> EnvSpec:
+def resolve_target(
+    task_src: Resolved,
+    robot_src: Resolved,
+    robot: str | Mapping | None = None,
+    task: str | Mapping | None = None,
+) -> EnvSpec:
     """The target env: the given robot/task, else :func:`default_target`'s choice."""
-    needs = [(src, what) for src, what, given in ((task_src, "task", task), (robot_src, "robot", robot))
-             if given is None and src.spec is None]
+    needs = [
+        (src, what)
+        for src, what, given in ((task_src, "task", task), (robot_src, "robot", robot))
+        if given is None and src.spec is None
+    ]
     if needs:
         src, what = needs[0]
         raise ValueError(f"{src.path}: no spec.json beside it to tell the target {what}; give --{what}")
@@ -126,8 +133,7 @@ def _arm(robot: str | Mapping) -> tuple[str, tuple[int, ...]]:
 
 
 # -- checks ---------------------------------------------------------------------------------------
-def stitch_problems(sig_task: Signature, sig_robot: Signature,
-                    target: EnvSpec | None = None) -> list[str]:
+def stitch_problems(sig_task: Signature, sig_robot: Signature, target: EnvSpec | None = None) -> list[str]:
     """Every reason the task modules of ``sig_task`` and robot modules of ``sig_robot`` cannot be
     stitched (into a policy for ``target``, if given); empty if they can."""
     problems = []
@@ -163,18 +169,24 @@ def target_problems(signature: Signature, target: EnvSpec) -> list[str]:
         needs_gripper = resolve_task(task).family.default_gripper
     except (ValueError, TypeError) as e:
         return [f"{name}: {e}"]
-    problems = [f"{what}: policy {getattr(signature, field)} vs {name} {getattr(dims, field)}"
-                for what, field in (("task dim", "task_dim"), ("robot dim", "robot_dim"),
-                                    ("action dim", "action_dim"))
-                if getattr(signature, field) != getattr(dims, field)]
+    problems = [
+        f"{what}: policy {getattr(signature, field)} vs {name} {getattr(dims, field)}"
+        for what, field in (
+            ("task dim", "task_dim"),
+            ("robot dim", "robot_dim"),
+            ("action dim", "action_dim"),
+        )
+        if getattr(signature, field) != getattr(dims, field)
+    ]
     if needs_gripper and not effective_gripper(robot, task):
-        problems.append(f"{name}: {short_name(task)} needs the gripper; use a robot module "
-                        f"trained with it, e.g. robot {{\"name\": ..., \"gripper\": true}}")
+        problems.append(
+            f"{name}: {short_name(task)} needs the gripper; use a robot module "
+            f'trained with it, e.g. robot {{"name": ..., "gripper": true}}'
+        )
     return problems
 
 
-def check_stitchable(sig_task: Signature, sig_robot: Signature,
-                     target: EnvSpec | None = None) -> Signature:
+def check_stitchable(sig_task: Signature, sig_robot: Signature, target: EnvSpec | None = None) -> Signature:
     """The stitched policy's signature, or one ValueError naming every mismatch."""
     problems = stitch_problems(sig_task, sig_robot, target)
     if problems:
@@ -183,8 +195,7 @@ def check_stitchable(sig_task: Signature, sig_robot: Signature,
 
 
 def _stitched_signature(sig_task: Signature, sig_robot: Signature) -> Signature:
-    return dataclasses.replace(sig_task, robot_dim=sig_robot.robot_dim,
-                               action_dim=sig_robot.action_dim)
+    return dataclasses.replace(sig_task, robot_dim=sig_robot.robot_dim, action_dim=sig_robot.action_dim)
 
 
 # -- stitching ------------------------------------------------------------------------------------
@@ -197,9 +208,14 @@ def load_source(source: PolicySource) -> tuple[SACNets, Signature]:
     return load_policy(path)
 
 
-def stitch_policies(task_from: PolicySource, robot_from: PolicySource, *,
-                    target: EnvSpec | None = None, translation: str | None = None,
-                    fit_states: np.ndarray | None = None) -> tuple[SACNets, Signature]:
+def stitch_policies(
+    task_from: PolicySource,
+    robot_from: PolicySource,
+    *,
+    target: EnvSpec | None = None,
+    translation: str | None = None,
+    fit_states: np.ndarray | None = None,
+) -> tuple[SACNets, Signature]:
     """New nets: every net's task module from ``task_from``, its robot module from ``robot_from``.
 
     The results own copies of the tensors (normaliser statistics and anchors included); target
@@ -218,30 +234,39 @@ def stitch_policies(task_from: PolicySource, robot_from: PolicySource, *,
         if fit_states is None:
             raise ValueError("a translated stitch needs fit_states (task inputs for the fit)")
         if sig_t.task_dim != sig_r.task_dim:
-            raise ValueError(f"cannot translate: the robot module's own task module takes "
-                             f"{sig_r.task_dim}-D task inputs, the target task has {sig_t.task_dim}")
+            raise ValueError(
+                f"cannot translate: the robot module's own task module takes "
+                f"{sig_r.task_dim}-D task inputs, the target task has {sig_t.task_dim}"
+            )
         signature = dataclasses.replace(signature, translation=translation)
     anchors = nets_t.actor.anchors
-    nets = build_sac_nets(signature.method, signature.dims, interface_dim=signature.interface_dim,
-                          hidden=signature.hidden,
-                          anchors=None if anchors is None else anchors.detach().cpu().numpy())
+    nets = build_sac_nets(
+        signature.method,
+        signature.dims,
+        interface_dim=signature.interface_dim,
+        hidden=signature.hidden,
+        anchors=None if anchors is None else anchors.detach().cpu().numpy(),
+    )
     for name in NET_NAMES:
         net = getattr(nets, name)
         net.task.load_state_dict(getattr(nets_t, name).task.state_dict(), strict=True)
         net.robot.load_state_dict(getattr(nets_r, name).robot.state_dict(), strict=True)
         if translation is not None:
             net.translate = fit_net_translation(
-                getattr(nets_t, name), getattr(nets_r, name), fit_states, translation)
-    rebuilt = signature_of(nets, signature.method, signature.interface_dim, signature.hidden,
-                           translation=signature.translation)
+                getattr(nets_t, name), getattr(nets_r, name), fit_states, translation
+            )
+    rebuilt = signature_of(
+        nets, signature.method, signature.interface_dim, signature.hidden, translation=signature.translation
+    )
     if rebuilt != signature:  # the anchors the nets carry are the ones the signature names
         raise ValueError(f"stitched nets do not match their signature: {rebuilt.mismatches(signature)}")
     return nets, signature
 
 
 @torch.no_grad()
-def fit_net_translation(net_t: nn.Module, net_r: nn.Module, states: np.ndarray,
-                        kind: str, seed: int = 0) -> LatentTranslation:
+def fit_net_translation(
+    net_t: nn.Module, net_r: nn.Module, states: np.ndarray, kind: str, seed: int = 0
+) -> LatentTranslation:
     """The map from ``net_t``'s task-module latent to ``net_r``'s on the same inputs.
 
     Modular task modules see task inputs only. Plain's bottom half also sees the robot state (and,
@@ -295,8 +320,13 @@ def combos(zoo: ModuleZoo, method: str, seed: int, interface_dim: int | None = N
 
 # -- the paper's eight combinations (REFERENCE §10) -----------------------------------------------
 PANDA_L3_GRIPPER = {"name": "panda_l3", "gripper": True}  # R2 with the gripper, on push (Push-v4)
-PAPER_TASKS = {"Pu1": "push", "Pu2": "push_slippery", "Pu3": "push_rocks",
-               "Pi1": "pick_cube", "Pi2": "pick_stick"}
+PAPER_TASKS = {
+    "Pu1": "push",
+    "Pu2": "push_slippery",
+    "Pu3": "push_rocks",
+    "Pi1": "pick_cube",
+    "Pi2": "pick_stick",
+}
 PAPER_ROBOTS = {"R1": "panda", "R2": "panda_l3", "R3": "panda_l5"}
 
 
@@ -319,19 +349,39 @@ class PaperCombo:
 
     def keys(self, method: str, seed: int, interface_dim: int = 128) -> tuple[str, str]:
         """Zoo keys (trial keys) of the task-module and robot-module sources."""
-        task_key, robot_key = (trial_key({"method": method, "robot": s.robot, "task": s.task,
-                                          "seed": seed, "interface_dim": interface_dim})
-                               for s in (self.task_from, self.robot_from))
+        task_key, robot_key = (
+            trial_key(
+                {
+                    "method": method,
+                    "robot": s.robot,
+                    "task": s.task,
+                    "seed": seed,
+                    "interface_dim": interface_dim,
+                }
+            )
+            for s in (self.task_from, self.robot_from)
+        )
         return task_key, robot_key
 
 
-def _paper(name: str, label: str, target: tuple[str, str | Mapping], epochs: int,
-           robot_from: str | Mapping | None = None) -> PaperCombo:
-    (t_task, t_robot), (r_task, r_robot) = (part.split("-") for part in
-                                            label.removeprefix("t: ").split(" & r: "))
-    return PaperCombo(name, label, Source(PAPER_TASKS[t_task], PAPER_ROBOTS[t_robot]),
-                      Source(PAPER_TASKS[r_task], robot_from or PAPER_ROBOTS[r_robot]),
-                      Source(PAPER_TASKS[target[0]], target[1]), epochs)
+def _paper(
+    name: str,
+    label: str,
+    target: tuple[str, str | Mapping],
+    epochs: int,
+    robot_from: str | Mapping | None = None,
+) -> PaperCombo:
+    (t_task, t_robot), (r_task, r_robot) = (
+        part.split("-") for part in label.removeprefix("t: ").split(" & r: ")
+    )
+    return PaperCombo(
+        name,
+        label,
+        Source(PAPER_TASKS[t_task], PAPER_ROBOTS[t_robot]),
+        Source(PAPER_TASKS[r_task], robot_from or PAPER_ROBOTS[r_robot]),
+        Source(PAPER_TASKS[target[0]], target[1]),
+        epochs,
+    )
 
 
 # E5: the robot module comes from push, so its robot has the gripper (8-D actions, like pick).

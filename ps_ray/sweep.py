@@ -26,8 +26,7 @@ PLAIN_TUNE_DIR = "tune_plain"
 # Test hook for FailureConfig: a marker path; the first trial to find it absent after saving a
 # checkpoint creates it and crashes.
 CRASH_ENV = "PS_RAY_CRASH_ONCE"
-METRIC_KEYS = ("env_steps", "updates", "train_success", "train_touching", "eval_success",
-               "eval_touching")
+METRIC_KEYS = ("env_steps", "updates", "train_success", "train_touching", "eval_success", "eval_touching")
 
 
 def sweep_dir(spec: SweepSpec) -> Path:
@@ -49,13 +48,24 @@ def anchor_sources(spec: SweepSpec) -> list[TrainSpec]:
     """The plain trials whose greedy rollouts give the anchor states (policy: plain)."""
     ps = [t for t in spec.trials() if uses_anchors(t.method)]
     tasks = list(spec.anchors.source_tasks) or list(dict.fromkeys(_name(t.task) for t in ps))
-    return [TrainSpec.from_mapping({**t.to_dict(), "method": "plain", "robot": spec.anchors.robot,
-                                    "task": _task(task), "seed": spec.seeds[0]})
-            for task in tasks for t in ps[:1]]
+    return [
+        TrainSpec.from_mapping(
+            {
+                **t.to_dict(),
+                "method": "plain",
+                "robot": spec.anchors.robot,
+                "task": _task(task),
+                "seed": spec.seeds[0],
+            }
+        )
+        for task in tasks
+        for t in ps[:1]
+    ]
 
 
-def prepare_sweep_anchors(spec: SweepSpec, root: Path,
-                          plain_policies: dict[str, Path] | None = None) -> dict[tuple[int, int], str]:
+def prepare_sweep_anchors(
+    spec: SweepSpec, root: Path, plain_policies: dict[str, Path] | None = None
+) -> dict[tuple[int, int], str]:
     """Stage 2: one anchor set per (task-input width, k), pooled over that width's source tasks.
 
     States come from `spec.anchors.file`, from greedy rollouts of the trained plain policies
@@ -83,12 +93,23 @@ def prepare_sweep_anchors(spec: SweepSpec, root: Path,
                     policy = GreedyPolicy.from_file(plain_policies[source.label()])
                 states[_name(source.task)] = collect_task_states(
                     lambda source=source: make(source.robot, source.task),
-                    episodes=spec.anchors.episodes, steps=spec.anchors.steps,
-                    policy=policy, seed=spec.anchors.seed)
-            anchor_set = make_anchor_set(states, k, seed=spec.anchors.seed, extra_provenance={
-                "policy": spec.anchors.policy, "robot": spec.anchors.robot,
-                "steps": list(spec.anchors.steps), "episodes": spec.anchors.episodes,
-                "checkpoints": {s: str(p) for s, p in (plain_policies or {}).items()}})
+                    episodes=spec.anchors.episodes,
+                    steps=spec.anchors.steps,
+                    policy=policy,
+                    seed=spec.anchors.seed,
+                )
+            anchor_set = make_anchor_set(
+                states,
+                k,
+                seed=spec.anchors.seed,
+                extra_provenance={
+                    "policy": spec.anchors.policy,
+                    "robot": spec.anchors.robot,
+                    "steps": list(spec.anchors.steps),
+                    "episodes": spec.anchors.episodes,
+                    "checkpoints": {s: str(p) for s, p in (plain_policies or {}).items()},
+                },
+            )
         path.parent.mkdir(parents=True, exist_ok=True)
         save_anchor_set(path, anchor_set)
     return paths
@@ -132,8 +153,9 @@ def sweep_trial(config: dict[str, Any]) -> None:
             with tempfile.TemporaryDirectory() as directory:
                 run.save(Path(directory))
                 if run.done:
-                    row.update({f"final_{k}": v for k, v in run.final_eval().items()},
-                               converged=run.converged)
+                    row.update(
+                        {f"final_{k}": v for k, v in run.final_eval().items()}, converged=run.converged
+                    )
                 tune.report(row, checkpoint=tune.Checkpoint.from_directory(directory))
             _maybe_crash()
         elif row.get("eval_success") is not None:
@@ -166,27 +188,39 @@ def run_sweep(spec: SweepSpec, *, resume: bool = False, progress: bool = True):
         stored = yaml.safe_load(spec_file.read_text()) or {}
         changed = sorted(k for k, v in spec.training_identity().items() if stored.get(k) != v)
         if changed:
-            raise SpecError(f"{root} was trained from a different sweep spec (changed: "
-                            f"{', '.join(changed)}); resume needs the same training settings")
+            raise SpecError(
+                f"{root} was trained from a different sweep spec (changed: "
+                f"{', '.join(changed)}); resume needs the same training settings"
+            )
     root.mkdir(parents=True, exist_ok=True)
     spec_file.write_text(yaml.safe_dump(spec.to_dict(), sort_keys=True))
     register()
-    tune_args = dict(spec=spec, root=root, tracking=connect(spec), resume=resume,
-                     progress=progress)
+    tune_args = dict(spec=spec, root=root, tracking=connect(spec), resume=resume, progress=progress)
 
     plain_policies = None
     needs_anchors = any(not Path(p).exists() for p in _anchor_paths(spec, root))
     if spec.anchors.policy == "plain" and needs_anchors and not spec.anchors.file:
         sources = anchor_sources(spec)
-        grid = run_tune([{"spec": s.to_dict(), "anchors": None} for s in sources],
-                         name=PLAIN_TUNE_DIR, stage="anchors_plain", **tune_args)
+        grid = run_tune(
+            [{"spec": s.to_dict(), "anchors": None} for s in sources],
+            name=PLAIN_TUNE_DIR,
+            stage="anchors_plain",
+            **tune_args,
+        )
         raise_on_errors(grid, "plain source policies")
-        plain_policies = {TrainSpec.from_mapping(r.config["trial"]["spec"]).label():
-                          Path(r.checkpoint.path) / "policy.safetensors" for r in grid}
+        plain_policies = {
+            TrainSpec.from_mapping(r.config["trial"]["spec"]).label(): Path(r.checkpoint.path)
+            / "policy.safetensors"
+            for r in grid
+        }
     anchors = prepare_sweep_anchors(spec, root, plain_policies)
-    trials = [{"spec": t.to_dict(),
-               "anchors": anchors[(task_input_dim(t.task), t.interface_dim)]
-               if uses_anchors(t.method) else None} for t in spec.trials()]
+    trials = [
+        {
+            "spec": t.to_dict(),
+            "anchors": anchors[(task_input_dim(t.task), t.interface_dim)] if uses_anchors(t.method) else None,
+        }
+        for t in spec.trials()
+    ]
     return run_tune(trials, name=TUNE_DIR, stage="train", **tune_args)
 
 
@@ -199,16 +233,23 @@ def connect(spec: SweepSpec) -> tuple[str, str]:
     from ps_ray.tracking import default_tracking_uri, ensure_experiment
 
     if not ray.is_initialized():
-        ray.init(address=os.environ.get("RAY_ADDRESS", "local"), include_dashboard=False,
-                 log_to_driver=False, configure_logging=False)
+        ray.init(
+            address=os.environ.get("RAY_ADDRESS", "local"),
+            include_dashboard=False,
+            log_to_driver=False,
+            configure_logging=False,
+        )
     root = sweep_dir(spec)
     tracking_uri = spec.tracking_uri or default_tracking_uri(root)
     return tracking_uri, ensure_experiment(tracking_uri, spec.name, root / "mlartifacts")
 
 
 def _anchor_paths(spec: SweepSpec, root: Path) -> list[Path]:
-    return [anchor_path(root, task_input_dim(t.task), t.interface_dim)
-            for t in spec.trials() if uses_anchors(t.method)]
+    return [
+        anchor_path(root, task_input_dim(t.task), t.interface_dim)
+        for t in spec.trials()
+        if uses_anchors(t.method)
+    ]
 
 
 class StageError(RuntimeError):
@@ -222,23 +263,55 @@ def raise_on_errors(grid, what: str) -> None:
         raise StageError(f"{len(errors)} of {len(grid)} {what} failed: {errors[0].error}")
 
 
-def run_tune(trials: list[dict], *, name: str, stage: str, spec: SweepSpec, root: Path,
-             tracking: tuple[str, str], resume: bool, progress: bool, key_fn=None):
+def run_tune(
+    trials: list[dict],
+    *,
+    name: str,
+    stage: str,
+    spec: SweepSpec,
+    root: Path,
+    tracking: tuple[str, str],
+    resume: bool,
+    progress: bool,
+    key_fn=None,
+):
     """Training trials (sweep_trial) as one Tune experiment `root/name`, tracked in MLflow."""
-    from ray import tune
 
     from ps_ray.tracking import MLflowTuneCallback, git_commit
 
     callback = MLflowTuneCallback(
-        *tracking, metric_keys=METRIC_KEYS + ("final_success", "final_touching"),
+        *tracking,
+        metric_keys=METRIC_KEYS + ("final_success", "final_touching"),
         tags={"ps_ray.sweep": spec.name, "ps_ray.stage": stage, "git_commit": git_commit() or ""},
-        artifacts_fn=_trial_artifacts, **({"key_fn": key_fn} if key_fn else {}))
-    return run_trials(sweep_trial, {"trial": trials}, name=name, stage=stage, spec=spec, root=root,
-                      callback=callback, resume=resume, progress=progress)
+        artifacts_fn=_trial_artifacts,
+        **({"key_fn": key_fn} if key_fn else {}),
+    )
+    return run_trials(
+        sweep_trial,
+        {"trial": trials},
+        name=name,
+        stage=stage,
+        spec=spec,
+        root=root,
+        callback=callback,
+        resume=resume,
+        progress=progress,
+    )
 
 
-def run_trials(trainable, grid: dict[str, list], *, name: str, stage: str, spec: SweepSpec,
-               root: Path, callback, resume: bool, progress: bool, constants: dict | None = None):
+def run_trials(
+    trainable,
+    grid: dict[str, list],
+    *,
+    name: str,
+    stage: str,
+    spec: SweepSpec,
+    root: Path,
+    callback,
+    resume: bool,
+    progress: bool,
+    constants: dict | None = None,
+):
     """The one Tune runner of every stage: a grid over ``grid``'s one key (plus ``constants``),
     one CPU per trial, the sweep's retry policy, the MLflow ``callback``, a compact live view on
     the terminal and Tune's own output in ``root/logs/<name>.log`` (:mod:`ps_ray.progress`).
@@ -247,24 +320,33 @@ def run_trials(trainable, grid: dict[str, list], *, name: str, stage: str, spec:
 
     from ps_ray.progress import StageProgress, quiet_tune, verbose
 
-    (key, trials), = grid.items()
+    ((key, trials),) = grid.items()
     trainable = tune.with_resources(trainable, {"cpu": 1})
     path = root / name
     quiet = progress and not verbose()
     with quiet_tune(root / "logs" / f"{name}.log") if quiet else contextlib.nullcontext():
         if resume and tune.Tuner.can_restore(str(path)):
-            tuner = tune.Tuner.restore(str(path), trainable=trainable, resume_unfinished=True,
-                                       resume_errored=True, restart_errored=False)
+            tuner = tune.Tuner.restore(
+                str(path),
+                trainable=trainable,
+                resume_unfinished=True,
+                resume_errored=True,
+                restart_errored=False,
+            )
         else:
             tuner = tune.Tuner(
-                trainable, param_space={key: tune.grid_search(trials), **(constants or {})},
+                trainable,
+                param_space={key: tune.grid_search(trials), **(constants or {})},
                 tune_config=tune.TuneConfig(max_concurrent_trials=spec.max_concurrent),
                 run_config=tune.RunConfig(
-                    name=name, storage_path=str(root),
+                    name=name,
+                    storage_path=str(root),
                     failure_config=tune.FailureConfig(max_failures=spec.max_failures),
                     checkpoint_config=tune.CheckpointConfig(num_to_keep=1),
                     callbacks=[callback, *([StageProgress(stage)] if quiet else [])],
-                    verbose=1 if progress else 0))  # quiet: Tune's tables go to the log
+                    verbose=1 if progress else 0,
+                ),
+            )  # quiet: Tune's tables go to the log
         return tuner.fit()
 
 
@@ -272,8 +354,10 @@ def _trial_artifacts(trial) -> list[Path]:
     """Module weights, interface signature, resolved spec and anchors of a finished trial."""
     paths = []
     if trial.checkpoint is not None:
-        paths += [Path(trial.checkpoint.path) / name
-                  for name in ("policy.safetensors", "signature.json", "spec.json")]
+        paths += [
+            Path(trial.checkpoint.path) / name
+            for name in ("policy.safetensors", "signature.json", "spec.json")
+        ]
     anchors = trial.config["trial"].get("anchors")
     if anchors:
         paths.append(Path(anchors))

@@ -34,10 +34,10 @@ log = logging.getLogger(__name__)
 TRIAL_KEY_TAG = "ps_ray.trial_key"
 STAGE_TAG = "ps_ray.stage"
 GIT_COMMIT_TAG = "git_commit"
-MAX_METRICS_PER_CALL = 1000       # mlflow.utils.validation.MAX_METRICS_PER_BATCH
-MAX_PARAMS_TAGS_PER_CALL = 100    # mlflow.utils.validation.MAX_PARAMS_TAGS_PER_BATCH
-MAX_PARAM_CHARS = 6000            # mlflow.utils.validation.MAX_PARAM_VAL_LENGTH
-MAX_TAG_CHARS = 8000              # mlflow.utils.validation.MAX_TAG_VAL_LENGTH
+MAX_METRICS_PER_CALL = 1000  # mlflow.utils.validation.MAX_METRICS_PER_BATCH
+MAX_PARAMS_TAGS_PER_CALL = 100  # mlflow.utils.validation.MAX_PARAMS_TAGS_PER_BATCH
+MAX_PARAM_CHARS = 6000  # mlflow.utils.validation.MAX_PARAM_VAL_LENGTH
+MAX_TAG_CHARS = 8000  # mlflow.utils.validation.MAX_TAG_VAL_LENGTH
 TERMINAL_STATUSES = ("FINISHED", "FAILED", "KILLED")
 
 
@@ -74,8 +74,10 @@ def ensure_experiment(tracking_uri: str, name: str, artifact_root: str | Path) -
     except Exception as e:  # noqa: BLE001 - any failure here means the URI is unusable
         raise ValueError(f"cannot use MLflow tracking URI {tracking_uri!r}: {_first_line(e)}") from e
     if experiment.artifact_location != artifact_location:
-        raise ValueError(f"MLflow experiment {name!r} in {tracking_uri} keeps artifacts in "
-                         f"{experiment.artifact_location}, not {artifact_location}")
+        raise ValueError(
+            f"MLflow experiment {name!r} in {tracking_uri} keeps artifacts in "
+            f"{experiment.artifact_location}, not {artifact_location}"
+        )
     if experiment.lifecycle_stage == "deleted":
         client.restore_experiment(experiment.experiment_id)
     return experiment.experiment_id
@@ -84,8 +86,14 @@ def ensure_experiment(tracking_uri: str, name: str, artifact_root: str | Path) -
 def git_commit(cwd: str | Path | None = None) -> str | None:
     """``git rev-parse HEAD`` of ``cwd`` (default: the ps_ray source tree), or None."""
     try:
-        out = subprocess.run(["git", "rev-parse", "HEAD"], cwd=cwd or Path(__file__).parent,
-                             capture_output=True, text=True, timeout=5, check=True)
+        out = subprocess.run(
+            ["git", "rev-parse", "HEAD"],
+            cwd=cwd or Path(__file__).parent,
+            capture_output=True,
+            text=True,
+            timeout=5,
+            check=True,
+        )
     except (OSError, subprocess.SubprocessError):
         return None
     return out.stdout.strip() or None
@@ -124,7 +132,7 @@ def finite_float(value: Any) -> float | None:
 
 def _chunks(items: Sequence[Any], size: int) -> Iterable[Sequence[Any]]:
     for start in range(0, len(items), size):
-        yield items[start:start + size]
+        yield items[start : start + size]
 
 
 # ---------------------------------------------------------------------------------- tracker
@@ -139,9 +147,16 @@ class TrialTracker:
     difference. Metrics are buffered until :meth:`flush` (or 1000 are pending).
     """
 
-    def __init__(self, tracking_uri: str, experiment_id: str, trial_key: str, *,
-                 params: Mapping[str, Any], tags: Mapping[str, str],
-                 client: MlflowClient | None = None) -> None:
+    def __init__(
+        self,
+        tracking_uri: str,
+        experiment_id: str,
+        trial_key: str,
+        *,
+        params: Mapping[str, Any],
+        tags: Mapping[str, str],
+        client: MlflowClient | None = None,
+    ) -> None:
         if not trial_key:
             raise ValueError("trial_key must be a non-empty string")
         self.tracking_uri = tracking_uri
@@ -168,9 +183,13 @@ class TrialTracker:
     def _find_run(self):
         from mlflow.entities import ViewType
 
-        runs = self.client.search_runs([self.experiment_id], filter_string=_tag_filter(self.trial_key),
-                                       run_view_type=ViewType.ACTIVE_ONLY,
-                                       order_by=["attributes.start_time ASC"], max_results=10)
+        runs = self.client.search_runs(
+            [self.experiment_id],
+            filter_string=_tag_filter(self.trial_key),
+            run_view_type=ViewType.ACTIVE_ONLY,
+            order_by=["attributes.start_time ASC"],
+            max_results=10,
+        )
         return runs[0] if runs else None
 
     def _create_run(self, tags: Mapping[str, str]) -> str:
@@ -180,8 +199,10 @@ class TrialTracker:
     def _check_params(self, logged: Mapping[str, str], wanted: Mapping[str, str]) -> None:
         for key, value in wanted.items():
             if key in logged and logged[key] != value:
-                raise ValueError(f"trial {self.trial_key!r} already has run {self.run_id} with param "
-                                 f"{key}={logged[key]!r}, not {value!r}; use another trial key")
+                raise ValueError(
+                    f"trial {self.trial_key!r} already has run {self.run_id} with param "
+                    f"{key}={logged[key]!r}, not {value!r}; use another trial key"
+                )
 
     def _log_params_tags(self, params: Mapping[str, str], tags: Mapping[str, str]) -> None:
         from mlflow.entities import Param, RunTag
@@ -198,8 +219,7 @@ class TrialTracker:
         """Metrics buffered and not yet written."""
         return len(self._pending)
 
-    def log_metrics(self, metrics: Mapping[str, Any], step: int, *,
-                    timestamp_ms: int | None = None) -> None:
+    def log_metrics(self, metrics: Mapping[str, Any], step: int, *, timestamp_ms: int | None = None) -> None:
         """Buffer ``metrics`` at ``step``; None, NaN, infinities and non-numbers are dropped."""
         from mlflow.entities import Metric
 
@@ -216,7 +236,7 @@ class TrialTracker:
         while self._pending:
             chunk = self._pending[:MAX_METRICS_PER_CALL]
             self.client.log_batch(self.run_id, metrics=chunk)
-            del self._pending[:len(chunk)]
+            del self._pending[: len(chunk)]
 
     def log_artifact(self, path: str | Path, artifact_path: str | None = None) -> None:
         """A file goes to ``artifact_path/<name>``; a directory to ``artifact_path/<dirname>/...``."""
@@ -313,12 +333,20 @@ class MLflowTuneCallback(Callback):
     flush). Finding or creating a trial's run does raise (e.g. its key's run has other params).
     """
 
-    def __init__(self, tracking_uri: str, experiment_id: str, *, metric_keys: Sequence[str],
-                 params_fn: Callable[[Trial], Mapping[str, Any]] = default_params_fn,
-                 key_fn: Callable[[Trial], str] = default_key_fn,
-                 tags: Mapping[str, str] | None = None, flush_every: int = 20,
-                 artifacts_fn: Callable[[Trial], list[Path]] | None = None,
-                 step_key: str = "training_iteration", flush_secs: float = 60.0) -> None:
+    def __init__(
+        self,
+        tracking_uri: str,
+        experiment_id: str,
+        *,
+        metric_keys: Sequence[str],
+        params_fn: Callable[[Trial], Mapping[str, Any]] = default_params_fn,
+        key_fn: Callable[[Trial], str] = default_key_fn,
+        tags: Mapping[str, str] | None = None,
+        flush_every: int = 20,
+        artifacts_fn: Callable[[Trial], list[Path]] | None = None,
+        step_key: str = "training_iteration",
+        flush_secs: float = 60.0,
+    ) -> None:
         if flush_every < 1:
             raise ValueError(f"flush_every must be >= 1, got {flush_every}")
         self.tracking_uri = tracking_uri
@@ -355,9 +383,14 @@ class MLflowTuneCallback(Callback):
         key = self.key_fn(trial)
         if key not in self._trackers:
             tags = {**self.tags, "ps_ray.tune_trial_id": trial.trial_id}
-            self._trackers[key] = TrialTracker(self.tracking_uri, self.experiment_id, key,
-                                               params=self.params_fn(trial), tags=tags,
-                                               client=self._client)
+            self._trackers[key] = TrialTracker(
+                self.tracking_uri,
+                self.experiment_id,
+                key,
+                params=self.params_fn(trial),
+                tags=tags,
+                client=self._client,
+            )
             self._results[key] = 0
             self._last_flush[key] = time.monotonic()
         return self._trackers[key]
@@ -368,14 +401,17 @@ class MLflowTuneCallback(Callback):
     def on_trial_start(self, iteration: int, trials: list[Trial], trial: Trial, **info: Any) -> None:
         self.tracker(trial)
 
-    def on_trial_result(self, iteration: int, trials: list[Trial], trial: Trial, result: dict,
-                        **info: Any) -> None:
+    def on_trial_result(
+        self, iteration: int, trials: list[Trial], trial: Trial, result: dict, **info: Any
+    ) -> None:
         tracker = self.tracker(trial)
         step = lookup(result, self.step_key)
         stamp = result.get("timestamp")
-        tracker.log_metrics({k: lookup(result, k) for k in self.metric_keys},
-                            step=int(step) if step is not None else self._results[tracker.trial_key],
-                            timestamp_ms=int(stamp * 1000) if stamp else None)
+        tracker.log_metrics(
+            {k: lookup(result, k) for k in self.metric_keys},
+            step=int(step) if step is not None else self._results[tracker.trial_key],
+            timestamp_ms=int(stamp * 1000) if stamp else None,
+        )
         key = tracker.trial_key
         self._results[key] += 1
         due = time.monotonic() - self._last_flush[key] >= self.flush_secs
@@ -420,8 +456,20 @@ class MLflowTuneCallback(Callback):
 
 
 __all__ = [
-    "GIT_COMMIT_TAG", "MLflowTuneCallback", "STAGE_TAG", "TRIAL_KEY_TAG", "TrialTracker",
-    "default_key_fn", "default_params_fn", "default_tracking_uri", "ensure_experiment",
-    "finite_float", "flatten_params", "git_commit", "lookup", "spec_key", "spec_params",
+    "GIT_COMMIT_TAG",
+    "MLflowTuneCallback",
+    "STAGE_TAG",
+    "TRIAL_KEY_TAG",
+    "TrialTracker",
+    "default_key_fn",
+    "default_params_fn",
+    "default_tracking_uri",
+    "ensure_experiment",
+    "finite_float",
+    "flatten_params",
+    "git_commit",
+    "lookup",
+    "spec_key",
+    "spec_params",
     "trial_spec",
 ]

@@ -33,8 +33,16 @@ POLICY_FILE = "policy.safetensors"
 BEST_POLICY_FILE = "best_policy.safetensors"
 METRICS_FILE = "metrics.csv"
 PROGRESS_FILE = "progress.json"  # early-stop streak, so a resumed run stops where it would have
-METRIC_FIELDS = ["iteration", "env_steps", "updates", "train_success", "train_touching",
-                 "eval_success", "eval_touching", "wall_s"]
+METRIC_FIELDS = [
+    "iteration",
+    "env_steps",
+    "updates",
+    "train_success",
+    "train_touching",
+    "eval_success",
+    "eval_touching",
+    "wall_s",
+]
 
 
 def make_env(spec: TrainSpec):
@@ -50,7 +58,11 @@ def make_env(spec: TrainSpec):
 def prepare_anchors(spec: TrainSpec, run_dir: Path):
     """The anchor set of a PS run: from spec.anchors, else k-means over random-policy rollouts."""
     from ps_ray.anchors import (
-        AnchorSet, anchors_from_file, collect_task_states, load_anchor_set, save_anchor_set,
+        AnchorSet,
+        anchors_from_file,
+        collect_task_states,
+        load_anchor_set,
+        save_anchor_set,
         select_anchors,
     )
 
@@ -64,11 +76,16 @@ def prepare_anchors(spec: TrainSpec, run_dir: Path):
     elif spec.anchors is not None:
         anchor_set = anchors_from_file(spec.anchors, spec.interface_dim, seed=0)
     else:
-        states = collect_task_states(lambda: make_env(spec), episodes=spec.anchor_episodes,
-                                     seed=spec.seed)
-        anchor_set = AnchorSet.of(select_anchors(states, spec.interface_dim, seed=0), {
-            "source": "random-policy rollouts", "env": spec.env_config,
-            "episodes": spec.anchor_episodes, "num_states": int(len(states))})
+        states = collect_task_states(lambda: make_env(spec), episodes=spec.anchor_episodes, seed=spec.seed)
+        anchor_set = AnchorSet.of(
+            select_anchors(states, spec.interface_dim, seed=0),
+            {
+                "source": "random-policy rollouts",
+                "env": spec.env_config,
+                "episodes": spec.anchor_episodes,
+                "num_states": int(len(states)),
+            },
+        )
     save_anchor_set(path, anchor_set)
     return anchor_set
 
@@ -80,8 +97,10 @@ def _check_run_dir(spec: TrainSpec, run_dir: Path, write: bool = True) -> None:
         stored = TrainSpec.from_mapping(json.loads(spec_file.read_text())).identity()
         changed = sorted(k for k in stored if stored[k] != spec.identity()[k])
         if changed:
-            raise SpecError(f"{run_dir} holds a run of another spec (differs in {', '.join(changed)});"
-                            f" use another --run-dir")
+            raise SpecError(
+                f"{run_dir} holds a run of another spec (differs in {', '.join(changed)});"
+                f" use another --run-dir"
+            )
     if write:
         write_text(spec_file, json.dumps(spec.to_dict(), indent=2))
 
@@ -97,8 +116,12 @@ class TrainingRun:
         self.spec = spec
         self.algo = algo_config(spec, None if anchor_set is None else anchor_set.anchors).build_algo()
         self.signature = Signature(
-            method=spec.method, interface_dim=spec.interface_dim, hidden=spec.hidden,
-            anchor_hash="" if anchor_set is None else anchor_set.hash, **self.algo.replay_dims)
+            method=spec.method,
+            interface_dim=spec.interface_dim,
+            hidden=spec.hidden,
+            anchor_hash="" if anchor_set is None else anchor_set.hash,
+            **self.algo.replay_dims,
+        )
         self.start, self.start_steps = time.time(), 0
         self.streak = 0  # evaluations in a row at or above spec.target_success
         if spec.init_policy is not None:
@@ -133,7 +156,8 @@ class TrainingRun:
         self.algo.save_checkpoint(str(directory))
         self.algo.export_policy(Path(directory) / POLICY_FILE, self.signature)
         (Path(directory) / "signature.json").write_text(
-            json.dumps(dataclasses.asdict(self.signature), indent=2))
+            json.dumps(dataclasses.asdict(self.signature), indent=2)
+        )
         (Path(directory) / "spec.json").write_text(json.dumps(self.spec.to_dict(), indent=2))
         (Path(directory) / PROGRESS_FILE).write_text(json.dumps({"streak": self.streak}))
 
@@ -152,15 +176,16 @@ class TrainingRun:
 
     def progress_line(self, row: dict[str, Any]) -> str:
         rate = (self.env_steps - self.start_steps) / max(time.time() - self.start, 1e-9)
-        return (f"[{self.spec.label()}] {row['env_steps']:>7}/{self.spec.env_steps} steps "
-                f"{row['updates']:>7} updates  train success {row.get('train_success') or 0:.2f}  "
-                f"eval success {row['eval_success']:.2f} touching {_fmt(row.get('eval_touching'))}"
-                f"  {rate:.0f} steps/s")
+        return (
+            f"[{self.spec.label()}] {row['env_steps']:>7}/{self.spec.env_steps} steps "
+            f"{row['updates']:>7} updates  train success {row.get('train_success') or 0:.2f}  "
+            f"eval success {row['eval_success']:.2f} touching {_fmt(row.get('eval_touching'))}"
+            f"  {rate:.0f} steps/s"
+        )
 
 
 def _checkpoint_dirs(run_dir: Path) -> tuple[Path, Path, Path]:
-    return (run_dir / f"{CHECKPOINT_DIR}.tmp", run_dir / CHECKPOINT_DIR,
-            run_dir / f"{CHECKPOINT_DIR}.old")
+    return (run_dir / f"{CHECKPOINT_DIR}.tmp", run_dir / CHECKPOINT_DIR, run_dir / f"{CHECKPOINT_DIR}.old")
 
 
 def _save_atomically(run: TrainingRun, run_dir: Path) -> None:
@@ -234,8 +259,13 @@ def _train(spec: TrainSpec, run_dir: Path, progress: bool) -> dict[str, Any]:
 
     anchor_set = prepare_anchors(spec, run_dir) if uses_anchors(spec.method) else None
     if not ray.is_initialized():
-        ray.init(address="local", num_cpus=max(1, os.cpu_count() or 1), include_dashboard=False,
-                 log_to_driver=False, configure_logging=False)
+        ray.init(
+            address="local",
+            num_cpus=max(1, os.cpu_count() or 1),
+            include_dashboard=False,
+            log_to_driver=False,
+            configure_logging=False,
+        )
     run = TrainingRun(spec, anchor_set)  # loads --init-policy: a bad one fails before spec.json
     _check_run_dir(spec, run_dir)
     checkpoint = _latest_checkpoint(run_dir)
@@ -259,20 +289,29 @@ def _train(spec: TrainSpec, run_dir: Path, progress: bool) -> dict[str, Any]:
             if row.get("eval_success") is not None:
                 if row["eval_success"] > best:  # keep the best greedy policy seen so far
                     best = row["eval_success"]
-                    run.algo.export_policy(run_dir / BEST_POLICY_FILE, run.signature,
-                                           extra={"eval_success": repr(best),
-                                                  "env_steps": str(row["env_steps"])})
+                    run.algo.export_policy(
+                        run_dir / BEST_POLICY_FILE,
+                        run.signature,
+                        extra={"eval_success": repr(best), "env_steps": str(row["env_steps"])},
+                    )
                 if progress:
                     print(run.progress_line(row), flush=True)
     _save_atomically(run, run_dir)
     final = run.final_eval()
-    row = {**row, **{f"final_{k}": v for k, v in final.items()}, "best_eval_success": best,
-           "converged": run.converged}
+    row = {
+        **row,
+        **{f"final_{k}": v for k, v in final.items()},
+        "best_eval_success": best,
+        "converged": run.converged,
+    }
     (run_dir / "result.json").write_text(json.dumps(row, indent=2))
     run.stop()
     if progress:
-        print(f"[{spec.label()}] done: final greedy success {final['success']:.2f}, touching "
-              f"{_fmt(final['touching'])}; policy in {run_dir / POLICY_FILE}", flush=True)
+        print(
+            f"[{spec.label()}] done: final greedy success {final['success']:.2f}, touching "
+            f"{_fmt(final['touching'])}; policy in {run_dir / POLICY_FILE}",
+            flush=True,
+        )
     return row
 
 

@@ -13,14 +13,13 @@ import json
 from dataclasses import dataclass
 from pathlib import Path
 
-import numpy as np
 import torch
 from safetensors import SafetensorError, safe_open
 from safetensors.torch import save_file
 from torch import nn
 
-from ps_ray.atomic import atomic_path
 from ps_ray.anchors import AnchorSet, anchor_hash
+from ps_ray.atomic import atomic_path
 from ps_ray.nets.modular import NetDims
 from ps_ray.nets.sac import NET_NAMES, SACNets, build_sac_nets
 
@@ -47,36 +46,52 @@ class Signature:
 
     def mismatches(self, other: Signature, fields: tuple[str, ...] | None = None) -> list[str]:
         names = fields or tuple(f.name for f in dataclasses.fields(self))
-        return [f"{n}: {getattr(self, n)!r} vs {getattr(other, n)!r}"
-                for n in names if getattr(self, n) != getattr(other, n)]
+        return [
+            f"{n}: {getattr(self, n)!r} vs {getattr(other, n)!r}"
+            for n in names
+            if getattr(self, n) != getattr(other, n)
+        ]
 
 
-def signature_of(nets: nn.Module, method: str, interface_dim: int, hidden: int,
-                 translation: str = "") -> Signature:
+def signature_of(
+    nets: nn.Module, method: str, interface_dim: int, hidden: int, translation: str = ""
+) -> Signature:
     dims = nets.actor.dims
     if bool(translation) != (getattr(nets.actor, "translate", None) is not None):
-        raise ValueError(f"nets {'lack' if translation else 'carry'} a latent translation, "
-                         f"signature says {translation or 'none'!r}")
-    return Signature(method=method, interface_dim=interface_dim, hidden=hidden,
-                     anchor_hash="" if nets.actor.anchors is None
-                     else anchor_hash(nets.actor.anchors.detach().cpu().numpy()),
-                     task_dim=dims.task_dim, robot_dim=dims.robot_dim, action_dim=dims.action_dim,
-                     translation=translation)
+        raise ValueError(
+            f"nets {'lack' if translation else 'carry'} a latent translation, "
+            f"signature says {translation or 'none'!r}"
+        )
+    return Signature(
+        method=method,
+        interface_dim=interface_dim,
+        hidden=hidden,
+        anchor_hash=""
+        if nets.actor.anchors is None
+        else anchor_hash(nets.actor.anchors.detach().cpu().numpy()),
+        task_dim=dims.task_dim,
+        robot_dim=dims.robot_dim,
+        action_dim=dims.action_dim,
+        translation=translation,
+    )
 
 
 def nets_state(nets: nn.Module) -> dict[str, torch.Tensor]:
     """State of the five SAC nets of any container that has them (SACNets or the RLlib module)."""
-    return {f"{name}.{k}": v.detach().cpu().contiguous()
-            for name in NET_NAMES for k, v in getattr(nets, name).state_dict().items()}
+    return {
+        f"{name}.{k}": v.detach().cpu().contiguous()
+        for name in NET_NAMES
+        for k, v in getattr(nets, name).state_dict().items()
+    }
 
 
-def save_policy(path: str | Path, nets: nn.Module, signature: Signature,
-                extra: dict[str, str] | None = None) -> Path:
+def save_policy(
+    path: str | Path, nets: nn.Module, signature: Signature, extra: dict[str, str] | None = None
+) -> Path:
     """Write atomically: a crash leaves either the old file or the new one, never half of one."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    metadata = {"format": FORMAT, "signature": json.dumps(dataclasses.asdict(signature)),
-                **(extra or {})}
+    metadata = {"format": FORMAT, "signature": json.dumps(dataclasses.asdict(signature)), **(extra or {})}
     with atomic_path(path) as tmp:
         save_file(nets_state(nets), str(tmp), metadata=metadata)
     return path
@@ -91,8 +106,9 @@ def read_signature(path: str | Path) -> tuple[Signature, dict[str, str]]:
     except (SafetensorError, OSError, ValueError) as e:
         raise ValueError(f"{path}: not a ps_ray policy file ({e})") from None
     if metadata.get("format") != FORMAT:
-        raise ValueError(f"{path}: not a ps_ray policy file (format {metadata.get('format')!r}, "
-                         f"expected {FORMAT!r})")
+        raise ValueError(
+            f"{path}: not a ps_ray policy file (format {metadata.get('format')!r}, expected {FORMAT!r})"
+        )
     try:
         signature = Signature(**json.loads(metadata["signature"]))
     except (KeyError, TypeError, json.JSONDecodeError) as e:
@@ -120,21 +136,23 @@ def signature_problem(signature: Signature) -> str | None:
     if not isinstance(signature.anchor_hash, str):
         return f"anchor_hash must be a string, got {signature.anchor_hash!r}"
     if signature.translation not in ("", *TRANSLATIONS):
-        return (f"unknown translation {signature.translation!r}; valid: none, "
-                f"{', '.join(TRANSLATIONS)}")
+        return f"unknown translation {signature.translation!r}; valid: none, {', '.join(TRANSLATIONS)}"
     return None
 
 
-def nets_from_state(state: dict[str, torch.Tensor], signature: Signature,
-                    source: str = "state") -> SACNets:
+def nets_from_state(state: dict[str, torch.Tensor], signature: Signature, source: str = "state") -> SACNets:
     """Build the nets a signature describes and load `state` into them, strictly."""
     anchors = state.get(ANCHORS_KEY)
     if (anchor_hash(anchors.numpy()) if anchors is not None else "") != signature.anchor_hash:
         raise ValueError(f"{source}: anchors do not match the signature's anchor hash")
     try:
-        nets = build_sac_nets(signature.method, signature.dims,
-                              interface_dim=signature.interface_dim, hidden=signature.hidden,
-                              anchors=None if anchors is None else anchors.numpy())
+        nets = build_sac_nets(
+            signature.method,
+            signature.dims,
+            interface_dim=signature.interface_dim,
+            hidden=signature.hidden,
+            anchors=None if anchors is None else anchors.numpy(),
+        )
     except ValueError as e:
         raise ValueError(f"{source}: {e}") from None
     if signature.translation:
@@ -143,8 +161,10 @@ def nets_from_state(state: dict[str, torch.Tensor], signature: Signature,
     missing, unexpected = sorted(expected.keys() - state.keys()), sorted(state.keys() - expected.keys())
     wrong_shape = [k for k in expected.keys() & state.keys() if expected[k].shape != state[k].shape]
     if missing or unexpected or wrong_shape:
-        raise ValueError(f"{source}: tensors do not match the signature (missing {missing[:3]}, "
-                         f"unexpected {unexpected[:3]}, wrong shape {wrong_shape[:3]})")
+        raise ValueError(
+            f"{source}: tensors do not match the signature (missing {missing[:3]}, "
+            f"unexpected {unexpected[:3]}, wrong shape {wrong_shape[:3]})"
+        )
     load_nets_state(nets, state)
     return nets
 
@@ -163,7 +183,8 @@ def load_nets_state(nets: nn.Module, state: dict[str, torch.Tensor]) -> None:
     for name in NET_NAMES:
         prefix = name + "."
         getattr(nets, name).load_state_dict(
-            {k[len(prefix):]: v for k, v in state.items() if k.startswith(prefix)}, strict=True)
+            {k[len(prefix) :]: v for k, v in state.items() if k.startswith(prefix)}, strict=True
+        )
 
 
 def policy_anchor_set(path: str | Path) -> AnchorSet:

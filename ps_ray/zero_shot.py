@@ -20,12 +20,17 @@ from ps_ray.sweep import raise_on_errors, sweep_dir
 
 TUNE_DIR = "tune_zero_shot"
 RESULT_FILE = "zero_shot.csv"
-RESULT_KEYS = ("success_mean", "success_std", "touching_mean", "touching_std", "contact_mean",
-               "episodes_per_s")
+RESULT_KEYS = (
+    "success_mean",
+    "success_std",
+    "touching_mean",
+    "touching_std",
+    "contact_mean",
+    "episodes_per_s",
+)
 
 
-def pairs(spec: SweepSpec, methods: list[str] | None = None,
-          translate: bool = False) -> list[dict[str, Any]]:
+def pairs(spec: SweepSpec, methods: list[str] | None = None, translate: bool = False) -> list[dict[str, Any]]:
     """One trial config per stitched pair of the sweep's trained policies; with ``translate``,
     also one per latent translation that ``spec.zero_shot.translate`` names for the method
     (its method shown as ``<method>+<translation>``)."""
@@ -39,14 +44,21 @@ def pairs(spec: SweepSpec, methods: list[str] | None = None,
         for seed in spec.seeds:
             for combo in combos(zoo, method, seed):
                 for kind in kinds:
-                    out.append({
-                        "method": f"{method}+{kind}" if kind else method, "translation": kind,
-                        "seed": seed, "label": combo.label,
-                        "task_from": str(combo.task_from.key), "robot_from": str(combo.robot_from.key),
-                        "task_from_path": str(combo.task_from.path),
-                        "robot_from_path": str(combo.robot_from.path),
-                        "fit_tasks": [combo.task_from.spec["task"], combo.robot_from.spec["task"]],
-                        "robot": combo.robot, "task": combo.task})
+                    out.append(
+                        {
+                            "method": f"{method}+{kind}" if kind else method,
+                            "translation": kind,
+                            "seed": seed,
+                            "label": combo.label,
+                            "task_from": str(combo.task_from.key),
+                            "robot_from": str(combo.robot_from.key),
+                            "task_from_path": str(combo.task_from.path),
+                            "robot_from_path": str(combo.robot_from.path),
+                            "fit_tasks": [combo.task_from.spec["task"], combo.robot_from.spec["task"]],
+                            "robot": combo.robot,
+                            "task": combo.task,
+                        }
+                    )
     return out
 
 
@@ -68,16 +80,21 @@ def zero_shot_trial(config: dict[str, Any]) -> None:
 
     pair, settings = config["pair"], config["eval"]
     translation = pair.get("translation") or None
-    states = (fit_states(pair["fit_tasks"], config["fit_states_per_quadrant"], settings["seed"])
-              if translation else None)
-    stitched = stitch_policies(pair["task_from_path"], pair["robot_from_path"],
-                               translation=translation, fit_states=states)
+    states = (
+        fit_states(pair["fit_tasks"], config["fit_states_per_quadrant"], settings["seed"])
+        if translation
+        else None
+    )
+    stitched = stitch_policies(
+        pair["task_from_path"], pair["robot_from_path"], translation=translation, fit_states=states
+    )
     result = evaluate(stitched, pair["robot"], pair["task"], **settings)
     tune.report({k: result[k] for k in RESULT_KEYS})
 
 
-def run_zero_shot(spec: SweepSpec, *, resume: bool = False, progress: bool = True,
-                  **overrides: Any) -> pd.DataFrame:
+def run_zero_shot(
+    spec: SweepSpec, *, resume: bool = False, progress: bool = True, **overrides: Any
+) -> pd.DataFrame:
     """The matrix as Tune trials, settings from ``spec.zero_shot`` (``overrides`` replace fields).
 
     ``resume`` finishes an interrupted matrix (restores ``tune_zero_shot``)."""
@@ -90,24 +107,49 @@ def run_zero_shot(spec: SweepSpec, *, resume: bool = False, progress: bool = Tru
     if not trials:
         raise ValueError(f"{root}: no stitchable pairs (train the sweep first: ps-ray sweep)")
     callback = MLflowTuneCallback(
-        *connect(spec), metric_keys=RESULT_KEYS,
-        key_fn=lambda trial: f"zero_shot/{trial.config['pair']['method']}/"
-                             f"{trial.config['pair']['label']}/{trial.config['pair']['seed']}",
-        params_fn=lambda trial: {k: short_name(v) for k, v in trial.config["pair"].items()
-                                 if not k.endswith("_path") and k != "fit_tasks"} | {"episodes": settings.episodes,
-                                                                 "repeats": settings.repeats},
-        tags={"ps_ray.sweep": spec.name, "ps_ray.stage": "zero_shot",
-              "git_commit": git_commit() or ""})
+        *connect(spec),
+        metric_keys=RESULT_KEYS,
+        key_fn=lambda trial: (
+            f"zero_shot/{trial.config['pair']['method']}/"
+            f"{trial.config['pair']['label']}/{trial.config['pair']['seed']}"
+        ),
+        params_fn=lambda trial: (
+            {
+                k: short_name(v)
+                for k, v in trial.config["pair"].items()
+                if not k.endswith("_path") and k != "fit_tasks"
+            }
+            | {"episodes": settings.episodes, "repeats": settings.repeats}
+        ),
+        tags={"ps_ray.sweep": spec.name, "ps_ray.stage": "zero_shot", "git_commit": git_commit() or ""},
+    )
     results = run_trials(
-        zero_shot_trial, {"pair": trials}, name=TUNE_DIR, stage="zero_shot", spec=spec, root=root,
-        callback=callback, resume=resume, progress=progress,
-        constants={"eval": {"episodes": settings.episodes, "repeats": settings.repeats,
-                            "seed": settings.seed},
-                   "fit_states_per_quadrant": settings.fit_states_per_quadrant})
+        zero_shot_trial,
+        {"pair": trials},
+        name=TUNE_DIR,
+        stage="zero_shot",
+        spec=spec,
+        root=root,
+        callback=callback,
+        resume=resume,
+        progress=progress,
+        constants={
+            "eval": {"episodes": settings.episodes, "repeats": settings.repeats, "seed": settings.seed},
+            "fit_states_per_quadrant": settings.fit_states_per_quadrant,
+        },
+    )
     raise_on_errors(results, "zero-shot trials")
-    rows = [{**{k: short_name(v) for k, v in r.config["pair"].items()
-                if not k.endswith("_path") and k != "fit_tasks"},
-             **{k: r.metrics.get(k) for k in RESULT_KEYS}} for r in results]
+    rows = [
+        {
+            **{
+                k: short_name(v)
+                for k, v in r.config["pair"].items()
+                if not k.endswith("_path") and k != "fit_tasks"
+            },
+            **{k: r.metrics.get(k) for k in RESULT_KEYS},
+        }
+        for r in results
+    ]
     table = pd.DataFrame(rows).sort_values(["method", "seed", "label"]).reset_index(drop=True)
     write_atomic_csv(table, root / RESULT_FILE)
     return table
@@ -116,8 +158,13 @@ def run_zero_shot(spec: SweepSpec, *, resume: bool = False, progress: bool = Tru
 def summary(table: pd.DataFrame) -> pd.DataFrame:
     """Mean over pairs per method (and the number of pairs), for the note and the report."""
     grouped = table.groupby("method")
-    return pd.DataFrame({"pairs": grouped.size(), "success": grouped["success_mean"].mean(),
-                         "touching": grouped["touching_mean"].mean()})
+    return pd.DataFrame(
+        {
+            "pairs": grouped.size(),
+            "success": grouped["success_mean"].mean(),
+            "touching": grouped["touching_mean"].mean(),
+        }
+    )
 
 
 def write_atomic_csv(table: pd.DataFrame, path: Path) -> None:

@@ -42,8 +42,15 @@ class ZooKey:
     interface_dim: int
 
     def __str__(self) -> str:
-        return trial_key({"method": self.method, "robot": self.robot, "task": self.task,
-                          "seed": self.seed, "interface_dim": self.interface_dim})
+        return trial_key(
+            {
+                "method": self.method,
+                "robot": self.robot,
+                "task": self.task,
+                "seed": self.seed,
+                "interface_dim": self.interface_dim,
+            }
+        )
 
 
 @dataclass(frozen=True)
@@ -68,8 +75,13 @@ class ZooEntry:
 
 def key_of(spec: Mapping[str, Any]) -> ZooKey:
     """The key of a TrainSpec dict; as a string, the trial key (MLflow run name)."""
-    return ZooKey(str(spec["method"]), short_name(spec["robot"]), short_name(spec["task"]),
-                  int(spec["seed"]), int(spec["interface_dim"]))
+    return ZooKey(
+        str(spec["method"]),
+        short_name(spec["robot"]),
+        short_name(spec["task"]),
+        int(spec["seed"]),
+        int(spec["interface_dim"]),
+    )
 
 
 def read_entry(policy_path: str | Path, stage: str = "run") -> ZooEntry:
@@ -85,8 +97,10 @@ def read_entry(policy_path: str | Path, stage: str = "run") -> ZooEntry:
     except (OSError, json.JSONDecodeError, KeyError, TypeError, ValueError) as e:
         raise ValueError(f"{spec_path}: missing or unreadable training spec ({e})") from None
     if (spec["method"], int(spec["interface_dim"])) != (signature.method, signature.interface_dim):
-        raise ValueError(f"{path}: signature ({signature.method}, interface dim "
-                         f"{signature.interface_dim}) disagrees with {spec_path}")
+        raise ValueError(
+            f"{path}: signature ({signature.method}, interface dim "
+            f"{signature.interface_dim}) disagrees with {spec_path}"
+        )
     return ZooEntry(key, path, signature, spec, stage)
 
 
@@ -117,11 +131,11 @@ class ModuleZoo:
         """Index ``tune/`` and ``tune_plain/`` of each sweep directory (``<storage>/<name>``)."""
         entries, problems = [], []
         for sweep in map(Path, sweep_dirs):
-            found = [(p, stage) for d, stage in STAGE_DIRS.items()
-                     for p in _latest_checkpoints(sweep / d)]
+            found = [(p, stage) for d, stage in STAGE_DIRS.items() for p in _latest_checkpoints(sweep / d)]
             if not found:
-                raise ValueError(f"{sweep}: no trained policies (expected "
-                                 f"tune/<trial>/checkpoint_*/{POLICY_FILE})")
+                raise ValueError(
+                    f"{sweep}: no trained policies (expected tune/<trial>/checkpoint_*/{POLICY_FILE})"
+                )
             for path, stage in found:
                 try:
                     entries.append(read_entry(path, stage))
@@ -159,28 +173,61 @@ class ModuleZoo:
         if str(key) in by_name:
             return by_name[str(key)]
         close = difflib.get_close_matches(str(key), sorted(by_name), n=5, cutoff=0.5)
-        hint = f"close keys: {', '.join(close)}" if close else \
-            f"valid keys include: {', '.join(sorted(by_name)[:5])}"
+        hint = (
+            f"close keys: {', '.join(close)}"
+            if close
+            else f"valid keys include: {', '.join(sorted(by_name)[:5])}"
+        )
         raise ValueError(f"no policy {str(key)!r} in the zoo ({len(self)} policies); {hint}")
 
-    def select(self, *, method: str | None = None, seed: int | None = None,
-               interface_dim: int | None = None) -> list[ZooEntry]:
-        return [e for e in self if (method is None or e.key.method == method)
-                and (seed is None or e.key.seed == seed)
-                and (interface_dim is None or e.key.interface_dim == interface_dim)]
+    def select(
+        self, *, method: str | None = None, seed: int | None = None, interface_dim: int | None = None
+    ) -> list[ZooEntry]:
+        return [
+            e
+            for e in self
+            if (method is None or e.key.method == method)
+            and (seed is None or e.key.seed == seed)
+            and (interface_dim is None or e.key.interface_dim == interface_dim)
+        ]
 
     def table(self) -> pd.DataFrame:
         """One row per policy: key fields, stage, signature and path."""
         import pandas as pd
 
-        rows = [{"key": str(e.key), "method": e.key.method, "robot": e.key.robot,
-                 "task": e.key.task, "seed": e.key.seed, "interface_dim": e.key.interface_dim,
-                 "stage": e.stage, "hidden": e.signature.hidden,
-                 "anchors": e.signature.anchor_hash[:12], "task_dim": e.signature.task_dim,
-                 "robot_dim": e.signature.robot_dim, "action_dim": e.signature.action_dim,
-                 "path": str(e.path)} for e in self]
-        columns = ["key", "method", "robot", "task", "seed", "interface_dim", "stage", "hidden",
-                   "anchors", "task_dim", "robot_dim", "action_dim", "path"]
+        rows = [
+            {
+                "key": str(e.key),
+                "method": e.key.method,
+                "robot": e.key.robot,
+                "task": e.key.task,
+                "seed": e.key.seed,
+                "interface_dim": e.key.interface_dim,
+                "stage": e.stage,
+                "hidden": e.signature.hidden,
+                "anchors": e.signature.anchor_hash[:12],
+                "task_dim": e.signature.task_dim,
+                "robot_dim": e.signature.robot_dim,
+                "action_dim": e.signature.action_dim,
+                "path": str(e.path),
+            }
+            for e in self
+        ]
+        columns = [
+            "key",
+            "method",
+            "robot",
+            "task",
+            "seed",
+            "interface_dim",
+            "stage",
+            "hidden",
+            "anchors",
+            "task_dim",
+            "robot_dim",
+            "action_dim",
+            "path",
+        ]
         return pd.DataFrame(rows, columns=columns)
 
 

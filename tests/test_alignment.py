@@ -63,8 +63,9 @@ def test_unknown_translation_is_named():
 def _nets(method: str, seed: int = 0):
     torch.manual_seed(seed)
     anchors = np.random.default_rng(0).normal(size=(8, 15)).astype(np.float32)
-    nets = build_sac_nets(method, PUSH, interface_dim=8, hidden=16,
-                          anchors=anchors if uses_anchors(method) else None)
+    nets = build_sac_nets(
+        method, PUSH, interface_dim=8, hidden=16, anchors=anchors if uses_anchors(method) else None
+    )
     update_normalizers(nets, 2 * torch.randn(256, 15) + 1, torch.randn(256, 8))
     return nets.eval(), signature_of(nets, method, 8, 16)
 
@@ -92,8 +93,9 @@ def test_translated_stitch_undoes_a_rotated_task_module(method, tmp_path):
     latent: without translation the raw-latent methods break, with it every method gives A's
     outputs back; the fitted map travels in the policy file and its signature."""
     a, sig = _nets(method)
-    q = torch.linalg.qr(torch.randn(a.actor.latent_dim, a.actor.latent_dim,
-                                    generator=torch.Generator().manual_seed(5)))[0]
+    q = torch.linalg.qr(
+        torch.randn(a.actor.latent_dim, a.actor.latent_dim, generator=torch.Generator().manual_seed(5))
+    )[0]
     b = _rotated(a, q)
     states = (2 * torch.randn(512, 15) + 1).numpy()
     task, robot = torch.randn(32, 15), torch.randn(32, 8)
@@ -101,8 +103,7 @@ def test_translated_stitch_undoes_a_rotated_task_module(method, tmp_path):
         want = a.actor(task, robot)[0]
         torch.testing.assert_close(b.actor(task, robot)[0], want, atol=1e-4, rtol=1e-4)
         untranslated, _ = stitch_policies((a, sig), (b, sig))
-        translated, tsig = stitch_policies((a, sig), (b, sig), translation="orthogonal",
-                                           fit_states=states)
+        translated, tsig = stitch_policies((a, sig), (b, sig), translation="orthogonal", fit_states=states)
         if not uses_anchors(method):
             assert (untranslated.actor.eval()(task, robot)[0] - want).abs().max() > 1e-2
         torch.testing.assert_close(translated.eval().actor(task, robot)[0], want, atol=1e-4, rtol=1e-4)
@@ -122,10 +123,15 @@ def test_translated_self_stitch_of_plain_keeps_the_policy(kind):
     stitched, _ = stitch_policies((nets, sig), (nets, sig), translation=kind, fit_states=states)
     task, robot, action = torch.randn(32, 15), torch.randn(32, 8), torch.rand(32, 7) * 2 - 1
     with torch.no_grad():
-        torch.testing.assert_close(stitched.eval().actor(task, robot)[0], nets.actor(task, robot)[0],
-                                   atol=1e-4, rtol=1e-4)
-        torch.testing.assert_close(stitched.target_critic(task, robot, action),
-                                   nets.target_critic(task, robot, action), atol=1e-4, rtol=1e-4)
+        torch.testing.assert_close(
+            stitched.eval().actor(task, robot)[0], nets.actor(task, robot)[0], atol=1e-4, rtol=1e-4
+        )
+        torch.testing.assert_close(
+            stitched.target_critic(task, robot, action),
+            nets.target_critic(task, robot, action),
+            atol=1e-4,
+            rtol=1e-4,
+        )
 
 
 def test_translation_needs_fit_states_and_refuses_restitching():
@@ -224,8 +230,13 @@ def test_centring_spreads_the_similarities_and_layer_norm_standardises_them():
     cluster well above 0. Centring by the anchors spreads them around 0; LayerNorm gives each
     state's similarity vector zero mean and unit variance."""
     torch.manual_seed(0)
-    encoder = torch.nn.Sequential(torch.nn.Linear(6, 64), torch.nn.ReLU(), torch.nn.Linear(64, 64),
-                                  torch.nn.ReLU(), torch.nn.Linear(64, 32))
+    encoder = torch.nn.Sequential(
+        torch.nn.Linear(6, 64),
+        torch.nn.ReLU(),
+        torch.nn.Linear(64, 64),
+        torch.nn.ReLU(),
+        torch.nn.Linear(64, 32),
+    )
     x, anchors = torch.randn(500, 6), torch.randn(32, 6)
     with torch.no_grad():
         paper = RelativeProjection(anchors)(encoder, x)
@@ -265,6 +276,7 @@ def test_every_relative_variant_survives_a_policy_file_round_trip(method, tmp_pa
     task, robot, action = torch.randn(16, 15), torch.randn(16, 8), torch.rand(16, 7) * 2 - 1
     with torch.no_grad():
         for name in NET_NAMES[1:]:
-            assert torch.equal(getattr(loaded, name).eval()(task, robot, action),
-                               getattr(nets, name)(task, robot, action)), name
+            assert torch.equal(
+                getattr(loaded, name).eval()(task, robot, action), getattr(nets, name)(task, robot, action)
+            ), name
         assert torch.equal(loaded.actor.eval()(task, robot)[0], nets.actor(task, robot)[0])

@@ -62,7 +62,9 @@ def test_groups_compare_only_modules_that_differ_in_the_compared_field():
     dumps.append(_dump(x, method="ablation", seed=1))  # alone in its group: left out
     by_seed = latent.groups(dumps, "seeds")
     assert [(g.method, g.fixed, list(g.members)) for g in by_seed] == [
-        ("ps", "panda, reach", ["1", "2", "3"]), ("ps", "panda_l3, reach", ["1", "2", "3"])]
+        ("ps", "panda, reach", ["1", "2", "3"]),
+        ("ps", "panda_l3, reach", ["1", "2", "3"]),
+    ]
     by_robot = latent.groups(dumps, "robots")
     assert len(by_robot) == 3 and all(list(g.members) == ["panda", "panda_l3"] for g in by_robot)
 
@@ -78,26 +80,46 @@ def test_distance_table_pools_pairs_and_matrices_are_symmetric():
     assert row["pairs"] == 6  # 4 seeds: the paper's 6 pairs
     assert row["cosine_mean"] == pytest.approx(latent.upper_values(matrix).mean())
     shown = tables.latent_table(table, "seeds", 16)
-    assert list(shown.columns) == ["pairs", "cosine distance", "L2 distance", "cosine 95% CI",
-                                   "retrieval MRR [95% CI]", "top-1"]
+    assert list(shown.columns) == [
+        "pairs",
+        "cosine distance",
+        "L2 distance",
+        "cosine 95% CI",
+        "retrieval MRR [95% CI]",
+        "top-1",
+    ]
     assert shown.loc["ps", "cosine distance"] == tables.pm(row["cosine_mean"], row["cosine_std"], 4)
 
 
 def test_zero_shot_table_has_combinations_as_rows_and_methods_as_columns():
     label_e1 = "t: push-panda & r: push_slippery-panda_l3"
-    frame = pd.DataFrame([
-        {"method": m, "seed": s, "label": label, "success_mean": sm, "success_std": 0.1,
-         "touching_mean": 0.5, "touching_std": 0.0}
-        for m, sm in (("ablation", 0.2), ("ps", 0.6)) for s in (1, 2)
-        for label in (label_e1, "t: reach-panda & r: reach-panda_l5")])
+    frame = pd.DataFrame(
+        [
+            {
+                "method": m,
+                "seed": s,
+                "label": label,
+                "success_mean": sm,
+                "success_std": 0.1,
+                "touching_mean": 0.5,
+                "touching_std": 0.0,
+            }
+            for m, sm in (("ablation", 0.2), ("ps", 0.6))
+            for s in (1, 2)
+            for label in (label_e1, "t: reach-panda & r: reach-panda_l5")
+        ]
+    )
     frame.loc[(frame["method"] == "ps") & (frame["seed"] == 2), "success_mean"] = 0.8
     table = tables.zero_shot_table(frame)
-    assert list(table.columns) == [("ps", "touching"), ("ps", "success"),
-                                   ("ablation", "touching"), ("ablation", "success")]
+    assert list(table.columns) == [
+        ("ps", "touching"),
+        ("ps", "success"),
+        ("ablation", "touching"),
+        ("ablation", "success"),
+    ]
     assert list(table.index) == ["E1 (t: Pu1-R1 & r: Pu2-R2)", "t: reach-panda & r: reach-panda_l5"]
     # mean of the seeds' means; std pooled: sqrt(mean within-seed var + between-seed var)
-    assert table.loc["E1 (t: Pu1-R1 & r: Pu2-R2)", ("ps", "success")] == tables.pm(
-        0.7, np.sqrt(0.01 + 0.01))
+    assert table.loc["E1 (t: Pu1-R1 & r: Pu2-R2)", ("ps", "success")] == tables.pm(0.7, np.sqrt(0.01 + 0.01))
     assert table.loc["E1 (t: Pu1-R1 & r: Pu2-R2)", ("ablation", "touching")] == "0.50 ± 0.00"
 
 
@@ -124,10 +146,18 @@ def test_steps_to_target_counts_unreached_runs_at_their_last_step():
     for seed, hit in ((1, 3000), (2, 5000), (3, None)):
         for step in range(1000, 8001, 1000):
             success = 0.95 if hit is not None and step >= hit else 0.3
-            rows.append({"run": f"ps/{seed}", "method": "ps", "seed": seed, "env_steps": step,
-                         "success": success})
-            rows.append({"run": f"ablation/{seed}", "method": "ablation", "seed": seed,
-                         "env_steps": step, "success": 0.95 if step >= 2000 else 0.0})
+            rows.append(
+                {"run": f"ps/{seed}", "method": "ps", "seed": seed, "env_steps": step, "success": success}
+            )
+            rows.append(
+                {
+                    "run": f"ablation/{seed}",
+                    "method": "ablation",
+                    "seed": seed,
+                    "env_steps": step,
+                    "success": 0.95 if step >= 2000 else 0.0,
+                }
+            )
     per_run = tables.steps_to_target(pd.DataFrame(rows), 0.9)
     assert per_run.set_index("run").loc["ps/1", "steps"] == 3000
     assert np.isnan(per_run.set_index("run").loc["ps/3", "steps"])

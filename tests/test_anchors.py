@@ -139,11 +139,14 @@ def test_hash_is_pinned_and_identical_in_a_fresh_process():
     # Pinned: changing the encoding would orphan every stored anchor set and module signature.
     a = np.array([[0.5, -1.0, 2.0], [3.25, 0.0, -4.5]], np.float32)
     golden = "8e3c5d5e69989676ce157404dd851f4b18f18eda46ad82bab215336e8533e521"
-    code = ("import numpy as np; from ps_ray.anchors import anchor_hash; "
-            "print(anchor_hash(np.array([[0.5, -1.0, 2.0], [3.25, 0.0, -4.5]], np.float32)))")
+    code = (
+        "import numpy as np; from ps_ray.anchors import anchor_hash; "
+        "print(anchor_hash(np.array([[0.5, -1.0, 2.0], [3.25, 0.0, -4.5]], np.float32)))"
+    )
     env = dict(os.environ, PYTHONHASHSEED="123")
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                         check=True, env=env).stdout.strip()
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True, env=env
+    ).stdout.strip()
     assert out == anchor_hash(a)
     assert anchor_hash(a) == golden
 
@@ -154,8 +157,9 @@ def test_hash_is_pinned_and_identical_in_a_fresh_process():
 @pytest.fixture(scope="module")
 def anchor_set():
     x, _ = blobs()
-    return make_anchor_set({"push": x[:120], "push_slippery": x[120:]}, 5,
-                           extra_provenance={"steps": (5, 6, 7, 8, 9)})
+    return make_anchor_set(
+        {"push": x[:120], "push_slippery": x[120:]}, 5, extra_provenance={"steps": (5, 6, 7, 8, 9)}
+    )
 
 
 def test_anchor_set_contents(anchor_set):
@@ -223,22 +227,45 @@ class _Boom:
         return (Path.touch, (self.marker,))
 
 
-@pytest.mark.parametrize("case", [
-    "tampered_array", "tampered_hash", "garbage", "truncated", "empty", "pickle_file",
-    "pickle_member", "missing_meta", "missing_anchors", "extra_member", "plain_npy",
-    "bad_json", "foreign_format", "float64_anchors",
-])
+@pytest.mark.parametrize(
+    "case",
+    [
+        "tampered_array",
+        "tampered_hash",
+        "garbage",
+        "truncated",
+        "empty",
+        "pickle_file",
+        "pickle_member",
+        "missing_meta",
+        "missing_anchors",
+        "extra_member",
+        "plain_npy",
+        "bad_json",
+        "foreign_format",
+        "float64_anchors",
+    ],
+)
 def test_bad_files_are_one_line_value_errors_naming_the_file(tmp_path, anchor_set, case):
     path = tmp_path / f"{case}.npz"
     save_anchor_set(path, anchor_set)
     m = _members(path)
     marker = tmp_path / "unpickled"
     expect = {
-        "tampered_array": "hash mismatch", "tampered_hash": "hash mismatch",
-        "garbage": "not an .npz", "truncated": "unreadable", "empty": "not an .npz",
-        "pickle_file": "not an .npz", "pickle_member": "pickled", "missing_meta": "missing",
-        "missing_anchors": "missing", "extra_member": "unexpected", "plain_npy": "plain .npy",
-        "bad_json": "JSON", "foreign_format": "does not describe", "float64_anchors": "float32",
+        "tampered_array": "hash mismatch",
+        "tampered_hash": "hash mismatch",
+        "garbage": "not an .npz",
+        "truncated": "unreadable",
+        "empty": "not an .npz",
+        "pickle_file": "not an .npz",
+        "pickle_member": "pickled",
+        "missing_meta": "missing",
+        "missing_anchors": "missing",
+        "extra_member": "unexpected",
+        "plain_npy": "plain .npy",
+        "bad_json": "JSON",
+        "foreign_format": "does not describe",
+        "float64_anchors": "float32",
     }[case]
     if case == "tampered_array":
         arr = m["anchors"].copy()
@@ -367,7 +394,7 @@ def test_collect_on_point_env_shape_and_determinism():
     assert not np.array_equal(states, collect_task_states(PointGoalEnv, episodes=6, seed=4))
     for ep in range(6):  # task input = desired_goal of the episode reset with seed + ep
         goal = PointGoalEnv().reset(seed=3 + ep)[0]["desired_goal"]
-        np.testing.assert_array_equal(states[5 * ep: 5 * ep + 5], np.tile(goal, (5, 1)))
+        np.testing.assert_array_equal(states[5 * ep : 5 * ep + 5], np.tile(goal, (5, 1)))
 
 
 def test_collect_records_steps_5_to_9_and_calls_policy_batched():

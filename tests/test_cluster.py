@@ -45,8 +45,14 @@ def commands(cfg: dict, *keys: str) -> list[str]:
     return [c for k in keys for c in cfg.get(k) or []]
 
 
-ALL_COMMAND_KEYS = ("initialization_commands", "setup_commands", "head_setup_commands",
-                    "worker_setup_commands", "head_start_ray_commands", "worker_start_ray_commands")
+ALL_COMMAND_KEYS = (
+    "initialization_commands",
+    "setup_commands",
+    "head_setup_commands",
+    "worker_setup_commands",
+    "head_start_ray_commands",
+    "worker_start_ray_commands",
+)
 
 
 # -- Ray's own validation ----------------------------------------------------------------------
@@ -71,8 +77,10 @@ def _node_type_without_node_config(cfg):
     del cfg["available_node_types"]["cpu_worker"]["node_config"]
 
 
-@pytest.mark.parametrize("break_it", [_drop_provider_type, _unknown_top_level_key,
-                                      _string_cpu_count, _node_type_without_node_config])
+@pytest.mark.parametrize(
+    "break_it",
+    [_drop_provider_type, _unknown_top_level_key, _string_cpu_count, _node_type_without_node_config],
+)
 def test_malformed_copies_fail_the_same_validation(prepared, break_it):
     bad = copy.deepcopy(prepared)
     break_it(bad)
@@ -141,13 +149,15 @@ def test_only_ssh_is_opened_inbound(raw):
 
 # -- software ----------------------------------------------------------------------------------
 def test_torch_pinned_to_the_projects_cpu_wheel(prepared):
-    pins = [d for d in tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["dependencies"]
-            if d.startswith("torch==")]
+    pins = [
+        d
+        for d in tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["dependencies"]
+        if d.startswith("torch==")
+    ]
     assert pins == ["torch==2.13.0"]
     setup = prepared["setup_commands"]
     torch_cmds = [c for c in setup if "torch" in c]
-    assert torch_cmds == [f"{VENV}pip install torch==2.13.0 "
-                          "--index-url https://download.pytorch.org/whl/cpu"]
+    assert torch_cmds == [f"{VENV}pip install torch==2.13.0 --index-url https://download.pytorch.org/whl/cpu"]
     ps_ray = f"{VENV}pip install -e ~/ps_ray"
     assert ps_ray in setup
     assert setup.index(torch_cmds[0]) < setup.index(ps_ray), "torch first, or pip picks a CUDA wheel"
@@ -160,8 +170,9 @@ def test_setup_installs_ps_ray_from_the_synced_repo(raw, prepared):
     # prepare_config prepends setup_commands to the head's and the workers' own lists
     for key in ("head_setup_commands", "worker_setup_commands"):
         assert f"{VENV}pip install -e ~/ps_ray" in prepared[key], key
-    assert any("boto3" in c and c.startswith(VENV) for c in raw["head_setup_commands"]), \
+    assert any("boto3" in c and c.startswith(VENV) for c in raw["head_setup_commands"]), (
         "the autoscaler runs in the venv on the head and needs boto3 to start workers"
+    )
 
 
 def test_every_ray_command_uses_the_venv(raw):

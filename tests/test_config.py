@@ -16,21 +16,30 @@ SWEEPS = Path(__file__).resolve().parents[1] / "sweeps"
 def test_train_spec_defaults_are_valid_and_label_names_the_trial():
     spec = TrainSpec()
     assert spec.label() == "ps/panda/reach/101"
-    custom = TrainSpec(robot={"base": "panda", "locked_joints": [1]}, task={"name": "reach",
-                                                                           "goal_region": "q2"})
-    assert custom.env_config == {"robot": {"base": "panda", "locked_joints": [1]},
-                                 "task": {"name": "reach", "goal_region": "q2"}}
+    custom = TrainSpec(
+        robot={"base": "panda", "locked_joints": [1]}, task={"name": "reach", "goal_region": "q2"}
+    )
+    assert custom.env_config == {
+        "robot": {"base": "panda", "locked_joints": [1]},
+        "task": {"name": "reach", "goal_region": "q2"},
+    }
 
 
-@pytest.mark.parametrize("fields, message", [
-    ({"method": "psx"}, "unknown method 'psx'; valid methods: ps, ps_ln, ps_center, ps_center_ln, "
-                        "ps_mean_ln, ps_nograd, ps_scaled, ablation, devin, devin_large, plain"),
-    ({"robot": "pandaa"}, "unknown robot 'pandaa'; valid robots: panda, panda_l3, panda_l5"),
-    ({"task": "pushh"}, "unknown task 'pushh'"),
-    ({"robot": {"base": "panda", "locked_joints": [9]}}, "9"),
-    ({"env_steps": 0}, "env_steps must be a positive integer, got 0"),
-    ({"gamma": 1.5}, "gamma must be in (0, 1), got 1.5"),
-])
+@pytest.mark.parametrize(
+    "fields, message",
+    [
+        (
+            {"method": "psx"},
+            "unknown method 'psx'; valid methods: ps, ps_ln, ps_center, ps_center_ln, "
+            "ps_mean_ln, ps_nograd, ps_scaled, ablation, devin, devin_large, plain",
+        ),
+        ({"robot": "pandaa"}, "unknown robot 'pandaa'; valid robots: panda, panda_l3, panda_l5"),
+        ({"task": "pushh"}, "unknown task 'pushh'"),
+        ({"robot": {"base": "panda", "locked_joints": [9]}}, "9"),
+        ({"env_steps": 0}, "env_steps must be a positive integer, got 0"),
+        ({"gamma": 1.5}, "gamma must be in (0, 1), got 1.5"),
+    ],
+)
 def test_bad_train_spec_values_name_the_value(fields, message):
     with pytest.raises(SpecError) as err:
         TrainSpec(**fields)
@@ -49,14 +58,31 @@ def test_resumable_changes_keep_the_identity():
     assert TrainSpec(seed=102).digest() != base.digest()
 
 
-@pytest.mark.parametrize("name, n_trials", [("smoke", 16), ("latent_reach", 72),
-                                             ("zero_shot", 225), ("few_shot", 375),
-                                             ("alignment_reach", 72), ("stitch_push", 32)])
+@pytest.mark.parametrize(
+    "name, n_trials",
+    [
+        ("smoke", 16),
+        ("latent_reach", 72),
+        ("zero_shot", 225),
+        ("few_shot", 375),
+        ("alignment_reach", 72),
+        ("stitch_push", 32),
+    ],
+)
 def test_shipped_sweeps_load_and_expand_to_trials(name, n_trials):
     sweep = load_sweep(SWEEPS / f"{name}.yaml")
     trials = sweep.trials()
-    assert len(trials) == n_trials == (len(sweep.methods) * len(sweep.robots) * len(sweep.tasks)
-                                       * len(sweep.seeds) * len(sweep.interface_dims))
+    assert (
+        len(trials)
+        == n_trials
+        == (
+            len(sweep.methods)
+            * len(sweep.robots)
+            * len(sweep.tasks)
+            * len(sweep.seeds)
+            * len(sweep.interface_dims)
+        )
+    )
     assert {t.method for t in trials} == set(sweep.methods)
 
 
@@ -74,31 +100,48 @@ seeds: [1]
 """
 
 
-@pytest.mark.parametrize("text, message", [
-    (GOOD + "colour: red\n", "unknown key 'colour'; valid keys: name, methods"),
-    (GOOD.replace("[ps]", "[ps, nope]"), "unknown method 'nope'"),
-    (GOOD.replace("[panda]", "[{base: panda, locked_joints: [8]}]"), "8"),
-    (GOOD + "train: {env_steps: -1}\n", "env_steps must be a positive integer, got -1"),
-    (GOOD + "train: {method: ps}\n", "train.method is set by the sweep grid"),
-    (GOOD + "stages: [train, fly]\n", "unknown stage 'fly'; valid stages: train, zero_shot, few_shot, report"),
-    (GOOD + "anchors: {epizodes: 3}\n", "anchors: unknown key 'epizodes'; valid keys: file"),
-    (GOOD + "zero_shot: {episodes: 0}\n", "zero_shot.episodes must be positive, got 0"),
-    (GOOD + "few_shot: {env_steps: 100, collect_steps: 200}\n",
-     "few_shot.collect_steps must be in [0, env_steps), got 200"),
-    (GOOD + "few_shot: {methods: [plain]}\n", "method 'plain' is not trained by this sweep; valid: ps"),
-    (GOOD + "report: [1, 2]\n", "report: expected a mapping, got [1, 2]"),
-    ("name: t\nmethods: [ps\n", "malformed YAML at line"),
-    ("- just\n- a list\n", "expected a mapping at the top level"),
-    (GOOD.replace("seeds: [1]", "seeds: []"), "seeds must be a non-empty list"),
-    (GOOD.replace("seeds: [1]", "seeds: [1, 2, 1]"), "seeds: duplicate entries 1; list each once"),
-    (GOOD.replace("[panda]", "[{base: panda, locked_joints: [0, 1, 2, 3, 4, 5, 6]}]"),
-     "all 7 arm joints locked leaves nothing to control; lock at most 6"),
-    (GOOD + "train: {target_success: 1.5}\n", "target_success must be a number in (0, 1] or null, got 1.5"),
-    (GOOD.replace("[ps]", "[ps, ablation]") + "zero_shot: {translate: {ablation: [warp]}}\n",
-     "zero_shot.translate.ablation: unknown translation 'warp'; valid: orthogonal, affine"),
-    (GOOD + "zero_shot: {translate: {plain: [affine]}}\n",
-     "method 'plain' is not trained by this sweep; valid: ps"),
-])
+@pytest.mark.parametrize(
+    "text, message",
+    [
+        (GOOD + "colour: red\n", "unknown key 'colour'; valid keys: name, methods"),
+        (GOOD.replace("[ps]", "[ps, nope]"), "unknown method 'nope'"),
+        (GOOD.replace("[panda]", "[{base: panda, locked_joints: [8]}]"), "8"),
+        (GOOD + "train: {env_steps: -1}\n", "env_steps must be a positive integer, got -1"),
+        (GOOD + "train: {method: ps}\n", "train.method is set by the sweep grid"),
+        (
+            GOOD + "stages: [train, fly]\n",
+            "unknown stage 'fly'; valid stages: train, zero_shot, few_shot, report",
+        ),
+        (GOOD + "anchors: {epizodes: 3}\n", "anchors: unknown key 'epizodes'; valid keys: file"),
+        (GOOD + "zero_shot: {episodes: 0}\n", "zero_shot.episodes must be positive, got 0"),
+        (
+            GOOD + "few_shot: {env_steps: 100, collect_steps: 200}\n",
+            "few_shot.collect_steps must be in [0, env_steps), got 200",
+        ),
+        (GOOD + "few_shot: {methods: [plain]}\n", "method 'plain' is not trained by this sweep; valid: ps"),
+        (GOOD + "report: [1, 2]\n", "report: expected a mapping, got [1, 2]"),
+        ("name: t\nmethods: [ps\n", "malformed YAML at line"),
+        ("- just\n- a list\n", "expected a mapping at the top level"),
+        (GOOD.replace("seeds: [1]", "seeds: []"), "seeds must be a non-empty list"),
+        (GOOD.replace("seeds: [1]", "seeds: [1, 2, 1]"), "seeds: duplicate entries 1; list each once"),
+        (
+            GOOD.replace("[panda]", "[{base: panda, locked_joints: [0, 1, 2, 3, 4, 5, 6]}]"),
+            "all 7 arm joints locked leaves nothing to control; lock at most 6",
+        ),
+        (
+            GOOD + "train: {target_success: 1.5}\n",
+            "target_success must be a number in (0, 1] or null, got 1.5",
+        ),
+        (
+            GOOD.replace("[ps]", "[ps, ablation]") + "zero_shot: {translate: {ablation: [warp]}}\n",
+            "zero_shot.translate.ablation: unknown translation 'warp'; valid: orthogonal, affine",
+        ),
+        (
+            GOOD + "zero_shot: {translate: {plain: [affine]}}\n",
+            "method 'plain' is not trained by this sweep; valid: ps",
+        ),
+    ],
+)
 def test_bad_sweep_files_fail_with_one_line_naming_the_problem(tmp_path, text, message):
     path = _write(tmp_path, text)
     with pytest.raises(SpecError) as err:
@@ -110,17 +153,30 @@ def test_bad_sweep_files_fail_with_one_line_naming_the_problem(tmp_path, text, m
 
 def test_cli_rejects_a_bad_sweep_with_exit_code_2_and_writes_nothing(tmp_path):
     path = _write(tmp_path, GOOD.replace("[ps]", "[nope]") + f"storage: {tmp_path / 'out'}\n")
-    proc = subprocess.run([sys.executable, "-m", "ps_ray.cli", "sweep", str(path)],
-                          capture_output=True, text=True, timeout=120)
+    proc = subprocess.run(
+        [sys.executable, "-m", "ps_ray.cli", "sweep", str(path)], capture_output=True, text=True, timeout=120
+    )
     assert proc.returncode == 2
     assert "unknown method 'nope'" in proc.stderr
     assert not (tmp_path / "out").exists()
 
 
 def test_cli_rejects_bad_train_input(tmp_path):
-    proc = subprocess.run([sys.executable, "-m", "ps_ray.cli", "train", "--robot", "pandaa",
-                           "--run-dir", str(tmp_path / "run")], capture_output=True, text=True,
-                          timeout=120)
+    proc = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "ps_ray.cli",
+            "train",
+            "--robot",
+            "pandaa",
+            "--run-dir",
+            str(tmp_path / "run"),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert proc.returncode == 2
     assert proc.stderr.strip().endswith("unknown robot 'pandaa'; valid robots: panda, panda_l3, panda_l5")
     assert not (tmp_path / "run").exists()

@@ -16,10 +16,18 @@ DOWN = p.getQuaternionFromEuler([np.pi, 0.0, 0.0])
 def ik_action(env, obs, target) -> np.ndarray:
     """Joint-delta action moving the end effector towards ``target`` (gripper pointing down)."""
     robot = env.unwrapped.robot
-    ik = p.calculateInverseKinematics(robot.body, EE_LINK, list(map(float, target)), DOWN,
-                                      maxNumIterations=100, physicsClientId=robot.sim.client)
+    ik = p.calculateInverseKinematics(
+        robot.body,
+        EE_LINK,
+        list(map(float, target)),
+        DOWN,
+        maxNumIterations=100,
+        physicsClientId=robot.sim.client,
+    )
     action = np.zeros(env.action_space.shape, np.float32)
-    action[robot.free] = np.clip((np.array(ik[: len(robot.free)]) - obs["robot_state"][robot.free]) / ARM_STEP, -1, 1)
+    action[robot.free] = np.clip(
+        (np.array(ik[: len(robot.free)]) - obs["robot_state"][robot.free]) / ARM_STEP, -1, 1
+    )
     return action
 
 
@@ -154,8 +162,9 @@ def test_success_when_object_on_goal():
     env = make("panda", "push")
     obs, info = env.reset(seed=0)
     assert not info["is_success"] and not info["initially_successful"] and not info["touching"]
-    p.resetBasePositionAndOrientation(env.task.object, env.task.goal.tolist(), (0, 0, 0, 1),
-                                      physicsClientId=env.sim.client)
+    p.resetBasePositionAndOrientation(
+        env.task.object, env.task.goal.tolist(), (0, 0, 0, 1), physicsClientId=env.sim.client
+    )
     obs, reward, terminated, truncated, info = env.step(np.zeros(7, np.float32))
     assert info["is_success"] and reward == 0.0 and not terminated and not truncated
     assert not info["initially_successful"]
@@ -197,7 +206,9 @@ def test_reach_custom_disc_and_default_box():
 def test_pick_goals_and_stick():
     env = make("panda", "pick_stick")
     goals = np.array([env.reset(seed=s)[0]["desired_goal"] for s in range(40)])
-    assert np.all(np.abs(goals[:, :2]) <= 0.15) and np.all((goals[:, 2] >= 0.02) & (goals[:, 2] <= 0.22 + 1e-6))
+    assert np.all(np.abs(goals[:, :2]) <= 0.15) and np.all(
+        (goals[:, 2] >= 0.02) & (goals[:, 2] <= 0.22 + 1e-6)
+    )
     assert 0 < np.mean(goals[:, 2] == np.float32(0.02)) < 0.7  # some goals on the table
     shape = p.getCollisionShapeData(env.task.object, -1, physicsClientId=env.sim.client)[0][3]
     np.testing.assert_allclose(shape, (0.30, 0.04, 0.04))
@@ -223,8 +234,9 @@ def test_compute_reward_matches_step_rewards():
     achieved, desired, rewards = [], [], []
     for t in range(50):
         if t == 25:  # put the cube on the goal, so both reward values occur
-            p.resetBasePositionAndOrientation(env.task.object, env.task.goal.tolist(), (0, 0, 0, 1),
-                                              physicsClientId=env.sim.client)
+            p.resetBasePositionAndOrientation(
+                env.task.object, env.task.goal.tolist(), (0, 0, 0, 1), physicsClientId=env.sim.client
+            )
         obs, reward, _, truncated, info = env.step(env.action_space.sample())
         achieved.append(obs["achieved_goal"])
         desired.append(obs["desired_goal"])
@@ -263,7 +275,9 @@ def test_truncation_after_50_steps():
 
 
 # -- determinism ----------------------------------------------------------------------------------
-@pytest.mark.parametrize("robot,task", [("panda", "push"), ("panda_l5", "push_rocks"), ("panda", "pick_stick")])
+@pytest.mark.parametrize(
+    "robot,task", [("panda", "push"), ("panda_l5", "push_rocks"), ("panda", "pick_stick")]
+)
 def test_seeded_replay_is_bit_identical(robot, task):
     env = make(robot, task)
     _, _, actions, infos = scripted_push(env, seed=3, height=0.0)  # presses on the table and the object

@@ -45,7 +45,9 @@ def test_gymnasium_make_passes_options():
 
 
 def test_rllib_creator_and_registration():
-    env = create_env({"robot": {"base": "panda", "locked_joints": [1]}, "task": "push", "object_friction": 0.2})
+    env = create_env(
+        {"robot": {"base": "panda", "locked_joints": [1]}, "task": "push", "object_friction": 0.2}
+    )
     assert env.robot_spec == RobotSpec(locked_joints=(1,))
     assert env.task_spec.options.object_friction == 0.2
     code = (
@@ -89,7 +91,9 @@ def test_bad_input_names_the_value_and_the_choices(kwargs, fragments):
 
 
 def test_robot_error_message_exact():
-    with pytest.raises(ValueError, match=r"^unknown robot 'pandaa'; valid robots: panda, panda_l3, panda_l5$"):
+    with pytest.raises(
+        ValueError, match=r"^unknown robot 'pandaa'; valid robots: panda, panda_l3, panda_l5$"
+    ):
         make("pandaa", "reach")
 
 

@@ -8,11 +8,9 @@ import numpy as np
 import pytest
 import torch
 
-from ps_ray.nets.modular import uses_anchors
-
 from ps_ray.envs import make
 from ps_ray.evaluate import BatchedGreedy, EpisodeRecord, evaluate, summarize
-from ps_ray.nets.modular import NetDims
+from ps_ray.nets.modular import NetDims, uses_anchors
 from ps_ray.nets.sac import build_sac_nets
 from ps_ray.policy import GreedyPolicy
 
@@ -49,16 +47,23 @@ def reference_rollouts(seeds: list[int]) -> list[tuple[bool, bool, bool]]:
     return out
 
 
-def record(repeat: int, success: bool, touched: bool, initially: bool,
-           contact: bool = False) -> EpisodeRecord:
+def record(
+    repeat: int, success: bool, touched: bool, initially: bool, contact: bool = False
+) -> EpisodeRecord:
     return EpisodeRecord(repeat, 0, success, touched, contact, initially, (0.0,) * 3, (0.0,) * 3)
 
 
 def test_summary_excludes_initially_successful_episodes_from_touching():
-    records = [record(0, True, True, False, True), record(0, False, True, False),
-               record(0, True, False, True), record(0, False, False, False),
-               record(1, True, True, False), record(1, True, False, False),
-               record(1, True, True, True), record(1, False, False, True)]
+    records = [
+        record(0, True, True, False, True),
+        record(0, False, True, False),
+        record(0, True, False, True),
+        record(0, False, False, False),
+        record(1, True, True, False),
+        record(1, True, False, False),
+        record(1, True, True, True),
+        record(1, False, False, True),
+    ]
     out = summarize(records)
     assert out["success_per_repeat"] == [0.5, 0.75]
     assert out["touching_per_repeat"] == pytest.approx([2 / 3, 1 / 2])  # not 2/4 and 2/4
@@ -73,8 +78,9 @@ def test_summary_excludes_initially_successful_episodes_from_touching():
 
 def test_end_to_end_rates_match_a_hand_rollout_with_initially_successful_episodes():
     episodes, repeats, seed = 20, 2, 0
-    result = evaluate(lean_if_goal_ahead, "panda", "push", episodes=episodes, repeats=repeats,
-                      seed=seed, num_envs=3)
+    result = evaluate(
+        lean_if_goal_ahead, "panda", "push", episodes=episodes, repeats=repeats, seed=seed, num_envs=3
+    )
     for r in range(repeats):
         ref = reference_rollouts([seed + r * episodes + j for j in range(episodes)])
         eligible = [touched for _, touched, initially in ref if not initially]
@@ -101,9 +107,19 @@ def test_every_policy_sees_the_same_episodes_and_num_envs_changes_nothing():
     assert one["records"] == four["records"]
 
 
-@pytest.mark.parametrize("method, translation", [
-    ("ps", None), ("ps_center_ln", None), ("ps_mean_ln", None), ("ablation", None),
-    ("devin", None), ("plain", None), ("ps_center_ln", "affine"), ("ablation", "orthogonal")])
+@pytest.mark.parametrize(
+    "method, translation",
+    [
+        ("ps", None),
+        ("ps_center_ln", None),
+        ("ps_mean_ln", None),
+        ("ablation", None),
+        ("devin", None),
+        ("plain", None),
+        ("ps_center_ln", "affine"),
+        ("ablation", "orthogonal"),
+    ],
+)
 def test_fast_actions_match_the_actor(method, translation):
     nets = nets_for(method)
     if translation:  # a translated stitch of the policy with another seed of it
@@ -136,8 +152,8 @@ def test_refuses_a_policy_that_does_not_fit_the_env_and_bad_counts():
 
 def test_progress_line_per_repeat_and_bench_runs(capsys):
     evaluate(lean_if_goal_ahead, "panda", "push", episodes=2, repeats=3, num_envs=2, verbose=True)
-    lines = [l for l in capsys.readouterr().out.splitlines() if "repeat" in l]
-    assert [l.split("repeat ")[1][:3] for l in lines] == ["1/3", "2/3", "3/3"]
+    lines = [line for line in capsys.readouterr().out.splitlines() if "repeat" in line]
+    assert [line.split("repeat ")[1][:3] for line in lines] == ["1/3", "2/3", "3/3"]
     from ps_ray.bench.evaluate import main
 
     main(["--episodes", "2", "--rounds", "1", "--hidden", "16", "--interface-dim", "8"])

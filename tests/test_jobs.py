@@ -31,20 +31,41 @@ def ray_head(tmp_path):
     env = {**os.environ, "RAY_AUTH_MODE": "token", "RAY_USAGE_STATS_ENABLED": "0"}
     dashboard = free_port()
     head = subprocess.Popen(
-        [str(BIN / "ray"), "start", "--head", "--block", f"--port={free_port()}", "--num-cpus=2",
-         "--dashboard-host=127.0.0.1", f"--dashboard-port={dashboard}",
-         # Own ports for every agent: another Ray instance on this machine (the test session's)
-         # must not keep the job agent from starting.
-         *(f"--{name}={free_port()}" for name in (
-             "dashboard-agent-listen-port", "dashboard-agent-grpc-port", "metrics-export-port",
-             "runtime-env-agent-port", "ray-client-server-port")),
-         f"--temp-dir={Path('/tmp') / f'ps_ray_head_{dashboard}'}", "--include-dashboard=true"],
-        env=env, stdout=subprocess.DEVNULL, stderr=subprocess.STDOUT, start_new_session=True)
+        [
+            str(BIN / "ray"),
+            "start",
+            "--head",
+            "--block",
+            f"--port={free_port()}",
+            "--num-cpus=2",
+            "--dashboard-host=127.0.0.1",
+            f"--dashboard-port={dashboard}",
+            # Own ports for every agent: another Ray instance on this machine (the test session's)
+            # must not keep the job agent from starting.
+            *(
+                f"--{name}={free_port()}"
+                for name in (
+                    "dashboard-agent-listen-port",
+                    "dashboard-agent-grpc-port",
+                    "metrics-export-port",
+                    "runtime-env-agent-port",
+                    "ray-client-server-port",
+                )
+            ),
+            f"--temp-dir={Path('/tmp') / f'ps_ray_head_{dashboard}'}",
+            "--include-dashboard=true",
+        ],
+        env=env,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.STDOUT,
+        start_new_session=True,
+    )
     address = f"http://127.0.0.1:{dashboard}"
     deadline = time.time() + 120
     while time.time() < deadline:
-        probe = subprocess.run([str(BIN / "ray"), "job", "list", "--address", address], env=env,
-                               capture_output=True, text=True)
+        probe = subprocess.run(
+            [str(BIN / "ray"), "job", "list", "--address", address], env=env, capture_output=True, text=True
+        )
         if probe.returncode == 0:
             break
         time.sleep(2)
@@ -64,13 +85,42 @@ def test_sweep_submitted_as_a_ray_job_lands_in_mlflow(ray_head, tmp_path):
     address, env = ray_head
     storage = tmp_path / "store"
     sweep = tmp_path / "job.yaml"
-    sweep.write_text(yaml.safe_dump({
-        "name": "job", "methods": ["ablation"], "robots": ["panda"], "tasks": ["reach"],
-        "seeds": [1], "interface_dims": [8], "storage": str(storage),
-        "train": {"env_steps": 200, "hidden": 32, "learning_starts": 100, "random_episodes": 2,
-                  "eval_every": 2, "eval_episodes": 2, "checkpoint_every": 2, "batch_size": 32}}))
-    command = [str(BIN / "ray"), "job", "submit", "--address", address, "--working-dir", str(REPO),
-               "--", str(BIN / "ps-ray"), "sweep", str(sweep)]
+    sweep.write_text(
+        yaml.safe_dump(
+            {
+                "name": "job",
+                "methods": ["ablation"],
+                "robots": ["panda"],
+                "tasks": ["reach"],
+                "seeds": [1],
+                "interface_dims": [8],
+                "storage": str(storage),
+                "train": {
+                    "env_steps": 200,
+                    "hidden": 32,
+                    "learning_starts": 100,
+                    "random_episodes": 2,
+                    "eval_every": 2,
+                    "eval_episodes": 2,
+                    "checkpoint_every": 2,
+                    "batch_size": 32,
+                },
+            }
+        )
+    )
+    command = [
+        str(BIN / "ray"),
+        "job",
+        "submit",
+        "--address",
+        address,
+        "--working-dir",
+        str(REPO),
+        "--",
+        str(BIN / "ps-ray"),
+        "sweep",
+        str(sweep),
+    ]
     for _ in range(30):  # the job agent may come up a little after the dashboard answers
         submit = subprocess.run(command, env=env, capture_output=True, text=True, timeout=600)
         if "No available agent" not in submit.stderr + submit.stdout:
@@ -89,6 +139,11 @@ def test_sweep_submitted_as_a_ray_job_lands_in_mlflow(ray_head, tmp_path):
 def test_job_cli_without_a_token_is_refused(ray_head):
     address, env = ray_head
     no_auth = {k: v for k, v in env.items() if k != "RAY_AUTH_MODE"}
-    listing = subprocess.run([str(BIN / "ray"), "job", "list", "--address", address],
-                             env=no_auth, capture_output=True, text=True, timeout=60)
+    listing = subprocess.run(
+        [str(BIN / "ray"), "job", "list", "--address", address],
+        env=no_auth,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
     assert listing.returncode != 0

@@ -29,8 +29,10 @@ def test_a_held_folder_refuses_a_second_holder_and_names_the_first(tmp_path):
 
 def test_a_lock_left_by_a_killed_process_is_taken_over(tmp_path):
     folder = tmp_path / "sweep"
-    code = (f"from ps_ray.lock import folder_lock\nimport os\n"
-            f"with folder_lock({str(folder)!r}):\n    os._exit(9)\n")  # dies holding it
+    code = (
+        f"from ps_ray.lock import folder_lock\nimport os\n"
+        f"with folder_lock({str(folder)!r}):\n    os._exit(9)\n"
+    )  # dies holding it
     assert subprocess.run([sys.executable, "-c", code]).returncode == 9
     assert (folder / LOCK_FILE).exists()
     with folder_lock(folder):
@@ -43,9 +45,16 @@ def test_every_sweep_command_is_refused_while_another_driver_holds_the_sweep(tmp
     spec.write_text(SWEEP)
     storage = tmp_path / "store"
     with folder_lock(storage / "locked", "sweep"):
-        done = subprocess.run([sys.executable, "-m", "ps_ray.cli", *command, str(spec),
-                               "--storage", str(storage)], capture_output=True, text=True, timeout=120)
+        done = subprocess.run(
+            [sys.executable, "-m", "ps_ray.cli", *command, str(spec), "--storage", str(storage)],
+            capture_output=True,
+            text=True,
+            timeout=120,
+        )
     assert done.returncode == 2, done.stderr[-2000:]
-    assert done.stderr.strip().splitlines()[-1].startswith(
-        f"ps-ray {command[0]}: error: {storage / 'locked'}: this sweep is being written by PID")
+    assert (
+        done.stderr.strip()
+        .splitlines()[-1]
+        .startswith(f"ps-ray {command[0]}: error: {storage / 'locked'}: this sweep is being written by PID")
+    )
     assert sorted(p.name for p in (storage / "locked").iterdir()) == [LOCK_FILE]  # nothing else written

@@ -84,8 +84,7 @@ def test_running_norm_standardises_clips_and_round_trips() -> None:
     # merged in float64, stored in float32 (what survives an RLlib checkpoint exactly)
     assert norm.mean.dtype == norm.var.dtype == torch.float32
     torch.testing.assert_close(norm.mean, data.double().mean(0).float(), rtol=1e-6, atol=1e-6)
-    torch.testing.assert_close(norm.var, data.double().var(0, unbiased=False).float(), rtol=1e-5,
-                               atol=1e-6)
+    torch.testing.assert_close(norm.var, data.double().var(0, unbiased=False).float(), rtol=1e-5, atol=1e-6)
     out = norm(data)
     assert out.dtype == data.dtype
     torch.testing.assert_close(out.mean(0), torch.zeros(3), rtol=0, atol=2e-2)
@@ -256,7 +255,9 @@ def test_update_normalizers_routes_inputs() -> None:
         update_normalizers(nn.ModuleList([modular, plain]), task, robot)
         torch.testing.assert_close(modular.task.norm.mean, task.double().mean(0).float())
         torch.testing.assert_close(modular.robot.norm.mean, robot.double().mean(0).float())
-        torch.testing.assert_close(plain.task.norm.mean, torch.cat([task, robot], -1).double().mean(0).float())
+        torch.testing.assert_close(
+            plain.task.norm.mean, torch.cat([task, robot], -1).double().mean(0).float()
+        )
         assert plain.robot.norm is None
         # the PS anchors go through the same input normalisation as the batch
         anchors = modular.anchors

@@ -26,9 +26,9 @@ from ps_ray.pipeline import stage_state
 from .test_sweep import cli
 
 SMOKE = Path(__file__).resolve().parents[1] / "sweeps" / "smoke.yaml"
-FIGURES = {"training_curves", "heatmap_seeds_i16", "heatmap_robots_i16", "zero_shot",
-           "few_shot_curves"} | {f"interface_{c}_i16_{m}" for c in ("seeds", "robots")
-                                 for m in ("ps", "ablation")}
+FIGURES = {"training_curves", "heatmap_seeds_i16", "heatmap_robots_i16", "zero_shot", "few_shot_curves"} | {
+    f"interface_{c}_i16_{m}" for c in ("seeds", "robots") for m in ("ps", "ablation")
+}
 
 
 @pytest.fixture(scope="module")
@@ -38,9 +38,12 @@ def smoke(tmp_path_factory):
     root = storage / "smoke"
     log = storage.parent / "first_run.log"
     with log.open("w") as sink:  # a file, not a pipe nobody reads while waiting (it would fill)
-        first = subprocess.Popen([sys.executable, "-m", "ps_ray.cli", "run", str(SMOKE),
-                                  "--storage", str(storage)], stdout=sink, stderr=subprocess.STDOUT,
-                                 start_new_session=True)
+        first = subprocess.Popen(
+            [sys.executable, "-m", "ps_ray.cli", "run", str(SMOKE), "--storage", str(storage)],
+            stdout=sink,
+            stderr=subprocess.STDOUT,
+            start_new_session=True,
+        )
         deadline = time.time() + 1200
         while not (root / "stages" / "zero_shot.started.json").exists():
             assert first.poll() is None, log.read_text()[-3000:]
@@ -59,8 +62,9 @@ def smoke(tmp_path_factory):
 def _runs(root: Path, stage: str):
     client = mlflow.MlflowClient(f"sqlite:///{root / 'mlflow.db'}")
     experiment = client.get_experiment_by_name("smoke")
-    return [r for r in client.search_runs([experiment.experiment_id])
-            if r.data.tags.get("ps_ray.stage") == stage]
+    return [
+        r for r in client.search_runs([experiment.experiment_id]) if r.data.tags.get("ps_ray.stage") == stage
+    ]
 
 
 def test_a_killed_pipeline_resumes_without_redoing_finished_work(smoke):
@@ -115,7 +119,9 @@ def test_report_embeds_every_figure_and_table(smoke):
     figures = {p.stem: p for p in (root / "report" / "figures").glob("*.png")}
     assert set(figures) == FIGURES
     for name, path in figures.items():
-        assert f"alt='{name}' src='data:image/png;base64,{base64.b64encode(path.read_bytes()).decode()}'" in page
+        assert (
+            f"alt='{name}' src='data:image/png;base64,{base64.b64encode(path.read_bytes()).decode()}'" in page
+        )
     for section in ("Training", "Latent alignment", "Zero-shot stitching", "Few-shot fine-tuning"):
         assert f">{section}</h2>" in page
     assert "Zero-shot results (Table 1 layout)" in page and "task module &amp; robot module" in page
@@ -128,12 +134,16 @@ def test_report_embeds_every_figure_and_table(smoke):
     report_runs = _runs(root, "report")
     assert len(report_runs) == 1
     assert report_runs[0].data.metrics["latent.seeds.i16.ps.cosine"] == pytest.approx(
-        distances.query("comparison == 'seeds' and method == 'ps'")["cosine_mean"].item())
+        distances.query("comparison == 'seeds' and method == 'ps'")["cosine_mean"].item()
+    )
 
 
 def _digests(folder: Path) -> dict[str, str]:
-    return {str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest()
-            for p in sorted(folder.rglob("*")) if p.is_file()}
+    return {
+        str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest()
+        for p in sorted(folder.rglob("*"))
+        if p.is_file()
+    }
 
 
 def test_report_command_is_idempotent(smoke):
@@ -156,7 +166,10 @@ def test_report_of_a_folder_that_is_not_a_sweep_fails_with_one_line(tmp_path):
     proc = cli("report", str(tmp_path))
     out, _ = proc.communicate(timeout=120)
     assert proc.returncode == 2
-    assert out.strip().splitlines()[-1] == f"ps-ray report: error: {tmp_path}: not a sweep folder (no sweep.yaml)"
+    assert (
+        out.strip().splitlines()[-1]
+        == f"ps-ray report: error: {tmp_path}: not a sweep folder (no sweep.yaml)"
+    )
 
 
 def test_report_opens_in_headless_chromium(smoke, tmp_path):
@@ -185,5 +198,6 @@ def test_report_of_a_renamed_sweep_folder_fails_with_one_line(tmp_path):
     assert proc.returncode == 2
     assert out.strip().splitlines()[-1] == (
         f"ps-ray report: error: {folder}: holds sweep 'smoke'; a sweep folder must keep its "
-        "sweep's name (rename it back to 'smoke')")
+        "sweep's name (rename it back to 'smoke')"
+    )
     assert sorted(p.name for p in folder.iterdir()) == ["sweep.yaml"]  # nothing written

@@ -6,15 +6,24 @@ import numpy as np
 import pytest
 import torch
 
+from ps_ray.anchors import anchor_hash
 from ps_ray.config import TrainSpec
 from ps_ray.nets.sac import NET_NAMES
 from ps_ray.rllib.algo import algo_config
 from ps_ray.rllib.episodes import train_batch
-from ps_ray.anchors import anchor_hash
 from ps_ray.weights import Signature, load_policy, read_signature
 
-SMALL = dict(task="point", hidden=64, interface_dim=16, learning_starts=200, random_episodes=2,
-             episodes_per_step=4, num_envs=2, eval_every=1000, batch_size=64)
+SMALL = dict(
+    task="point",
+    hidden=64,
+    interface_dim=16,
+    learning_starts=200,
+    random_episodes=2,
+    episodes_per_step=4,
+    num_envs=2,
+    eval_every=1000,
+    batch_size=64,
+)
 
 
 def _outputs(nets, batch) -> dict[str, torch.Tensor]:
@@ -48,8 +57,10 @@ def test_training_steps_update_weights_and_targets(trained):
     _, _, algo, _ = trained
     assert algo.counters["updates"] > 0
     module = _learner_module(algo)
-    for online, target in ((module.critic, module.target_critic),
-                           (module.critic_twin, module.target_critic_twin)):
+    for online, target in (
+        (module.critic, module.target_critic),
+        (module.critic_twin, module.target_critic_twin),
+    ):
         diffs = [(o - t).abs().max().item() for o, t in zip(online.parameters(), target.parameters())]
         assert max(diffs) > 0, "targets must lag the online critics (Polyak, not a copy)"
 
@@ -59,8 +70,10 @@ def test_checkpoint_round_trip_restores_every_net_and_the_replay(trained):
     batch = train_batch(algo.replay.sample(32))
     fresh = algo_config(spec, anchors).build_algo()
     try:
-        assert not torch.equal(_outputs(_learner_module(fresh), batch)["critic"],
-                               _outputs(_learner_module(algo), batch)["critic"])
+        assert not torch.equal(
+            _outputs(_learner_module(fresh), batch)["critic"],
+            _outputs(_learner_module(algo), batch)["critic"],
+        )
         fresh.load_checkpoint(str(path))
         # Every tensor of actor, critics and target critics (normaliser statistics included) is
         # restored bit for bit ...
@@ -81,8 +94,9 @@ def test_checkpoint_round_trip_restores_every_net_and_the_replay(trained):
 
 def test_policy_file_round_trip_keeps_actions_q_and_targets(trained, tmp_path):
     spec, anchors, algo, _ = trained
-    signature = Signature(method=spec.method, interface_dim=16, hidden=64,
-                          anchor_hash=anchor_hash(anchors), **algo.replay_dims)
+    signature = Signature(
+        method=spec.method, interface_dim=16, hidden=64, anchor_hash=anchor_hash(anchors), **algo.replay_dims
+    )
     algo.export_policy(tmp_path / "policy.safetensors", signature)
     nets, loaded_signature = load_policy(tmp_path / "policy.safetensors")
     assert loaded_signature == signature
@@ -121,12 +135,14 @@ def test_training_episodes_get_fresh_goals_and_evaluations_fixed_ones(ray_local)
     try:
         for _ in range(3):
             algo.train()
-        stored = algo.replay._obs["desired_goal"][:algo.replay.num_episodes, 0]
+        stored = algo.replay._obs["desired_goal"][: algo.replay.num_episodes, 0]
         assert len(np.unique(stored.round(6), axis=0)) == algo.replay.num_episodes == 12
-        first = [ep.get_observations()["desired_goal"][0] for ep in algo._collect(
-            explore=False, random=False, n=2)]
-        second = [ep.get_observations()["desired_goal"][0] for ep in algo._collect(
-            explore=False, random=False, n=2)]
+        first = [
+            ep.get_observations()["desired_goal"][0] for ep in algo._collect(explore=False, random=False, n=2)
+        ]
+        second = [
+            ep.get_observations()["desired_goal"][0] for ep in algo._collect(explore=False, random=False, n=2)
+        ]
         np.testing.assert_array_equal(first, second)
     finally:
         algo.stop()
@@ -141,8 +157,15 @@ def test_a_run_can_start_from_given_weights(ray_local, tmp_path):
 
     anchors = np.random.default_rng(1).uniform(-0.5, 0.5, (16, 2)).astype(np.float32)
     nets = build_sac_nets("ps", NetDims(2, 2, 2), interface_dim=16, hidden=64, anchors=anchors)
-    signature = Signature(method="ps", interface_dim=16, hidden=64, anchor_hash=anchor_hash(anchors),
-                          task_dim=2, robot_dim=2, action_dim=2)
+    signature = Signature(
+        method="ps",
+        interface_dim=16,
+        hidden=64,
+        anchor_hash=anchor_hash(anchors),
+        task_dim=2,
+        robot_dim=2,
+        action_dim=2,
+    )
     save_policy(tmp_path / "start.safetensors", nets, signature)
     spec = TrainSpec(method="ps", init_policy=str(tmp_path / "start.safetensors"), **SMALL)
     anchor_set = prepare_anchors(spec, tmp_path)

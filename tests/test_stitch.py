@@ -58,15 +58,30 @@ ANCHORS, OTHER_ANCHORS = anchors_for(), anchors_for(seed=1)
 SEEDS = itertools.count(10)
 
 
-def make_nets(method: str = "ps", dims: NetDims = PUSH, *, interface_dim: int = K, hidden: int = 16,
-              anchors: np.ndarray | None = ANCHORS, seed: int = 0) -> tuple[SACNets, Signature]:
+def make_nets(
+    method: str = "ps",
+    dims: NetDims = PUSH,
+    *,
+    interface_dim: int = K,
+    hidden: int = 16,
+    anchors: np.ndarray | None = ANCHORS,
+    seed: int = 0,
+) -> tuple[SACNets, Signature]:
     """Random nets with non-trivial normaliser statistics and targets that differ from the critics."""
     torch.manual_seed(seed)
-    nets = build_sac_nets(method, dims, interface_dim=interface_dim, hidden=hidden,
-                          anchors=anchors if uses_anchors(method) else None)
+    nets = build_sac_nets(
+        method,
+        dims,
+        interface_dim=interface_dim,
+        hidden=hidden,
+        anchors=anchors if uses_anchors(method) else None,
+    )
     g = torch.Generator().manual_seed(seed)
-    update_normalizers(nets, 2 * torch.randn(64, dims.task_dim, generator=g) + 1,
-                       torch.randn(64, dims.robot_dim, generator=g))
+    update_normalizers(
+        nets,
+        2 * torch.randn(64, dims.task_dim, generator=g) + 1,
+        torch.randn(64, dims.robot_dim, generator=g),
+    )
     with torch.no_grad():
         for p in [*nets.target_critic.parameters(), *nets.target_critic_twin.parameters()]:
             p.add_(0.05 * torch.randn(p.shape, generator=g))
@@ -74,17 +89,36 @@ def make_nets(method: str = "ps", dims: NetDims = PUSH, *, interface_dim: int = 
 
 
 def spec(method: str, robot, task: str, seed: int = 1, interface_dim: int = K) -> dict:
-    return {"method": method, "robot": robot, "task": task, "seed": seed,
-            "interface_dim": interface_dim, "hidden": 16, "env_steps": 300}
+    return {
+        "method": method,
+        "robot": robot,
+        "task": task,
+        "seed": seed,
+        "interface_dim": interface_dim,
+        "hidden": 16,
+        "env_steps": 300,
+    }
 
 
-def write_trial(root: Path, stage_dir: str, trial_spec: dict, *, checkpoint: int = 2,
-                trial: str | None = None, seed: int | None = None) -> Path:
+def write_trial(
+    root: Path,
+    stage_dir: str,
+    trial_spec: dict,
+    *,
+    checkpoint: int = 2,
+    trial: str | None = None,
+    seed: int | None = None,
+) -> Path:
     """A Tune-like trial checkpoint of random nets: policy.safetensors, signature.json, spec.json."""
     dims = env_dims(trial_spec["robot"], trial_spec["task"])
     k = trial_spec["interface_dim"]
-    nets = make_nets(trial_spec["method"], dims, interface_dim=k, anchors=anchors_for(k, dims.task_dim),
-                     seed=next(SEEDS) if seed is None else seed)
+    nets = make_nets(
+        trial_spec["method"],
+        dims,
+        interface_dim=k,
+        anchors=anchors_for(k, dims.task_dim),
+        seed=next(SEEDS) if seed is None else seed,
+    )
     name = trial or f"sweep_trial_{next(SEEDS):05d}"
     directory = root / stage_dir / name / f"checkpoint_{checkpoint:06d}"
     save_policy(directory / "policy.safetensors", *nets)
@@ -95,9 +129,11 @@ def write_trial(root: Path, stage_dir: str, trial_spec: dict, *, checkpoint: int
 
 def inputs(dims: NetDims, batch: int = 16, seed: int = 3):
     g = torch.Generator().manual_seed(seed)
-    return (3 * torch.randn(batch, dims.task_dim, generator=g),
-            torch.randn(batch, dims.robot_dim, generator=g),
-            torch.rand(batch, dims.action_dim, generator=g) * 2 - 1)
+    return (
+        3 * torch.randn(batch, dims.task_dim, generator=g),
+        torch.randn(batch, dims.robot_dim, generator=g),
+        torch.rand(batch, dims.action_dim, generator=g) * 2 - 1,
+    )
 
 
 def outputs(nets: SACNets, dims: NetDims) -> dict[str, torch.Tensor]:
@@ -182,19 +218,42 @@ def test_zoo_from_a_real_tiny_sweep(tmp_path, ray_local):
     from ps_ray.config import load_sweep
     from ps_ray.sweep import run_sweep, sweep_dir
 
-    train = {"env_steps": 300, "hidden": 32, "learning_starts": 100, "random_episodes": 2,
-             "eval_every": 2, "eval_episodes": 2, "checkpoint_every": 2, "batch_size": 32}
+    train = {
+        "env_steps": 300,
+        "hidden": 32,
+        "learning_starts": 100,
+        "random_episodes": 2,
+        "eval_every": 2,
+        "eval_episodes": 2,
+        "checkpoint_every": 2,
+        "batch_size": 32,
+    }
     path = tmp_path / "tiny.yaml"
-    path.write_text(yaml.safe_dump({
-        "name": "tiny", "methods": ["ps"], "robots": ["panda", "panda_l3"],
-        "tasks": ["reach"], "seeds": [1], "interface_dims": [8], "train": train,
-        "anchors": {"episodes": 12}, "max_concurrent": 2, "storage": str(tmp_path / "store")}))
+    path.write_text(
+        yaml.safe_dump(
+            {
+                "name": "tiny",
+                "methods": ["ps"],
+                "robots": ["panda", "panda_l3"],
+                "tasks": ["reach"],
+                "seeds": [1],
+                "interface_dims": [8],
+                "train": train,
+                "anchors": {"episodes": 12},
+                "max_concurrent": 2,
+                "storage": str(tmp_path / "store"),
+            }
+        )
+    )
     spec_ = load_sweep(path)
     grid = run_sweep(spec_, progress=False)
     assert not [r for r in grid if r.error]
     zoo = ModuleZoo.from_sweep(sweep_dir(spec_))
     assert {str(k) for k in zoo.keys()} == {  # the plain anchor source policy included
-        "ps/panda/reach/1/i8", "ps/panda_l3/reach/1/i8", "plain/panda/reach/1/i8"}
+        "ps/panda/reach/1/i8",
+        "ps/panda_l3/reach/1/i8",
+        "plain/panda/reach/1/i8",
+    }
     assert zoo.get("plain/panda/reach/1/i8").stage == "plain_source"
     a, b = zoo.get("ps/panda/reach/1/i8"), zoo.get("ps/panda_l3/reach/1/i8")
     assert a.signature.anchor_hash == b.signature.anchor_hash  # one anchor set per sweep
@@ -234,32 +293,67 @@ def test_stitch_takes_task_modules_from_one_robot_modules_from_the_other(tmp_pat
     task, robot, action = inputs(PICK)
     with torch.no_grad():
         assert torch.equal(nets.actor(task, robot)[0], b.actor.robot(a.actor.task(task), robot)[0])
-        assert torch.equal(nets.target_critic(task, robot, action),
-                           b.target_critic.robot(a.target_critic.task(task), robot, action))
+        assert torch.equal(
+            nets.target_critic(task, robot, action),
+            b.target_critic.robot(a.target_critic.task(task), robot, action),
+        )
     # saved and loaded back: the same nets, strictly checked against the signature
     loaded, loaded_sig = load_policy(save_policy(tmp_path / "s.safetensors", nets, signature))
     assert loaded_sig == signature
-    assert all(torch.equal(x, y)
-               for x, y in zip(outputs(loaded, PICK).values(), outputs(nets, PICK).values()))
+    assert all(
+        torch.equal(x, y) for x, y in zip(outputs(loaded, PICK).values(), outputs(nets, PICK).values())
+    )
 
 
-@pytest.mark.parametrize("task_side, robot_side, target, expected", [
-    (("ps", PUSH, {}), ("ablation", PUSH, {}), None, ["method: task module 'ps' vs robot module 'ablation'"]),
-    (("ablation", PUSH, {}), ("ablation", PUSH, {"interface_dim": 16}), None,
-     ["interface dim: task module 8 vs robot module 16"]),
-    (("ps", PUSH, {}), ("ps", PUSH, {"anchors": OTHER_ANCHORS}), None, ["anchor set: task module"]),
-    (("ablation", PUSH, {}), ("ablation", PUSH, {"hidden": 32}), None,
-     ["hidden: task module 16 vs robot module 32"]),
-    (("plain", PUSH, {}), ("plain", PICK, {}), None,
-     ["action dim (plain needs equal dims): task module 7 vs robot module 8"]),
-    (("ps", PUSH, {}), ("ps", PUSH, {}), ("panda", "pick_cube"),
-     ["action dim: policy 7 vs target env (panda, pick_cube) 8"]),
-    (("ps", PUSH, {}), ("ps", PUSH, {}), ({"name": "panda", "gripper": False}, "pick_cube"),
-     ["pick_cube needs the gripper"]),
-    (("ps", PUSH, {}), ("ps", PICK, {}), ("panda", "reach"),
-     ["task dim: policy 15 vs target env (panda, reach) 3"]),
-    (("ps", PUSH, {}), ("ablation", PUSH, {"hidden": 32}), None, ["method:", "hidden:", "anchor set:"]),
-])
+@pytest.mark.parametrize(
+    "task_side, robot_side, target, expected",
+    [
+        (
+            ("ps", PUSH, {}),
+            ("ablation", PUSH, {}),
+            None,
+            ["method: task module 'ps' vs robot module 'ablation'"],
+        ),
+        (
+            ("ablation", PUSH, {}),
+            ("ablation", PUSH, {"interface_dim": 16}),
+            None,
+            ["interface dim: task module 8 vs robot module 16"],
+        ),
+        (("ps", PUSH, {}), ("ps", PUSH, {"anchors": OTHER_ANCHORS}), None, ["anchor set: task module"]),
+        (
+            ("ablation", PUSH, {}),
+            ("ablation", PUSH, {"hidden": 32}),
+            None,
+            ["hidden: task module 16 vs robot module 32"],
+        ),
+        (
+            ("plain", PUSH, {}),
+            ("plain", PICK, {}),
+            None,
+            ["action dim (plain needs equal dims): task module 7 vs robot module 8"],
+        ),
+        (
+            ("ps", PUSH, {}),
+            ("ps", PUSH, {}),
+            ("panda", "pick_cube"),
+            ["action dim: policy 7 vs target env (panda, pick_cube) 8"],
+        ),
+        (
+            ("ps", PUSH, {}),
+            ("ps", PUSH, {}),
+            ({"name": "panda", "gripper": False}, "pick_cube"),
+            ["pick_cube needs the gripper"],
+        ),
+        (
+            ("ps", PUSH, {}),
+            ("ps", PICK, {}),
+            ("panda", "reach"),
+            ["task dim: policy 15 vs target env (panda, reach) 3"],
+        ),
+        (("ps", PUSH, {}), ("ablation", PUSH, {"hidden": 32}), None, ["method:", "hidden:", "anchor set:"]),
+    ],
+)
 def test_mismatches_are_named_in_one_error(task_side, robot_side, target, expected):
     sig_t = make_nets(task_side[0], task_side[1], **task_side[2])[1]
     sig_r = make_nets(robot_side[0], robot_side[1], **robot_side[2])[1]
@@ -283,10 +377,17 @@ def test_corrupt_foreign_and_missing_files_are_refused(tmp_path):
     foreign = tmp_path / "foreign.safetensors"
     save_file({"w": torch.zeros(2)}, str(foreign))
     tampered = tmp_path / "tampered.safetensors"
-    save_file({k: v for k, v in nets_state(good).items() if ".robot." not in k}, str(tampered),
-              metadata={"format": "ps_ray.policy/1", "signature": json.dumps(dataclasses.asdict(sig))})
-    cases = [(garbage, "not a ps_ray policy file"), (foreign, "not a ps_ray policy file"),
-             (tampered, "tensors do not match the signature"), (tmp_path / "nope", "no such policy file")]
+    save_file(
+        {k: v for k, v in nets_state(good).items() if ".robot." not in k},
+        str(tampered),
+        metadata={"format": "ps_ray.policy/1", "signature": json.dumps(dataclasses.asdict(sig))},
+    )
+    cases = [
+        (garbage, "not a ps_ray policy file"),
+        (foreign, "not a ps_ray policy file"),
+        (tampered, "tensors do not match the signature"),
+        (tmp_path / "nope", "no such policy file"),
+    ]
     for path, message in cases:
         with pytest.raises(ValueError, match=message) as err:
             stitch_policies(path, (good, sig))
@@ -311,8 +412,11 @@ def test_combos_is_the_valid_matrix(sweep):
         ("t: push-panda & r: pick_cube-panda_l3", gripper, "push"),
         ("t: push-panda_l3 & r: pick_cube-panda", json.dumps({"name": "panda", "gripper": True}), "push"),
         ('t: pick_cube-panda & r: push-panda_l3{"gripper":true}', gripper, "pick_cube"),
-        ('t: push-panda_l3{"gripper":true} & r: pick_cube-panda',
-         json.dumps({"name": "panda", "gripper": True}), "push"),
+        (
+            't: push-panda_l3{"gripper":true} & r: pick_cube-panda',
+            json.dumps({"name": "panda", "gripper": True}),
+            "push",
+        ),
         # t: pick_cube-panda_l3 x r: push-panda -> pick without a gripper: refused; i16 / seed 2
         # policies have other anchors or seeds; same-arm pairs are not stitching
     }
@@ -327,20 +431,35 @@ def test_combos_over_task_variants_given_as_mappings(tmp_path):
             write_trial(tmp_path, "tune", spec("ps", robot, task))
     found = combos(ModuleZoo.from_sweep(tmp_path), "ps", 1)
     assert len(found) == 3 * 2 * 2  # (Ra, X) x (Rb != Ra, Y != X)
-    c = next(c for c in found if c.task_from.key.robot == "panda" and c.robot_from.key.robot == "panda_l5"
-             and c.task == q1)
+    c = next(
+        c
+        for c in found
+        if c.task_from.key.robot == "panda" and c.robot_from.key.robot == "panda_l5" and c.task == q1
+    )
     assert c.robot == "panda_l5" and c.robot_from.task == q3
     assert c.label == 't: reach{"goal_region":"q1"}-panda & r: reach{"goal_region":"q3"}-panda_l5'
 
 
 def test_paper_combos_are_e1_to_e8_consistent_with_the_reference():
-    names = {"Pu1": "push", "Pu2": "push_slippery", "Pu3": "push_rocks", "Pi1": "pick_cube",
-             "Pi2": "pick_stick", "R1": "panda", "R2": "panda_l3", "R3": "panda_l5"}
+    names = {
+        "Pu1": "push",
+        "Pu2": "push_slippery",
+        "Pu3": "push_rocks",
+        "Pi1": "pick_cube",
+        "Pi2": "pick_stick",
+        "R1": "panda",
+        "R2": "panda_l3",
+        "R3": "panda_l5",
+    }
     reference = {  # REFERENCE.md §10: task module, robot module, target env
-        "E1": ("Pu1-R1", "Pu2-R2", "Pu1-R2"), "E2": ("Pu2-R1", "Pu1-R2", "Pu2-R2"),
-        "E3": ("Pu1-R3", "Pu3-R1", "Pu1-R1"), "E4": ("Pu3-R1", "Pu1-R2", "Pu3-R2"),
-        "E5": ("Pi1-R1", "Pu1-R2", "Pi1-R2"), "E6": ("Pu1-R3", "Pi1-R2", "Pu1-R2"),
-        "E7": ("Pi2-R1", "Pi1-R3", "Pi2-R3"), "E8": ("Pi1-R3", "Pi2-R1", "Pi1-R1"),
+        "E1": ("Pu1-R1", "Pu2-R2", "Pu1-R2"),
+        "E2": ("Pu2-R1", "Pu1-R2", "Pu2-R2"),
+        "E3": ("Pu1-R3", "Pu3-R1", "Pu1-R1"),
+        "E4": ("Pu3-R1", "Pu1-R2", "Pu3-R2"),
+        "E5": ("Pi1-R1", "Pu1-R2", "Pi1-R2"),
+        "E6": ("Pu1-R3", "Pi1-R2", "Pu1-R2"),
+        "E7": ("Pi2-R1", "Pi1-R3", "Pi2-R3"),
+        "E8": ("Pi1-R3", "Pi2-R1", "Pi1-R1"),
     }
     assert [c.name for c in PAPER_COMBOS] == list(reference)
     arm = arm_name
@@ -352,10 +471,12 @@ def test_paper_combos_are_e1_to_e8_consistent_with_the_reference():
         assert (combo.target.task, arm(combo.target.robot)) == (names[target[0]], names[target[1]])
         assert combo.target.task == combo.task_from.task
         # the robot module drives its own robot: same arm, same gripper as trained
-        assert effective_gripper(combo.target.robot, combo.target.task) == \
-            effective_gripper(combo.robot_from.robot, combo.robot_from.task)
-        robot, task = default_target({"task": combo.task_from.task},
-                                     {"robot": combo.robot_from.robot, "task": combo.robot_from.task})
+        assert effective_gripper(combo.target.robot, combo.target.task) == effective_gripper(
+            combo.robot_from.robot, combo.robot_from.task
+        )
+        robot, task = default_target(
+            {"task": combo.task_from.task}, {"robot": combo.robot_from.robot, "task": combo.robot_from.task}
+        )
         assert task == combo.target.task and env_dims(robot, task) == env_dims(combo.target.robot, task)
         # stitchable for modular methods, and the stitched dims are the target env's
         sig_t = make_nets("ps", env_dims(combo.task_from.robot, combo.task_from.task))[1]
@@ -388,47 +509,98 @@ def test_paper_combo_sources_are_trials_of_the_few_shot_sweep():
 # -- the command ----------------------------------------------------------------------------------
 def test_cli_stitches_evaluates_and_saves(sweep, tmp_path, capsys):
     out = tmp_path / "stitched.safetensors"
-    rc = cli.main(["stitch", "--sweep", str(sweep), "--task-from", "ps/panda/push/1/i8",
-                   "--robot-from", "ps/panda_l3/pick_cube/1/i8", "--episodes", "2", "--repeats", "2",
-                   "--num-envs", "2", "--save", str(out)])
+    rc = cli.main(
+        [
+            "stitch",
+            "--sweep",
+            str(sweep),
+            "--task-from",
+            "ps/panda/push/1/i8",
+            "--robot-from",
+            "ps/panda_l3/pick_cube/1/i8",
+            "--episodes",
+            "2",
+            "--repeats",
+            "2",
+            "--num-envs",
+            "2",
+            "--save",
+            str(out),
+        ]
+    )
     text = capsys.readouterr().out
     assert rc == 0, text
     assert "touching" in text and 'robot panda_l3{"gripper":true}, task push' in text
     nets, signature = load_policy(out)
     assert signature.action_dim == 8
     # a file path works too; the target is given explicitly
-    rc = cli.main(["stitch", "--task-from", str(out), "--robot-from", str(out), "--robot",
-                   json.dumps(PANDA_L3_GRIPPER), "--task", "push", "--episodes", "1", "--repeats", "1"])
+    rc = cli.main(
+        [
+            "stitch",
+            "--task-from",
+            str(out),
+            "--robot-from",
+            str(out),
+            "--robot",
+            json.dumps(PANDA_L3_GRIPPER),
+            "--task",
+            "push",
+            "--episodes",
+            "1",
+            "--repeats",
+            "1",
+        ]
+    )
     assert rc == 0
 
 
-@pytest.mark.parametrize("args, message", [
-    ("ps/panda/push/1/i8 ablation/panda_l3/push/1/i8", "method: task module 'ps'"),
-    ("ps/panda/psuh/1/i8 ps/panda_l3/push/1/i8", "close keys: ps/panda/push/1/i8"),
-    ("ps/panda/pick_cube/1/i8 ps/panda_l3/push/1/i8", "needs the gripper"),
-    ("CORRUPT ps/panda_l3/push/1/i8 --robot panda --task push", "not a ps_ray policy file"),
-    ("ps/panda/push/1/i8 ps/panda_l3/push/1/i8 --robot {bad", "Expecting"),
-    ("ps/panda/push/1/i8 ps/panda_l3/push/1/i8 --robot panda_l9", "unknown robot"),
-])
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        ("ps/panda/push/1/i8 ablation/panda_l3/push/1/i8", "method: task module 'ps'"),
+        ("ps/panda/psuh/1/i8 ps/panda_l3/push/1/i8", "close keys: ps/panda/push/1/i8"),
+        ("ps/panda/pick_cube/1/i8 ps/panda_l3/push/1/i8", "needs the gripper"),
+        ("CORRUPT ps/panda_l3/push/1/i8 --robot panda --task push", "not a ps_ray policy file"),
+        ("ps/panda/push/1/i8 ps/panda_l3/push/1/i8 --robot {bad", "Expecting"),
+        ("ps/panda/push/1/i8 ps/panda_l3/push/1/i8 --robot panda_l9", "unknown robot"),
+    ],
+)
 def test_cli_bad_input_one_line_exit_2_nothing_written(sweep, tmp_path, capsys, args, message):
     corrupt = tmp_path / "corrupt.safetensors"
     corrupt.write_bytes(b"\x00" * 32)
     out = tmp_path / "never.safetensors"
     task_from, robot_from, *rest = [str(corrupt) if a == "CORRUPT" else a for a in args.split()]
-    rc = cli.main(["stitch", "--sweep", str(sweep), "--task-from", task_from, "--robot-from", robot_from,
-                   *rest, "--episodes", "1", "--save", str(out)])
+    rc = cli.main(
+        [
+            "stitch",
+            "--sweep",
+            str(sweep),
+            "--task-from",
+            task_from,
+            "--robot-from",
+            robot_from,
+            *rest,
+            "--episodes",
+            "1",
+            "--save",
+            str(out),
+        ]
+    )
     err = capsys.readouterr().err
     assert rc == 2 and message in err and err.count("\n") == 1, err
     assert not out.exists()
 
 
-@pytest.mark.parametrize("field, value, message", [
-    ("hidden", "64", "hidden must be an integer in 1..8192, got '64'"),
-    ("interface_dim", -3, "interface_dim must be an integer in 1..8192, got -3"),
-    ("hidden", 10**9, "hidden must be an integer in 1..8192, got 1000000000"),
-    ("method", "psx", "unknown method 'psx'; valid methods: ps"),
-    ("translation", "warp", "unknown translation 'warp'; valid: none, orthogonal, affine"),
-])
+@pytest.mark.parametrize(
+    "field, value, message",
+    [
+        ("hidden", "64", "hidden must be an integer in 1..8192, got '64'"),
+        ("interface_dim", -3, "interface_dim must be an integer in 1..8192, got -3"),
+        ("hidden", 10**9, "hidden must be an integer in 1..8192, got 1000000000"),
+        ("method", "psx", "unknown method 'psx'; valid methods: ps"),
+        ("translation", "warp", "unknown translation 'warp'; valid: none, orthogonal, affine"),
+    ],
+)
 def test_absurd_or_wrong_typed_signatures_are_refused_in_one_line(tmp_path, field, value, message):
     nets, signature = make_nets("ps")
     path = save_policy(tmp_path / "p.safetensors", nets, signature)

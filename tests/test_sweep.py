@@ -16,16 +16,33 @@ import yaml
 from ps_ray.config import load_sweep
 from ps_ray.sweep import CRASH_ENV, sweep_dir
 
-TINY_TRAIN = {"env_steps": 300, "hidden": 32, "learning_starts": 100, "random_episodes": 2,
-              "eval_every": 2, "eval_episodes": 2, "checkpoint_every": 2, "batch_size": 32}
+TINY_TRAIN = {
+    "env_steps": 300,
+    "hidden": 32,
+    "learning_starts": 100,
+    "random_episodes": 2,
+    "eval_every": 2,
+    "eval_episodes": 2,
+    "checkpoint_every": 2,
+    "batch_size": 32,
+}
 
 
-def write_sweep(tmp_path: Path, name: str, *, methods=("ablation",), seeds=(1, 2),
-                max_concurrent: int = 2) -> Path:
-    data = {"name": name, "methods": list(methods), "robots": ["panda"], "tasks": ["reach"],
-            "seeds": list(seeds), "interface_dims": [8], "train": TINY_TRAIN,
-            "anchors": {"episodes": 12}, "max_concurrent": max_concurrent,
-            "storage": str(tmp_path / "store")}
+def write_sweep(
+    tmp_path: Path, name: str, *, methods=("ablation",), seeds=(1, 2), max_concurrent: int = 2
+) -> Path:
+    data = {
+        "name": name,
+        "methods": list(methods),
+        "robots": ["panda"],
+        "tasks": ["reach"],
+        "seeds": list(seeds),
+        "interface_dims": [8],
+        "train": TINY_TRAIN,
+        "anchors": {"episodes": 12},
+        "max_concurrent": max_concurrent,
+        "storage": str(tmp_path / "store"),
+    }
     path = tmp_path / f"{name}.yaml"
     path.write_text(yaml.safe_dump(data))
     return path
@@ -46,9 +63,14 @@ def history(path: Path, run, key: str) -> list[tuple[int, float]]:
 
 
 def cli(*args: str, env: dict | None = None, **kwargs) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, "-m", "ps_ray.cli", *args],
-                            env={**os.environ, **(env or {})}, stdout=subprocess.PIPE,
-                            stderr=subprocess.STDOUT, text=True, **kwargs)
+    return subprocess.Popen(
+        [sys.executable, "-m", "ps_ray.cli", *args],
+        env={**os.environ, **(env or {})},
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        **kwargs,
+    )
 
 
 def test_sweep_tracks_one_mlflow_run_per_trial_with_artifacts(tmp_path):
@@ -58,8 +80,7 @@ def test_sweep_tracks_one_mlflow_run_per_trial_with_artifacts(tmp_path):
     assert proc.returncode == 0, out[-3000:]
     found = runs(path)
     # the plain source policy of the anchor stage is tracked too
-    assert sorted(found) == ["ablation/panda/reach/1/i8", "plain/panda/reach/1/i8",
-                             "ps/panda/reach/1/i8"]
+    assert sorted(found) == ["ablation/panda/reach/1/i8", "plain/panda/reach/1/i8", "ps/panda/reach/1/i8"]
     assert found["plain/panda/reach/1/i8"].data.tags["ps_ray.stage"] == "anchors_plain"
     found.pop("plain/panda/reach/1/i8")
     client = mlflow.MlflowClient(f"sqlite:///{sweep_dir(load_sweep(path)) / 'mlflow.db'}")

@@ -15,11 +15,11 @@ from ps_ray.tracking import (
     TRIAL_KEY_TAG,
     MLflowTuneCallback,
     TrialTracker,
+    default_key_fn,
+    default_params_fn,
     default_tracking_uri,
     ensure_experiment,
     git_commit,
-    default_key_fn,
-    default_params_fn,
     lookup,
     spec_key,
 )
@@ -32,8 +32,13 @@ def store(tmp_path_factory) -> dict:
     uri = default_tracking_uri(root)
     existed = (root / "mlflow.db").exists()
     exp_id = ensure_experiment(uri, "tracking-tests", root / "artifacts")
-    return {"root": root, "uri": uri, "existed": existed, "exp_id": exp_id,
-            "client": MlflowClient(tracking_uri=uri)}
+    return {
+        "root": root,
+        "uri": uri,
+        "existed": existed,
+        "exp_id": exp_id,
+        "client": MlflowClient(tracking_uri=uri),
+    }
 
 
 def runs_of(store: dict, exp_id: str) -> list:
@@ -84,16 +89,32 @@ def test_git_commit(tmp_path):
 # ------------------------------------------------------------------------- TrialTracker
 
 
-PARAMS = {"method": "ps", "robot": {"name": "panda", "locked_joints": [1]}, "task": "reach",
-          "seed": 101, "interface_dim": 128}
-FLAT = {"method": "ps", "robot.name": "panda", "robot.locked_joints": "[1]", "task": "reach",
-        "seed": "101", "interface_dim": "128"}
+PARAMS = {
+    "method": "ps",
+    "robot": {"name": "panda", "locked_joints": [1]},
+    "task": "reach",
+    "seed": 101,
+    "interface_dim": 128,
+}
+FLAT = {
+    "method": "ps",
+    "robot.name": "panda",
+    "robot.locked_joints": "[1]",
+    "task": "reach",
+    "seed": "101",
+    "interface_dim": "128",
+}
 
 
 def test_tracker_params_tags_and_batched_metrics(store):
     exp = new_experiment(store, "tracker-basic")
-    tracker = TrialTracker(store["uri"], exp, "ps/panda/reach/101", params=PARAMS,
-                           tags={"ps_ray.stage": "train", "git_commit": "abc123"})
+    tracker = TrialTracker(
+        store["uri"],
+        exp,
+        "ps/panda/reach/101",
+        params=PARAMS,
+        tags={"ps_ray.stage": "train", "git_commit": "abc123"},
+    )
     run = store["client"].get_run(tracker.run_id)
     assert run.data.params == FLAT
     assert run.info.run_name == "ps/panda/reach/101" and run.info.status == "RUNNING"
@@ -101,8 +122,16 @@ def test_tracker_params_tags_and_batched_metrics(store):
     assert run.data.tags["ps_ray.stage"] == "train" and run.data.tags["git_commit"] == "abc123"
 
     for step in range(3):
-        tracker.log_metrics({"return": step * 1.5, "success": step / 2, "none": None,
-                             "nan": float("nan"), "inf": float("inf")}, step=step * 10)
+        tracker.log_metrics(
+            {
+                "return": step * 1.5,
+                "success": step / 2,
+                "none": None,
+                "nan": float("nan"),
+                "inf": float("inf"),
+            },
+            step=step * 10,
+        )
     assert tracker.pending == 6
     assert store["client"].get_metric_history(tracker.run_id, "return") == []  # buffered
     tracker.flush()
@@ -123,8 +152,7 @@ def test_tracker_resume_reuses_run_and_keys_separate_runs(store):
     first.log_metrics({"return": 1.0}, step=1)
     first.close("KILLED")
 
-    again = TrialTracker(store["uri"], exp, "ps/panda/reach/1", params=PARAMS,
-                         tags={"git_commit": "new"})
+    again = TrialTracker(store["uri"], exp, "ps/panda/reach/1", params=PARAMS, tags={"git_commit": "new"})
     assert again.run_id == first.run_id and again.resumed
     run = store["client"].get_run(again.run_id)
     assert run.info.status == "RUNNING" and run.data.tags["git_commit"] == "new"
@@ -158,19 +186,19 @@ def test_tracker_artifacts(store, tmp_path):
     root = artifact_dir(store, tracker.run_id)
     assert root.is_relative_to((store["root"] / "artifacts-tracker-artifacts").resolve())
     files = sorted(str(p.relative_to(root)) for p in root.rglob("*") if p.is_file())
-    assert files == ["config/resolved.json", "logs/metrics.csv", "metrics.csv",
-                     "policy/weights.safetensors"]
+    assert files == ["config/resolved.json", "logs/metrics.csv", "metrics.csv", "policy/weights.safetensors"]
 
 
 def test_spec_key_and_lookup():
     assert spec_key({"method": "ps", "robot": "panda", "task": "reach", "seed": 3}) == "ps/panda/reach/3"
-    assert spec_key({"method": "ps", "robot": {"name": "panda"}, "task": "push", "seed": 3}) \
-        == "ps/panda/push/3"
-    locked = spec_key({"method": "ps", "robot": {"name": "panda", "locked_joints": [1]},
-                       "task": "reach", "seed": 3})
+    assert (
+        spec_key({"method": "ps", "robot": {"name": "panda"}, "task": "push", "seed": 3}) == "ps/panda/push/3"
+    )
+    locked = spec_key(
+        {"method": "ps", "robot": {"name": "panda", "locked_joints": [1]}, "task": "reach", "seed": 3}
+    )
     assert locked == 'ps/panda{"locked_joints":[1]}/reach/3'
-    long = spec_key({"method": "ps", "robot": {"name": "panda", "x": "y" * 100}, "task": "reach",
-                     "seed": 3})
+    long = spec_key({"method": "ps", "robot": {"name": "panda", "x": "y" * 100}, "task": "reach", "seed": 3})
     assert long.startswith("ps/panda#") and len(long) < 40
     result = {"a": {"b": 1}, "c/d": 2, "e": 3}
     assert lookup(result, "a/b") == 1 and lookup(result, "c/d") == 2 and lookup(result, "e") == 3
@@ -184,8 +212,12 @@ def test_default_key_and_params_from_trial_config():
     for config in ({"spec": spec, "marker": "x"}, {"trial": {"spec": spec, "anchors": None}}):
         trial = Trial("__fake", config=config, stub=True)
         assert default_key_fn(trial) == "ps/panda/reach/5"
-        assert default_params_fn(trial) == {"method": "ps", "robot.name": "panda", "task": "reach",
-                                            "seed": "5"}
+        assert default_params_fn(trial) == {
+            "method": "ps",
+            "robot.name": "panda",
+            "task": "reach",
+            "seed": "5",
+        }
     with pytest.raises(ValueError, match="has no config\\['spec'\\] mapping"):
         default_key_fn(Trial("__fake", config={"lr": 1}, stub=True))
 
@@ -199,8 +231,7 @@ def _trainable(config):
     spec = config["spec"]
     marker = Path(config["marker"])
     for i in range(1, 4):
-        tune.report({"score": i * spec["seed"], "eval": {"success": i / 3, "skipped": 1},
-                     "junk": 7})
+        tune.report({"score": i * spec["seed"], "eval": {"success": i / 3, "skipped": 1}, "junk": 7})
         if spec["seed"] == 2 and i == 2 and not marker.exists():
             marker.write_text("failed once")
             raise RuntimeError("planned failure")
@@ -214,13 +245,18 @@ def _summary_file(trial) -> list[Path]:
 def _tuner(tmp_path: Path, callback: MLflowTuneCallback, name: str):
     from ray import tune
 
-    space = {"spec": {"method": "ps", "robot": "panda", "task": "reach",
-                      "seed": tune.grid_search([1, 2])},
-             "marker": str(tmp_path / f"{name}.marker")}
-    return tune.Tuner(_trainable, param_space=space,
-                      tune_config=tune.TuneConfig(max_concurrent_trials=2),
-                      run_config=tune.RunConfig(name=name, storage_path=str(tmp_path / "tune"),
-                                                callbacks=[callback], verbose=0))
+    space = {
+        "spec": {"method": "ps", "robot": "panda", "task": "reach", "seed": tune.grid_search([1, 2])},
+        "marker": str(tmp_path / f"{name}.marker"),
+    }
+    return tune.Tuner(
+        _trainable,
+        param_space=space,
+        tune_config=tune.TuneConfig(max_concurrent_trials=2),
+        run_config=tune.RunConfig(
+            name=name, storage_path=str(tmp_path / "tune"), callbacks=[callback], verbose=0
+        ),
+    )
 
 
 def test_tune_callback_one_run_per_trial_across_restore_and_rerun(store, tmp_path, ray_local):
@@ -229,9 +265,14 @@ def test_tune_callback_one_run_per_trial_across_restore_and_rerun(store, tmp_pat
     cloudpickle.register_pickle_by_value(sys.modules[__name__])  # workers cannot import tests/
 
     exp = new_experiment(store, "tune")
-    callback = MLflowTuneCallback(store["uri"], exp, metric_keys=["score", "eval/success", "absent"],
-                                  tags={"ps_ray.stage": "train"}, flush_every=2,
-                                  artifacts_fn=_summary_file)
+    callback = MLflowTuneCallback(
+        store["uri"],
+        exp,
+        metric_keys=["score", "eval/success", "absent"],
+        tags={"ps_ray.stage": "train"},
+        flush_every=2,
+        artifacts_fn=_summary_file,
+    )
     pickle.loads(pickle.dumps(callback))  # Tuner.restore unpickles it from the experiment state
     grid = _tuner(tmp_path, callback, "sweep").fit()
     assert sorted(r.error is not None for r in grid) == [False, True]
@@ -268,6 +309,8 @@ def test_tune_callback_one_run_per_trial_across_restore_and_rerun(store, tmp_pat
     # a second sweep with the same keys continues the same runs
     _tuner(tmp_path, callback, "sweep-again").fit()
     runs = by_key()
-    assert {k: r.info.run_id for k, r in runs.items()} == \
-        {"ps/panda/reach/1": ok.info.run_id, "ps/panda/reach/2": failed.info.run_id}
+    assert {k: r.info.run_id for k, r in runs.items()} == {
+        "ps/panda/reach/1": ok.info.run_id,
+        "ps/panda/reach/2": failed.info.run_id,
+    }
     assert len(store["client"].get_metric_history(ok.info.run_id, "score")) == 6

@@ -14,21 +14,56 @@ import pytest
 
 from ps_ray.weights import load_policy, read_signature
 
-ARGS = ["--task", "point", "--method", "ps", "--interface-dim", "8", "--hidden", "32",
-        "--learning-starts", "200", "--random-episodes", "2", "--episodes-per-step", "4",
-        "--checkpoint-every", "3", "--eval-every", "3", "--eval-episodes", "4", "--batch-size", "64",
-        "--anchor-episodes", "20"]
+ARGS = [
+    "--task",
+    "point",
+    "--method",
+    "ps",
+    "--interface-dim",
+    "8",
+    "--hidden",
+    "32",
+    "--learning-starts",
+    "200",
+    "--random-episodes",
+    "2",
+    "--episodes-per-step",
+    "4",
+    "--checkpoint-every",
+    "3",
+    "--eval-every",
+    "3",
+    "--eval-episodes",
+    "4",
+    "--batch-size",
+    "64",
+    "--anchor-episodes",
+    "20",
+]
 
 
 def train_cmd(run_dir, steps: int) -> list[str]:
-    return [sys.executable, "-m", "ps_ray.cli", "train", *ARGS, "--env-steps", str(steps),
-            "--run-dir", str(run_dir)]
+    return [
+        sys.executable,
+        "-m",
+        "ps_ray.cli",
+        "train",
+        *ARGS,
+        "--env-steps",
+        str(steps),
+        "--run-dir",
+        str(run_dir),
+    ]
 
 
 def test_killed_training_resumes_from_its_last_checkpoint(tmp_path):
     run_dir = tmp_path / "run"
-    first = subprocess.Popen(train_cmd(run_dir, 100_000), stdout=subprocess.DEVNULL,
-                             stderr=subprocess.DEVNULL, start_new_session=True)
+    first = subprocess.Popen(
+        train_cmd(run_dir, 100_000),
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+        start_new_session=True,
+    )
     deadline = time.time() + 180
     while not (run_dir / "checkpoint" / "ps_ray_state.json").exists():
         assert time.time() < deadline, "no checkpoint was written"
@@ -41,8 +76,7 @@ def test_killed_training_resumes_from_its_last_checkpoint(tmp_path):
     assert saved > 0
 
     # Same policy, larger budget: allowed, and it continues from the checkpoint.
-    second = subprocess.run(train_cmd(run_dir, saved + 400), capture_output=True, text=True,
-                            timeout=300)
+    second = subprocess.run(train_cmd(run_dir, saved + 400), capture_output=True, text=True, timeout=300)
     assert second.returncode == 0, second.stdout[-2000:] + second.stderr[-2000:]
     assert f"resumed at {saved} env steps" in second.stdout
     metrics = pd.read_csv(run_dir / "metrics.csv")
@@ -69,12 +103,43 @@ def test_training_stops_early_at_the_success_target(tmp_path):
     """A source stops once greedy success reaches the target in two evaluations in a row, well
     before its budget cap; the result says so and the metrics end at that evaluation."""
     run_dir = tmp_path / "run"
-    cmd = [sys.executable, "-m", "ps_ray.cli", "train", "--task", "point", "--method", "ablation",
-           "--interface-dim", "16", "--hidden", "64", "--learning-starts", "200",
-           "--random-episodes", "2", "--episodes-per-step", "4", "--batch-size", "64",
-           "--updates-per-step", "0.5", "--eval-every", "5", "--eval-episodes", "20",
-           "--target-success", "0.5", "--target-evals", "2", "--env-steps", "40000",
-           "--run-dir", str(run_dir), "--quiet"]
+    cmd = [
+        sys.executable,
+        "-m",
+        "ps_ray.cli",
+        "train",
+        "--task",
+        "point",
+        "--method",
+        "ablation",
+        "--interface-dim",
+        "16",
+        "--hidden",
+        "64",
+        "--learning-starts",
+        "200",
+        "--random-episodes",
+        "2",
+        "--episodes-per-step",
+        "4",
+        "--batch-size",
+        "64",
+        "--updates-per-step",
+        "0.5",
+        "--eval-every",
+        "5",
+        "--eval-episodes",
+        "20",
+        "--target-success",
+        "0.5",
+        "--target-evals",
+        "2",
+        "--env-steps",
+        "40000",
+        "--run-dir",
+        str(run_dir),
+        "--quiet",
+    ]
     done = subprocess.run(cmd, capture_output=True, text=True, timeout=900)
     assert done.returncode == 0, done.stdout[-2000:] + done.stderr[-2000:]
     result = json.loads((run_dir / "result.json").read_text())
@@ -96,8 +161,7 @@ def test_resume_after_a_kill_between_the_checkpoint_renames_keeps_rows_and_best(
     os.replace(run_dir / "checkpoint", run_dir / "checkpoint.old")  # the moment of the kill
     with open(run_dir / "metrics.csv", "a") as f:  # a row written after that checkpoint
         f.write(f"999,{saved + 100},1,0.0,,,,1.0\n")
-    second = subprocess.run(train_cmd(run_dir, saved + 400), capture_output=True, text=True,
-                            timeout=300)
+    second = subprocess.run(train_cmd(run_dir, saved + 400), capture_output=True, text=True, timeout=300)
     assert second.returncode == 0, second.stdout[-2000:] + second.stderr[-2000:]
     assert f"resumed at {saved} env steps" in second.stdout
     metrics = pd.read_csv(run_dir / "metrics.csv")
@@ -110,15 +174,18 @@ def test_resume_after_a_kill_between_the_checkpoint_renames_keeps_rows_and_best(
 
 def test_a_second_process_on_the_same_run_folder_is_refused_in_one_line(tmp_path):
     run_dir = tmp_path / "run"
-    first = subprocess.Popen(train_cmd(run_dir, 100_000), stdout=subprocess.DEVNULL,
-                             stderr=subprocess.DEVNULL, start_new_session=True)
+    first = subprocess.Popen(
+        train_cmd(run_dir, 100_000),
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+        start_new_session=True,
+    )
     try:
         deadline = time.time() + 120
         while not (run_dir / "metrics.csv").exists():
             assert time.time() < deadline and first.poll() is None
             time.sleep(0.5)
-        second = subprocess.run(train_cmd(run_dir, 100_000), capture_output=True, text=True,
-                                timeout=120)
+        second = subprocess.run(train_cmd(run_dir, 100_000), capture_output=True, text=True, timeout=120)
         assert second.returncode == 2
         lines = second.stderr.strip().splitlines()
         assert f"this run is being written by PID {first.pid} on " in lines[-1]

@@ -9,8 +9,8 @@ import pytest
 import yaml
 
 from ps_ray.config import load_sweep
-from ps_ray.sweep import run_sweep, sweep_dir
 from ps_ray.few_shot import curves, run_few_shot
+from ps_ray.sweep import run_sweep, sweep_dir
 from ps_ray.weights import read_signature
 from ps_ray.zero_shot import pairs, run_zero_shot, summary
 
@@ -21,11 +21,21 @@ from .test_sweep import TINY_TRAIN
 def trained_matrix(tmp_path_factory, ray_local):
     tmp_path = tmp_path_factory.mktemp("matrix")
     path = tmp_path / "matrix.yaml"
-    path.write_text(yaml.safe_dump({
-        "name": "matrix", "methods": ["ablation"], "robots": ["panda", "panda_l3"],
-        "tasks": [{"name": "reach", "goal_region": "q1"}, {"name": "reach", "goal_region": "q3"}],
-        "seeds": [1], "interface_dims": [8], "train": TINY_TRAIN, "max_concurrent": 2,
-        "storage": str(tmp_path / "store")}))
+    path.write_text(
+        yaml.safe_dump(
+            {
+                "name": "matrix",
+                "methods": ["ablation"],
+                "robots": ["panda", "panda_l3"],
+                "tasks": [{"name": "reach", "goal_region": "q1"}, {"name": "reach", "goal_region": "q3"}],
+                "seeds": [1],
+                "interface_dims": [8],
+                "train": TINY_TRAIN,
+                "max_concurrent": 2,
+                "storage": str(tmp_path / "store"),
+            }
+        )
+    )
     spec = load_sweep(path)
     assert not any(r.error for r in run_sweep(spec, progress=False))
     return spec

@@ -36,7 +36,9 @@ def retrieval(a: np.ndarray, b: np.ndarray) -> dict[str, float]:
     """MRR and top-1 of matching probe states across two interfaces (N x K each), symmetrised."""
     a, b = np.asarray(a), np.asarray(b)
     if a.shape[0] != b.shape[0] or a.ndim != 2 or b.ndim != 2:
-        raise ValueError(f"interfaces must be (N, K) arrays over the same N probes, got {a.shape} and {b.shape}")
+        raise ValueError(
+            f"interfaces must be (N, K) arrays over the same N probes, got {a.shape} and {b.shape}"
+        )
     ranks = np.concatenate([_ranks(a, b), _ranks(b, a)])
     return {"mrr": float(np.mean(1.0 / ranks)), "top1": float(np.mean(ranks == 1))}
 
@@ -49,7 +51,7 @@ def chance_mrr(n: int) -> float:
 def spread(x: np.ndarray) -> float:
     """sqrt(sum of per-dimension variances) / RMS vector norm: 0 constant, 1 zero-mean."""
     x = np.asarray(x, np.float64)
-    rms = np.sqrt(np.mean(np.sum(x ** 2, axis=1)))
+    rms = np.sqrt(np.mean(np.sum(x**2, axis=1)))
     return float(np.sqrt(np.sum(x.var(0))) / rms) if rms > 0 else 0.0
 
 

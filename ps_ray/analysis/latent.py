@@ -76,7 +76,8 @@ def probe_states(task: str | Mapping, per_group: int = 250, seed: int = 0) -> Pr
 def goal_quadrant(goal: np.ndarray) -> str:
     x, y = float(goal[0]), float(goal[1])
     return {(True, True): "q1", (False, True): "q2", (False, False): "q3", (True, False): "q4"}[
-        (x >= 0, y >= 0)]
+        (x >= 0, y >= 0)
+    ]
 
 
 # -- interface dumps --------------------------------------------------------------------------------
@@ -117,8 +118,17 @@ def dump_interfaces(entries: Iterable, probes_for: Callable[[str | Mapping], Pro
             continue
         probes = probes_for(entry.task)
         k = entry.key
-        dumps.append(Dump(str(k), k.method, k.robot, k.task, k.seed, k.interface_dim,
-                          interface_of(entry.path, probes.states)))
+        dumps.append(
+            Dump(
+                str(k),
+                k.method,
+                k.robot,
+                k.task,
+                k.seed,
+                k.interface_dim,
+                interface_of(entry.path, probes.states),
+            )
+        )
     return dumps
 
 
@@ -139,7 +149,9 @@ def l2_distance(a: np.ndarray, b: np.ndarray) -> float:
 
 
 DISTANCES: dict[str, Callable[[np.ndarray, np.ndarray], float]] = {
-    "cosine": cosine_distance, "l2": l2_distance}
+    "cosine": cosine_distance,
+    "l2": l2_distance,
+}
 
 
 def _check_pair(a: np.ndarray, b: np.ndarray) -> None:
@@ -190,10 +202,12 @@ def groups(dumps: Iterable[Dump], comparison: str) -> list[Group]:
         if len(members) < 2:
             continue
         values = dict(zip(fixed_fields, fixed))
-        shared = [values[f] if f != "seed" else f"seed {values[f]}"
-                  for f in ("robot", "task", "seed") if f != varying]
-        out.append(Group(comparison, values["method"], values["interface_dim"], ", ".join(shared),
-                         members))
+        shared = [
+            values[f] if f != "seed" else f"seed {values[f]}"
+            for f in ("robot", "task", "seed")
+            if f != varying
+        ]
+        out.append(Group(comparison, values["method"], values["interface_dim"], ", ".join(shared), members))
     return out
 
 
@@ -207,9 +221,18 @@ def pair_cells(all_groups: Iterable[Group]) -> pd.DataFrame:
     for group in all_groups:
         for x, y in combinations(list(group.members), 2):
             a, b = group.members[x].values, group.members[y].values
-            records.append({"comparison": group.comparison, "interface_dim": group.interface_dim,
-                            "method": group.method, "cluster": group.fixed, "a": x, "b": y,
-                            **{m: fn(a, b) for m, fn in DISTANCES.items()}, **retrieval(a, b)})
+            records.append(
+                {
+                    "comparison": group.comparison,
+                    "interface_dim": group.interface_dim,
+                    "method": group.method,
+                    "cluster": group.fixed,
+                    "a": x,
+                    "b": y,
+                    **{m: fn(a, b) for m, fn in DISTANCES.items()},
+                    **retrieval(a, b),
+                }
+            )
     columns = ["comparison", "interface_dim", "method", "cluster", "a", "b", *DISTANCES, "mrr", "top1"]
     return pd.DataFrame(records, columns=columns)
 
@@ -230,11 +253,22 @@ def distance_table(all_groups: Iterable[Group]) -> pd.DataFrame:
         for metric in ALIGNMENT_METRICS:
             values = part[metric].to_numpy()
             e = estimate(values, part["cluster"].to_numpy())
-            row.update({f"{metric}_mean": e.mean, f"{metric}_std": float(np.std(values)),
-                        f"{metric}_lo": e.mean_lo, f"{metric}_hi": e.mean_hi})
+            row.update(
+                {
+                    f"{metric}_mean": e.mean,
+                    f"{metric}_std": float(np.std(values)),
+                    f"{metric}_lo": e.mean_lo,
+                    f"{metric}_hi": e.mean_hi,
+                }
+            )
         records.append(row)
-    columns = ["comparison", "interface_dim", "method", "pairs",
-               *(f"{m}_{s}" for m in ALIGNMENT_METRICS for s in ("mean", "std", "lo", "hi"))]
+    columns = [
+        "comparison",
+        "interface_dim",
+        "method",
+        "pairs",
+        *(f"{m}_{s}" for m in ALIGNMENT_METRICS for s in ("mean", "std", "lo", "hi")),
+    ]
     return pd.DataFrame(records, columns=columns)
 
 
@@ -242,16 +276,25 @@ def spread_table(dumps: Iterable[Dump]) -> pd.DataFrame:
     """Within-network spread of every dump and whether it is flagged as collapsed."""
     from ps_ray.analysis.alignment import collapsed, spread
 
-    return pd.DataFrame([{"key": d.key, "method": d.method, "interface_dim": d.interface_dim,
-                          "spread": spread(d.values), "collapsed": collapsed(d.values)}
-                         for d in dumps], columns=["key", "method", "interface_dim", "spread", "collapsed"])
+    return pd.DataFrame(
+        [
+            {
+                "key": d.key,
+                "method": d.method,
+                "interface_dim": d.interface_dim,
+                "spread": spread(d.values),
+                "collapsed": collapsed(d.values),
+            }
+            for d in dumps
+        ],
+        columns=["key", "method", "interface_dim", "spread", "collapsed"],
+    )
 
 
 def mean_matrix(all_groups: Iterable[Group], metric: str) -> pd.DataFrame:
     """The element-wise mean of groups' matrices over the labels they share (for one heatmap)."""
     frames = [g.matrix(metric) for g in all_groups]
-    return pd.concat(frames).groupby(level=0, sort=False).mean().loc[frames[0].index,
-                                                                     frames[0].columns]
+    return pd.concat(frames).groupby(level=0, sort=False).mean().loc[frames[0].index, frames[0].columns]
 
 
 # -- PCA ----------------------------------------------------------------------------------------------
@@ -278,4 +321,3 @@ def save_dumps(path: Path, probes: Mapping[str, Probes], dumps: Iterable[Dump]) 
         tensors[f"interface/{d.key}"] = np.ascontiguousarray(d.values, np.float32)
     path.parent.mkdir(parents=True, exist_ok=True)
     save_file(tensors, str(path), metadata={"labels": json.dumps(meta)})
-

@@ -33,10 +33,13 @@ def distance_heatmaps(by_method: Mapping[str, Sequence[Group]], title: str, path
     """Rows: methods; columns: cosine and L2. Each cell: the mean matrix of the method's groups.
     Methods share one colour scale per metric (cosine from 0 to at least 1), so they compare."""
     methods = list(by_method)
-    matrices = {(m, metric): mean_matrix(by_method[m], metric)
-                for m in methods for metric in ("cosine", "l2")}
-    top = {metric: max(float(matrices[m, metric].to_numpy().max()) for m in methods)
-           for metric in ("cosine", "l2")}
+    matrices = {
+        (m, metric): mean_matrix(by_method[m], metric) for m in methods for metric in ("cosine", "l2")
+    }
+    top = {
+        metric: max(float(matrices[m, metric].to_numpy().max()) for m in methods)
+        for metric in ("cosine", "l2")
+    }
     top["cosine"] = max(1.0, top["cosine"])
     fig, axes = plt.subplots(len(methods), 2, figsize=(8, 3.4 * len(methods)), squeeze=False)
     for row, method in enumerate(methods):
@@ -48,9 +51,15 @@ def distance_heatmaps(by_method: Mapping[str, Sequence[Group]], title: str, path
             ax.set_xticks(range(len(matrix)), matrix.columns, rotation=30, ha="right")
             ax.set_yticks(range(len(matrix)), matrix.index)
             for (i, j), value in np.ndenumerate(matrix.to_numpy()):
-                ax.text(j, i, f"{value:.3f}" if metric == "cosine" else f"{value:.2f}",
-                        ha="center", va="center", fontsize=8,
-                        color="white" if value < 0.6 * vmax else "black")
+                ax.text(
+                    j,
+                    i,
+                    f"{value:.3f}" if metric == "cosine" else f"{value:.2f}",
+                    ha="center",
+                    va="center",
+                    fontsize=8,
+                    color="white" if value < 0.6 * vmax else "black",
+                )
             ax.set_title(f"{method}: {METRIC_TITLES[metric]}")
             fig.colorbar(image, ax=ax, fraction=0.046)
     fig.suptitle(title)
@@ -70,8 +79,7 @@ def interface_scatter(group: Group, probes: Probes, title: str, path: Path) -> P
     first = None
     for index, (name, xy) in enumerate(zip(names, points)):
         shared = {} if three_d or first is None else {"sharex": first, "sharey": first}
-        ax = fig.add_subplot(1, len(names), index + 1, projection="3d" if three_d else None,
-                             **shared)
+        ax = fig.add_subplot(1, len(names), index + 1, projection="3d" if three_d else None, **shared)
         first = first or ax
         for quadrant in QUADRANTS:
             mask = probes.labels == quadrant
@@ -86,8 +94,17 @@ def interface_scatter(group: Group, probes: Probes, title: str, path: Path) -> P
     return _save(fig, path)
 
 
-def learning_curves(curves: pd.DataFrame, *, x: str, y: str, panel: str, line: str, title: str,
-                    path: Path, ylabel: str = "greedy success") -> Path:
+def learning_curves(
+    curves: pd.DataFrame,
+    *,
+    x: str,
+    y: str,
+    panel: str,
+    line: str,
+    title: str,
+    path: Path,
+    ylabel: str = "greedy success",
+) -> Path:
     """One panel per ``panel`` value; one line per ``line`` value: the mean over the rows' runs
     (column ``run``) at each x, with the min-max band."""
     panels = list(dict.fromkeys(curves[panel]))
@@ -105,7 +122,7 @@ def learning_curves(curves: pd.DataFrame, *, x: str, y: str, panel: str, line: s
         ax.set_ylabel(ylabel)
         ax.set_ylim(-0.05, 1.05)
         ax.legend(fontsize=7)
-    for ax in list(axes.flat)[len(panels):]:
+    for ax in list(axes.flat)[len(panels) :]:
         ax.axis("off")
     fig.suptitle(title)
     fig.tight_layout()
@@ -120,16 +137,26 @@ def zero_shot_bars(table: pd.DataFrame, path: Path) -> Path:
     labels = list(dict.fromkeys(table["label"]))
     methods = method_order(table["method"])
     metrics = ["success"] + (["touching"] if table["touching_mean"].gt(0).any() else [])
-    fig, axes = plt.subplots(1, len(metrics), figsize=(6 * len(metrics) + 3,
-                                                      0.3 * len(labels) * len(methods) + 1.5),
-                             sharey=True, squeeze=False)
+    fig, axes = plt.subplots(
+        1,
+        len(metrics),
+        figsize=(6 * len(metrics) + 3, 0.3 * len(labels) * len(methods) + 1.5),
+        sharey=True,
+        squeeze=False,
+    )
     axes = axes[0]
     height = 0.8 / len(methods)
     for ax, metric in zip(axes, metrics):
         for index, method in enumerate(methods):
             part = table[table["method"] == method].set_index("label").reindex(labels)
-            ax.barh(np.arange(len(labels)) + index * height, part[f"{metric}_mean"], height,
-                    xerr=part[f"{metric}_std"], label=method, capsize=2)
+            ax.barh(
+                np.arange(len(labels)) + index * height,
+                part[f"{metric}_mean"],
+                height,
+                xerr=part[f"{metric}_std"],
+                label=method,
+                capsize=2,
+            )
         ax.set_yticks(np.arange(len(labels)) + 0.4 - height / 2, labels, fontsize=7)
         ax.set_xlim(0, 1)
         ax.set_xlabel(f"zero-shot {metric} rate")

@@ -30,7 +30,9 @@ REPORT_RUN = "report"  # the MLflow run's trial key
 class Section:
     title: str
     intro: str = ""
-    items: list[tuple[str, object]] = field(default_factory=list)  # ("figure", Path) | ("table", (caption, frame))
+    items: list[tuple[str, object]] = field(
+        default_factory=list
+    )  # ("figure", Path) | ("table", (caption, frame))
 
 
 @dataclass
@@ -49,8 +51,14 @@ class Report:
     def figure(self, section: Section, name: str, draw: Callable[[Path], Path]) -> None:
         section.items.append(("figure", draw(self.root / "figures" / f"{name}.png")))
 
-    def table(self, section: Section, name: str, caption: str, frame: pd.DataFrame,
-              numbers: pd.DataFrame | None = None) -> None:
+    def table(
+        self,
+        section: Section,
+        name: str,
+        caption: str,
+        frame: pd.DataFrame,
+        numbers: pd.DataFrame | None = None,
+    ) -> None:
         path = self.root / "tables" / f"{name}.csv"
         path.parent.mkdir(parents=True, exist_ok=True)
         (frame if numbers is None else numbers).to_csv(path)
@@ -92,43 +100,76 @@ def source_target(spec: SweepSpec) -> float:
 
 def _training(report: Report, root: Path, target: float, say) -> None:
     frame = results.curves(root / "tune")
-    section = report.section("Training", "Greedy success of the sweep's policies during training "
-                             "(mean over robots and seeds; band: min to max).")
+    section = report.section(
+        "Training",
+        "Greedy success of the sweep's policies during training "
+        "(mean over robots and seeds; band: min to max).",
+    )
     if frame.empty:
         section.intro = "No training results yet."
         return
-    frame["panel"] = frame["task"] + (", interface " + frame["interface_dim"].astype(str)
-                                      if frame["interface_dim"].nunique() > 1 else "")
-    report.figure(section, "training_curves", lambda p: plots.learning_curves(
-        frame, x="env_steps", y="success", panel="panel", line="method",
-        title="training: greedy success", path=p))
+    frame["panel"] = frame["task"] + (
+        ", interface " + frame["interface_dim"].astype(str) if frame["interface_dim"].nunique() > 1 else ""
+    )
+    report.figure(
+        section,
+        "training_curves",
+        lambda p: plots.learning_curves(
+            frame,
+            x="env_steps",
+            y="success",
+            panel="panel",
+            line="method",
+            title="training: greedy success",
+            path=p,
+        ),
+    )
     final = results.final_success(frame)
-    report.table(section, "training_final", "Final greedy success per method, task and interface",
-                 tables.training_table(final))
+    report.table(
+        section,
+        "training_final",
+        "Final greedy success per method, task and interface",
+        tables.training_table(final),
+    )
     shown, numbers = tables.steps_to_target_table(tables.steps_to_target(frame, target), target)
-    report.table(section, "training_steps_to_target", f"Env steps to greedy success {target:.2f} "
-                 "per method (first evaluation at or above it; a run that never got there counts "
-                 "as its last step, marked ≥)", shown, numbers=numbers)
+    report.table(
+        section,
+        "training_steps_to_target",
+        f"Env steps to greedy success {target:.2f} "
+        "per method (first evaluation at or above it; a run that never got there counts "
+        "as its last step, marked ≥)",
+        shown,
+        numbers=numbers,
+    )
     report.headline["steps"] = numbers
     sources = final.set_index("run")[["method", "robot", "task", "seed", "env_steps", "success"]]
     sources = sources.assign(below_target=sources["success"] < target)
-    report.table(section, "training_sources", f"Every source policy's final greedy success "
-                 f"(below_target: under {target:.2f}; stitched pairs built on it are flagged)",
-                 sources, numbers=sources)
+    report.table(
+        section,
+        "training_sources",
+        f"Every source policy's final greedy success "
+        f"(below_target: under {target:.2f}; stitched pairs built on it are flagged)",
+        sources,
+        numbers=sources,
+    )
     report.headline["sources"] = sources
-    say(f"report: training curves of {frame['run'].nunique()} runs "
-        f"({int(sources['below_target'].sum())} below the {target:.2f} target)")
+    say(
+        f"report: training curves of {frame['run'].nunique()} runs "
+        f"({int(sources['below_target'].sum())} below the {target:.2f} target)"
+    )
 
 
 def _latent(report: Report, spec: SweepSpec, root: Path, say) -> None:
     from ps_ray.zoo import ModuleZoo
 
     section = report.section(
-        "Latent alignment", "Average pairwise cosine and L2 distances between the interfaces of "
+        "Latent alignment",
+        "Average pairwise cosine and L2 distances between the interfaces of "
         "modules that differ only in their training seed or only in their robot, on fixed probe "
         "task states (the paper's appendix tables; PS: relative vector, others: raw latent). "
         "Scatter plots: the interface on the probe states coloured by goal quadrant, on one PCA "
-        "basis per group (3-D interfaces drawn raw).")
+        "basis per group (3-D interfaces drawn raw).",
+    )
     try:
         zoo = ModuleZoo.from_sweep(root)
     except ValueError:
@@ -144,26 +185,38 @@ def _latent(report: Report, spec: SweepSpec, root: Path, say) -> None:
         return probes[name]
 
     dumps = latent.dump_interfaces(entries, probes_for)
-    say(f"report: interfaces of {len(dumps)} modular modules on "
-        f"{sum(len(p.states) for p in probes.values())} probe states")
+    say(
+        f"report: interfaces of {len(dumps)} modular modules on "
+        f"{sum(len(p.states) for p in probes.values())} probe states"
+    )
     if not dumps:
         section.intro = "No modular modules in this sweep (plain has no task-only interface)."
         return
     latent.save_dumps(report.root / "interfaces.safetensors", probes, dumps)
     spreads = latent.spread_table(dumps)
     flagged = spreads[spreads["collapsed"]]
-    report.table(section, "interface_spread", "Within-network spread of every interface "
-                 "(sqrt(total variance) / RMS norm; below 0.05 is flagged as collapsed: its "
-                 f"distances say nothing) — {len(flagged)} of {len(spreads)} flagged",
-                 spreads.round(4), numbers=spreads)
+    report.table(
+        section,
+        "interface_spread",
+        "Within-network spread of every interface "
+        "(sqrt(total variance) / RMS norm; below 0.05 is flagged as collapsed: its "
+        f"distances say nothing) — {len(flagged)} of {len(spreads)} flagged",
+        spreads.round(4),
+        numbers=spreads,
+    )
     report.headline["collapsed"] = spreads.groupby("method")["collapsed"].sum()
     all_groups = {c: latent.groups(dumps, c) for c in latent.COMPARISONS}
     distances = latent.distance_table([g for gs in all_groups.values() for g in gs])
     if distances.empty:
         section.intro += " Distances need two or more seeds or robots per method."
         return
-    report.table(section, "latent_distances", "All distances (mean and std over pairs)",
-                 distances.round(5), numbers=distances)
+    report.table(
+        section,
+        "latent_distances",
+        "All distances (mean and std over pairs)",
+        distances.round(5),
+        numbers=distances,
+    )
     report.headline["alignment"] = distances
     for _, row in distances.iterrows():
         base = f"latent.{row['comparison']}.i{row['interface_dim']}.{row['method']}"
@@ -173,18 +226,34 @@ def _latent(report: Report, spec: SweepSpec, root: Path, say) -> None:
         for dim in sorted({g.interface_dim for g in found}):
             chosen = [g for g in found if g.interface_dim == dim]
             what = f"across {comparison}, interface {dim}"
-            report.table(section, f"latent_{comparison}_i{dim}", f"Distances {what}",
-                         tables.latent_table(distances, comparison, dim))
-            by_method = {m: [g for g in chosen if g.method == m]
-                         for m in tables.method_order(g.method for g in chosen)}
-            report.figure(section, f"heatmap_{comparison}_i{dim}", lambda p: plots.distance_heatmaps(
-                by_method, f"mean pairwise distance {what}", p))
+            report.table(
+                section,
+                f"latent_{comparison}_i{dim}",
+                f"Distances {what}",
+                tables.latent_table(distances, comparison, dim),
+            )
+            by_method = {
+                m: [g for g in chosen if g.method == m] for m in tables.method_order(g.method for g in chosen)
+            }
+            report.figure(
+                section,
+                f"heatmap_{comparison}_i{dim}",
+                lambda p, by_method=by_method, what=what: plots.distance_heatmaps(
+                    by_method, f"mean pairwise distance {what}", p
+                ),
+            )
             for method, method_groups in by_method.items():
                 group = method_groups[0]
-                report.figure(section, f"interface_{comparison}_i{dim}_{method}",
-                              lambda p: plots.interface_scatter(
-                                  group, probes[group.members[next(iter(group.members))].task],
-                                  f"{method}, {what} ({group.fixed})", p))
+                report.figure(
+                    section,
+                    f"interface_{comparison}_i{dim}_{method}",
+                    lambda p, group=group, method=method, what=what: plots.interface_scatter(
+                        group,
+                        probes[group.members[next(iter(group.members))].task],
+                        f"{method}, {what} ({group.fixed})",
+                        p,
+                    ),
+                )
     say(f"report: latent distances of {sum(map(len, all_groups.values()))} groups")
 
 
@@ -194,24 +263,40 @@ def _zero_shot(report: Report, root: Path, target: float, say) -> None:
     table = results.zero_shot_results(root / RESULT_FILE)
     if table is None:
         return
-    section = report.section("Zero-shot stitching", "Stitched policies (task module of one "
-                             "robot-task pair, robot module of another) in their target env "
-                             "without training: touching and success, mean ± std over repeats "
-                             "and seeds, identical evaluation episodes for every method.")
-    report.table(section, "zero_shot", "Zero-shot results (Table 1 layout)",
-                 tables.zero_shot_table(table), numbers=tables.pool_seeds(table))
+    section = report.section(
+        "Zero-shot stitching",
+        "Stitched policies (task module of one "
+        "robot-task pair, robot module of another) in their target env "
+        "without training: touching and success, mean ± std over repeats "
+        "and seeds, identical evaluation episodes for every method.",
+    )
+    report.table(
+        section,
+        "zero_shot",
+        "Zero-shot results (Table 1 layout)",
+        tables.zero_shot_table(table),
+        numbers=tables.pool_seeds(table),
+    )
     sources = report.headline.get("sources")
     if sources is not None:
         weak = set(sources.index[sources["below_target"]])
         table = table.assign(weak_source=table["task_from"].isin(weak) | table["robot_from"].isin(weak))
         flagged = table[table["weak_source"]]
-        report.table(section, "zero_shot_weak_sources", f"{len(flagged)} of {len(table)} stitched "
-                     f"pairs are built on a source below the {target:.2f} target",
-                     flagged[["method", "seed", "label", "task_from", "robot_from", "success_mean"]])
+        report.table(
+            section,
+            "zero_shot_weak_sources",
+            f"{len(flagged)} of {len(table)} stitched "
+            f"pairs are built on a source below the {target:.2f} target",
+            flagged[["method", "seed", "label", "task_from", "robot_from", "success_mean"]],
+        )
     numbers = tables.zero_shot_estimates(table)
-    report.table(section, "zero_shot_summary", "Per method over (pair, seed) cells: mean and IQM "
-                 "with bootstrap 95% CIs resampling seeds", tables.estimates_text(numbers),
-                 numbers=numbers)
+    report.table(
+        section,
+        "zero_shot_summary",
+        "Per method over (pair, seed) cells: mean and IQM with bootstrap 95% CIs resampling seeds",
+        tables.estimates_text(numbers),
+        numbers=numbers,
+    )
     report.headline["zero_shot"] = numbers
     for method, row in numbers.iterrows():
         for metric in ("success", "touching"):
@@ -229,18 +314,32 @@ def _few_shot(report: Report, root: Path, say) -> None:
     frame = results.curves(root / FEW_SHOT_DIR / TUNE_DIR)
     if frame.empty:
         return
-    section = report.section("Few-shot fine-tuning", "Stitched policies fine-tuned in their "
-                             "target env (after a collection phase without updates) beside the "
-                             "same env trained from scratch: greedy success vs env steps.")
+    section = report.section(
+        "Few-shot fine-tuning",
+        "Stitched policies fine-tuned in their "
+        "target env (after a collection phase without updates) beside the "
+        "same env trained from scratch: greedy success vs env steps.",
+    )
     frame["target"] = frame["robot"] + " / " + frame["task"]
     frame["line"] = frame["kind"] + ": " + frame["method"]
-    report.figure(section, "few_shot_curves", lambda p: plots.learning_curves(
-        frame, x="env_steps", y="success", panel="target", line="line",
-        title="few-shot: greedy success in the target env", path=p))
+    report.figure(
+        section,
+        "few_shot_curves",
+        lambda p: plots.learning_curves(
+            frame,
+            x="env_steps",
+            y="success",
+            panel="target",
+            line="line",
+            title="few-shot: greedy success in the target env",
+            path=p,
+        ),
+    )
     final = results.final_success(frame)
     summary = final.groupby(["target", "line"])["success"].mean().unstack("line")
-    report.table(section, "few_shot_final", "Final greedy success per target env",
-                 summary.round(3), numbers=summary)
+    report.table(
+        section, "few_shot_final", "Final greedy success per target env", summary.round(3), numbers=summary
+    )
     say(f"report: few-shot curves of {frame['run'].nunique()} runs")
 
 
@@ -255,11 +354,13 @@ def _summary(report: Report, spec: SweepSpec, target: float) -> None:
         if zs is not None and method in zs.index:
             r = zs.loc[method]
             row["zero-shot success, mean [95% CI]"] = f"{r['success_mean']:.2f} " + tables.ci(
-                r["success_mean_lo"], r["success_mean_hi"])
+                r["success_mean_lo"], r["success_mean_hi"]
+            )
             row["zero-shot success IQM"] = f"{r['success_iqm']:.2f}"
             if "touching_mean" in r and r["touching_mean"] == r["touching_mean"]:
                 row["touching, mean [95% CI]"] = f"{r['touching_mean']:.2f} " + tables.ci(
-                    r["touching_mean_lo"], r["touching_mean_hi"])
+                    r["touching_mean_lo"], r["touching_mean_hi"]
+                )
             row["cells"] = str(int(r["success_cells"]))
         al = h.get("alignment")
         if al is not None:
@@ -273,8 +374,9 @@ def _summary(report: Report, spec: SweepSpec, target: float) -> None:
         steps = h.get("steps")
         if steps is not None and method in steps.index:
             r = steps.loc[method]
-            row[f"env steps to {target:.2f}"] = (f"{r['steps_mean']:.0f} "
-                                                 f"({int(r['reached'])}/{int(r['runs'])} reached)")
+            row[f"env steps to {target:.2f}"] = (
+                f"{r['steps_mean']:.0f} ({int(r['reached'])}/{int(r['runs'])} reached)"
+            )
         src = h.get("sources")
         if src is not None and (src["method"] == method).any():
             mine = src[src["method"] == method]
@@ -285,13 +387,23 @@ def _summary(report: Report, spec: SweepSpec, target: float) -> None:
     if not rows:
         return
     train = spec.train
-    budget = (f"Budget: {len(spec.seeds)} seed(s), up to {train.get('env_steps', 'default')} env "
-              f"steps per source" + (f", stopping early at greedy success {train['target_success']}"
-                                     if train.get("target_success") is not None else "") + ". ")
-    section = Section("Summary", budget + "Zero-shot: stitched pairs in their target env, no "
-                      "training; CIs resample seeds (fewer than two seeds: n/a). MRR: retrieval of "
-                      "the same probe state across networks (1 = perfect; a collapsed interface "
-                      "cannot score).")
+    budget = (
+        f"Budget: {len(spec.seeds)} seed(s), up to {train.get('env_steps', 'default')} env "
+        f"steps per source"
+        + (
+            f", stopping early at greedy success {train['target_success']}"
+            if train.get("target_success") is not None
+            else ""
+        )
+        + ". "
+    )
+    section = Section(
+        "Summary",
+        budget + "Zero-shot: stitched pairs in their target env, no "
+        "training; CIs resample seeds (fewer than two seeds: n/a). MRR: retrieval of "
+        "the same probe state across networks (1 = perfect; a collapsed interface "
+        "cannot score).",
+    )
     frame = pd.DataFrame.from_dict(rows, orient="index").fillna("–")
     frame.index.name = "method"
     path = report.root / "tables" / "summary.csv"
@@ -316,17 +428,28 @@ def render_html(spec: SweepSpec, report: Report) -> str:
     from ps_ray.tracking import git_commit
 
     esc = html.escape
-    meta = {"methods": ", ".join(spec.methods), "robots": ", ".join(map(short_name, spec.robots)),
-            "tasks": ", ".join(map(short_name, spec.tasks)),
-            "seeds": ", ".join(map(str, spec.seeds)),
-            "interface dims": ", ".join(map(str, spec.interface_dims)),
-            "stages": ", ".join(spec.stages), "code": git_commit() or "unknown"}
-    parts = [f"<!DOCTYPE html><html><head><meta charset='utf-8'>"
-             f"<title>ps_ray report: {esc(spec.name)}</title><style>{STYLE}</style></head><body>",
-             f"<h1>ps_ray report: {esc(spec.name)}</h1>", "<table class='meta'>",
-             *(f"<tr><th>{esc(k)}</th><td>{esc(v)}</td></tr>" for k, v in meta.items()), "</table>"]
-    parts.append("<ul>" + "".join(f"<li><a href='#s{i}'>{esc(s.title)}</a></li>"
-                                  for i, s in enumerate(report.sections)) + "</ul>")
+    meta = {
+        "methods": ", ".join(spec.methods),
+        "robots": ", ".join(map(short_name, spec.robots)),
+        "tasks": ", ".join(map(short_name, spec.tasks)),
+        "seeds": ", ".join(map(str, spec.seeds)),
+        "interface dims": ", ".join(map(str, spec.interface_dims)),
+        "stages": ", ".join(spec.stages),
+        "code": git_commit() or "unknown",
+    }
+    parts = [
+        f"<!DOCTYPE html><html><head><meta charset='utf-8'>"
+        f"<title>ps_ray report: {esc(spec.name)}</title><style>{STYLE}</style></head><body>",
+        f"<h1>ps_ray report: {esc(spec.name)}</h1>",
+        "<table class='meta'>",
+        *(f"<tr><th>{esc(k)}</th><td>{esc(v)}</td></tr>" for k, v in meta.items()),
+        "</table>",
+    ]
+    parts.append(
+        "<ul>"
+        + "".join(f"<li><a href='#s{i}'>{esc(s.title)}</a></li>" for i, s in enumerate(report.sections))
+        + "</ul>"
+    )
     for index, section in enumerate(report.sections):
         parts.append(f"<h2 id='s{index}'>{esc(section.title)}</h2><p>{esc(section.intro)}</p>")
         for kind, item in section.items:
@@ -346,15 +469,18 @@ def log_report(spec: SweepSpec, report_dir: Path, metrics: dict[str, float]) -> 
     """One run per sweep (found again by its key), holding the report folder and headline
     numbers; a rebuild overwrites the same artifacts. Returns the run id."""
     from ps_ray.sweep import sweep_dir
-    from ps_ray.tracking import (STAGE_TAG, TrialTracker, default_tracking_uri, ensure_experiment,
-                                 git_commit)
+    from ps_ray.tracking import STAGE_TAG, TrialTracker, default_tracking_uri, ensure_experiment, git_commit
 
     root = sweep_dir(spec)
     uri = spec.tracking_uri or default_tracking_uri(root)
     experiment = ensure_experiment(uri, spec.name, root / "mlartifacts")
-    tracker = TrialTracker(uri, experiment, REPORT_RUN, params={"sweep": spec.name},
-                           tags={STAGE_TAG: "report", "ps_ray.sweep": spec.name,
-                                 "git_commit": git_commit() or ""})
+    tracker = TrialTracker(
+        uri,
+        experiment,
+        REPORT_RUN,
+        params={"sweep": spec.name},
+        tags={STAGE_TAG: "report", "ps_ray.sweep": spec.name, "git_commit": git_commit() or ""},
+    )
     tracker.log_metrics(metrics, step=0)
     for path in sorted(report_dir.iterdir()):
         tracker.log_artifact(path)

@@ -13,8 +13,18 @@ import pandas as pd
 
 from ps_ray.config import short_name, trial_key
 
-CURVE_COLUMNS = ["run", "kind", "label", "method", "robot", "task", "seed", "interface_dim",
-                 "env_steps", "success"]
+CURVE_COLUMNS = [
+    "run",
+    "kind",
+    "label",
+    "method",
+    "robot",
+    "task",
+    "seed",
+    "interface_dim",
+    "env_steps",
+    "success",
+]
 
 
 def _results(trial_dir: Path) -> list[dict]:
@@ -38,10 +48,16 @@ def curves(stage_dir: Path) -> pd.DataFrame:
         trial = json.loads(params_path.read_text())["trial"]
         spec = trial["spec"]
         run = trial.get("key") or trial_key(spec)
-        fields = {"run": run, "kind": trial.get("kind", "train"), "label": trial.get("label", run),
-                  "method": spec["method"], "robot": short_name(spec["robot"]),
-                  "task": short_name(spec["task"]), "seed": spec["seed"],
-                  "interface_dim": spec["interface_dim"]}
+        fields = {
+            "run": run,
+            "kind": trial.get("kind", "train"),
+            "label": trial.get("label", run),
+            "method": spec["method"],
+            "robot": short_name(spec["robot"]),
+            "task": short_name(spec["task"]),
+            "seed": spec["seed"],
+            "interface_dim": spec["interface_dim"],
+        }
         for row in _results(params_path.parent):
             for key in ("eval_success", "final_success"):
                 if row.get(key) is not None:

@@ -61,8 +61,12 @@ def estimate(values, seeds, *, seed: int = 0) -> Estimate:
             drawn = stats.bootstrap(
                 (np.arange(len(by_seed)),),
                 lambda idx, fn=fn: fn(np.concatenate([by_seed[i] for i in idx])),
-                vectorized=False, n_resamples=RESAMPLES, confidence_level=CONFIDENCE,
-                method="percentile", rng=np.random.default_rng(seed))
+                vectorized=False,
+                n_resamples=RESAMPLES,
+                confidence_level=CONFIDENCE,
+                method="percentile",
+                rng=np.random.default_rng(seed),
+            )
             out[f"{name}_lo"], out[f"{name}_hi"] = map(float, drawn.confidence_interval)
         elif len(by_seed) >= 2:  # every cell equal: the interval is the point
             out[f"{name}_lo"] = out[f"{name}_hi"] = out[name]
@@ -71,6 +75,8 @@ def estimate(values, seeds, *, seed: int = 0) -> Estimate:
 
 def estimates(table: pd.DataFrame, value: str, by: str = "method", seed_col: str = "seed") -> pd.DataFrame:
     """One :class:`Estimate` row per ``by`` group of a cell table."""
-    rows = [{by: key, **asdict(estimate(part[value].to_numpy(), part[seed_col].to_numpy()))}
-            for key, part in table.groupby(by, sort=False)]
+    rows = [
+        {by: key, **asdict(estimate(part[value].to_numpy(), part[seed_col].to_numpy()))}
+        for key, part in table.groupby(by, sort=False)
+    ]
     return pd.DataFrame(rows).set_index(by) if rows else pd.DataFrame()

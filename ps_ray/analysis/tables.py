@@ -35,18 +35,22 @@ def method_order(methods) -> list[str]:
 
 def latent_table(distances: pd.DataFrame, comparison: str, interface_dim: int) -> pd.DataFrame:
     """One of the paper's appendix tables: rows = methods, columns = cosine and L2 distance."""
-    part = distances[(distances["comparison"] == comparison)
-                     & (distances["interface_dim"] == interface_dim)]
+    part = distances[(distances["comparison"] == comparison) & (distances["interface_dim"] == interface_dim)]
     part = part.sort_values("method", key=lambda s: s.map(_method_key))
-    return pd.DataFrame({
-        "pairs": part["pairs"].to_numpy(),
-        "cosine distance": [pm(m, s, 4) for m, s in zip(part["cosine_mean"], part["cosine_std"])],
-        "L2 distance": [pm(m, s, 3) for m, s in zip(part["l2_mean"], part["l2_std"])],
-        "cosine 95% CI": [ci(lo, hi, 4) for lo, hi in zip(part["cosine_lo"], part["cosine_hi"])],
-        "retrieval MRR [95% CI]": [f"{m:.3f} {ci(lo, hi, 3)}" for m, lo, hi
-                                   in zip(part["mrr_mean"], part["mrr_lo"], part["mrr_hi"])],
-        "top-1": [f"{m:.3f}" for m in part["top1_mean"]],
-    }, index=pd.Index(part["method"].to_numpy(), name="method"))
+    return pd.DataFrame(
+        {
+            "pairs": part["pairs"].to_numpy(),
+            "cosine distance": [pm(m, s, 4) for m, s in zip(part["cosine_mean"], part["cosine_std"])],
+            "L2 distance": [pm(m, s, 3) for m, s in zip(part["l2_mean"], part["l2_std"])],
+            "cosine 95% CI": [ci(lo, hi, 4) for lo, hi in zip(part["cosine_lo"], part["cosine_hi"])],
+            "retrieval MRR [95% CI]": [
+                f"{m:.3f} {ci(lo, hi, 3)}"
+                for m, lo, hi in zip(part["mrr_mean"], part["mrr_lo"], part["mrr_hi"])
+            ],
+            "top-1": [f"{m:.3f}" for m in part["top1_mean"]],
+        },
+        index=pd.Index(part["method"].to_numpy(), name="method"),
+    )
 
 
 def pool_seeds(table: pd.DataFrame) -> pd.DataFrame:
@@ -58,7 +62,7 @@ def pool_seeds(table: pd.DataFrame) -> pd.DataFrame:
         for metric in ("success", "touching"):
             means, stds = part[f"{metric}_mean"].to_numpy(float), part[f"{metric}_std"].to_numpy(float)
             row[f"{metric}_mean"] = float(np.mean(means))
-            row[f"{metric}_std"] = float(np.sqrt(np.mean(stds ** 2) + np.var(means)))
+            row[f"{metric}_std"] = float(np.sqrt(np.mean(stds**2) + np.var(means)))
         out.append(row)
     return pd.DataFrame(out)
 
@@ -84,8 +88,7 @@ def zero_shot_table(table: pd.DataFrame) -> pd.DataFrame:
     methods = method_order(pooled["method"])
     rows = sorted(pooled["row"].unique())
     columns = pd.MultiIndex.from_product([methods, ["touching", "success"]])
-    out = pd.DataFrame("–", index=pd.Index(rows, name="task module & robot module"),
-                       columns=columns)
+    out = pd.DataFrame("–", index=pd.Index(rows, name="task module & robot module"), columns=columns)
     for _, r in pooled.iterrows():
         for metric in ("touching", "success"):
             out.loc[r["row"], (r["method"], metric)] = pm(r[f"{metric}_mean"], r[f"{metric}_std"])
@@ -95,8 +98,12 @@ def zero_shot_table(table: pd.DataFrame) -> pd.DataFrame:
 def training_table(final: pd.DataFrame) -> pd.DataFrame:
     """Final greedy success per (method, task, interface dim): mean ± std over robots and seeds."""
     grouped = final.groupby(["method", "task", "interface_dim"])["success"]
-    out = pd.DataFrame({"runs": grouped.size(), "final success": grouped.agg(
-        lambda s: pm(float(s.mean()), float(s.std(ddof=0))))})
+    out = pd.DataFrame(
+        {
+            "runs": grouped.size(),
+            "final success": grouped.agg(lambda s: pm(float(s.mean()), float(s.std(ddof=0)))),
+        }
+    )
     return out.sort_index(level=0, key=lambda s: s.map(_method_key) if s.name == "method" else s)
 
 
@@ -127,7 +134,8 @@ def estimates_text(numbers: pd.DataFrame, metrics=("success", "touching")) -> pd
         for stat in ("mean", "iqm"):
             out[f"{metric} {stat.upper() if stat == 'iqm' else stat} [95% CI]"] = [
                 f"{r[f'{metric}_{stat}']:.2f} {ci(r[f'{metric}_{stat}_lo'], r[f'{metric}_{stat}_hi'])}"
-                for _, r in numbers.iterrows()]
+                for _, r in numbers.iterrows()
+            ]
     return out
 
 
@@ -138,9 +146,15 @@ def steps_to_target(curves: pd.DataFrame, target: float) -> pd.DataFrame:
     for run, part in curves.sort_values("env_steps").groupby("run", sort=True):
         hit = part[part["success"] >= target]["env_steps"]
         first = part.iloc[0]
-        rows.append({"run": run, "method": first["method"], "seed": first["seed"],
-                     "steps": float(hit.iloc[0]) if len(hit) else float("nan"),
-                     "last_step": float(part["env_steps"].max())})
+        rows.append(
+            {
+                "run": run,
+                "method": first["method"],
+                "seed": first["seed"],
+                "steps": float(hit.iloc[0]) if len(hit) else float("nan"),
+                "last_step": float(part["env_steps"].max()),
+            }
+        )
     return pd.DataFrame(rows, columns=["run", "method", "seed", "steps", "last_step"])
 
 
@@ -156,11 +170,24 @@ def steps_to_target_table(per_run: pd.DataFrame, target: float) -> tuple[pd.Data
         steps = part["steps"].fillna(part["last_step"]).to_numpy()
         e = estimate(steps, part["seed"].to_numpy())
         censored = int(part["steps"].isna().sum())
-        numbers.append({"method": method, "runs": len(part), "reached": len(part) - censored,
-                        "steps_mean": e.mean, "steps_lo": e.mean_lo, "steps_hi": e.mean_hi,
-                        "steps_iqm": e.iqm})
-        shown.append({"method": method, "reached": f"{len(part) - censored}/{len(part)}",
-                      f"env steps to {target:.2f}, mean [95% CI]":
-                          ("≥ " if censored else "") + f"{e.mean:.0f} {ci(e.mean_lo, e.mean_hi, 0)}",
-                      "IQM": f"{e.iqm:.0f}"})
+        numbers.append(
+            {
+                "method": method,
+                "runs": len(part),
+                "reached": len(part) - censored,
+                "steps_mean": e.mean,
+                "steps_lo": e.mean_lo,
+                "steps_hi": e.mean_hi,
+                "steps_iqm": e.iqm,
+            }
+        )
+        shown.append(
+            {
+                "method": method,
+                "reached": f"{len(part) - censored}/{len(part)}",
+                f"env steps to {target:.2f}, mean [95% CI]": ("≥ " if censored else "")
+                + f"{e.mean:.0f} {ci(e.mean_lo, e.mean_hi, 0)}",
+                "IQM": f"{e.iqm:.0f}",
+            }
+        )
     return (pd.DataFrame(shown).set_index("method"), pd.DataFrame(numbers).set_index("method"))

@@ -49,19 +49,24 @@ def _bare_rate(env, targets: list, starts: list) -> float:
             if obj is not None:
                 p.resetBasePositionAndOrientation(obj, *starts[i // EPISODE_STEPS], physicsClientId=cid)
                 p.resetBaseVelocity(obj, (0, 0, 0), (0, 0, 0), physicsClientId=cid)
-        p.setJointMotorControlArray(body, joints, p.POSITION_CONTROL, targetPositions=target,
-                                    forces=forces, physicsClientId=cid)
+        p.setJointMotorControlArray(
+            body, joints, p.POSITION_CONTROL, targetPositions=target, forces=forces, physicsClientId=cid
+        )
         for _ in range(substeps):
             p.stepSimulation(physicsClientId=cid)
     return len(targets) / (time.perf_counter() - start)
 
 
-def run(steps: int = 2000, tasks: Sequence[str] | None = None, rounds: int = 3, robot: str = "panda") -> list[dict]:
+def run(
+    steps: int = 2000, tasks: Sequence[str] | None = None, rounds: int = 3, robot: str = "panda"
+) -> list[dict]:
     """``[{"task", "env_steps_per_s", "bare_steps_per_s", "ratio"}, ...]`` for each task."""
     results = []
     for task in tasks or list(TASKS):
         env, bare = make(robot, task), make(robot, task)  # separate clients, same scene
-        actions = np.random.default_rng(0).uniform(-1, 1, (steps, env.action_space.shape[0])).astype(np.float32)
+        actions = (
+            np.random.default_rng(0).uniform(-1, 1, (steps, env.action_space.shape[0])).astype(np.float32)
+        )
         _, targets, starts = _env_rate(env, actions, record=True)
         bare.reset(seed=0)
         env_rate = bare_rate = 0.0
@@ -70,8 +75,14 @@ def run(steps: int = 2000, tasks: Sequence[str] | None = None, rounds: int = 3, 
             env_rate = max(env_rate, _env_rate(env, actions)[0])
         env.close()
         bare.close()
-        results.append({"task": task, "env_steps_per_s": env_rate, "bare_steps_per_s": bare_rate,
-                        "ratio": env_rate / bare_rate})
+        results.append(
+            {
+                "task": task,
+                "env_steps_per_s": env_rate,
+                "bare_steps_per_s": bare_rate,
+                "ratio": env_rate / bare_rate,
+            }
+        )
     return results
 
 

@@ -22,9 +22,9 @@ import torch
 
 from ps_ray.envs import make
 from ps_ray.evaluate import evaluate
+from ps_ray.nets.modular import uses_anchors
 from ps_ray.nets.obs import dims_from_spaces
 from ps_ray.nets.sac import build_sac_nets
-from ps_ray.nets.modular import uses_anchors
 
 
 def env_rate(robot: str, task: str, steps: int, seed: int = 0) -> float:
@@ -50,13 +50,25 @@ def policy_nets(robot: str, task: str, method: str, interface_dim: int, hidden: 
         states.append(np.concatenate([obs["task_state"], obs["desired_goal"]]))
     env.close()
     torch.manual_seed(0)
-    return build_sac_nets(method, dims, interface_dim=interface_dim, hidden=hidden,
-                          anchors=np.stack(states) if uses_anchors(method) else None)
+    return build_sac_nets(
+        method,
+        dims,
+        interface_dim=interface_dim,
+        hidden=hidden,
+        anchors=np.stack(states) if uses_anchors(method) else None,
+    )
 
 
-def run(robot: str = "panda", task: str = "push", method: str = "ps", episodes: int = 24,
-        rounds: int = 3, num_envs: Sequence[int] = (1, 8), interface_dim: int = 128,
-        hidden: int = 256) -> dict:
+def run(
+    robot: str = "panda",
+    task: str = "push",
+    method: str = "ps",
+    episodes: int = 24,
+    rounds: int = 3,
+    num_envs: Sequence[int] = (1, 8),
+    interface_dim: int = 128,
+    hidden: int = 256,
+) -> dict:
     nets = policy_nets(robot, task, method, interface_dim, hidden)
     variants = [(n, True) for n in num_envs] + [(1, False)]
     best = {v: 0.0 for v in variants}
@@ -65,8 +77,7 @@ def run(robot: str = "panda", task: str = "push", method: str = "ps", episodes: 
     for _ in range(rounds):
         env_best = max(env_best, env_rate(robot, task, steps))
         for n, fast in variants:
-            result = evaluate(nets, robot, task, episodes=episodes, repeats=1, num_envs=n,
-                              fast=fast)
+            result = evaluate(nets, robot, task, episodes=episodes, repeats=1, num_envs=n, fast=fast)
             best[(n, fast)] = max(best[(n, fast)], result["env_steps_per_s"])
     return {"env_steps_per_s": env_best, "eval": best}
 
@@ -81,12 +92,21 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument("--hidden", type=int, default=256)
     parser.add_argument("--interface-dim", type=int, default=128)
     args = parser.parse_args(argv)
-    out = run(args.robot, args.task, args.method, args.episodes, args.rounds,
-              interface_dim=args.interface_dim, hidden=args.hidden)
+    out = run(
+        args.robot,
+        args.task,
+        args.method,
+        args.episodes,
+        args.rounds,
+        interface_dim=args.interface_dim,
+        hidden=args.hidden,
+    )
     env = out["env_steps_per_s"]
-    print(f"{args.method} on {args.task}/{args.robot}, hidden {args.hidden}, interface "
-          f"{args.interface_dim}; {args.episodes} episodes x 50 steps, best of {args.rounds} rounds; "
-          f"torch threads during evaluation: 1 (of {torch.get_num_threads()})")
+    print(
+        f"{args.method} on {args.task}/{args.robot}, hidden {args.hidden}, interface "
+        f"{args.interface_dim}; {args.episodes} episodes x 50 steps, best of {args.rounds} rounds; "
+        f"torch threads during evaluation: 1 (of {torch.get_num_threads()})"
+    )
     print(f"{'':<28}{'env steps/s':>12}{'episodes/s':>12}{'ratio':>8}")
     print(f"{'env.step, random actions':<28}{env:>12.0f}{env / 50:>12.1f}{1.0:>8.2f}")
     for (n, fast), rate in out["eval"].items():

@@ -64,10 +64,14 @@ def bench(capacity: int, repeats: int) -> None:
     act_mb = capacity * T * A * 4 / 2**20
 
     print(f"\n== capacity {capacity:,} episodes = {buf.num_transitions:,} transitions ==")
-    print(f"storage allocated   {buf.nbytes / 2**20:8.1f} MiB  (obs {data_mb:.1f} + actions {act_mb:.1f});"
-          f" RSS growth after filling {rss1 - rss0:.1f} MiB")
-    print(f"add_episodes(100)   median {np.median(fill_times) * 1e3:7.3f} ms while filling,"
-          f" {np.median(wrap_times) * 1e3:.3f} ms overwriting (ring full)")
+    print(
+        f"storage allocated   {buf.nbytes / 2**20:8.1f} MiB  (obs {data_mb:.1f} + actions {act_mb:.1f});"
+        f" RSS growth after filling {rss1 - rss0:.1f} MiB"
+    )
+    print(
+        f"add_episodes(100)   median {np.median(fill_times) * 1e3:7.3f} ms while filling,"
+        f" {np.median(wrap_times) * 1e3:.3f} ms overwriting (ring full)"
+    )
     for label, fn in [
         ("sample(256)        ", lambda: buf.sample(256)),
         ("sample_many(40,256)", lambda: buf.sample_many(40, 256)),

@@ -26,21 +26,37 @@ def steps_to(curve: pd.DataFrame, target: float) -> int | None:
 
 
 def run_one(args: argparse.Namespace, method: str, seed: int) -> dict:
-    spec = TrainSpec(robot=args.robot, task=args.task, method=method, seed=seed,
-                     env_steps=args.env_steps, interface_dim=args.interface_dim,
-                     eval_episodes=args.eval_episodes, target_success=args.target)
+    spec = TrainSpec(
+        robot=args.robot,
+        task=args.task,
+        method=method,
+        seed=seed,
+        env_steps=args.env_steps,
+        interface_dim=args.interface_dim,
+        eval_episodes=args.eval_episodes,
+        target_success=args.target,
+    )
     run_dir = Path(args.out) / spec.slug()
     result_file = run_dir / "result.json"
-    result = json.loads(result_file.read_text()) if result_file.exists() else train(
-        spec, run_dir, progress=False)
+    result = (
+        json.loads(result_file.read_text()) if result_file.exists() else train(spec, run_dir, progress=False)
+    )
     curve = pd.read_csv(run_dir / "metrics.csv").dropna(subset=["eval_success"])
     reached = steps_to(curve, args.target)
-    print(f"  {method:<14} seed {seed}: steps to {args.target:.2f} "
-          f"{reached if reached is not None else '> ' + str(args.env_steps)}, "
-          f"best eval {curve['eval_success'].max():.2f}, wall {result.get('wall_s', 0):.0f} s",
-          flush=True)
-    return {"method": method, "seed": seed, "steps": reached, "best": curve["eval_success"].max(),
-            "final": result["final_success"], "wall_s": result.get("wall_s", 0.0)}
+    print(
+        f"  {method:<14} seed {seed}: steps to {args.target:.2f} "
+        f"{reached if reached is not None else '> ' + str(args.env_steps)}, "
+        f"best eval {curve['eval_success'].max():.2f}, wall {result.get('wall_s', 0):.0f} s",
+        flush=True,
+    )
+    return {
+        "method": method,
+        "seed": seed,
+        "steps": reached,
+        "best": curve["eval_success"].max(),
+        "final": result["final_success"],
+        "wall_s": result.get("wall_s", 0.0),
+    }
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -60,18 +76,24 @@ def main(argv: list[str] | None = None) -> None:
             parser.error(f"--{name.replace('_', '-')} must be positive, got {getattr(args, name)}")
     rows = [run_one(args, m, s) for m in args.methods for s in args.seeds]
     df = pd.DataFrame(rows)
-    print(f"\n{args.robot} {args.task}, interface {args.interface_dim}: env steps to greedy success "
-          f"{args.target} ({args.eval_episodes} fixed episodes per evaluation, every 1,000 steps), "
-          f"cap {args.env_steps}; mean over seeds {args.seeds} (a run that never reached the "
-          f"target counts as the cap)")
-    print(f"{'method':<14}{'mean steps':>11}{'min':>7}{'max':>7}{'reached':>9}{'best eval':>10}"
-          f"{'final':>7}{'wall s':>8}")
+    print(
+        f"\n{args.robot} {args.task}, interface {args.interface_dim}: env steps to greedy success "
+        f"{args.target} ({args.eval_episodes} fixed episodes per evaluation, every 1,000 steps), "
+        f"cap {args.env_steps}; mean over seeds {args.seeds} (a run that never reached the "
+        f"target counts as the cap)"
+    )
+    print(
+        f"{'method':<14}{'mean steps':>11}{'min':>7}{'max':>7}{'reached':>9}{'best eval':>10}"
+        f"{'final':>7}{'wall s':>8}"
+    )
     for method, g in df.groupby("method", sort=False):
         steps = g["steps"].fillna(args.env_steps).to_numpy(float)
         censored = g["steps"].isna().any()
-        print(f"{method:<14}{('>' if censored else '') + f'{steps.mean():.0f}':>11}"
-              f"{steps.min():>7.0f}{steps.max():>7.0f}{g['steps'].notna().sum():>6}/{len(g):<2}"
-              f"{g['best'].mean():>10.2f}{g['final'].mean():>7.2f}{np.mean(g['wall_s']):>8.0f}")
+        print(
+            f"{method:<14}{('>' if censored else '') + f'{steps.mean():.0f}':>11}"
+            f"{steps.min():>7.0f}{steps.max():>7.0f}{g['steps'].notna().sum():>6}/{len(g):<2}"
+            f"{g['best'].mean():>10.2f}{g['final'].mean():>7.2f}{np.mean(g['wall_s']):>8.0f}"
+        )
 
 
 if __name__ == "__main__":

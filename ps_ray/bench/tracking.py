@@ -23,15 +23,26 @@ from pathlib import Path
 
 from ps_ray.tracking import MLflowTuneCallback, default_tracking_uri, ensure_experiment
 
-SPEC = {"method": "ps", "robot": "panda", "task": "reach", "seed": 101, "interface_dim": 128,
-        "env_steps": 50_000}
+SPEC = {
+    "method": "ps",
+    "robot": "panda",
+    "task": "reach",
+    "seed": 101,
+    "interface_dim": 128,
+    "env_steps": 50_000,
+}
 
 
 def fake_result(i: int, n_metrics: int) -> dict:
     """A Tune result: ``n_metrics`` whitelisted values under ``env_runners``, plus noise keys."""
     metrics = {f"m{k}": i * 0.1 + k for k in range(n_metrics)}
-    return {"training_iteration": i, "timestamp": time.time(), "env_runners": metrics,
-            "config": {"lots": "of", "other": "keys"}, "time_total_s": float(i)}
+    return {
+        "training_iteration": i,
+        "timestamp": time.time(),
+        "env_runners": metrics,
+        "config": {"lots": "of", "other": "keys"},
+        "time_total_s": float(i),
+    }
 
 
 def metric_keys(n_metrics: int) -> list[str]:
@@ -53,13 +64,19 @@ def time_each(fn: Callable[[int], None], n: int) -> list[float]:
     return times
 
 
-def bench_callback(uri: str, exp_id: str, seed: int, n: int, n_metrics: int,
-                   flush_every: int) -> tuple[list[float], float]:
+def bench_callback(
+    uri: str, exp_id: str, seed: int, n: int, n_metrics: int, flush_every: int
+) -> tuple[list[float], float]:
     from ray.tune.experiment import Trial
 
     trial = Trial("bench", config={"spec": {**SPEC, "seed": seed}}, stub=True)
-    callback = MLflowTuneCallback(uri, exp_id, metric_keys=metric_keys(n_metrics),
-                                  flush_every=flush_every, tags={"ps_ray.stage": "bench"})
+    callback = MLflowTuneCallback(
+        uri,
+        exp_id,
+        metric_keys=metric_keys(n_metrics),
+        flush_every=flush_every,
+        tags={"ps_ray.stage": "bench"},
+    )
     t0 = time.perf_counter()
     callback.on_trial_start(0, [trial], trial)
     start_s = time.perf_counter() - t0
@@ -86,8 +103,11 @@ def bench_log_metric(uri: str, exp_id: str, n: int, n_metrics: int) -> list[floa
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(prog="ps-ray bench tracking", description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        prog="ps-ray bench tracking",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
     parser.add_argument("--results", type=int, default=200, help="results per variant")
     parser.add_argument("--metrics", type=int, default=10, help="whitelisted metrics per result")
     args = parser.parse_args(argv)
@@ -100,8 +120,10 @@ def main(argv: list[str] | None = None) -> None:
         rows["callback"], start_s = bench_callback(uri, exp_id, 1, args.results, args.metrics, 20)
         rows["callback/1"], _ = bench_callback(uri, exp_id, 2, args.results, args.metrics, 1)
         rows["log_metric"] = bench_log_metric(uri, exp_id, args.results, args.metrics)
-    print(f"sqlite store, {args.results} results x {args.metrics} metrics per variant; "
-          f"store + experiment created in {create_s:.2f} s, run created/found in {start_s * 1e3:.0f} ms")
+    print(
+        f"sqlite store, {args.results} results x {args.metrics} metrics per variant; "
+        f"store + experiment created in {create_s:.2f} s, run created/found in {start_s * 1e3:.0f} ms"
+    )
     print(f"{'ms per result':<14}{'mean':>9}{'median':>9}{'p95':>9}")
     for name, times in rows.items():
         mean, median, p95 = summarize(times)

@@ -32,18 +32,26 @@ class BareTrainer:
         self.envs = [make_env(spec) for _ in range(spec.num_envs)]
         env = self.envs[0]
         self.dims = dims_from_spaces(env.observation_space, env.action_space)
-        self.nets = build_sac_nets(spec.method, self.dims, interface_dim=spec.interface_dim,
-                                   hidden=spec.hidden, anchors=anchors)
+        self.nets = build_sac_nets(
+            spec.method, self.dims, interface_dim=spec.interface_dim, hidden=spec.hidden, anchors=anchors
+        )
         self.log_alpha = torch.full((1,), float(np.log(spec.initial_alpha)), requires_grad=True)
-        params = [*self.nets.actor.parameters(), *self.nets.critic.parameters(),
-                  *self.nets.critic_twin.parameters(), self.log_alpha]
+        params = [
+            *self.nets.actor.parameters(),
+            *self.nets.critic.parameters(),
+            *self.nets.critic_twin.parameters(),
+            self.log_alpha,
+        ]
         self.optimizer = torch.optim.Adam(params, lr=spec.lr)
         self.hp = SACHyper(gamma=spec.gamma, action_l2=spec.action_l2)
         self.replay = HindsightReplay(
             {k: (s.shape, np.float32) for k, s in env.observation_space.spaces.items()},
-            action_dim=self.dims.action_dim, horizon=env.max_episode_steps,
-            capacity_episodes=2_000, reward_fn=lambda a, d: env.compute_reward(a, d, None),
-            seed=spec.seed)
+            action_dim=self.dims.action_dim,
+            horizon=env.max_episode_steps,
+            capacity_episodes=2_000,
+            reward_fn=lambda a, d: env.compute_reward(a, d, None),
+            seed=spec.seed,
+        )
         self.env_steps = self.updates = self.episodes = 0
 
     def _rollout(self) -> tuple[dict[str, np.ndarray], np.ndarray]:
@@ -63,8 +71,10 @@ class BareTrainer:
                 for k in o:
                     obs[i][k].append(o[k])
         self.episodes += len(self.envs)
-        return ({k: np.stack([np.stack(o[k]) for o in obs]) for k in obs[0]},
-                np.stack([np.stack(a) for a in actions]))
+        return (
+            {k: np.stack([np.stack(o[k]) for o in obs]) for k in obs[0]},
+            np.stack([np.stack(a) for a in actions]),
+        )
 
     def step(self) -> None:
         spec = self.spec
@@ -78,9 +88,14 @@ class BareTrainer:
             n_updates = max(1, round(steps * spec.updates_per_step))
             batch = train_batch(self.replay.sample_many(n_updates, spec.batch_size))
             for i in range(n_updates):
-                part = {k: v[i * spec.batch_size:(i + 1) * spec.batch_size] for k, v in batch.items()}
-                losses = sac_losses(sac_forward(self.nets, part), part["rewards"], self.log_alpha,
-                                    self.hp, self.dims.action_dim)
+                part = {k: v[i * spec.batch_size : (i + 1) * spec.batch_size] for k, v in batch.items()}
+                losses = sac_losses(
+                    sac_forward(self.nets, part),
+                    part["rewards"],
+                    self.log_alpha,
+                    self.hp,
+                    self.dims.action_dim,
+                )
                 self.optimizer.zero_grad(set_to_none=True)
                 losses["total"].backward()
                 self.optimizer.step()
@@ -106,8 +121,9 @@ def run(spec: TrainSpec, seconds: float = 60.0, rounds: int = 2) -> dict[str, fl
 
     torch.set_num_threads(1)
     if not ray.is_initialized():
-        ray.init(address="local", num_cpus=1, include_dashboard=False, log_to_driver=False,
-                 configure_logging=False)
+        ray.init(
+            address="local", num_cpus=1, include_dashboard=False, log_to_driver=False, configure_logging=False
+        )
     algo = algo_config(spec).build_algo()
     bare = BareTrainer(spec)
     while algo.counters["env_steps"] < spec.learning_starts + 200:
@@ -116,8 +132,9 @@ def run(spec: TrainSpec, seconds: float = 60.0, rounds: int = 2) -> dict[str, fl
         bare.step()
     rates = {"rllib": [], "bare": []}
     for _ in range(rounds):
-        rates["rllib"].append(_measure(algo.train, lambda: (algo.counters["env_steps"],
-                                                            algo.counters["updates"]), seconds))
+        rates["rllib"].append(
+            _measure(algo.train, lambda: (algo.counters["env_steps"], algo.counters["updates"]), seconds)
+        )
         rates["bare"].append(_measure(bare.step, lambda: (bare.env_steps, bare.updates), seconds))
     algo.stop()
     out = {}
@@ -130,23 +147,33 @@ def run(spec: TrainSpec, seconds: float = 60.0, rounds: int = 2) -> dict[str, fl
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(prog="ps-ray bench train", description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        prog="ps-ray bench train", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     parser.add_argument("--task", default="push")
     parser.add_argument("--method", default="ablation")
     parser.add_argument("--seconds", type=float, default=60.0, help="per measurement round")
     parser.add_argument("--rounds", type=int, default=2)
     parser.add_argument("--updates-per-step", type=float, default=0.4)
     args = parser.parse_args(argv)
-    spec = TrainSpec(task=args.task, method=args.method, updates_per_step=args.updates_per_step,
-                     eval_every=10**9, learning_starts=500, random_episodes=2)
+    spec = TrainSpec(
+        task=args.task,
+        method=args.method,
+        updates_per_step=args.updates_per_step,
+        eval_every=10**9,
+        learning_starts=500,
+        random_episodes=2,
+    )
     figures = run(spec, args.seconds, args.rounds)
-    print(f"task {args.task}, method {args.method}, batch {spec.batch_size}, "
-          f"{spec.updates_per_step} updates per env step, {spec.num_envs} envs, 1 torch thread")
+    print(
+        f"task {args.task}, method {args.method}, batch {spec.batch_size}, "
+        f"{spec.updates_per_step} updates per env step, {spec.num_envs} envs, 1 torch thread"
+    )
     print(f"{'':<8}{'env steps/s':>13}{'updates/s':>11}")
     for side in ("rllib", "bare"):
-        print(f"{side:<8}{figures[f'{side}_env_steps_per_s']:>13.1f}"
-              f"{figures[f'{side}_updates_per_s']:>11.1f}")
+        print(
+            f"{side:<8}{figures[f'{side}_env_steps_per_s']:>13.1f}{figures[f'{side}_updates_per_s']:>11.1f}"
+        )
     print(f"peak RSS {figures['peak_rss_mb']:.0f} MB (both trainers in one process)")
     print(f"ratio {figures['ratio']:.2f}")
 

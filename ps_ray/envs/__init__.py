@@ -11,6 +11,16 @@ from .tasks import GOAL_REGIONS, TASKS
 BUILTIN_PAIRS: list[tuple[str, str]] = [(robot, task) for robot in ROBOTS for task in TASKS]
 
 __all__ = [
-    "BUILTIN_PAIRS", "EPISODE_STEPS", "GOAL_REGIONS", "ROBOTS", "SUCCESS_DISTANCE", "TASKS",
-    "RobotSpec", "RobotTaskEnv", "goal_distance", "goal_reward", "make", "task_input",
+    "BUILTIN_PAIRS",
+    "EPISODE_STEPS",
+    "GOAL_REGIONS",
+    "ROBOTS",
+    "SUCCESS_DISTANCE",
+    "TASKS",
+    "RobotSpec",
+    "RobotTaskEnv",
+    "goal_distance",
+    "goal_reward",
+    "make",
+    "task_input",
 ]

@@ -66,12 +66,14 @@ class RobotTaskEnv(gym.Env[Obs, np.ndarray]):
         self.task = self.task_spec.family(self.sim, self.task_spec.options)
         self.camera = Camera()
         self.action_space = spaces.Box(-1.0, 1.0, shape=(self.robot.action_dim,), dtype=np.float32)
-        self.observation_space = spaces.Dict({
-            "robot_state": _box(N_ARM + 1),
-            "task_state": _box(self.task.state_dim),
-            "achieved_goal": _box(3),
-            "desired_goal": _box(3),
-        })
+        self.observation_space = spaces.Dict(
+            {
+                "robot_state": _box(N_ARM + 1),
+                "task_state": _box(self.task.state_dim),
+                "achieved_goal": _box(3),
+                "desired_goal": _box(3),
+            }
+        )
         self._steps = 0
         self._initially_successful = False
 
@@ -99,7 +101,9 @@ class RobotTaskEnv(gym.Env[Obs, np.ndarray]):
         reward = float(distance <= SUCCESS_DISTANCE) - 1.0
         return obs, reward, False, self._steps >= self.max_episode_steps, self._info(obs, distance)
 
-    def compute_reward(self, achieved_goal: np.ndarray, desired_goal: np.ndarray, info: Any = None) -> np.ndarray:
+    def compute_reward(
+        self, achieved_goal: np.ndarray, desired_goal: np.ndarray, info: Any = None
+    ) -> np.ndarray:
         """Vectorised over leading batch axes; equals the rewards returned by :meth:`step`."""
         return goal_reward(achieved_goal, desired_goal)
 

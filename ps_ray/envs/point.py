@@ -21,8 +21,10 @@ class PointGoalEnv(gym.Env):
         self.goal_range = goal_range
         box = lambda n, lim: gym.spaces.Box(-lim, lim, (n,), np.float32)  # noqa: E731
         self.observation_space = gym.spaces.Dict(
-            robot_state=box(2, 1.0), task_state=box(0, 1.0),
-            achieved_goal=box(2, 1.0), desired_goal=box(2, 1.0),
+            robot_state=box(2, 1.0),
+            task_state=box(0, 1.0),
+            achieved_goal=box(2, 1.0),
+            desired_goal=box(2, 1.0),
         )
         self.action_space = box(2, 1.0)
         self._pos = np.zeros(2, np.float32)
@@ -30,13 +32,16 @@ class PointGoalEnv(gym.Env):
         self._t = 0
 
     def _obs(self) -> dict[str, np.ndarray]:
-        return {"robot_state": self._pos.copy(), "task_state": np.zeros(0, np.float32),
-                "achieved_goal": self._pos.copy(), "desired_goal": self._goal.copy()}
+        return {
+            "robot_state": self._pos.copy(),
+            "task_state": np.zeros(0, np.float32),
+            "achieved_goal": self._pos.copy(),
+            "desired_goal": self._goal.copy(),
+        }
 
     def _info(self, initially: bool = False) -> dict:
         success = bool(np.linalg.norm(self._pos - self._goal) < SUCCESS_DISTANCE)
-        return {"is_success": success, "touching": False, "contact": False,
-                "initially_successful": initially}
+        return {"is_success": success, "touching": False, "contact": False, "initially_successful": initially}
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         super().reset(seed=seed)

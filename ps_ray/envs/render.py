@@ -13,8 +13,13 @@ from .core import RobotTaskEnv, make
 Policy = Callable[[dict[str, np.ndarray]], np.ndarray]
 
 
-def rollout_frames(env: RobotTaskEnv, policy: Policy | None = None, seed: int | None = 0,
-                   steps: int | None = None, every: int = 1) -> list[np.ndarray]:
+def rollout_frames(
+    env: RobotTaskEnv,
+    policy: Policy | None = None,
+    seed: int | None = 0,
+    steps: int | None = None,
+    every: int = 1,
+) -> list[np.ndarray]:
     """Run one episode (``policy(obs) -> action``; random actions if None) and return RGB frames,
     the initial one and then one every ``every`` steps. ``env`` needs ``render_mode="rgb_array"``."""
     obs, _ = env.reset(seed=seed)
@@ -45,9 +50,17 @@ def save_gif(frames: list[np.ndarray], path: str | Path, fps: float = 25.0) -> P
     return Path(path)
 
 
-def record(robot: str | Mapping = "panda", task: str | Mapping = "reach", policy: Policy | None = None, *,
-           seed: int | None = 0, png: str | Path | None = None, gif: str | Path | None = None,
-           every: int = 1, **options: Any) -> list[np.ndarray]:
+def record(
+    robot: str | Mapping = "panda",
+    task: str | Mapping = "reach",
+    policy: Policy | None = None,
+    *,
+    seed: int | None = 0,
+    png: str | Path | None = None,
+    gif: str | Path | None = None,
+    every: int = 1,
+    **options: Any,
+) -> list[np.ndarray]:
     """Roll out ``policy`` in a fresh env and write the last frame to ``png`` and all to ``gif``."""
     env = make(robot, task, render_mode="rgb_array", **options)
     try:

@@ -56,8 +56,10 @@ class RobotSpec:
                 )
         object.__setattr__(self, "locked_joints", tuple(sorted({int(j) for j in joints})))
         if len(self.locked_joints) == N_ARM:
-            raise ValueError(f"bad locked joints {list(self.locked_joints)}: all {N_ARM} arm joints "
-                             f"locked leaves nothing to control; lock at most {N_ARM - 1}")
+            raise ValueError(
+                f"bad locked joints {list(self.locked_joints)}: all {N_ARM} arm joints "
+                f"locked leaves nothing to control; lock at most {N_ARM - 1}"
+            )
         if self.gripper not in (None, True, False):
             raise ValueError(f"bad gripper {self.gripper!r}; valid grippers: None, True, False")
 
@@ -99,7 +101,9 @@ class Panda:
         self.body = sim.load_urdf(urdf, BASE_POSITION)
         cid = sim.client
         for finger in FINGER_JOINTS:
-            p.changeDynamics(self.body, finger, lateralFriction=1.0, spinningFriction=0.001, physicsClientId=cid)
+            p.changeDynamics(
+                self.body, finger, lateralFriction=1.0, spinningFriction=0.001, physicsClientId=cid
+            )
         self.free = np.array([j for j in range(N_ARM) if j not in spec.locked_joints])
         self.joints = [*self.free.tolist(), *FINGER_JOINTS]  # every movable joint, in control order
         self.forces = [*FORCES[self.free].tolist(), FINGER_FORCE, FINGER_FORCE]
@@ -115,8 +119,12 @@ class Panda:
         for joint, angle in zip(self.joints, self.neutral):
             p.resetJointState(self.body, joint, angle, 0.0, physicsClientId=cid)
         p.setJointMotorControlArray(
-            self.body, self.joints, p.POSITION_CONTROL,
-            targetPositions=self.neutral, forces=self.forces, physicsClientId=cid,
+            self.body,
+            self.joints,
+            p.POSITION_CONTROL,
+            targetPositions=self.neutral,
+            forces=self.forces,
+            physicsClientId=cid,
         )
 
     def _positions(self) -> list[float]:
@@ -140,10 +148,17 @@ class Panda:
         target += (0.5 * width, 0.5 * width)
         self.target = target  # the last motor targets (movable joints, control order)
         p.setJointMotorControlArray(
-            self.body, self.joints, p.POSITION_CONTROL,
-            targetPositions=target, forces=self.forces, physicsClientId=self.sim.client,
+            self.body,
+            self.joints,
+            p.POSITION_CONTROL,
+            targetPositions=target,
+            forces=self.forces,
+            physicsClientId=self.sim.client,
         )
 
     def ee_position(self) -> np.ndarray:
-        return np.array(p.getLinkState(self.body, EE_LINK, computeForwardKinematics=True,
-                                       physicsClientId=self.sim.client)[4])
+        return np.array(
+            p.getLinkState(
+                self.body, EE_LINK, computeForwardKinematics=True, physicsClientId=self.sim.client
+            )[4]
+        )

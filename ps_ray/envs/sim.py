@@ -25,7 +25,9 @@ class Sim:
     overlapping pairs deterministically. The tests replay seeds in used and fresh envs bit for bit.
     """
 
-    def __init__(self, timestep: float = TIMESTEP, substeps: int = SUBSTEPS, gravity: float = GRAVITY) -> None:
+    def __init__(
+        self, timestep: float = TIMESTEP, substeps: int = SUBSTEPS, gravity: float = GRAVITY
+    ) -> None:
         self.client: int | None = p.connect(p.DIRECT)
         self.substeps = substeps
         self.dt = timestep * substeps
@@ -45,7 +47,9 @@ class Sim:
         if key not in self._shapes:
             dims = {"halfExtents": size} if geom == p.GEOM_BOX else {"radius": size[0]}
             if visual:
-                self._shapes[key] = p.createVisualShape(geom, rgbaColor=rgba, physicsClientId=self.client, **dims)
+                self._shapes[key] = p.createVisualShape(
+                    geom, rgbaColor=rgba, physicsClientId=self.client, **dims
+                )
             else:
                 self._shapes[key] = p.createCollisionShape(geom, physicsClientId=self.client, **dims)
         return self._shapes[key]
@@ -90,8 +94,9 @@ class Sim:
 
     def move(self, body: int, position: Vec) -> None:
         """Teleport a body without collisions (a goal marker)."""
-        p.resetBasePositionAndOrientation(body, [float(v) for v in position], (0.0, 0.0, 0.0, 1.0),
-                                          physicsClientId=self.client)
+        p.resetBasePositionAndOrientation(
+            body, [float(v) for v in position], (0.0, 0.0, 0.0, 1.0), physicsClientId=self.client
+        )
 
     # -- queries ----------------------------------------------------------------------------
     def base_state(self, body: int) -> np.ndarray:

@@ -30,15 +30,21 @@ def cached_urdf(text: str, stem: str) -> str:
 
 def _rpy_to_matrix(r: float, p: float, y: float) -> np.ndarray:
     cr, sr, cp, sp, cy, sy = math.cos(r), math.sin(r), math.cos(p), math.sin(p), math.cos(y), math.sin(y)
-    return np.array([
-        [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
-        [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
-        [-sp, cp * sr, cp * cr],
-    ])
+    return np.array(
+        [
+            [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
+            [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
+            [-sp, cp * sr, cp * cr],
+        ]
+    )
 
 
 def _matrix_to_rpy(m: np.ndarray) -> tuple[float, float, float]:
-    return (math.atan2(m[2, 1], m[2, 2]), math.asin(-max(-1.0, min(1.0, m[2, 0]))), math.atan2(m[1, 0], m[0, 0]))
+    return (
+        math.atan2(m[2, 1], m[2, 2]),
+        math.asin(-max(-1.0, min(1.0, m[2, 0]))),
+        math.atan2(m[1, 0], m[0, 0]),
+    )
 
 
 def _axis_rotation(axis: np.ndarray, angle: float) -> np.ndarray:
@@ -79,11 +85,15 @@ def boxes_urdf(name: str, boxes: np.ndarray, rgba: tuple[float, ...]) -> str:
     """One static link holding many boxes; ``boxes`` rows are (x, y, z, half_x, half_y, half_z)."""
     color = " ".join(f"{c:g}" for c in rgba)
     lines = [
-        '<?xml version="1.0"?>', f'<robot name="{name}">', f'  <link name="{name}">',
-        '    <inertial><mass value="0"/><inertia ixx="0" ixy="0" ixz="0" iyy="0" iyz="0" izz="0"/></inertial>',
+        '<?xml version="1.0"?>',
+        f'<robot name="{name}">',
+        f'  <link name="{name}">',
+        '    <inertial><mass value="0"/>'
+        '<inertia ixx="0" ixy="0" ixz="0" iyy="0" iyz="0" izz="0"/></inertial>',
     ]
     for x, y, z, hx, hy, hz in np.asarray(boxes, dtype=float).tolist():
-        geometry = f'<origin xyz="{x!r} {y!r} {z!r}"/><geometry><box size="{2 * hx!r} {2 * hy!r} {2 * hz!r}"/></geometry>'
+        box = f'<box size="{2 * hx!r} {2 * hy!r} {2 * hz!r}"/>'
+        geometry = f'<origin xyz="{x!r} {y!r} {z!r}"/><geometry>{box}</geometry>'
         lines.append(f'    <visual>{geometry}<material name="c"><color rgba="{color}"/></material></visual>')
         lines.append(f"    <collision>{geometry}</collision>")
     lines += ["  </link>", "</robot>", ""]

@@ -162,8 +162,9 @@ def _relative_projection(
             f"method {spec.name!r}: anchors have shape {tuple(anchors.shape)}, expected {expected} "
             f"(K = interface dim {latent_dim}, task_dim {dims.task_dim})"
         )
-    relative = spec.relative if anchor_grad is None else dataclasses.replace(
-        spec.relative, anchor_grad=anchor_grad)
+    relative = (
+        spec.relative if anchor_grad is None else dataclasses.replace(spec.relative, anchor_grad=anchor_grad)
+    )
     return RelativeProjection(anchors, relative)
 
 
@@ -222,8 +223,7 @@ class _Modular(nn.Module):
 
     robot_type: type[_RobotModule]
 
-    def __init__(self, task: TaskModule, robot: _RobotModule,
-                 translate: nn.Module | None = None) -> None:
+    def __init__(self, task: TaskModule, robot: _RobotModule, translate: nn.Module | None = None) -> None:
         super().__init__()
         if not isinstance(robot, self.robot_type):
             wanted, got = self.robot_type.__name__, type(robot).__name__
@@ -309,8 +309,13 @@ def _build(
     critic = net_type is Critic
     latent_dim = spec.latent_dim(interface_dim, hidden)
     task = TaskModule(
-        spec, dims, latent_dim, hidden,
-        anchors=anchors, anchor_grad=anchor_grad, sees_action=critic and not spec.modular,
+        spec,
+        dims,
+        latent_dim,
+        hidden,
+        anchors=anchors,
+        anchor_grad=anchor_grad,
+        sees_action=critic and not spec.modular,
     )
     robot_type = CriticRobotModule if critic else ActorRobotModule
     return net_type(task, robot_type(spec, dims, latent_dim, hidden))
@@ -333,7 +338,6 @@ def update_normalizers(module: nn.Module, task_in: Tensor, robot_in: Tensor) -> 
     for sub in module.modules():
         if isinstance(sub, (TaskModule, _RobotModule)):
             sub.update_norm(task_in, robot_in)
-
 
 
 def stitch(task_from: Net, robot_from: Net) -> Net:

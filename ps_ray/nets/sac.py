@@ -16,10 +16,9 @@ import copy
 import math
 from dataclasses import dataclass
 
+import numpy as np
 import torch
 from torch import Tensor, nn
-
-import numpy as np
 
 from ps_ray.nets.modular import Actor, Critic, NetDims, build_actor, build_critic
 
@@ -77,13 +76,22 @@ def polyak(nets: nn.Module, tau: float) -> None:
     torch._foreach_lerp_(targets, onlines, tau)
 
 
-def build_sac_nets(method: str, dims: NetDims, *, interface_dim: int = 128, hidden: int = 256,
-                   anchors: np.ndarray | None = None) -> SACNets:
+def build_sac_nets(
+    method: str,
+    dims: NetDims,
+    *,
+    interface_dim: int = 128,
+    hidden: int = 256,
+    anchors: np.ndarray | None = None,
+) -> SACNets:
     """Actor and twin critics of one method from the one network builder."""
     anchor_t = None if anchors is None else torch.as_tensor(anchors, dtype=torch.float32)
     kwargs = dict(interface_dim=interface_dim, hidden=hidden, anchors=anchor_t)
-    return SACNets(build_actor(method, dims, **kwargs), build_critic(method, dims, **kwargs),
-                   build_critic(method, dims, **kwargs))
+    return SACNets(
+        build_actor(method, dims, **kwargs),
+        build_critic(method, dims, **kwargs),
+        build_critic(method, dims, **kwargs),
+    )
 
 
 def _frozen_copy(module: nn.Module) -> nn.Module:
@@ -98,7 +106,11 @@ def sac_forward(nets: SACNets, batch: dict[str, Tensor]) -> dict[str, Tensor]:
     batch: task_in, robot_in, actions, next_task_in, next_robot_in (float tensors, batch-first).
     """
     task, robot, next_task, next_robot = (
-        batch["task_in"], batch["robot_in"], batch["next_task_in"], batch["next_robot_in"])
+        batch["task_in"],
+        batch["robot_in"],
+        batch["next_task_in"],
+        batch["next_robot_in"],
+    )
     out = {
         "q": nets.critic(task, robot, batch["actions"]),
         "q_twin": nets.critic_twin(task, robot, batch["actions"]),
@@ -107,7 +119,8 @@ def sac_forward(nets: SACNets, batch: dict[str, Tensor]) -> dict[str, Tensor]:
         next_action, out["logp_next"] = squashed_sample(*nets.actor(next_task, next_robot))
         out["q_target_next"] = torch.min(
             nets.target_critic(next_task, next_robot, next_action),
-            nets.target_critic_twin(next_task, next_robot, next_action))
+            nets.target_critic_twin(next_task, next_robot, next_action),
+        )
     action, out["logp"] = squashed_sample(*nets.actor(task, robot))
     out["action"] = action
     # The actor's gradient must pass through the critics without updating them.
@@ -120,8 +133,9 @@ def sac_forward(nets: SACNets, batch: dict[str, Tensor]) -> dict[str, Tensor]:
     return out
 
 
-def sac_losses(fwd: dict[str, Tensor], rewards: Tensor, log_alpha: Tensor, hp: SACHyper,
-               action_dim: int) -> dict[str, Tensor]:
+def sac_losses(
+    fwd: dict[str, Tensor], rewards: Tensor, log_alpha: Tensor, hp: SACHyper, action_dim: int
+) -> dict[str, Tensor]:
     """Critic, actor and temperature losses; their sum gives each parameter group its own gradient."""
     alpha = log_alpha.exp().detach()
     # The return part is clipped to its possible range; the entropy bonus is added outside the clip.
@@ -136,5 +150,11 @@ def sac_losses(fwd: dict[str, Tensor], rewards: Tensor, log_alpha: Tensor, hp: S
     target_entropy = -float(action_dim) if hp.target_entropy is None else hp.target_entropy
     alpha_loss = -(log_alpha * (fwd["logp"].detach() + target_entropy)).mean()
     total = critic + actor + alpha_loss
-    return {"total": total, "critic": critic, "actor": actor, "alpha": alpha_loss,
-            "q_mean": fwd["q"].detach().mean(), "entropy": -fwd["logp"].detach().mean()}
+    return {
+        "total": total,
+        "critic": critic,
+        "actor": actor,
+        "alpha": alpha_loss,
+        "q_mean": fwd["q"].detach().mean(),
+        "entropy": -fwd["logp"].detach().mean(),
+    }

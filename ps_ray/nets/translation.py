@@ -5,7 +5,8 @@ fitted on matched pairs: the same task states through A's task module and throug
 module. No env steps, no gradient steps. Each side is centred and scaled by one number (the RMS
 of its centred vectors) over the fit states; the map is fitted between the scaled spaces, then
 de-scaled into B's space. Isotropic scaling, not per-dimension: per-dimension scaling distorts
-angles, so a rotation between two spaces would no longer be a rotation between the scaled ones. The result is one affine map ``z_B = z_A @ weight + bias`` held as buffers of a
+angles, so a rotation between two spaces would no longer be a rotation between the scaled ones.
+The result is one affine map ``z_B = z_A @ weight + bias`` held as buffers of a
 :class:`LatentTranslation`, so it is saved with the stitched policy's tensors.
 
 - ``orthogonal``: Procrustes, R = U V^T from the SVD of X^T Y (a rotation/reflection only);
@@ -54,7 +55,7 @@ def fit_translation(src: np.ndarray, dst: np.ndarray, kind: str) -> tuple[np.nda
 
 
 def _rms(centred: np.ndarray) -> float:
-    return float(np.sqrt(np.mean(np.sum(centred ** 2, axis=1)))) + SCALE_EPS
+    return float(np.sqrt(np.mean(np.sum(centred**2, axis=1)))) + SCALE_EPS
 
 
 class LatentTranslation(nn.Module):

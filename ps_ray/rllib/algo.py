@@ -16,11 +16,23 @@ def algo_config(spec: TrainSpec, anchors: np.ndarray | None = None) -> ModularSA
         .environment(spec.env_name, env_config=spec.env_config)
         .env_runners(num_env_runners=0, num_envs_per_env_runner=spec.num_envs)
         .learners(num_learners=0)
-        .rl_module(model_config={
-            "method": spec.method, "interface_dim": spec.interface_dim, "hidden": spec.hidden,
-            "anchors": None if anchors is None else np.asarray(anchors, np.float32).tolist()})
-        .training(train_batch_size=spec.batch_size, gamma=spec.gamma, tau=spec.tau,
-                  actor_lr=spec.lr, critic_lr=spec.lr, alpha_lr=spec.lr, initial_alpha=spec.initial_alpha)
+        .rl_module(
+            model_config={
+                "method": spec.method,
+                "interface_dim": spec.interface_dim,
+                "hidden": spec.hidden,
+                "anchors": None if anchors is None else np.asarray(anchors, np.float32).tolist(),
+            }
+        )
+        .training(
+            train_batch_size=spec.batch_size,
+            gamma=spec.gamma,
+            tau=spec.tau,
+            actor_lr=spec.lr,
+            critic_lr=spec.lr,
+            alpha_lr=spec.lr,
+            initial_alpha=spec.initial_alpha,
+        )
         .reporting(metrics_num_episodes_for_smoothing=1)
         .debugging(seed=spec.seed)
     )

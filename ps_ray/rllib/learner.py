@@ -16,29 +16,41 @@ class ModularSACLearner(SACTorchLearner):
     def configure_optimizers_for_module(self, module_id, config=None) -> None:
         nets = self._module[module_id]
         groups = {
-            "critic": (list(nets.critic.parameters()) + list(nets.critic_twin.parameters()),
-                       config.critic_lr),
+            "critic": (
+                list(nets.critic.parameters()) + list(nets.critic_twin.parameters()),
+                config.critic_lr,
+            ),
             "actor": (list(nets.actor.parameters()), config.actor_lr),
             "alpha": ([self.curr_log_alpha[module_id]], config.alpha_lr),
         }
         for name, (params, lr) in groups.items():
-            self.register_optimizer(module_id=module_id, optimizer_name=name,
-                                    optimizer=torch.optim.Adam(params), params=params,
-                                    lr_or_lr_schedule=lr)
+            self.register_optimizer(
+                module_id=module_id,
+                optimizer_name=name,
+                optimizer=torch.optim.Adam(params),
+                params=params,
+                lr_or_lr_schedule=lr,
+            )
 
-    def compute_loss_for_module(self, *, module_id, config, batch: dict[str, Any],
-                                fwd_out: dict[str, torch.Tensor]) -> torch.Tensor:
-        hp = SACHyper(gamma=config.gamma, clip_targets=config.clip_targets,
-                      action_l2=config.action_l2)
+    def compute_loss_for_module(
+        self, *, module_id, config, batch: dict[str, Any], fwd_out: dict[str, torch.Tensor]
+    ) -> torch.Tensor:
+        hp = SACHyper(gamma=config.gamma, clip_targets=config.clip_targets, action_l2=config.action_l2)
         action_dim = batch["actions"].shape[-1]
-        losses = sac_losses(fwd_out, batch["rewards"], self.curr_log_alpha[module_id], hp,
-                            action_dim)
+        losses = sac_losses(fwd_out, batch["rewards"], self.curr_log_alpha[module_id], hp, action_dim)
         # Tensors are logged as-is (window 1) and reduced once per training step.
         self.metrics.log_dict(
-            {"critic_loss": losses["critic"], "actor_loss": losses["actor"],
-             "alpha_loss": losses["alpha"], "q_mean": losses["q_mean"],
-             "entropy": losses["entropy"], "alpha": self.curr_log_alpha[module_id].detach().exp()},
-            key=module_id, window=1)
+            {
+                "critic_loss": losses["critic"],
+                "actor_loss": losses["actor"],
+                "alpha_loss": losses["alpha"],
+                "q_mean": losses["q_mean"],
+                "entropy": losses["entropy"],
+                "alpha": self.curr_log_alpha[module_id].detach().exp(),
+            },
+            key=module_id,
+            window=1,
+        )
         return losses["total"]
 
     def compute_gradients(self, loss_per_module, **kwargs):

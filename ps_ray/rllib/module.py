@@ -29,9 +29,12 @@ class ModularSACModule(TorchRLModule, InferenceOnlyAPI, TargetNetworkAPI, QNetAP
         self.dims = dims_from_spaces(self.observation_space, self.action_space)
         anchors = cfg.get("anchors")
         nets = build_sac_nets(
-            cfg["method"], self.dims, interface_dim=cfg.get("interface_dim", 128),
+            cfg["method"],
+            self.dims,
+            interface_dim=cfg.get("interface_dim", 128),
             hidden=cfg.get("hidden", 256),
-            anchors=None if anchors is None else np.asarray(anchors, np.float32))
+            anchors=None if anchors is None else np.asarray(anchors, np.float32),
+        )
         # The nets become attributes of the module itself: RLlib removes the critics from an
         # inference-only copy (env runners) by top-level attribute name.
         for name in NET_NAMES:
@@ -54,8 +57,7 @@ class ModularSACModule(TorchRLModule, InferenceOnlyAPI, TargetNetworkAPI, QNetAP
     def compute_q_values(self, batch: dict[str, Any]) -> torch.Tensor:
         task, robot = split_obs(batch[Columns.OBS])
         actions = batch[Columns.ACTIONS]
-        return torch.min(self.critic(task, robot, actions),
-                         self.critic_twin(task, robot, actions))
+        return torch.min(self.critic(task, robot, actions), self.critic_twin(task, robot, actions))
 
     def make_target_networks(self) -> None:
         """Targets are built with the critics in `setup`, so checkpoints always hold them."""
@@ -66,8 +68,9 @@ class ModularSACModule(TorchRLModule, InferenceOnlyAPI, TargetNetworkAPI, QNetAP
     def forward_target(self, batch: dict[str, Any]) -> torch.Tensor:
         task, robot = split_obs(batch[Columns.OBS])
         actions = batch[Columns.ACTIONS]
-        return torch.min(self.target_critic(task, robot, actions),
-                         self.target_critic_twin(task, robot, actions))
+        return torch.min(
+            self.target_critic(task, robot, actions), self.target_critic_twin(task, robot, actions)
+        )
 
     def get_non_inference_attributes(self) -> list[str]:
         return list(CRITIC_ATTRS)

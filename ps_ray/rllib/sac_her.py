@@ -18,17 +18,20 @@ from ray.rllib.core import DEFAULT_MODULE_ID
 from ray.rllib.core.rl_module.rl_module import RLModuleSpec
 from ray.rllib.policy.sample_batch import MultiAgentBatch, SampleBatch
 from ray.rllib.utils.metrics import (
-    ENV_RUNNER_SAMPLING_TIMER, LEARNER_RESULTS, LEARNER_UPDATE_TIMER,
-    NUM_ENV_STEPS_SAMPLED_LIFETIME, TIMERS,
+    ENV_RUNNER_SAMPLING_TIMER,
+    LEARNER_RESULTS,
+    LEARNER_UPDATE_TIMER,
+    NUM_ENV_STEPS_SAMPLED_LIFETIME,
+    TIMERS,
 )
 
 from ps_ray.her import HindsightReplay
-from ps_ray.nets.obs import dims_from_spaces
-from ps_ray.weights import load_nets_state, nets_from_state, nets_state, save_policy
 from ps_ray.nets.modular import update_normalizers
+from ps_ray.nets.obs import dims_from_spaces
 from ps_ray.rllib.episodes import episode_stats, episodes_to_arrays, train_batch
 from ps_ray.rllib.learner import ModularSACLearner
 from ps_ray.rllib.module import ModularSACModule
+from ps_ray.weights import load_nets_state, nets_from_state, nets_state, save_policy
 
 STATE_FILE = "ps_ray_state.json"
 EVAL_SEED_OFFSET = 500_000
@@ -44,15 +47,15 @@ class ModularSACConfig(SACConfig):
         self.min_time_s_per_iteration = None
         self.min_sample_timesteps_per_iteration = 0
         self.min_train_timesteps_per_iteration = 0
-        self.episodes_per_step = 2        # whole episodes collected per training step
-        self.updates_per_step = 0.4       # gradient updates per collected env step (authors: 0.4)
-        self.random_episodes = 10         # warm-up episodes with uniform random actions
-        self.learning_starts = 1000       # transitions in the buffer before the first update
+        self.episodes_per_step = 2  # whole episodes collected per training step
+        self.updates_per_step = 0.4  # gradient updates per collected env step (authors: 0.4)
+        self.random_episodes = 10  # warm-up episodes with uniform random actions
+        self.learning_starts = 1000  # transitions in the buffer before the first update
         self.buffer_episodes = 20_000
-        self.relabel_prob = 0.8           # HER 'future' with k = 4
+        self.relabel_prob = 0.8  # HER 'future' with k = 4
         self.action_l2 = 0.0
         self.clip_targets = True
-        self.eval_interval = 10           # training steps between greedy evaluations (0: never)
+        self.eval_interval = 10  # training steps between greedy evaluations (0: never)
         self.eval_episodes = 10
 
     def get_default_learner_class(self):
@@ -79,16 +82,24 @@ class ModularSAC(SAC):
             horizon=self._reward_env.max_episode_steps,
             capacity_episodes=cfg.buffer_episodes,
             reward_fn=lambda a, d: self._reward_env.compute_reward(a, d, None),
-            relabel_prob=cfg.relabel_prob, seed=cfg.seed)
+            relabel_prob=cfg.relabel_prob,
+            seed=cfg.seed,
+        )
         self.counters = {"env_steps": 0, "episodes": 0, "updates": 0}
         dims = dims_from_spaces(space, self._reward_env.action_space)
-        self.replay_dims = {"task_dim": dims.task_dim, "robot_dim": dims.robot_dim,
-                            "action_dim": dims.action_dim}
+        self.replay_dims = {
+            "task_dim": dims.task_dim,
+            "robot_dim": dims.robot_dim,
+            "action_dim": dims.action_dim,
+        }
 
     def learner_state(self) -> dict[str, torch.Tensor]:
         """The full module's tensors (actor, critics, targets) from the (first) learner."""
-        return self.learner_group.foreach_learner(
-            lambda learner: nets_state(learner.module[DEFAULT_MODULE_ID])).result_or_errors[0].get()
+        return (
+            self.learner_group.foreach_learner(lambda learner: nets_state(learner.module[DEFAULT_MODULE_ID]))
+            .result_or_errors[0]
+            .get()
+        )
 
     def load_policy_weights(self, path) -> None:
         """Start from a policy file (e.g. a stitched one): actor, critics and targets, strictly."""
@@ -96,9 +107,11 @@ class ModularSAC(SAC):
 
         nets, signature = load_policy(path)
         if signature.translation:
-            raise ValueError(f"{path}: a stitch with a fitted latent translation "
-                             f"({signature.translation}) is for zero-shot use; fine-tune an "
-                             f"untranslated stitch instead")
+            raise ValueError(
+                f"{path}: a stitch with a fitted latent translation "
+                f"({signature.translation}) is for zero-shot use; fine-tune an "
+                f"untranslated stitch instead"
+            )
         ours = {k: self.replay_dims[k] for k in ("task_dim", "robot_dim", "action_dim")}
         theirs = {k: getattr(signature, k) for k in ours}
         if ours != theirs:
@@ -106,9 +119,11 @@ class ModularSAC(SAC):
         state = nets_state(nets)
 
         self.learner_group.foreach_learner(
-            lambda learner: load_nets_state(learner.module[DEFAULT_MODULE_ID], state))
-        self.env_runner_group.sync_weights(from_worker_or_learner_group=self.learner_group,
-                                           inference_only=True)
+            lambda learner: load_nets_state(learner.module[DEFAULT_MODULE_ID], state)
+        )
+        self.env_runner_group.sync_weights(
+            from_worker_or_learner_group=self.learner_group, inference_only=True
+        )
 
     def export_policy(self, path, signature, extra: dict[str, str] | None = None) -> None:
         save_policy(path, nets_from_state(self.learner_state(), signature), signature, extra)
@@ -121,7 +136,8 @@ class ModularSAC(SAC):
         the run's seed and episode count, so a resumed run does not replay old goals); greedy
         evaluations reuse one fixed seed, so every evaluation sees the same episodes."""
         seed = (self.config.seed or 0) * 1_000_003 + (
-            self.counters["episodes"] if explore else EVAL_SEED_OFFSET)
+            self.counters["episodes"] if explore else EVAL_SEED_OFFSET
+        )
 
         def sample(runner):
             # RLlib re-seeds the envs with its config seed on every num_episodes call, which
@@ -130,14 +146,16 @@ class ModularSAC(SAC):
             return runner.sample(num_episodes=n, explore=explore, random_actions=random)
 
         results = self.env_runner_group.foreach_env_runner(
-            sample, local_env_runner=self.env_runner_group.num_remote_env_runners() == 0)
+            sample, local_env_runner=self.env_runner_group.num_remote_env_runners() == 0
+        )
         return [ep for eps in results for ep in eps]
 
     def training_step(self) -> None:
         cfg = self.config
         with self.metrics.log_time((TIMERS, ENV_RUNNER_SAMPLING_TIMER)):
-            episodes = self._collect(explore=True, n=cfg.episodes_per_step,
-                                     random=self.counters["episodes"] < cfg.random_episodes)
+            episodes = self._collect(
+                explore=True, n=cfg.episodes_per_step, random=self.counters["episodes"] < cfg.random_episodes
+            )
         obs, actions = episodes_to_arrays(episodes)
         self.replay.add_episodes(obs, actions)
         steps = actions.shape[0] * actions.shape[1]
@@ -145,32 +163,38 @@ class ModularSAC(SAC):
         self.counters["episodes"] += actions.shape[0]
         self._log_episode_stats("train", episodes)
 
-        task_in = np.concatenate([obs["task_state"], obs["desired_goal"]], -1).reshape(-1, sum(
-            obs[k].shape[-1] for k in ("task_state", "desired_goal")))
+        task_in = np.concatenate([obs["task_state"], obs["desired_goal"]], -1).reshape(
+            -1, sum(obs[k].shape[-1] for k in ("task_state", "desired_goal"))
+        )
         robot_in = obs["robot_state"].reshape(-1, obs["robot_state"].shape[-1])
         task_t, robot_t = torch.from_numpy(task_in), torch.from_numpy(robot_in)
         self.learner_group.foreach_learner(
-            lambda learner: update_normalizers(learner.module[DEFAULT_MODULE_ID], task_t, robot_t))
+            lambda learner: update_normalizers(learner.module[DEFAULT_MODULE_ID], task_t, robot_t)
+        )
 
         if self.replay.num_transitions >= cfg.learning_starts:
             n_updates = max(1, round(steps * cfg.updates_per_step))
             batch = train_batch(self.replay.sample_many(n_updates, cfg.train_batch_size))
             with self.metrics.log_time((TIMERS, LEARNER_UPDATE_TIMER)):
                 self.learner_group.update(
-                    batch=MultiAgentBatch({DEFAULT_MODULE_ID: SampleBatch(batch)},
-                                          env_steps=n_updates * cfg.train_batch_size),
+                    batch=MultiAgentBatch(
+                        {DEFAULT_MODULE_ID: SampleBatch(batch)}, env_steps=n_updates * cfg.train_batch_size
+                    ),
                     timesteps={NUM_ENV_STEPS_SAMPLED_LIFETIME: self.counters["env_steps"]},
-                    num_epochs=1, minibatch_size=cfg.train_batch_size, _no_metrics_reduce=True)
+                    num_epochs=1,
+                    minibatch_size=cfg.train_batch_size,
+                    _no_metrics_reduce=True,
+                )
             self.counters["updates"] += n_updates
             reduced = self.learner_group.foreach_learner(lambda learner: learner.metrics.reduce())
             self.metrics.aggregate([r.get() for r in reduced], key=LEARNER_RESULTS)
         # Normaliser statistics change every step, so env runners are synced even before learning.
-        self.env_runner_group.sync_weights(from_worker_or_learner_group=self.learner_group,
-                                           inference_only=True)
+        self.env_runner_group.sync_weights(
+            from_worker_or_learner_group=self.learner_group, inference_only=True
+        )
 
         if cfg.eval_interval and self.iteration % cfg.eval_interval == 0:
-            self._log_episode_stats(
-                "eval", self._collect(explore=False, random=False, n=cfg.eval_episodes))
+            self._log_episode_stats("eval", self._collect(explore=False, random=False, n=cfg.eval_episodes))
         for key, value in self.counters.items():
             self.metrics.log_value(("ps_ray", key), value, reduce="item")
 

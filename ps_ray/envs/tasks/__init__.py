@@ -58,4 +58,14 @@ def resolve_task(task: str | Mapping | TaskSpec, **options: Any) -> TaskSpec:
     return TaskSpec(task, family, family.Options(**{**preset, **options}))
 
 
-__all__ = ["GOAL_REGIONS", "TASKS", "Pick", "Push", "Reach", "Task", "TaskOptions", "TaskSpec", "resolve_task"]
+__all__ = [
+    "GOAL_REGIONS",
+    "TASKS",
+    "Pick",
+    "Push",
+    "Reach",
+    "Task",
+    "TaskOptions",
+    "TaskSpec",
+    "resolve_task",
+]

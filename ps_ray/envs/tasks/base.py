@@ -49,12 +49,13 @@ class Task(ABC):
         sim.add_box(
             (o.table_length / 2, o.table_width / 2, o.table_height / 2),
             (o.table_x_offset, 0.0, -o.table_height / 2),
-            rgba=o.table_rgba, lateral_friction=o.table_friction,
+            rgba=o.table_rgba,
+            lateral_friction=o.table_friction,
         )
         self._build()
         self._marker = sim.add_shape(*self._marker_shape(), self.goal, rgba=TARGET_RGBA, ghost=True)
 
-    def _build(self) -> None:
+    def _build(self) -> None:  # noqa: B027 (optional hook: families without static bodies skip it)
         """Add the family's static bodies."""
 
     def _marker_shape(self) -> tuple[int, tuple[float, ...]]:

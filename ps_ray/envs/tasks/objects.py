@@ -45,8 +45,10 @@ class ObjectTask(Task):
     def _reset(self, rng: np.random.Generator) -> None:
         o = self.options
         half = np.asarray(o.object_half_extents, dtype=float)
-        goal = rng.uniform((-o.goal_xy_range / 2, -o.goal_xy_range / 2, 0.0),
-                           (o.goal_xy_range / 2, o.goal_xy_range / 2, o.goal_z_range))
+        goal = rng.uniform(
+            (-o.goal_xy_range / 2, -o.goal_xy_range / 2, 0.0),
+            (o.goal_xy_range / 2, o.goal_xy_range / 2, o.goal_z_range),
+        )
         if o.goal_on_table_prob > 0 and rng.random() < o.goal_on_table_prob:
             goal[2] = 0.0
         goal[2] += half[2]
@@ -55,8 +57,9 @@ class ObjectTask(Task):
         z = half[2] + (surface_height(rock_boxes(), xy, half[:2]) if o.rocks else 0.0)  # rest on the bumps
         if self.object is not None:
             self.sim.remove(self.object)
-        self.object = self.sim.add_box(half, (*xy, z), rgba=o.object_rgba, mass=o.object_mass,
-                                       lateral_friction=o.object_friction)
+        self.object = self.sim.add_box(
+            half, (*xy, z), rgba=o.object_rgba, mass=o.object_mass, lateral_friction=o.object_friction
+        )
 
     def observe(self, ee_position: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         state = self.sim.base_state(self.object)

@@ -18,8 +18,9 @@ GOAL_REGIONS: dict[str, dict] = {
     for name, (sx, sy) in {"q1": (1, 1), "q2": (-1, 1), "q3": (-1, -1), "q4": (1, -1)}.items()
 }
 # Two overlapping halves (+x and -x), for stitching between goal sets that share a middle strip.
-GOAL_REGIONS.update({name: {"center": (sx * 0.05, 0.0, 0.15), "radius": 0.1}
-                     for name, sx in {"east": 1, "west": -1}.items()})
+GOAL_REGIONS.update(
+    {name: {"center": (sx * 0.05, 0.0, 0.15), "radius": 0.1} for name, sx in {"east": 1, "west": -1}.items()}
+)
 _REGION_CHOICES = ("None", *GOAL_REGIONS, "{'center': [x, y, z], 'radius': r}")
 
 

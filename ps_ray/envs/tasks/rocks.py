@@ -20,8 +20,12 @@ ROCK_RGBA = (0.35, 0.35, 0.35, 1.0)
 def rock_boxes() -> np.ndarray:
     """(169, 6) rows of (x, y, z, half_x, half_y, half_z); x in [-0.43, 0.23], y in [-0.33, 0.33]."""
     rng = np.random.default_rng(ROCK_SEED)
-    gx, gy = np.meshgrid(np.linspace(-0.42, 0.22, ROCK_GRID), np.linspace(-0.32, 0.32, ROCK_GRID), indexing="ij")
-    xy = np.stack([gx.ravel(), gy.ravel()], axis=1) + rng.uniform(-ROCK_JITTER, ROCK_JITTER, (ROCK_GRID**2, 2))
+    gx, gy = np.meshgrid(
+        np.linspace(-0.42, 0.22, ROCK_GRID), np.linspace(-0.32, 0.32, ROCK_GRID), indexing="ij"
+    )
+    xy = np.stack([gx.ravel(), gy.ravel()], axis=1) + rng.uniform(
+        -ROCK_JITTER, ROCK_JITTER, (ROCK_GRID**2, 2)
+    )
     hz = rng.uniform(*ROCK_HALF_HEIGHT, ROCK_GRID**2)
     half = np.full(ROCK_GRID**2, ROCK_HALF_SIDE)
     boxes = np.column_stack([xy, hz, half, half, hz])

@@ -348,7 +348,8 @@ def _summary(report: Report, spec: SweepSpec, target: float) -> None:
     alignment and training success, with the budget in one sentence; put at the top."""
     h = report.headline
     rows = {}
-    for method in tables.method_order(spec.methods):
+    translated = [] if h.get("zero_shot") is None else list(h["zero_shot"].index)
+    for method in tables.method_order([*spec.methods, *translated]):  # "ablation+affine" rows too
         row: dict[str, str] = {}
         zs = h.get("zero_shot")
         if zs is not None and method in zs.index:

@@ -35,8 +35,8 @@ class StageProgress(Callback):
     callbacks come back from Tune's experiment state) counts the trials finished before the
     restart too. The output stream is looked up when printing, never stored (it is not picklable)."""
 
-    def __init__(self, stage: str) -> None:
-        self.stage = stage
+    def __init__(self, stage: str, total: int = 0) -> None:
+        self.stage, self.total = stage, total  # Tune creates grid trials lazily: count them all
         self.started = time.time()
         self.best: float | None = None
         self.last_plain = 0.0
@@ -75,7 +75,7 @@ class StageProgress(Callback):
     def _update(self, trials, force: bool = False) -> None:
         states = [t.status for t in trials]
         self.counts = {
-            "total": len(trials),
+            "total": max(self.total, len(trials)),
             "done": states.count("TERMINATED"),
             "running": states.count("RUNNING"),
             "failed": states.count("ERROR"),

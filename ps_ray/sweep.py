@@ -343,7 +343,7 @@ def run_trials(
                     storage_path=str(root),
                     failure_config=tune.FailureConfig(max_failures=spec.max_failures),
                     checkpoint_config=tune.CheckpointConfig(num_to_keep=1),
-                    callbacks=[callback, *([StageProgress(stage)] if quiet else [])],
+                    callbacks=[callback, *([StageProgress(stage, len(trials))] if quiet else [])],
                     verbose=1 if progress else 0,
                 ),
             )  # quiet: Tune's tables go to the log

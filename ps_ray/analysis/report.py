@@ -263,6 +263,8 @@ def _zero_shot(report: Report, root: Path, target: float, say) -> None:
     table = results.zero_shot_results(root / RESULT_FILE)
     if table is None:
         return
+    if not _has_object(table["task"]):  # reach: nothing to touch, so touching means nothing
+        table = table.assign(touching_mean=float("nan"), touching_std=float("nan"))
     section = report.section(
         "Zero-shot stitching",
         "Stitched policies (task module of one "
@@ -306,6 +308,14 @@ def _zero_shot(report: Report, root: Path, target: float, say) -> None:
                     report.metrics[f"zero_shot.{method}.{name}"] = float(row[f"{metric}_{stat}"])
     report.figure(section, "zero_shot", lambda p: plots.zero_shot_bars(tables.pool_seeds(table), p))
     say(f"report: zero-shot table of {len(table)} stitched pairs")
+
+
+def _has_object(tasks: pd.Series) -> bool:
+    """Whether any of these tasks (short names, e.g. ``reach{"goal_region": "east"}``) has an
+    object, i.e. a task state beyond the goal."""
+    from ps_ray.envs.tasks import resolve_task
+
+    return any(resolve_task(str(name).split("{")[0]).family.state_dim > 0 for name in tasks.unique())
 
 
 def _few_shot(report: Report, root: Path, say) -> None:
@@ -482,7 +492,8 @@ def log_report(spec: SweepSpec, report_dir: Path, metrics: dict[str, float]) -> 
         params={"sweep": spec.name},
         tags={STAGE_TAG: "report", "ps_ray.sweep": spec.name, "git_commit": git_commit() or ""},
     )
-    tracker.log_metrics(metrics, step=0)
+    # MLflow names allow no "+": a translated stitch "ablation+affine" is logged as "ablation-affine"
+    tracker.log_metrics({k.replace("+", "-"): v for k, v in metrics.items()}, step=0)
     for path in sorted(report_dir.iterdir()):
         tracker.log_artifact(path)
     tracker.close()

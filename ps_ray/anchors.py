@@ -1,6 +1,6 @@
 """Anchor selection for the relative-representation interface of Policy Stitching.
 
-What the authors do (REFERENCE.md §4, ``permutation_measure`` and
+What the authors do (docs/authors_code.md §4, ``permutation_measure`` and
 ``generate_anchors_with_kmeans.py``):
 
 1. Roll out a trained policy and record the task module's input

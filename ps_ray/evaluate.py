@@ -1,6 +1,6 @@
 """Batched zero-shot evaluation: a deterministic policy on fixed evaluation episodes.
 
-Protocol (REFERENCE §6): ``repeats`` x ``episodes`` episodes; episode j of repeat r is reset with
+Protocol (docs/authors_code.md §6): ``repeats`` x ``episodes`` episodes; episode j of repeat r is reset with
 seed ``seed + r * episodes + j``, so every policy evaluated with the same seed sees exactly the same
 episodes (goals, object starts). ``num_envs`` envs run in lockstep, one batched forward per step.
 Per repeat:

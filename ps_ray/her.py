@@ -1,11 +1,11 @@
 """Hindsight experience replay: a numpy ring buffer of whole episodes with 'future' relabelling.
 
-Follows the authors' HER (REFERENCE.md §5, from TianhongDai/hindsight-experience-replay):
+Follows the authors' HER (docs/authors_code.md §5, from TianhongDai/hindsight-experience-replay):
 episode ~ U(stored), t ~ U{0..T-1}; with probability ``relabel_prob`` (replay_k = 4 -> 0.8) the
 goal becomes ``achieved_goal[ep, t']`` with t' ~ U{t+1..T}; the reward is recomputed as
 ``reward_fn(achieved_goal[ep, t+1], goal)``. A sample is one vectorised gather per observation
 key (no Python object per transition), which is what makes it ~100x cheaper than RLlib's episode
-replay (STACK_NOTES.md "Throughput").
+replay (measured: 25-31 ms per RLlib sample against ~2 ms here; README "Design notes").
 
 Pure numpy: no torch, no Ray. Checkpoints are plain ``.npz`` files read with
 ``allow_pickle=False``.

@@ -1,6 +1,6 @@
 """Policy stitching: the task modules of one policy with the robot modules of another.
 
-REFERENCE §6: the task module comes from the policy trained on the *target task* with another
+docs/authors_code.md §6: the task module comes from the policy trained on the *target task* with another
 robot, the robot module from the policy trained with the *target robot* on another task. All five
 nets are stitched (actor, both critics and both target critics), so a stitched policy can start
 few-shot training; zero-shot evaluation uses the actor alone (:mod:`ps_ray.evaluate`).
@@ -15,7 +15,7 @@ agree on every dim. Given a target env, the stitched dims must be the env's.
 Target env (:func:`default_target`): the task of the task module, run by the same physical robot
 as the robot module, i.e. with the gripper setting that robot module was trained with. A robot
 module trained on pick (gripper on, 8-D actions) therefore drives a gripper-enabled push robot
-(REFERENCE §1, Push-v4), ``{"name": "panda_l3", "gripper": true}`` on push; a robot module trained
+(docs/authors_code.md §1, Push-v4), ``{"name": "panda_l3", "gripper": true}`` on push; a robot module trained
 without the gripper cannot run a pick task (refused). So that a *push* robot module can serve a
 pick target (E5), it must have been trained with the gripper: list ``{name: panda_l3, gripper:
 true}`` among the sweep's robots, as ``sweeps/few_shot.yaml`` does.
@@ -318,7 +318,7 @@ def combos(zoo: ModuleZoo, method: str, seed: int, interface_dim: int | None = N
     return found
 
 
-# -- the paper's eight combinations (REFERENCE §10) -----------------------------------------------
+# -- the paper's eight combinations (docs/authors_code.md §10) -------------------------------------
 PANDA_L3_GRIPPER = {"name": "panda_l3", "gripper": True}  # R2 with the gripper, on push (Push-v4)
 PAPER_TASKS = {
     "Pu1": "push",

@@ -365,7 +365,7 @@ def test_parameter_counts(method: str, dims: NetDims) -> None:
 
 
 def test_ps_push_counts_match_authors_minus_batchnorm() -> None:
-    # REFERENCE §3: task 102,814; actor robot 136,350; critic robot 133,919, each including the
+    # docs/authors_code.md §3: task 102,814; actor robot 136,350; critic robot 133,919, each including the
     # 2·n affine parameters of its input BatchNorm1d(n), which RunningNorm replaces by buffers.
     actor, critic = build("actor", "ps"), build("critic", "ps")
     assert count_parameters(actor.task) == count_parameters(critic.task) == 102_814 - 2 * 15

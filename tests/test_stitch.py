@@ -451,7 +451,7 @@ def test_paper_combos_are_e1_to_e8_consistent_with_the_reference():
         "R2": "panda_l3",
         "R3": "panda_l5",
     }
-    reference = {  # REFERENCE.md §10: task module, robot module, target env
+    reference = {  # docs/authors_code.md §10: task module, robot module, target env
         "E1": ("Pu1-R1", "Pu2-R2", "Pu1-R2"),
         "E2": ("Pu2-R1", "Pu1-R2", "Pu2-R2"),
         "E3": ("Pu1-R3", "Pu3-R1", "Pu1-R1"),

@@ -1,4 +1,4 @@
-"""Running mean/std input normalisation (replaces the authors' BatchNorm1d; see REFERENCE §0)."""
+"""Running mean/std input normalisation (replaces the authors' BatchNorm1d; see docs/authors_code.md §0)."""
 
 from __future__ import annotations
 

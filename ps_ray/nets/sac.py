@@ -1,6 +1,6 @@
 """SAC update math in plain torch, shared by the RLlib learner and the bare-torch benchmark loop.
 
-Choices (see REFERENCE.md §5 for the authors' variant):
+Choices (see docs/authors_code.md §0 and §5 for the authors' variant):
 - twin critics with a min over the *target* critics (standard SAC; the authors' per-critic targets and
   target actor are not used);
 - the return part of the target clipped to [-1/(1-gamma), 0], the range of a -1/0 sparse return

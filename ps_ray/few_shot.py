@@ -108,12 +108,12 @@ def run_few_shot(spec: SweepSpec, *, resume: bool = False, progress: bool = True
 
 
 def curves(results) -> dict[str, list[tuple[int, float]]]:
-    """Greedy success vs env steps per trial key, from a ResultGrid."""
-    out = {}
-    for result in results:
-        frame = result.metrics_dataframe
-        if frame is None or "eval_success" not in frame:
-            continue
-        frame = frame.dropna(subset=["eval_success"])
-        out[result.config["trial"]["key"]] = list(zip(frame["env_steps"].astype(int), frame["eval_success"]))
-    return out
+    """Greedy success vs env steps per trial key, from the stage's trial outcomes."""
+    return {
+        result.config["trial"]["key"]: [
+            (int(row["env_steps"]), row["eval_success"])
+            for row in result.rows
+            if row.get("eval_success") is not None
+        ]
+        for result in results
+    }

@@ -10,7 +10,6 @@ Layout under <storage>/<name>/:
 
 from __future__ import annotations
 
-import contextlib
 import json
 import os
 import tempfile
@@ -125,12 +124,15 @@ def _task(name: str):
 
 # -- the Tune trial ------------------------------------------------------------------------------
 def sweep_trial(config: dict[str, Any]) -> None:
-    """Tune function trainable: one TrainingRun, checkpointed to Tune, resumed from Tune."""
+    """Tune function trainable: one TrainingRun, checkpointed to Tune. It continues from Tune's
+    checkpoint after a retry, else from the furthest checkpoint an earlier attempt of the same
+    trial left (a resumed stage, :mod:`ps_ray.trials`); its last result carries ``FINISHED``."""
     import ray
     from ray import tune
 
     from ps_ray.anchors import load_anchor_set
     from ps_ray.train import TrainingRun
+    from ps_ray.trials import FINISHED, earlier_checkpoint
     from ps_ray.weights import policy_anchor_set
 
     trial = config["trial"]
@@ -146,20 +148,25 @@ def sweep_trial(config: dict[str, Any]) -> None:
     if checkpoint is not None:
         with checkpoint.as_directory() as directory:
             run.restore(Path(directory))
+    elif (earlier := earlier_checkpoint(config, "trial")) is not None:
+        run.restore(earlier)
     node_id = ray.get_runtime_context().get_node_id()
-    while not run.done:
-        row = {**run.step(), "node_id": node_id}
-        if row["iteration"] % spec.checkpoint_every == 0 or run.done:
+    row: dict[str, Any] = {"iteration": run.algo.iteration, "env_steps": run.env_steps}
+    while True:
+        if not run.done:
+            row = {**run.step(), "node_id": node_id}
+        if run.done or row["iteration"] % spec.checkpoint_every == 0:
             with tempfile.TemporaryDirectory() as directory:
                 run.save(Path(directory))
                 if run.done:
-                    row.update(
-                        {f"final_{k}": v for k, v in run.final_eval().items()}, converged=run.converged
-                    )
+                    final = {f"final_{k}": v for k, v in run.final_eval().items()}
+                    row.update(final, converged=run.converged, **{FINISHED: True})
                 tune.report(row, checkpoint=tune.Checkpoint.from_directory(directory))
             _maybe_crash()
         elif row.get("eval_success") is not None:
             tune.report(row)
+        if row.get(FINISHED):
+            break
     run.stop()
 
 
@@ -209,8 +216,7 @@ def run_sweep(spec: SweepSpec, *, resume: bool = False, progress: bool = True):
         )
         raise_on_errors(grid, "plain source policies")
         plain_policies = {
-            TrainSpec.from_mapping(r.config["trial"]["spec"]).label(): Path(r.checkpoint.path)
-            / "policy.safetensors"
+            TrainSpec.from_mapping(r.config["trial"]["spec"]).label(): r.checkpoint / "policy.safetensors"
             for r in grid
         }
     anchors = prepare_sweep_anchors(spec, root, plain_policies)
@@ -278,6 +284,7 @@ def run_tune(
     """Training trials (sweep_trial) as one Tune experiment `root/name`, tracked in MLflow."""
 
     from ps_ray.tracking import MLflowTuneCallback, git_commit
+    from ps_ray.trials import run_trials
 
     callback = MLflowTuneCallback(
         *tracking,
@@ -291,63 +298,13 @@ def run_tune(
         {"trial": trials},
         name=name,
         stage=stage,
-        spec=spec,
         root=root,
         callback=callback,
         resume=resume,
         progress=progress,
+        max_concurrent=spec.max_concurrent,
+        max_failures=spec.max_failures,
     )
-
-
-def run_trials(
-    trainable,
-    grid: dict[str, list],
-    *,
-    name: str,
-    stage: str,
-    spec: SweepSpec,
-    root: Path,
-    callback,
-    resume: bool,
-    progress: bool,
-    constants: dict | None = None,
-):
-    """The one Tune runner of every stage: a grid over ``grid``'s one key (plus ``constants``),
-    one CPU per trial, the sweep's retry policy, the MLflow ``callback``, a compact live view on
-    the terminal and Tune's own output in ``root/logs/<name>.log`` (:mod:`ps_ray.progress`).
-    ``resume`` restores the experiment ``root/name`` when it can."""
-    from ray import tune
-
-    from ps_ray.progress import StageProgress, quiet_tune, verbose
-
-    ((key, trials),) = grid.items()
-    trainable = tune.with_resources(trainable, {"cpu": 1})
-    path = root / name
-    quiet = progress and not verbose()
-    with quiet_tune(root / "logs" / f"{name}.log") if quiet else contextlib.nullcontext():
-        if resume and tune.Tuner.can_restore(str(path)):
-            tuner = tune.Tuner.restore(
-                str(path),
-                trainable=trainable,
-                resume_unfinished=True,
-                resume_errored=True,
-                restart_errored=False,
-            )
-        else:
-            tuner = tune.Tuner(
-                trainable,
-                param_space={key: tune.grid_search(trials), **(constants or {})},
-                tune_config=tune.TuneConfig(max_concurrent_trials=spec.max_concurrent),
-                run_config=tune.RunConfig(
-                    name=name,
-                    storage_path=str(root),
-                    failure_config=tune.FailureConfig(max_failures=spec.max_failures),
-                    checkpoint_config=tune.CheckpointConfig(num_to_keep=1),
-                    callbacks=[callback, *([StageProgress(stage, len(trials))] if quiet else [])],
-                    verbose=1 if progress else 0,
-                ),
-            )  # quiet: Tune's tables go to the log
-        return tuner.fit()
 
 
 def _trial_artifacts(trial) -> list[Path]:

@@ -3,7 +3,8 @@
 A run directory holds:
   spec.json          the TrainSpec (a directory belongs to one spec; a different one is refused)
   anchors.npz        the anchor set (PS only)
-  checkpoint/        the latest RLlib checkpoint + replay buffer (replaced atomically)
+  checkpoint/        the latest checkpoint (ps_ray/checkpoint.py: safetensors, npz, JSON, sealed
+                     by a manifest; replaced atomically)
   policy.safetensors actor, critics and targets with the interface signature
   best_policy.safetensors  the same at the best greedy evaluation so far
   metrics.csv        one row per training step
@@ -23,6 +24,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from ps_ray import checkpoint
 from ps_ray.atomic import atomic_file, atomic_path, fsync_dir, write_text
 from ps_ray.config import SpecError, TrainSpec
 from ps_ray.lock import folder_lock
@@ -160,9 +162,12 @@ class TrainingRun:
         )
         (Path(directory) / "spec.json").write_text(json.dumps(self.spec.to_dict(), indent=2))
         (Path(directory) / PROGRESS_FILE).write_text(json.dumps({"streak": self.streak}))
+        checkpoint.seal(directory)
 
     def restore(self, directory: Path) -> None:
-        self.algo.load_checkpoint(str(directory))
+        """Resume from a checkpoint folder; CheckpointError (one line) if it is not a complete,
+        unaltered ps_ray checkpoint. Nothing in it is unpickled."""
+        self.algo.load_checkpoint(str(checkpoint.verify(directory)))
         self.start_steps = self.env_steps
         progress = Path(directory) / PROGRESS_FILE
         if progress.is_file():
@@ -208,9 +213,14 @@ def _save_atomically(run: TrainingRun, run_dir: Path) -> None:
 
 def _latest_checkpoint(run_dir: Path) -> Path | None:
     """The complete checkpoint of a run folder: ``checkpoint/``, else ``checkpoint.old/`` (a kill
-    between the swap's two renames); ``checkpoint.tmp/`` is never complete."""
+    between the swap's two renames); ``checkpoint.tmp/`` is never complete. A folder that holds
+    checkpoints but none that verifies is refused (CheckpointError), not silently restarted."""
     _, final, old = _checkpoint_dirs(run_dir)
-    return next((d for d in (final, old) if d.is_dir()), None)
+    found = [d for d in (final, old) if d.is_dir()]
+    best = checkpoint.latest(found)
+    if found and best is None:
+        checkpoint.verify(found[0])  # raises, naming the problem
+    return best
 
 
 def _metrics_up_to(run_dir: Path, env_steps: int) -> None:
@@ -268,9 +278,9 @@ def _train(spec: TrainSpec, run_dir: Path, progress: bool) -> dict[str, Any]:
         )
     run = TrainingRun(spec, anchor_set)  # loads --init-policy: a bad one fails before spec.json
     _check_run_dir(spec, run_dir)
-    checkpoint = _latest_checkpoint(run_dir)
-    if checkpoint is not None:
-        run.restore(checkpoint)
+    resume_from = _latest_checkpoint(run_dir)
+    if resume_from is not None:
+        run.restore(resume_from)
         if progress:
             print(f"[{spec.label()}] resumed at {run.env_steps} env steps", flush=True)
     _metrics_up_to(run_dir, run.env_steps)

@@ -77,6 +77,7 @@ def zero_shot_trial(config: dict[str, Any]) -> None:
 
     from ps_ray.evaluate import evaluate
     from ps_ray.stitch import stitch_policies
+    from ps_ray.trials import FINISHED
 
     pair, settings = config["pair"], config["eval"]
     translation = pair.get("translation") or None
@@ -89,7 +90,7 @@ def zero_shot_trial(config: dict[str, Any]) -> None:
         pair["task_from_path"], pair["robot_from_path"], translation=translation, fit_states=states
     )
     result = evaluate(stitched, pair["robot"], pair["task"], **settings)
-    tune.report({k: result[k] for k in RESULT_KEYS})
+    tune.report({**{k: result[k] for k in RESULT_KEYS}, FINISHED: True})
 
 
 def run_zero_shot(
@@ -98,8 +99,9 @@ def run_zero_shot(
     """The matrix as Tune trials, settings from ``spec.zero_shot`` (``overrides`` replace fields).
 
     ``resume`` finishes an interrupted matrix (restores ``tune_zero_shot``)."""
-    from ps_ray.sweep import connect, run_trials
+    from ps_ray.sweep import connect
     from ps_ray.tracking import MLflowTuneCallback, git_commit
+    from ps_ray.trials import run_trials
 
     settings = dataclasses.replace(spec.zero_shot, **overrides)
     root = sweep_dir(spec)
@@ -128,11 +130,12 @@ def run_zero_shot(
         {"pair": trials},
         name=TUNE_DIR,
         stage="zero_shot",
-        spec=spec,
         root=root,
         callback=callback,
         resume=resume,
         progress=progress,
+        max_concurrent=spec.max_concurrent,
+        max_failures=spec.max_failures,
         constants={
             "eval": {"episodes": settings.episodes, "repeats": settings.repeats, "seed": settings.seed},
             "fit_states_per_quadrant": settings.fit_states_per_quadrant,

@@ -7,9 +7,9 @@ with ``/i<dim>`` appended off the default interface dim (``ps/panda/push/101/i16
 
 Sweep layout read (see :mod:`ps_ray.sweep`): ``<sweep>/tune/<trial>/checkpoint_N/`` (stage
 "train") and ``<sweep>/tune_plain/<trial>/checkpoint_N/`` (stage "plain_source", the anchors' plain
-source policies), each with ``policy.safetensors`` and ``spec.json``. The highest-numbered
-checkpoint of a trial is used. When one key appears twice, a "train" entry beats a
-"plain_source" one, then the newest file wins.
+source policies), each with ``policy.safetensors`` and ``spec.json``. Of a trial's checkpoints
+over all its attempts (:mod:`ps_ray.trials`), the furthest one whose manifest verifies is used.
+When one key appears twice, a "train" entry beats a "plain_source" one, then the newest file wins.
 """
 
 from __future__ import annotations
@@ -104,12 +104,24 @@ def read_entry(policy_path: str | Path, stage: str = "run") -> ZooEntry:
     return ZooEntry(key, path, signature, spec, stage)
 
 
-def _latest_checkpoints(stage_dir: Path) -> list[Path]:
-    """The policy file of each trial's highest-numbered checkpoint."""
-    latest: dict[Path, Path] = {}
-    for policy in sorted(stage_dir.glob(f"*/checkpoint_*/{POLICY_FILE}")):
-        latest[policy.parent.parent] = policy  # sorted: the last one is the highest number
-    return list(latest.values())
+def _latest_checkpoints(stage_dir: Path) -> tuple[list[Path], list[str]]:
+    """The policy file of each trial's furthest checkpoint over its attempts (ps_ray.trials)
+    whose manifest and policy file verify, and a problem line per trial that has none."""
+    from ps_ray import checkpoint
+    from ps_ray.trials import attempts, checkpoint_dirs
+
+    policies, problems = [], []
+    for folders in attempts(stage_dir, "trial").values():
+        found = checkpoint_dirs(folders)
+        best = checkpoint.latest(found, checkpoint.POLICY_ONLY)
+        if best is not None:
+            policies.append(best / POLICY_FILE)
+        elif found:
+            try:
+                checkpoint.verify(found[-1], checkpoint.POLICY_ONLY)
+            except checkpoint.CheckpointError as e:
+                problems.append(str(e))
+    return policies, problems
 
 
 class ModuleZoo:
@@ -131,7 +143,13 @@ class ModuleZoo:
         """Index ``tune/`` and ``tune_plain/`` of each sweep directory (``<storage>/<name>``)."""
         entries, problems = [], []
         for sweep in map(Path, sweep_dirs):
-            found = [(p, stage) for d, stage in STAGE_DIRS.items() for p in _latest_checkpoints(sweep / d)]
+            found = []
+            for folder, stage in STAGE_DIRS.items():
+                policies, unusable = _latest_checkpoints(sweep / folder)
+                found += [(p, stage) for p in policies]
+                if unusable and strict:
+                    raise ValueError(unusable[0])
+                problems += unusable
             if not found:
                 raise ValueError(
                     f"{sweep}: no trained policies (expected tune/<trial>/checkpoint_*/{POLICY_FILE})"

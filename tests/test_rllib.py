@@ -86,6 +86,15 @@ def test_checkpoint_round_trip_restores_every_net_and_the_replay(trained):
         for key in before:
             assert torch.equal(before[key], after[key]), key
         assert fresh.counters == algo.counters
+        assert fresh.iteration == algo.iteration == 4
+        # Adam's slots and the temperature come back too, so a resumed run steps as it would have.
+        saved, restored = (a.learner_group._learner.training_state() for a in (algo, fresh))
+        assert any(k.startswith("optimizer.") and k.endswith(".exp_avg_sq") for k in saved)
+        assert saved.keys() == restored.keys()
+        for key in saved:
+            assert torch.equal(saved[key], restored[key]), key
+        # ps_ray's own files only: nothing in a checkpoint is a pickle.
+        assert not [p for p in path.rglob("*") if p.suffix in (".pkl", ".pickle", ".pt")]
         assert fresh.replay.num_transitions == algo.replay.num_transitions > 0
         assert fresh.replay.episodes_added == algo.replay.episodes_added
     finally:

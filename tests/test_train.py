@@ -72,7 +72,7 @@ def test_killed_training_resumes_from_its_last_checkpoint(tmp_path):
     time.sleep(2)
     os.killpg(first.pid, signal.SIGKILL)
     first.wait()
-    saved = json.loads((run_dir / "checkpoint" / "ps_ray_state.json").read_text())["env_steps"]
+    saved = json.loads((run_dir / "checkpoint" / "ps_ray_state.json").read_text())["counters"]["env_steps"]
     assert saved > 0
 
     # Same policy, larger budget: allowed, and it continues from the checkpoint.
@@ -157,7 +157,7 @@ def test_resume_after_a_kill_between_the_checkpoint_renames_keeps_rows_and_best(
     first = subprocess.run(train_cmd(run_dir, 1200), capture_output=True, text=True, timeout=300)
     assert first.returncode == 0, first.stdout[-2000:] + first.stderr[-2000:]
     best_before = float(read_signature(run_dir / "best_policy.safetensors")[1]["eval_success"])
-    saved = json.loads((run_dir / "checkpoint" / "ps_ray_state.json").read_text())["env_steps"]
+    saved = json.loads((run_dir / "checkpoint" / "ps_ray_state.json").read_text())["counters"]["env_steps"]
     os.replace(run_dir / "checkpoint", run_dir / "checkpoint.old")  # the moment of the kill
     with open(run_dir / "metrics.csv", "a") as f:  # a row written after that checkpoint
         f.write(f"999,{saved + 100},1,0.0,,,,1.0\n")

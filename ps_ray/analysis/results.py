@@ -1,7 +1,7 @@
 """Stored results of a sweep, read back without Ray: Tune trial folders and the zero-shot table.
 
 A Tune trial folder holds ``params.json`` (the trial config) and ``result.json`` (one JSON result
-per line); both are plain JSON written by this sweep's own trials.
+per line); a trial relaunched by a resume has several such folders (:mod:`ps_ray.trials`).
 """
 
 from __future__ import annotations
@@ -12,6 +12,7 @@ from pathlib import Path
 import pandas as pd
 
 from ps_ray.config import short_name, trial_key
+from ps_ray.trials import PARAMS_FILE, attempts, merged_rows
 
 CURVE_COLUMNS = [
     "run",
@@ -27,25 +28,12 @@ CURVE_COLUMNS = [
 ]
 
 
-def _results(trial_dir: Path) -> list[dict]:
-    path = trial_dir / "result.json"
-    if not path.exists():
-        return []
-    rows = []
-    for line in path.read_text().splitlines():
-        try:
-            rows.append(json.loads(line))
-        except json.JSONDecodeError:  # a line cut short by a killed trial
-            continue
-    return rows
-
-
 def curves(stage_dir: Path) -> pd.DataFrame:
     """Greedy success vs env steps of every trial in a Tune stage folder (``tune``,
     ``tune_few_shot``): the periodic evaluations, then the final evaluation at the last step."""
     records = []
-    for params_path in sorted(stage_dir.glob("*/params.json")):
-        trial = json.loads(params_path.read_text())["trial"]
+    for folders in attempts(stage_dir, "trial").values():
+        trial = json.loads((folders[-1] / PARAMS_FILE).read_text())["trial"]
         spec = trial["spec"]
         run = trial.get("key") or trial_key(spec)
         fields = {
@@ -58,7 +46,7 @@ def curves(stage_dir: Path) -> pd.DataFrame:
             "seed": spec["seed"],
             "interface_dim": spec["interface_dim"],
         }
-        for row in _results(params_path.parent):
+        for row in merged_rows(folders):
             for key in ("eval_success", "final_success"):
                 if row.get(key) is not None:
                     records.append({**fields, "env_steps": row["env_steps"], "success": row[key]})

@@ -2,14 +2,20 @@
 
 from __future__ import annotations
 
+from collections import defaultdict
 from typing import Any
 
 import torch
 from ray.rllib.algorithms.sac.torch.sac_torch_learner import SACTorchLearner
+from ray.rllib.core import DEFAULT_MODULE_ID
 from ray.rllib.core.learner.learner import Learner
 from ray.rllib.core.learner.torch.torch_learner import TorchLearner
 
 from ps_ray.nets.sac import SACHyper, polyak, sac_losses
+from ps_ray.weights import load_nets_state, nets_state
+
+OPTIMIZER_PREFIX = "optimizer."
+LOG_ALPHA = "log_alpha"
 
 
 class ModularSACLearner(SACTorchLearner):
@@ -65,3 +71,31 @@ class ModularSACLearner(SACTorchLearner):
     def after_gradient_based_update(self, *, timesteps: dict[str, Any]) -> None:
         # Skip DQN's once-per-call target sync: Polyak already ran after every minibatch.
         Learner.after_gradient_based_update(self, timesteps=timesteps)
+
+    # -- checkpoint state as plain tensors (no pickle): nets, log alpha, every Adam slot -----------
+    def training_state(self) -> dict[str, torch.Tensor]:
+        module_id = DEFAULT_MODULE_ID
+        state = nets_state(self._module[module_id])
+        state[LOG_ALPHA] = self.curr_log_alpha[module_id].detach().clone()
+        for name, optimizer in self.get_optimizers_for_module(module_id):
+            for index, slots in optimizer.state_dict()["state"].items():
+                for slot, value in slots.items():
+                    state[f"{OPTIMIZER_PREFIX}{name}.{index}.{slot}"] = (
+                        torch.as_tensor(value).detach().clone()
+                    )
+        return state
+
+    def load_training_state(self, state: dict[str, torch.Tensor]) -> None:
+        module_id = DEFAULT_MODULE_ID
+        load_nets_state(self._module[module_id], state)
+        with torch.no_grad():
+            self.curr_log_alpha[module_id].copy_(state[LOG_ALPHA])
+        for name, optimizer in self.get_optimizers_for_module(module_id):
+            prefix = f"{OPTIMIZER_PREFIX}{name}."
+            slots: dict[int, dict[str, torch.Tensor]] = defaultdict(dict)
+            for key, value in state.items():
+                if key.startswith(prefix):
+                    index, slot = key[len(prefix) :].rsplit(".", 1)
+                    slots[int(index)][slot] = value
+            groups = optimizer.state_dict()["param_groups"]  # hyper-parameters come from the config
+            optimizer.load_state_dict({"state": dict(slots), "param_groups": groups})

@@ -24,7 +24,9 @@ from ray.rllib.utils.metrics import (
     NUM_ENV_STEPS_SAMPLED_LIFETIME,
     TIMERS,
 )
+from safetensors.torch import load_file, save_file
 
+from ps_ray.checkpoint import STATE_FILE
 from ps_ray.her import HindsightReplay
 from ps_ray.nets.modular import update_normalizers
 from ps_ray.nets.obs import dims_from_spaces
@@ -33,7 +35,7 @@ from ps_ray.rllib.learner import ModularSACLearner
 from ps_ray.rllib.module import ModularSACModule
 from ps_ray.weights import load_nets_state, nets_from_state, nets_state, save_policy
 
-STATE_FILE = "ps_ray_state.json"
+LEARNER_FILE = "learner.safetensors"
 EVAL_SEED_OFFSET = 500_000
 REPLAY_FILE = "replay.npz"
 
@@ -202,13 +204,25 @@ class ModularSAC(SAC):
         for key, value in episode_stats(episodes).items():
             self.metrics.log_value(("ps_ray", f"{prefix}_{key}"), value, reduce="item")
 
-    # -- checkpoints carry the replay buffer and counters ---------------------------------------
+    # -- checkpoints: ps_ray's own files, never RLlib's pickles (ps_ray/checkpoint.py) -------------
     def save_checkpoint(self, checkpoint_dir: str) -> None:
-        super().save_checkpoint(checkpoint_dir)
-        self.replay.save(Path(checkpoint_dir) / REPLAY_FILE)
-        (Path(checkpoint_dir) / STATE_FILE).write_text(json.dumps(self.counters))
+        directory = Path(checkpoint_dir)
+        directory.mkdir(parents=True, exist_ok=True)
+        tensors = self.learner_group.foreach_learner(lambda learner: learner.training_state())
+        save_file(tensors.result_or_errors[0].get(), directory / LEARNER_FILE)
+        self.replay.save(directory / REPLAY_FILE)
+        state = {"counters": self.counters, "iteration": self.iteration}
+        (directory / STATE_FILE).write_text(json.dumps(state))
 
     def load_checkpoint(self, checkpoint_dir: str) -> None:
-        super().load_checkpoint(checkpoint_dir)
-        self.replay.load(Path(checkpoint_dir) / REPLAY_FILE)
-        self.counters = json.loads((Path(checkpoint_dir) / STATE_FILE).read_text())
+        """Restore from a checkpoint folder that :func:`ps_ray.checkpoint.verify` accepted."""
+        directory = Path(checkpoint_dir)
+        tensors = load_file(directory / LEARNER_FILE)
+        self.learner_group.foreach_learner(lambda learner: learner.load_training_state(tensors))
+        self.env_runner_group.sync_weights(
+            from_worker_or_learner_group=self.learner_group, inference_only=True
+        )
+        self.replay.load(directory / REPLAY_FILE)
+        state = json.loads((directory / STATE_FILE).read_text())
+        self.counters = {k: int(state["counters"][k]) for k in self.counters}
+        self._iteration = int(state["iteration"])  # Trainable's counter: RLlib private API, Ray 2.60

@@ -1,0 +1,104 @@
+"""A training checkpoint is ps_ray's own, non-executable state, sealed by a manifest.
+
+Files of a checkpoint folder (docs/state.md):
+  learner.safetensors  the five SAC nets, log alpha and every Adam slot
+  replay.npz           the hindsight replay buffer (read with ``allow_pickle=False``)
+  ps_ray_state.json    counters (env steps, episodes, updates) and the training iteration
+  policy.safetensors   the policy file with its signature (what stitching and the zoo read)
+  signature.json, spec.json, progress.json
+  manifest.json        written last: the SHA-256 of every other file
+
+Nothing in a checkpoint is unpickled, whoever wrote it: safetensors, ``.npz`` without pickle and
+JSON cannot run code. The manifest tells a complete checkpoint from one cut short by a kill (Tune
+copies a trial's checkpoint into its folder file by file) or changed afterwards; any ``.pkl``
+planted beside the listed files is never opened.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from pathlib import Path
+
+from ps_ray.atomic import write_text
+
+MANIFEST = "manifest.json"
+FORMAT = "ps_ray-checkpoint-1"
+STATE_FILE = "ps_ray_state.json"
+POLICY_FILE = "policy.safetensors"
+POLICY_ONLY = (STATE_FILE, POLICY_FILE)  # what a reader of the policy alone must hash
+
+
+class CheckpointError(ValueError):
+    """A checkpoint folder that is incomplete, altered, foreign or from an older ps_ray."""
+
+
+def _sha256(path: Path) -> str:
+    digest = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def seal(directory: str | Path) -> None:
+    """Write the manifest over every file in ``directory`` (call it after the last file)."""
+    directory = Path(directory)
+    files = {
+        p.name: {"sha256": _sha256(p), "bytes": p.stat().st_size}
+        for p in sorted(directory.iterdir())
+        if p.is_file() and p.name != MANIFEST
+    }
+    write_text(directory / MANIFEST, json.dumps({"format": FORMAT, "files": files}, indent=1))
+
+
+def verify(directory: str | Path, hashed: tuple[str, ...] | None = None) -> Path:
+    """``directory`` if every file its manifest lists is there with its size, and the files in
+    ``hashed`` (default: all) match their hashes; else CheckpointError naming the folder and the
+    first problem. A reader hashes what it loads: the zoo only needs the policy file."""
+    directory = Path(directory)
+
+    def bad(why: str) -> CheckpointError:
+        return CheckpointError(f"{directory}: not a usable ps_ray checkpoint ({why})")
+
+    try:
+        manifest = json.loads((directory / MANIFEST).read_text())
+    except FileNotFoundError:
+        raise bad(f"no {MANIFEST}: cut short, or written by another program or an older ps_ray") from None
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
+        raise bad(f"unreadable {MANIFEST}: {e}") from None
+    if not isinstance(manifest, dict) or manifest.get("format") != FORMAT:
+        raise bad(f"{MANIFEST} is not of format {FORMAT!r}")
+    files = manifest.get("files")
+    if not isinstance(files, dict) or STATE_FILE not in files:
+        raise bad(f"{MANIFEST} lists no {STATE_FILE}")
+    for name, entry in files.items():
+        path = directory / name
+        if Path(name).name != name or not isinstance(entry, dict) or not path.is_file():
+            raise bad(f"{name} is missing")
+        if path.stat().st_size != entry.get("bytes"):
+            raise bad(f"{name} has {path.stat().st_size} bytes, the manifest says {entry.get('bytes')}")
+    for name in files if hashed is None else hashed:
+        if name not in files:
+            raise bad(f"{MANIFEST} lists no {name}")
+        if _sha256(directory / name) != files[name].get("sha256"):
+            raise bad(f"{name} does not match its hash")
+    return directory
+
+
+def env_steps(directory: str | Path) -> int:
+    """Env steps of a verified checkpoint (for choosing the furthest of several)."""
+    return int(json.loads((Path(directory) / STATE_FILE).read_text())["counters"]["env_steps"])
+
+
+def latest(folders: list[Path], hashed: tuple[str, ...] | None = None) -> Path | None:
+    """The verified checkpoint with the most env steps among ``folders`` (``hashed`` as in
+    :func:`verify`); unusable ones are skipped: a checkpoint cut short by a kill is expected, and
+    an earlier one is used."""
+    usable = []
+    for folder in folders:
+        try:
+            usable.append((env_steps(verify(folder, hashed)), folder))
+        except (CheckpointError, KeyError, TypeError, ValueError):
+            continue
+    return max(usable)[1] if usable else None

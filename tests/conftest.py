@@ -1,6 +1,9 @@
 """Shared fixtures: one torch thread, one local Ray instance for the whole session."""
 
 import os
+import pickle
+import sys
+from pathlib import Path
 
 import pytest
 import torch
@@ -18,3 +21,59 @@ def ray_local():
     )
     yield
     ray.shutdown()
+
+
+# A small `ps-ray train` on the point task: PS, interface 8, checkpoints every 3 steps.
+TRAIN_ARGS = (
+    "--task point --method ps --interface-dim 8 --hidden 32 --learning-starts 200 "
+    "--random-episodes 2 --episodes-per-step 4 --checkpoint-every 3 --eval-every 3 "
+    "--eval-episodes 4 --batch-size 64 --anchor-episodes 20"
+).split()
+
+
+@pytest.fixture
+def train_cmd():
+    """``train_cmd(run_dir, env_steps)``: the command line of that small training run."""
+
+    def command(run_dir, steps: int) -> list[str]:
+        return [
+            sys.executable,
+            "-m",
+            "ps_ray.cli",
+            "train",
+            *TRAIN_ARGS,
+            "--env-steps",
+            str(steps),
+            "--run-dir",
+            str(run_dir),
+        ]
+
+    return command
+
+
+class _Planted:
+    """A pickle that, if ever loaded, writes a marker file."""
+
+    def __init__(self, marker):
+        self.marker = str(marker)
+
+    def __reduce__(self):
+        return (exec, (f"open({self.marker!r}, 'w').write('pickle ran')",))
+
+
+RAY_PICKLES = ("algorithm_state.pkl", "class_and_ctor_args.pkl", "state.pkl", "params.pkl", "tuner.pkl")
+
+
+@pytest.fixture
+def planted(tmp_path):
+    """``planted(folder, names=RAY_PICKLES)`` writes hostile pickles there; ``planted.marker``
+    exists once any of them has been unpickled."""
+
+    marker = tmp_path / "pickle-ran"
+
+    def plant(folder, names=RAY_PICKLES) -> None:
+        for name in names:
+            (Path(folder) / name).write_bytes(pickle.dumps(_Planted(marker)))
+
+    plant.marker = marker
+    return plant

@@ -280,3 +280,60 @@ def test_every_relative_variant_survives_a_policy_file_round_trip(method, tmp_pa
                 getattr(loaded, name).eval()(task, robot, action), getattr(nets, name)(task, robot, action)
             ), name
         assert torch.equal(loaded.actor.eval()(task, robot)[0], nets.actor(task, robot)[0])
+
+
+def test_norm_penalty_acts_only_on_the_embedding_length():
+    """The cosine is blind to |z|, so its gradient is orthogonal to z; the penalty's is radial:
+    together they can turn z and hold its length, without changing what the interface computes."""
+    torch.manual_seed(0)
+    anchors = torch.randn(8, 15)
+    projection = RelativeProjection(anchors, RelativeSpec(norm_reg=1.0))
+    z = (torch.randn(4, 6) * 5).requires_grad_(True)
+    z_anchors = torch.randn(8, 6)
+
+    (grad_interface,) = torch.autograd.grad(projection.project(z, projection.reference(z_anchors)).sum(), z)
+    assert torch.allclose((grad_interface * z).sum(-1), torch.zeros(4), atol=1e-5)  # orthogonal
+
+    def encoder(x):  # a fixed "encoder" of the 4 batch inputs and the 8 anchors
+        assert x.shape[0] == 12
+        return torch.cat([z, z_anchors])
+
+    (grad_penalty,) = torch.autograd.grad(projection.norm_penalty(encoder, torch.randn(4, 15)), z)
+    cosine = torch.nn.functional.cosine_similarity(grad_penalty, z, dim=-1)
+    assert torch.allclose(cosine, torch.ones(4), atol=1e-5)  # radial, shrinking |z| = 5·sqrt(6) > 1
+
+    # zero without norm_reg; a variant without the penalty adds nothing to the SAC loss
+    assert RelativeProjection(anchors).norm_penalty(encoder, torch.randn(4, 15)).item() == 0.0
+
+
+def test_norm_penalty_holds_the_embedding_length_in_training():
+    """Embeddings made 10x too long, then 300 gradient steps on the SAC losses: with ``ps_normreg``
+    the penalty brings |z| back near 1; with ``ps`` the loss, blind to |z|, leaves it long."""
+    from ps_ray.nets.sac import SACHyper, sac_forward, sac_losses
+
+    lengths = {}
+    for method in ("ps", "ps_normreg"):
+        nets, _ = _nets(method)
+        with torch.no_grad():
+            for name in NET_NAMES[:3]:
+                getattr(nets, name).task.body[-1].weight.mul_(10)
+        params = [p for name in NET_NAMES[:3] for p in getattr(nets, name).parameters()]
+        optimiser = torch.optim.Adam(params, lr=3e-3)
+        gen = torch.Generator().manual_seed(1)
+        for _ in range(300):
+            batch = {
+                "task_in": torch.randn(64, 15, generator=gen),
+                "robot_in": torch.randn(64, 8, generator=gen),
+                "actions": torch.rand(64, 7, generator=gen) * 2 - 1,
+                "next_task_in": torch.randn(64, 15, generator=gen),
+                "next_robot_in": torch.randn(64, 8, generator=gen),
+            }
+            fwd = sac_forward(nets, batch)
+            losses = sac_losses(fwd, -torch.rand(64, generator=gen), torch.zeros(()), SACHyper(), 7)
+            optimiser.zero_grad()
+            losses["total"].backward()
+            optimiser.step()
+        with torch.no_grad():
+            lengths[method] = nets.actor.task.encode(torch.randn(256, 15)).norm(dim=-1).mean().item()
+    assert 0.8 < lengths["ps_normreg"] < 1.25, lengths
+    assert lengths["ps"] > 5, lengths

@@ -4,29 +4,11 @@ cut-short or altered ones are refused in one line (docs/state.md)."""
 from __future__ import annotations
 
 import json
-import pickle
 import subprocess
-import sys
 
 import pytest
 
 from ps_ray import checkpoint
-from tests.test_train import train_cmd
-
-
-class Planted:
-    """A pickle that, if ever loaded, writes a marker file."""
-
-    def __init__(self, marker):
-        self.marker = str(marker)
-
-    def __reduce__(self):
-        return (exec, (f"open({self.marker!r}, 'w').write('pickle ran')",))
-
-
-def plant(folder, marker, names=("algorithm_state.pkl", "class_and_ctor_args.pkl", "state.pkl")) -> None:
-    for name in names:
-        (folder / name).write_bytes(pickle.dumps(Planted(marker)))
 
 
 def test_seal_and_verify_tell_complete_from_cut_short_and_altered(tmp_path):
@@ -61,12 +43,12 @@ def test_latest_skips_a_checkpoint_cut_short(tmp_path):
     assert checkpoint.latest(folders) == folders[0]
 
 
-def test_train_resume_never_runs_planted_pickles_and_refuses_altered_state(tmp_path):
-    run_dir, marker = tmp_path / "run", tmp_path / "marker"
+def test_train_resume_never_runs_planted_pickles_and_refuses_altered_state(tmp_path, train_cmd, planted):
+    run_dir, marker = tmp_path / "run", planted.marker
     first = subprocess.run(train_cmd(run_dir, 300), capture_output=True, text=True, timeout=600)
     assert first.returncode == 0, first.stderr[-2000:]
     assert not list(run_dir.rglob("*.pkl"))
-    plant(run_dir / "checkpoint", marker)
+    planted(run_dir / "checkpoint")
     resumed = subprocess.run(train_cmd(run_dir, 400), capture_output=True, text=True, timeout=600)
     assert resumed.returncode == 0, resumed.stderr[-2000:]
     assert "resumed at 320 env steps" in resumed.stdout  # whole episodes of 40 steps

@@ -9,6 +9,7 @@ from pathlib import Path
 import pytest
 
 from ps_ray.config import SpecError, SweepSpec, TrainSpec, load_sweep
+from ps_ray.nets.modular import METHODS
 
 SWEEPS = Path(__file__).resolve().parents[1] / "sweeps"
 
@@ -30,8 +31,7 @@ def test_train_spec_defaults_are_valid_and_label_names_the_trial():
     [
         (
             {"method": "psx"},
-            "unknown method 'psx'; valid methods: ps, ps_ln, ps_center, ps_center_ln, "
-            "ps_mean_ln, ps_nograd, ps_scaled, ablation, devin, devin_large, plain",
+            f"unknown method 'psx'; valid methods: {', '.join(METHODS)}",
         ),
         ({"robot": "pandaa"}, "unknown robot 'pandaa'; valid robots: panda, panda_l3, panda_l5"),
         ({"task": "pushh"}, "unknown task 'pushh'"),

@@ -96,7 +96,7 @@ def test_sweep_tracks_one_mlflow_run_per_trial_with_artifacts(tmp_path):
     assert any(a.startswith("anchors_3d") for a in ps_artifacts)
 
 
-def test_resume_after_sigkill_finishes_only_missing_trials(tmp_path):
+def test_resume_after_sigkill_finishes_only_missing_trials_and_never_unpickles(tmp_path, planted):
     path = write_sweep(tmp_path, "killed", seeds=(1, 2, 3), max_concurrent=1)
     proc = cli("sweep", str(path), start_new_session=True)
     deadline = time.time() + 300
@@ -112,6 +112,11 @@ def test_resume_after_sigkill_finishes_only_missing_trials(tmp_path):
     assert 1 <= len(before) < 3
     done_name = next(iter(before))
     done_history = history(path, before[done_name], "env_steps")
+    # Anyone who can write to shared storage could plant these where Tune and RLlib look.
+    folder = sweep_dir(load_sweep(path))
+    for place in [folder, *folder.glob("tune*"), *folder.glob("tune*/*"), *folder.glob("tune*/*/check*")]:
+        if place.is_dir():
+            planted(place)
 
     resumed = cli("sweep", str(path), "--resume")
     out, _ = resumed.communicate(timeout=600)
@@ -120,6 +125,7 @@ def test_resume_after_sigkill_finishes_only_missing_trials(tmp_path):
     assert sorted(after) == [f"ablation/panda/reach/{s}/i8" for s in (1, 2, 3)]  # one run per trial
     assert all(r.info.status == "FINISHED" for r in after.values())
     assert history(path, after[done_name], "env_steps") == done_history  # not rerun
+    assert not planted.marker.exists(), "a planted pickle was loaded on resume"
 
 
 def test_crashed_trial_is_retried_from_its_checkpoint(tmp_path):

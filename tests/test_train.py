@@ -14,49 +14,8 @@ import pytest
 
 from ps_ray.weights import load_policy, read_signature
 
-ARGS = [
-    "--task",
-    "point",
-    "--method",
-    "ps",
-    "--interface-dim",
-    "8",
-    "--hidden",
-    "32",
-    "--learning-starts",
-    "200",
-    "--random-episodes",
-    "2",
-    "--episodes-per-step",
-    "4",
-    "--checkpoint-every",
-    "3",
-    "--eval-every",
-    "3",
-    "--eval-episodes",
-    "4",
-    "--batch-size",
-    "64",
-    "--anchor-episodes",
-    "20",
-]
 
-
-def train_cmd(run_dir, steps: int) -> list[str]:
-    return [
-        sys.executable,
-        "-m",
-        "ps_ray.cli",
-        "train",
-        *ARGS,
-        "--env-steps",
-        str(steps),
-        "--run-dir",
-        str(run_dir),
-    ]
-
-
-def test_killed_training_resumes_from_its_last_checkpoint(tmp_path):
+def test_killed_training_resumes_from_its_last_checkpoint(tmp_path, train_cmd):
     run_dir = tmp_path / "run"
     first = subprocess.Popen(
         train_cmd(run_dir, 100_000),
@@ -88,7 +47,7 @@ def test_killed_training_resumes_from_its_last_checkpoint(tmp_path):
     assert signature.anchor_hash and (run_dir / "anchors.npz").exists()
 
 
-def test_a_run_directory_refuses_another_policy(tmp_path):
+def test_a_run_directory_refuses_another_policy(tmp_path, train_cmd):
     run_dir = tmp_path / "run"
     run_dir.mkdir()
     (run_dir / "spec.json").write_text(json.dumps({"method": "ablation", "task": "point"}))
@@ -150,7 +109,7 @@ def test_training_stops_early_at_the_success_target(tmp_path):
     assert evals["env_steps"].iloc[-1] == pd.read_csv(run_dir / "metrics.csv")["env_steps"].iloc[-1]
 
 
-def test_resume_after_a_kill_between_the_checkpoint_renames_keeps_rows_and_best(tmp_path):
+def test_resume_after_a_kill_between_the_checkpoint_renames_keeps_rows_and_best(tmp_path, train_cmd):
     """A kill can land between moving checkpoint/ aside and moving the new one in: the run
     resumes from checkpoint.old, metrics.csv has no row twice, and best-so-far is kept."""
     run_dir = tmp_path / "run"
@@ -172,7 +131,7 @@ def test_resume_after_a_kill_between_the_checkpoint_renames_keeps_rows_and_best(
     assert (run_dir / "checkpoint").is_dir() and not (run_dir / "checkpoint.old").exists()
 
 
-def test_a_second_process_on_the_same_run_folder_is_refused_in_one_line(tmp_path):
+def test_a_second_process_on_the_same_run_folder_is_refused_in_one_line(tmp_path, train_cmd):
     run_dir = tmp_path / "run"
     first = subprocess.Popen(
         train_cmd(run_dir, 100_000),

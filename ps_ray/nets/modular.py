@@ -69,6 +69,7 @@ METHODS: dict[str, MethodSpec] = {
         _ps("ps_nograd", anchor_grad=False),
         _ps("ps_scaled", scale=4.0),
         _ps("ps_normreg", norm_reg=1.0),
+        _ps("ps_normreg_ln", norm_reg=1.0, norm="layer"),
         MethodSpec("ablation", None, modular=True, interface_dim=None, dropout=0.0),
         MethodSpec("devin", None, modular=True, interface_dim=16, dropout=0.25),
         MethodSpec("devin_large", None, modular=True, interface_dim=None, dropout=0.25),

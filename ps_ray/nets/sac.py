@@ -131,7 +131,8 @@ def sac_forward(nets: SACNets, batch: dict[str, Tensor]) -> dict[str, Tensor]:
     for p in critic_params:
         p.requires_grad_(True)
     # Each trained net's own penalty, on its own parameters (RelativeSpec.norm_reg).
-    out["norm_penalty"] = sum(net.task.norm_penalty(task) for net in (nets.actor, nets.critic, nets.critic_twin))
+    trained = (nets.actor, nets.critic, nets.critic_twin)
+    out["norm_penalty"] = sum(net.task.norm_penalty(task) for net in trained)
     return out
 
 

@@ -40,7 +40,7 @@ def _train_parser(sub) -> None:
 
 def _bench_parser(sub) -> None:
     p = sub.add_parser("bench", help="print speed figures")
-    p.add_argument("what", choices=["env", "her", "train", "learn", "tracking", "evaluate"])
+    p.add_argument("what", choices=["env", "her", "train", "learn", "tracking", "evaluate", "rates"])
     p.add_argument("options", nargs=argparse.REMAINDER, help="passed to the benchmark (see --help)")
 
 
@@ -57,7 +57,10 @@ def _sweep_parser(sub) -> None:
     )
     p.add_argument("--storage", default=None, help="override the spec's storage directory")
     p.add_argument("--tracking-uri", default=None, help="override the MLflow tracking URI")
-    p.add_argument("--check", action="store_true", help="validate the spec, list trials, run nothing")
+    p.add_argument(
+        "--check", action="store_true", help="validate the spec, list trials, project the cost; run nothing"
+    )
+    p.add_argument("--cores", type=int, default=64, help="cluster size for the --check wall-time projection")
 
 
 def _zero_shot_parser(sub) -> None:
@@ -191,8 +194,11 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     trials = spec.trials()
     print(f"sweep {spec.name!r}: {len(trials)} training trials")
     if args.check:
+        from ps_ray.cost import describe, project
+
         for trial in trials:
             print(f"  {trial.label()}  {trial.env_steps} env steps")
+        print("\n".join(describe(project(spec, cores_on=args.cores))))
         return 0
     from ps_ray.sweep import run_sweep, sweep_dir
 
@@ -274,12 +280,18 @@ def cmd_few_shot(args: argparse.Namespace) -> int:
 
 
 def cmd_run(args: argparse.Namespace) -> int:
+    from ps_ray.cost import budget_note, project
     from ps_ray.pipeline import run_pipeline
     from ps_ray.sweep import sweep_dir
 
     spec = _load(args)
     started = time.time()
     print(f"sweep {spec.name!r}: stages {', '.join(spec.stages)}; results in {sweep_dir(spec)}")
+    projection = project(spec)
+    print(
+        f"sweep {spec.name!r}: projected {projection.core_s / 3600:.2f} core-hours, about "
+        f"{projection.wall_s_here / 60:.0f} min on this machine ({projection.rates.source})"
+    )
     with _sweep_lock(spec):
         summaries = run_pipeline(spec)
     print(f"sweep {spec.name!r}: all stages done in {(time.time() - started) / 60:.1f} min")
@@ -287,6 +299,9 @@ def cmd_run(args: argparse.Namespace) -> int:
         print(f"report: {sweep_dir(spec) / 'report' / 'index.html'}")
     uri = spec.tracking_uri or f"sqlite:///{sweep_dir(spec) / 'mlflow.db'}"
     print(f"MLflow: .venv/bin/mlflow ui --backend-store-uri {uri}")
+    note = budget_note(spec)
+    if note:
+        print(f"note: {note}")
     return 0
 
 

@@ -94,17 +94,31 @@ def run_few_shot(spec: SweepSpec, *, resume: bool = False, progress: bool = True
     trials = few_shot_trials(spec, settings)
     if not trials:
         raise ValueError(f"{root}: no stitchable pairs (train the sweep first: ps-ray sweep)")
+    tracking = connect(spec)
     return run_tune(
         trials,
         name=TUNE_DIR,
         stage="few_shot",
         spec=spec,
         root=root / FEW_SHOT_DIR,
-        tracking=connect(spec),
+        tracking=tracking,
         resume=resume,
         progress=progress,
         key_fn=lambda trial: trial.config["trial"]["key"],
+        tags_fn=lambda trial, client: _source_tags(trial.config["trial"], client, tracking[1]),
     )
+
+
+def _source_tags(trial: dict, client, experiment_id: str) -> dict[str, str]:
+    """A fine-tuning run of a stitched start names its two sources (their runs) and anchor set."""
+    from ps_ray.tracking import source_tags
+    from ps_ray.weights import read_signature
+
+    start = trial["spec"].get("init_policy")
+    if trial["kind"] != "stitched" or not start:
+        return {}
+    meta = read_signature(start)[1]
+    return source_tags(client, experiment_id, meta["task_from"], meta["robot_from"], start)
 
 
 def curves(results) -> dict[str, list[tuple[int, float]]]:

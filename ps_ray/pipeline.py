@@ -57,6 +57,14 @@ def _read_fingerprint(path: Path) -> str | None:
         return None
 
 
+def stage_wall_s(spec: SweepSpec, stage: str) -> float | None:
+    """Wall seconds of a stage's last finished run, if the pipeline ran it."""
+    try:
+        return float(json.loads(_marker(sweep_dir(spec), stage).read_text())["wall_s"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+
+
 def stage_state(spec: SweepSpec, stage: str) -> str:
     """'done' (skip), 'interrupted' (resume) or 'new' (start afresh)."""
     root, wanted = sweep_dir(spec), fingerprint(spec, stage)

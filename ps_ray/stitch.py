@@ -127,7 +127,8 @@ def resolve_target(
     return robot, task
 
 
-def _arm(robot: str | Mapping) -> tuple[str, tuple[int, ...]]:
+def arm(robot: str | Mapping) -> tuple[str, tuple[int, ...]]:
+    """The arm a robot is: base model and locked joints (a gripper does not make another arm)."""
     spec = resolve_robot(robot)
     return spec.base, spec.locked_joints
 
@@ -310,7 +311,7 @@ def combos(zoo: ModuleZoo, method: str, seed: int, interface_dim: int | None = N
     found = []
     for t in entries:
         for r in entries:
-            if t.key.task == r.key.task or _arm(t.robot) == _arm(r.robot):
+            if t.key.task == r.key.task or arm(t.robot) == arm(r.robot):
                 continue
             target = default_target(t.spec, r.spec)
             if not stitch_problems(t.signature, r.signature, target):

@@ -280,6 +280,7 @@ def run_tune(
     resume: bool,
     progress: bool,
     key_fn=None,
+    tags_fn=None,
 ):
     """Training trials (sweep_trial) as one Tune experiment `root/name`, tracked in MLflow."""
 
@@ -292,6 +293,7 @@ def run_tune(
         tags={"ps_ray.sweep": spec.name, "ps_ray.stage": stage, "git_commit": git_commit() or ""},
         artifacts_fn=_trial_artifacts,
         **({"key_fn": key_fn} if key_fn else {}),
+        tags_fn=tags_fn,
     )
     return run_trials(
         sweep_trial,

@@ -33,6 +33,10 @@ log = logging.getLogger(__name__)
 
 TRIAL_KEY_TAG = "ps_ray.trial_key"
 STAGE_TAG = "ps_ray.stage"
+# a stitched policy's run names its sources' trial keys and MLflow runs, and its anchor set
+TASK_SOURCE_TAG, ROBOT_SOURCE_TAG = "ps_ray.task_module", "ps_ray.robot_module"
+TASK_SOURCE_RUN_TAG, ROBOT_SOURCE_RUN_TAG = "ps_ray.task_module_run", "ps_ray.robot_module_run"
+ANCHOR_HASH_TAG = "ps_ray.anchor_hash"
 GIT_COMMIT_TAG = "git_commit"
 MAX_METRICS_PER_CALL = 1000  # mlflow.utils.validation.MAX_METRICS_PER_BATCH
 MAX_PARAMS_TAGS_PER_CALL = 100  # mlflow.utils.validation.MAX_PARAMS_TAGS_PER_BATCH
@@ -181,16 +185,7 @@ class TrialTracker:
         self._log_params_tags(flat, all_tags)
 
     def _find_run(self):
-        from mlflow.entities import ViewType
-
-        runs = self.client.search_runs(
-            [self.experiment_id],
-            filter_string=_tag_filter(self.trial_key),
-            run_view_type=ViewType.ACTIVE_ONLY,
-            order_by=["attributes.start_time ASC"],
-            max_results=10,
-        )
-        return runs[0] if runs else None
+        return find_run(self.client, self.experiment_id, self.trial_key)
 
     def _create_run(self, tags: Mapping[str, str]) -> str:
         run = self.client.create_run(self.experiment_id, run_name=self.trial_key[:250], tags=tags)
@@ -259,6 +254,36 @@ class TrialTracker:
             raise ValueError(f"status must be one of {', '.join(TERMINAL_STATUSES)}, got {status!r}")
         self.flush()
         self.client.set_terminated(self.run_id, status=status)
+
+
+def find_run(client: MlflowClient, experiment_id: str, trial_key: str):
+    """The run of a trial key in an experiment (the oldest, if a race ever made two), or None."""
+    from mlflow.entities import ViewType
+
+    runs = client.search_runs(
+        [experiment_id],
+        filter_string=_tag_filter(trial_key),
+        run_view_type=ViewType.ACTIVE_ONLY,
+        order_by=["attributes.start_time ASC"],
+        max_results=10,
+    )
+    return runs[0] if runs else None
+
+
+def source_tags(client: MlflowClient, experiment_id: str, task_from: str, robot_from: str, policy) -> dict:
+    """Tags linking a stitched policy's run to the training runs of its two sources (by their
+    trial keys) and naming its anchor set (from ``policy``, a stitched or source policy file)."""
+    from ps_ray.weights import read_signature
+
+    tags = {TASK_SOURCE_TAG: task_from, ROBOT_SOURCE_TAG: robot_from}
+    for key, tag in ((task_from, TASK_SOURCE_RUN_TAG), (robot_from, ROBOT_SOURCE_RUN_TAG)):
+        run = find_run(client, experiment_id, key)
+        if run is not None:
+            tags[tag] = run.info.run_id
+    anchor_hash = read_signature(policy)[0].anchor_hash
+    if anchor_hash:
+        tags[ANCHOR_HASH_TAG] = anchor_hash
+    return tags
 
 
 def _tag_filter(trial_key: str) -> str:
@@ -342,6 +367,7 @@ class MLflowTuneCallback(Callback):
         params_fn: Callable[[Trial], Mapping[str, Any]] = default_params_fn,
         key_fn: Callable[[Trial], str] = default_key_fn,
         tags: Mapping[str, str] | None = None,
+        tags_fn: Callable[[Trial, MlflowClient], Mapping[str, str]] | None = None,
         flush_every: int = 20,
         artifacts_fn: Callable[[Trial], list[Path]] | None = None,
         step_key: str = "training_iteration",
@@ -355,6 +381,7 @@ class MLflowTuneCallback(Callback):
         self.params_fn = params_fn
         self.key_fn = key_fn
         self.tags = dict(tags or {})
+        self.tags_fn = tags_fn
         if GIT_COMMIT_TAG not in self.tags and (commit := git_commit()):
             self.tags[GIT_COMMIT_TAG] = commit
         self.flush_every = flush_every
@@ -383,6 +410,8 @@ class MLflowTuneCallback(Callback):
         key = self.key_fn(trial)
         if key not in self._trackers:
             tags = {**self.tags, "ps_ray.tune_trial_id": trial.trial_id}
+            if self.tags_fn is not None:
+                tags.update(self.tags_fn(trial, self._client))
             self._trackers[key] = TrialTracker(
                 self.tracking_uri,
                 self.experiment_id,

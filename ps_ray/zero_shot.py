@@ -100,7 +100,7 @@ def run_zero_shot(
 
     ``resume`` finishes an interrupted matrix (restores ``tune_zero_shot``)."""
     from ps_ray.sweep import connect
-    from ps_ray.tracking import MLflowTuneCallback, git_commit
+    from ps_ray.tracking import MLflowTuneCallback, git_commit, source_tags
     from ps_ray.trials import run_trials
 
     settings = dataclasses.replace(spec.zero_shot, **overrides)
@@ -108,8 +108,10 @@ def run_zero_shot(
     trials = pairs(spec, list(settings.methods) or None, translate=True)
     if not trials:
         raise ValueError(f"{root}: no stitchable pairs (train the sweep first: ps-ray sweep)")
+    tracking_uri, experiment_id = connect(spec)
     callback = MLflowTuneCallback(
-        *connect(spec),
+        tracking_uri,
+        experiment_id,
         metric_keys=RESULT_KEYS,
         key_fn=lambda trial: (
             f"zero_shot/{trial.config['pair']['method']}/"
@@ -124,6 +126,13 @@ def run_zero_shot(
             | {"episodes": settings.episodes, "repeats": settings.repeats}
         ),
         tags={"ps_ray.sweep": spec.name, "ps_ray.stage": "zero_shot", "git_commit": git_commit() or ""},
+        tags_fn=lambda trial, client: source_tags(
+            client,
+            experiment_id,
+            trial.config["pair"]["task_from"],
+            trial.config["pair"]["robot_from"],
+            trial.config["pair"]["task_from_path"],
+        ),
     )
     results = run_trials(
         zero_shot_trial,

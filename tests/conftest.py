@@ -2,7 +2,9 @@
 
 import os
 import pickle
+import subprocess
 import sys
+import tempfile
 from pathlib import Path
 
 import pytest
@@ -10,6 +12,8 @@ import torch
 
 torch.set_num_threads(1)
 os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
+# No test reads this machine's measured rates (`ps-ray bench rates`): projections use the defaults.
+os.environ["PS_RAY_CACHE"] = tempfile.mkdtemp(prefix="ps_ray_cache_")
 
 
 @pytest.fixture(scope="session")
@@ -77,3 +81,38 @@ def planted(tmp_path):
 
     plant.marker = marker
     return plant
+
+
+# Training settings small enough for a sweep of several trials in a test (real RLlib runs).
+TINY_TRAIN = {
+    "env_steps": 300,
+    "hidden": 32,
+    "learning_starts": 100,
+    "random_episodes": 2,
+    "eval_every": 2,
+    "eval_episodes": 2,
+    "checkpoint_every": 2,
+    "batch_size": 32,
+}
+
+
+@pytest.fixture(scope="session")
+def tiny_train() -> dict:
+    return dict(TINY_TRAIN)
+
+
+def _cli(*args: str, env: dict | None = None, **kwargs) -> subprocess.Popen:
+    return subprocess.Popen(
+        [sys.executable, "-m", "ps_ray.cli", *args],
+        env={**os.environ, **(env or {})},
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        **kwargs,
+    )
+
+
+@pytest.fixture(scope="session")
+def cli():
+    """``cli(*args, env=None, **popen_kwargs)``: ``ps-ray`` in a subprocess, output in one pipe."""
+    return _cli

@@ -8,22 +8,24 @@ import dataclasses
 import hashlib
 import os
 import signal
+import socket
 import subprocess
 import sys
 import time
+import urllib.request
 from pathlib import Path
 
 import matplotlib.image
 import mlflow
 import numpy as np
 import pandas as pd
+import PIL.Image
 import pytest
 
-from ps_ray.analysis.browser import find_chromium
+from ps_ray.analysis.browser import find_chromium, screenshot, visible_text
 from ps_ray.config import load_sweep
+from ps_ray.cost import workload
 from ps_ray.pipeline import stage_state
-
-from .test_sweep import cli
 
 SMOKE = Path(__file__).resolve().parents[1] / "sweeps" / "smoke.yaml"
 FIGURES = {"training_curves", "heatmap_seeds_i16", "heatmap_robots_i16", "zero_shot", "few_shot_curves"} | {
@@ -32,7 +34,7 @@ FIGURES = {"training_curves", "heatmap_seeds_i16", "heatmap_robots_i16", "zero_s
 
 
 @pytest.fixture(scope="module")
-def smoke(tmp_path_factory):
+def smoke(tmp_path_factory, cli):
     """The smoke pipeline, SIGKILLed once its zero-shot stage has started, then run again."""
     storage = tmp_path_factory.mktemp("pipeline") / "sweeps"
     root = storage / "smoke"
@@ -78,6 +80,14 @@ def test_a_killed_pipeline_resumes_without_redoing_finished_work(smoke):
     assert len(_runs(root, "few_shot")) == 4  # one stitched pair per method + their scratch runs
     assert len(pd.read_csv(root / "zero_shot.csv")) == 16
     assert all(stage_state(spec, s) == "done" for s in spec.stages)
+    # the cost projection (`--check`) counted, from the spec alone, the trials each stage ran
+    projected = {load.stage: len(load.trials) for load in workload(spec)}
+    assert projected == {
+        "anchors_plain": len(_runs(root, "anchors_plain")),
+        "train": 16,
+        "zero_shot": 16,
+        "few_shot": 4,
+    }
 
 
 def test_the_terminal_gets_a_compact_view_and_the_log_keeps_tunes_tables(smoke):
@@ -90,9 +100,11 @@ def test_the_terminal_gets_a_compact_view_and_the_log_keeps_tunes_tables(smoke):
     assert any(line.startswith("  few_shot: 4 done, 0 running, 0 failed, 0 pending") for line in lines)
     assert "Trial status" in (root / "logs" / "tune_zero_shot.log").read_text()
     assert "Trial status" in (root / "few_shot" / "logs" / "tune_few_shot.log").read_text()
+    assert any(line.startswith("sweep 'smoke': projected ") and "core-hours" in line for line in lines)
+    assert lines[-1].startswith("note: ") and "near zero by design" in lines[-1]
 
 
-def test_rerunning_a_finished_pipeline_skips_every_stage(smoke):
+def test_rerunning_a_finished_pipeline_skips_every_stage(cli, smoke):
     spec, root, _ = smoke
     before = (root / "report" / "index.html").stat().st_mtime
     proc = cli("run", str(SMOKE), "--storage", str(root.parent))
@@ -122,9 +134,29 @@ def test_report_embeds_every_figure_and_table(smoke):
         assert (
             f"alt='{name}' src='data:image/png;base64,{base64.b64encode(path.read_bytes()).decode()}'" in page
         )
-    for section in ("Training", "Latent alignment", "Zero-shot stitching", "Few-shot fine-tuning"):
+    for section in (
+        "Training",
+        "Latent alignment",
+        "Zero-shot stitching",
+        "Few-shot fine-tuning",
+        "Cost: projected and used",
+    ):
         assert f">{section}</h2>" in page
     assert "Zero-shot results (Table 1 layout)" in page and "task module &amp; robot module" in page
+    assert "near zero by design" in page  # the smoke budget says what it cannot show
+    # rollout clips: 2 stitched pairs x 2 methods x (stitched, task source, robot source), animated
+    gifs = sorted((root / "report" / "clips").glob("*.gif"))
+    assert len(gifs) == 12 and page.count("src='data:image/gif;base64,") == 12
+    first_frames = {}
+    for gif in gifs:
+        with PIL.Image.open(gif) as image:
+            assert image.n_frames >= 20 and image.size == (240, 180), gif.name
+            first_frames[gif.stem] = np.asarray(image.convert("RGB"))
+    for pair in ("pair0", "pair1"):  # the same pair starts from the same state under every method
+        assert np.array_equal(first_frames[f"{pair}_ps"], first_frames[f"{pair}_ablation"])
+    cost = pd.read_csv(root / "report" / "tables" / "cost.csv", index_col=0)
+    assert (cost["attempts (ran)"] >= cost["trials (projected)"]).all()  # a killed attempt is rerun
+    assert (cost["core-hours in trials (used)"] > 0).all()
     distances = pd.read_csv(root / "report" / "tables" / "latent_distances.csv", index_col=0)
     assert set(distances["comparison"]) == {"seeds", "robots"}
     # the paper's finding, which holds even at smoke budgets: relative interfaces agree more
@@ -146,7 +178,7 @@ def _digests(folder: Path) -> dict[str, str]:
     }
 
 
-def test_report_command_is_idempotent(smoke):
+def test_report_command_is_idempotent(cli, smoke):
     _, root, _ = smoke
     outputs = []
     for _ in range(2):
@@ -162,7 +194,7 @@ def test_report_command_is_idempotent(smoke):
     assert {"index.html", "figures", "tables", "interfaces.safetensors"} <= logged
 
 
-def test_report_of_a_folder_that_is_not_a_sweep_fails_with_one_line(tmp_path):
+def test_report_of_a_folder_that_is_not_a_sweep_fails_with_one_line(cli, tmp_path):
     proc = cli("report", str(tmp_path))
     out, _ = proc.communicate(timeout=120)
     assert proc.returncode == 2
@@ -172,7 +204,7 @@ def test_report_of_a_folder_that_is_not_a_sweep_fails_with_one_line(tmp_path):
     )
 
 
-def test_report_opens_in_headless_chromium(smoke, tmp_path):
+def test_report_opens_in_headless_chromium(cli, smoke, tmp_path):
     _, root, _ = smoke
     assert find_chromium(), "Chromium is needed for this check (./run.sh test installs it)"
     shot = tmp_path / "report.png"
@@ -187,9 +219,70 @@ def test_report_opens_in_headless_chromium(smoke, tmp_path):
     top = pixels[:400]
     assert (top < 0.5).any(-1).mean() > 0.002  # the title and overview table are drawn
     assert np.isfinite(pixels).all()
+    text = visible_text(root / "report" / "index.html", wait_ms=0)
+    # the answer comes first: the headline table opens the page, before any training curve
+    assert text.index("Headline per method") < text.index("Greedy success of the sweep's policies during")
+    assert text.index("near zero by design") < text.index("Headline per method")
 
 
-def test_report_of_a_renamed_sweep_folder_fails_with_one_line(tmp_path):
+def _free_port() -> int:
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return sock.getsockname()[1]
+
+
+def test_mlflow_ui_lists_the_runs_and_the_report_artifact(smoke, tmp_path):
+    """`mlflow ui` as the README says to open it, read in headless Chromium."""
+    _, root, _ = smoke
+    assert find_chromium(), "Chromium is needed for this check (./run.sh test installs it)"
+    port = _free_port()
+    mlflow_bin = Path(sys.executable).with_name("mlflow")
+    server = subprocess.Popen(
+        [
+            str(mlflow_bin),
+            "ui",
+            "--backend-store-uri",
+            f"sqlite:///{root / 'mlflow.db'}",
+            "--host",
+            "127.0.0.1",
+            "--port",
+            str(port),
+        ],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+        start_new_session=True,
+    )
+    try:
+        base = f"http://127.0.0.1:{port}"
+        deadline = time.time() + 120
+        while True:
+            try:
+                with urllib.request.urlopen(f"{base}/health", timeout=2):
+                    break
+            except OSError:
+                assert server.poll() is None and time.time() < deadline, "mlflow ui did not start"
+                time.sleep(0.5)
+        client = mlflow.MlflowClient(f"sqlite:///{root / 'mlflow.db'}")
+        experiment = client.get_experiment_by_name("smoke").experiment_id
+        runs = client.search_runs([experiment])
+        listing = visible_text(f"{base}/#/experiments/{experiment}/runs")
+        assert f"{len(runs)} matching runs" in listing
+        for stage in ("report", "zero_shot/ps/", "few_shot/", "scratch/ps/"):
+            assert stage in listing, stage
+        shot = screenshot(
+            f"{base}/#/experiments/{experiment}/runs", tmp_path / "mlflow.png", height=900, wait_ms=20_000
+        )
+        assert (matplotlib.image.imread(shot)[..., :3] < 0.5).any(-1).mean() > 0.01  # drawn, not blank
+        report_run = next(r for r in runs if r.data.tags.get("ps_ray.stage") == "report")
+        artifacts = visible_text(f"{base}/#/experiments/{experiment}/runs/{report_run.info.run_id}/artifacts")
+        for name in ("index.html", "figures", "tables", "runs.json"):
+            assert name in artifacts, name
+    finally:
+        os.killpg(server.pid, signal.SIGTERM)
+        server.wait(timeout=30)
+
+
+def test_report_of_a_renamed_sweep_folder_fails_with_one_line(cli, tmp_path):
     folder = tmp_path / "renamed"
     folder.mkdir()
     (folder / "sweep.yaml").write_text(SMOKE.read_text())  # the spec names sweep 'smoke'

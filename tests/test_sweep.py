@@ -4,8 +4,6 @@ from __future__ import annotations
 
 import os
 import signal
-import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -16,20 +14,9 @@ import yaml
 from ps_ray.config import load_sweep
 from ps_ray.sweep import CRASH_ENV, sweep_dir
 
-TINY_TRAIN = {
-    "env_steps": 300,
-    "hidden": 32,
-    "learning_starts": 100,
-    "random_episodes": 2,
-    "eval_every": 2,
-    "eval_episodes": 2,
-    "checkpoint_every": 2,
-    "batch_size": 32,
-}
-
 
 def write_sweep(
-    tmp_path: Path, name: str, *, methods=("ablation",), seeds=(1, 2), max_concurrent: int = 2
+    tmp_path: Path, name: str, train: dict, *, methods=("ablation",), seeds=(1, 2), max_concurrent: int = 2
 ) -> Path:
     data = {
         "name": name,
@@ -38,7 +25,7 @@ def write_sweep(
         "tasks": ["reach"],
         "seeds": list(seeds),
         "interface_dims": [8],
-        "train": TINY_TRAIN,
+        "train": train,
         "anchors": {"episodes": 12},
         "max_concurrent": max_concurrent,
         "storage": str(tmp_path / "store"),
@@ -62,19 +49,8 @@ def history(path: Path, run, key: str) -> list[tuple[int, float]]:
     return sorted((m.step, m.value) for m in client.get_metric_history(run.info.run_id, key))
 
 
-def cli(*args: str, env: dict | None = None, **kwargs) -> subprocess.Popen:
-    return subprocess.Popen(
-        [sys.executable, "-m", "ps_ray.cli", *args],
-        env={**os.environ, **(env or {})},
-        stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT,
-        text=True,
-        **kwargs,
-    )
-
-
-def test_sweep_tracks_one_mlflow_run_per_trial_with_artifacts(tmp_path):
-    path = write_sweep(tmp_path, "track", methods=("ps", "ablation"), seeds=(1,))
+def test_sweep_tracks_one_mlflow_run_per_trial_with_artifacts(tmp_path, cli, tiny_train):
+    path = write_sweep(tmp_path, "track", tiny_train, methods=("ps", "ablation"), seeds=(1,))
     proc = cli("sweep", str(path))
     out, _ = proc.communicate(timeout=600)
     assert proc.returncode == 0, out[-3000:]
@@ -96,8 +72,10 @@ def test_sweep_tracks_one_mlflow_run_per_trial_with_artifacts(tmp_path):
     assert any(a.startswith("anchors_3d") for a in ps_artifacts)
 
 
-def test_resume_after_sigkill_finishes_only_missing_trials_and_never_unpickles(tmp_path, planted):
-    path = write_sweep(tmp_path, "killed", seeds=(1, 2, 3), max_concurrent=1)
+def test_resume_after_sigkill_reruns_only_missing_trials_and_never_unpickles(
+    tmp_path, cli, tiny_train, planted
+):
+    path = write_sweep(tmp_path, "killed", tiny_train, seeds=(1, 2, 3), max_concurrent=1)
     proc = cli("sweep", str(path), start_new_session=True)
     deadline = time.time() + 300
     while time.time() < deadline:
@@ -128,8 +106,8 @@ def test_resume_after_sigkill_finishes_only_missing_trials_and_never_unpickles(t
     assert not planted.marker.exists(), "a planted pickle was loaded on resume"
 
 
-def test_crashed_trial_is_retried_from_its_checkpoint(tmp_path):
-    path = write_sweep(tmp_path, "crash", seeds=(1,))
+def test_crashed_trial_is_retried_from_its_checkpoint(tmp_path, cli, tiny_train):
+    path = write_sweep(tmp_path, "crash", tiny_train, seeds=(1,))
     marker = tmp_path / "crashed"
     proc = cli("sweep", str(path), env={CRASH_ENV: str(marker)})
     out, _ = proc.communicate(timeout=600)
@@ -146,13 +124,13 @@ def test_crashed_trial_is_retried_from_its_checkpoint(tmp_path):
     assert steps == sorted(set(steps))
 
 
-def test_trials_spread_over_two_nodes(tmp_path):
+def test_trials_spread_over_two_nodes(tmp_path, tiny_train):
     import ray
     from ray.cluster_utils import Cluster
 
     from ps_ray.sweep import run_sweep
 
-    path = write_sweep(tmp_path, "nodes", seeds=(1, 2))
+    path = write_sweep(tmp_path, "nodes", tiny_train, seeds=(1, 2))
     if ray.is_initialized():  # the session's single-node instance
         ray.shutdown()
     cluster = Cluster(initialize_head=True, head_node_args={"num_cpus": 1})

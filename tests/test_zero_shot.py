@@ -14,11 +14,9 @@ from ps_ray.sweep import run_sweep, sweep_dir
 from ps_ray.weights import read_signature
 from ps_ray.zero_shot import pairs, run_zero_shot, summary
 
-from .test_sweep import TINY_TRAIN
-
 
 @pytest.fixture(scope="module")
-def trained_matrix(tmp_path_factory, ray_local):
+def trained_matrix(tmp_path_factory, ray_local, tiny_train):
     tmp_path = tmp_path_factory.mktemp("matrix")
     path = tmp_path / "matrix.yaml"
     path.write_text(
@@ -30,7 +28,7 @@ def trained_matrix(tmp_path_factory, ray_local):
                 "tasks": [{"name": "reach", "goal_region": "q1"}, {"name": "reach", "goal_region": "q3"}],
                 "seeds": [1],
                 "interface_dims": [8],
-                "train": TINY_TRAIN,
+                "train": tiny_train,
                 "max_concurrent": 2,
                 "storage": str(tmp_path / "store"),
             }
@@ -47,7 +45,9 @@ def test_zero_shot_matrix_of_a_sweep(trained_matrix):
     # task module of (region X, arm A) with robot module of (region Y != X, arm B != A)
     assert len(found) == 4
     for pair in found:
-        assert pair["task"] != "reach" and pair["robot"] in ("panda", "panda_l3")
+        assert pair["task"]["name"] == "reach" and pair["robot"] in ("panda", "panda_l3")
+        task_source_task, robot_source_task = pair["fit_tasks"]
+        assert pair["task"] == task_source_task != robot_source_task  # the task module's task
         assert pair["task_from"].split("/")[1] != pair["robot"]
 
     table = run_zero_shot(spec, episodes=4, repeats=2, progress=False)
@@ -58,8 +58,20 @@ def test_zero_shot_matrix_of_a_sweep(trained_matrix):
 
     client = mlflow.MlflowClient(f"sqlite:///{sweep_dir(spec) / 'mlflow.db'}")
     experiment = client.get_experiment_by_name("matrix")
-    stages = [r.data.tags["ps_ray.stage"] for r in client.search_runs([experiment.experiment_id])]
+    found_runs = client.search_runs([experiment.experiment_id])
+    stages = [r.data.tags["ps_ray.stage"] for r in found_runs]
     assert stages.count("zero_shot") == 4 and stages.count("train") == 4
+    # each stitched pair's run links to the training runs of its two sources
+    train_runs = {
+        r.data.tags["ps_ray.trial_key"]: r.info.run_id
+        for r in found_runs
+        if r.data.tags["ps_ray.stage"] == "train"
+    }
+    for run in (r for r in found_runs if r.data.tags["ps_ray.stage"] == "zero_shot"):
+        tags = run.data.tags
+        assert tags["ps_ray.task_module_run"] == train_runs[tags["ps_ray.task_module"]]
+        assert tags["ps_ray.robot_module_run"] == train_runs[tags["ps_ray.robot_module"]]
+        assert tags["ps_ray.task_module"] != tags["ps_ray.robot_module"]
 
 
 def test_few_shot_trials_start_from_stitched_weights_beside_scratch_runs(trained_matrix):

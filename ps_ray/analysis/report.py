@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import base64
 import html
+import os
 import shutil
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -19,7 +20,8 @@ from pathlib import Path
 
 import pandas as pd
 
-from ps_ray.analysis import latent, plots, results, tables
+from ps_ray.analysis import clips, latent, plots, results, tables
+from ps_ray.atomic import fsync_dir, write_text
 from ps_ray.config import SweepSpec, short_name
 
 REPORT_DIR = "report"
@@ -30,9 +32,8 @@ REPORT_RUN = "report"  # the MLflow run's trial key
 class Section:
     title: str
     intro: str = ""
-    items: list[tuple[str, object]] = field(
-        default_factory=list
-    )  # ("figure", Path) | ("table", (caption, frame))
+    # ("figure", Path) | ("table", (caption, frame)) | ("clips", (pair label, [Clip, ...]))
+    items: list[tuple[str, object]] = field(default_factory=list)
 
 
 @dataclass
@@ -80,15 +81,28 @@ def build_report(spec: SweepSpec, *, progress: bool = True, log_to_mlflow: bool 
     _latent(report, spec, root, say)
     _zero_shot(report, root, target, say)
     _few_shot(report, root, say)
+    _clips(report, spec, say)
+    _cost(report, spec, root)
     _summary(report, spec, target)
-    (partial / "index.html").write_text(render_html(spec, report))
+    write_text(partial / "index.html", render_html(spec, report))
+    _swap_in(partial, root / REPORT_DIR)
     final = root / REPORT_DIR
-    shutil.rmtree(final, ignore_errors=True)
-    partial.rename(final)
     if log_to_mlflow:
         log_report(spec, final, report.metrics)
         say(f"report: logged to MLflow run {REPORT_RUN!r} of experiment {spec.name!r}")
     return final / "index.html"
+
+
+def _swap_in(new: Path, final: Path) -> None:
+    """Replace the folder ``final`` by ``new`` with renames only: at every moment a complete
+    report exists (``final``, or ``<final>.old`` between the two renames)."""
+    old = final.with_name(f"{final.name}.old")
+    shutil.rmtree(old, ignore_errors=True)
+    if final.exists():
+        os.replace(final, old)
+    os.replace(new, final)
+    fsync_dir(final.parent)
+    shutil.rmtree(old, ignore_errors=True)
 
 
 # -- sections -------------------------------------------------------------------------------------
@@ -353,6 +367,56 @@ def _few_shot(report: Report, root: Path, say) -> None:
     say(f"report: few-shot curves of {frame['run'].nunique()} runs")
 
 
+def _clips(report: Report, spec: SweepSpec, say) -> None:
+    """GIFs of the same stitched pairs and start state under every method, beside their sources."""
+    if "zero_shot" not in spec.stages:
+        return
+    rows = clips.stitched_clips(spec, report.root / "clips")
+    if not rows:
+        return
+    section = report.section(
+        "Rollouts",
+        "One episode per policy from the same start state (env seed "
+        f"{clips.START_SEED}): each stitched pair under every method in its target env, then the "
+        "task-module source and the robot-module source in their own envs. Captions say whether "
+        "the episode ended at the goal.",
+    )
+    section.items += [("clips", row) for row in rows]
+    say(f"report: {sum(len(c) for _, c in rows)} rollout clips of {len(rows)} stitched pair(s)")
+
+
+def _cost(report: Report, spec: SweepSpec, root: Path) -> None:
+    """The cost `--check` projected beside what the stages used."""
+    from ps_ray import cost
+    from ps_ray.pipeline import stage_wall_s
+
+    projection = cost.project(spec)
+    used = cost.spent(root)
+    rows = {}
+    for load in projection.loads:
+        attempts, core_s = used.get(load.stage, (0, 0.0))
+        rows[load.stage] = {
+            "trials (projected)": len(load.trials),
+            "core-hours (projected)": round(sum(cost.trial_seconds(load, projection.rates)) / 3600, 3),
+            "attempts (ran)": attempts,
+            "core-hours in trials (used)": round(core_s / 3600, 3),
+        }
+    if not any(r["attempts (ran)"] for r in rows.values()):
+        return
+    walls = [w for stage in spec.stages if stage != "report" and (w := stage_wall_s(spec, stage)) is not None]
+    measured = f"measured {sum(walls) / 60:.1f} min over the pipeline's stages" if walls else "not measured"
+    section = report.section(
+        "Cost: projected and used",
+        f"Projected by `ps-ray sweep --check` from {projection.rates.source}: "
+        f"{projection.core_s / 3600:.2f} core-hours, wall time {projection.wall_s_here / 60:.1f} min "
+        f"on {projection.cores_here} cores; {measured}. Used core-hours count time inside trials "
+        "only (starting Ray workers and stages is not in them), over every attempt.",
+    )
+    frame = pd.DataFrame.from_dict(rows, orient="index")
+    frame.index.name = "stage"
+    report.table(section, "cost", "Projected and used cost per stage", frame)
+
+
 def _summary(report: Report, spec: SweepSpec, target: float) -> None:
     """The answer first: per method, zero-shot success and touching with CIs, cross-robot
     alignment and training success, with the budget in one sentence; put at the top."""
@@ -408,6 +472,10 @@ def _summary(report: Report, spec: SweepSpec, target: float) -> None:
         )
         + ". "
     )
+    from ps_ray.cost import budget_note
+
+    note = budget_note(spec)
+    budget += f"{note} " if note else ""
     section = Section(
         "Summary",
         budget + "Zero-shot: stitched pairs in their target env, no "
@@ -431,6 +499,8 @@ table { border-collapse: collapse; margin: 0.5em 0 1.5em; font-size: 0.9em; }
 th, td { border: 1px solid #ccc; padding: 3px 8px; text-align: right; }
 th { background: #f0f0f0; } caption { font-weight: bold; text-align: left; padding: 4px 0; }
 img { max-width: 100%; display: block; margin: 1em 0; } .meta td { text-align: left; }
+.clips { display: flex; flex-wrap: wrap; gap: 8px; } .clips figure { margin: 0; width: 240px; }
+.clips img { margin: 0; } figcaption { font-size: 0.8em; }
 """
 
 
@@ -467,6 +537,17 @@ def render_html(spec: SweepSpec, report: Report) -> str:
             if kind == "figure":
                 data = base64.b64encode(item.read_bytes()).decode()
                 parts.append(f"<img alt='{esc(item.stem)}' src='data:image/png;base64,{data}'>")
+            elif kind == "clips":
+                label, row = item
+                parts.append(f"<h3>{esc(label)}</h3><div class='clips'>")
+                for clip in row:
+                    data = base64.b64encode(clip.path.read_bytes()).decode()
+                    verdict = "reached the goal" if clip.success else "did not reach the goal"
+                    parts.append(
+                        f"<figure><img alt='{esc(clip.path.stem)}' src='data:image/gif;base64,{data}'>"
+                        f"<figcaption>{esc(clip.caption)}: {verdict}</figcaption></figure>"
+                    )
+                parts.append("</div>")
             else:
                 caption, frame = item
                 head, rest = frame.to_html(border=0, na_rep="–").split(">", 1)
@@ -496,5 +577,27 @@ def log_report(spec: SweepSpec, report_dir: Path, metrics: dict[str, float]) -> 
     tracker.log_metrics({k.replace("+", "-"): v for k, v in metrics.items()}, step=0)
     for path in sorted(report_dir.iterdir()):
         tracker.log_artifact(path)
+    tracker.log_dict(_run_index(tracker.client, experiment, tracker.run_id), "runs.json")
     tracker.close()
     return tracker.run_id
+
+
+def _run_index(client, experiment_id: str, report_run: str) -> dict[str, dict[str, dict[str, str]]]:
+    """Every run the report summarises, by stage and trial key: its run id, and for a stitched
+    policy the runs of its two sources (``runs.json`` in the report run)."""
+    from ps_ray.tracking import ROBOT_SOURCE_RUN_TAG, STAGE_TAG, TASK_SOURCE_RUN_TAG, TRIAL_KEY_TAG
+
+    index: dict[str, dict[str, dict[str, str]]] = {}
+    for run in client.search_runs([experiment_id], max_results=50_000):
+        tags = run.data.tags
+        if run.info.run_id == report_run or TRIAL_KEY_TAG not in tags:
+            continue
+        entry = {"run_id": run.info.run_id}
+        for name, tag in (
+            ("task_module_run", TASK_SOURCE_RUN_TAG),
+            ("robot_module_run", ROBOT_SOURCE_RUN_TAG),
+        ):
+            if tag in tags:
+                entry[name] = tags[tag]
+        index.setdefault(tags.get(STAGE_TAG, "unknown"), {})[tags[TRIAL_KEY_TAG]] = entry
+    return index

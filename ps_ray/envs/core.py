@@ -51,6 +51,7 @@ class RobotTaskEnv(gym.Env[Obs, np.ndarray]):
         *,
         render_mode: str | None = None,
         max_episode_steps: int = EPISODE_STEPS,
+        render_size: tuple[int, int] = (Camera.width, Camera.height),
         **task_options: Any,
     ) -> None:
         if render_mode not in (None, *self.metadata["render_modes"]):
@@ -64,7 +65,7 @@ class RobotTaskEnv(gym.Env[Obs, np.ndarray]):
         self.sim = Sim()
         self.robot = Panda(self.sim, self.robot_spec, gripper)
         self.task = self.task_spec.family(self.sim, self.task_spec.options)
-        self.camera = Camera()
+        self.camera = Camera(width=render_size[0], height=render_size[1])
         self.action_space = spaces.Box(-1.0, 1.0, shape=(self.robot.action_dim,), dtype=np.float32)
         self.observation_space = spaces.Dict(
             {
@@ -146,6 +147,7 @@ def make(
     """``make("panda_l3", "push")``, ``make({"base": "panda", "locked_joints": [1]}, "reach")``,
     ``make("panda", {"name": "push", "object_friction": 0.3})``, ``make(task="reach", goal_region="q2")``.
 
-    Keyword arguments are ``render_mode``, ``max_episode_steps`` or task options.
+    Keyword arguments are ``render_mode``, ``render_size`` (width, height), ``max_episode_steps``
+    or task options.
     """
     return RobotTaskEnv(robot, task, **kwargs)

@@ -13,6 +13,30 @@ from .core import RobotTaskEnv, make
 Policy = Callable[[dict[str, np.ndarray]], np.ndarray]
 
 
+def rollout(
+    env: RobotTaskEnv,
+    policy: Policy | None = None,
+    seed: int | None = 0,
+    steps: int | None = None,
+    every: int = 1,
+) -> tuple[list[np.ndarray], bool]:
+    """Run one episode (``policy(obs) -> action``; random actions if None); returns RGB frames,
+    the initial one and then one every ``every`` steps, and whether the last step succeeded.
+    ``env`` needs ``render_mode="rgb_array"``."""
+    obs, _ = env.reset(seed=seed)
+    env.action_space.seed(seed)
+    frames, success = [env.render()], False
+    for t in range(steps or env.max_episode_steps):
+        action = env.action_space.sample() if policy is None else policy(obs)
+        obs, _, terminated, truncated, info = env.step(action)
+        success = bool(info["is_success"])
+        if (t + 1) % every == 0:
+            frames.append(env.render())
+        if terminated or truncated:
+            break
+    return frames, success
+
+
 def rollout_frames(
     env: RobotTaskEnv,
     policy: Policy | None = None,
@@ -20,19 +44,8 @@ def rollout_frames(
     steps: int | None = None,
     every: int = 1,
 ) -> list[np.ndarray]:
-    """Run one episode (``policy(obs) -> action``; random actions if None) and return RGB frames,
-    the initial one and then one every ``every`` steps. ``env`` needs ``render_mode="rgb_array"``."""
-    obs, _ = env.reset(seed=seed)
-    env.action_space.seed(seed)
-    frames = [env.render()]
-    for t in range(steps or env.max_episode_steps):
-        action = env.action_space.sample() if policy is None else policy(obs)
-        obs, _, terminated, truncated, _ = env.step(action)
-        if (t + 1) % every == 0:
-            frames.append(env.render())
-        if terminated or truncated:
-            break
-    return frames
+    """The frames of :func:`rollout`."""
+    return rollout(env, policy, seed, steps, every)[0]
 
 
 def save_png(frame: np.ndarray, path: str | Path) -> Path:

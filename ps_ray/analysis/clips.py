@@ -1,0 +1,71 @@
+"""Rollout clips for the report: the same stitched pairs, from the same start state, under every
+method, beside the two source policies each was built from; small GIFs rendered headless."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+from ps_ray.config import SweepSpec, short_name
+
+CLIP_SIZE = (240, 180)  # pixels; every second step, so a clip is about 26 frames
+START_SEED = 0  # the env reset every clip starts from
+
+
+@dataclass(frozen=True)
+class Clip:
+    caption: str
+    path: Path
+    success: bool
+
+
+def _clip(policy_file_or_nets, robot, task, path: Path, caption: str) -> Clip:
+    from ps_ray.envs import make
+    from ps_ray.envs.render import rollout, save_gif
+    from ps_ray.policy import GreedyPolicy
+
+    actor = policy_file_or_nets.actor if hasattr(policy_file_or_nets, "actor") else None
+    policy = GreedyPolicy(actor) if actor is not None else GreedyPolicy.from_file(policy_file_or_nets)
+    env = make(robot, task, render_mode="rgb_array", render_size=CLIP_SIZE)
+    try:
+        frames, success = rollout(env, policy, seed=START_SEED, every=2)
+        fps = env.metadata["render_fps"] / 2
+    finally:
+        env.close()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    save_gif(frames, path, fps=fps)
+    return Clip(caption, path, success)
+
+
+def stitched_clips(spec: SweepSpec, out_dir: Path, pairs_per_method: int = 2) -> list[tuple[str, list[Clip]]]:
+    """Rows of clips: per chosen pair (the first ``pairs_per_method`` that every method has, at the
+    first seed), each method's stitched policy in the target env, then its two sources in their
+    own envs. Returns (pair label, clips) rows; empty when the sweep has no stitchable pairs."""
+    from ps_ray.stitch import stitch_policies
+    from ps_ray.sweep import sweep_dir
+    from ps_ray.zero_shot import pairs
+    from ps_ray.zoo import ModuleZoo
+
+    methods = list(spec.zero_shot.methods) or list(spec.methods)
+    found: dict[str, dict[str, dict]] = {}
+    for pair in pairs(spec, methods):
+        if pair["seed"] == spec.seeds[0]:
+            found.setdefault(pair["label"], {})[pair["method"]] = pair
+    labels = [label for label, by_method in found.items() if set(methods) <= set(by_method)]
+    sources = {str(e.key): e for e in ModuleZoo.from_sweep(sweep_dir(spec))}
+    rows = []
+    for number, label in enumerate(labels[:pairs_per_method]):
+        clips = []
+        for method in methods:
+            pair = found[label][method]
+            nets, _ = stitch_policies(pair["task_from_path"], pair["robot_from_path"])
+            stem = f"pair{number}_{method}"
+            path = out_dir / f"{stem}.gif"
+            clips.append(_clip(nets, pair["robot"], pair["task"], path, f"{method}: stitched"))
+            for role, key in (("task source", pair["task_from"]), ("robot source", pair["robot_from"])):
+                entry = sources[key]
+                caption = f"{method}: {role} ({short_name(entry.robot)}, {short_name(entry.task)})"
+                path = out_dir / f"{stem}_{role.split()[0]}.gif"
+                clips.append(_clip(entry.path, entry.robot, entry.task, path, caption))
+        rows.append((label, clips))
+    return rows

@@ -12,14 +12,19 @@ CLIP_SIZE = (240, 180)  # pixels; every second step, so a clip is about 26 frame
 START_SEED = 0  # the env reset every clip starts from
 
 
+ROLES = ("stitched", "task source", "robot source")
+
+
 @dataclass(frozen=True)
 class Clip:
-    caption: str
+    method: str
+    role: str  # one of ROLES
+    env: str  # robot and task it ran in
     path: Path
     success: bool
 
 
-def _clip(policy_file_or_nets, robot, task, path: Path, caption: str) -> Clip:
+def _clip(policy_file_or_nets, robot, task, path: Path, method: str, role: str) -> Clip:
     from ps_ray.envs import make
     from ps_ray.envs.render import rollout, save_gif
     from ps_ray.policy import GreedyPolicy
@@ -34,7 +39,7 @@ def _clip(policy_file_or_nets, robot, task, path: Path, caption: str) -> Clip:
         env.close()
     path.parent.mkdir(parents=True, exist_ok=True)
     save_gif(frames, path, fps=fps)
-    return Clip(caption, path, success)
+    return Clip(method, role, f"{short_name(robot)}, {short_name(task)}", path, success)
 
 
 def stitched_clips(spec: SweepSpec, out_dir: Path, pairs_per_method: int = 2) -> list[tuple[str, list[Clip]]]:
@@ -61,11 +66,10 @@ def stitched_clips(spec: SweepSpec, out_dir: Path, pairs_per_method: int = 2) ->
             nets, _ = stitch_policies(pair["task_from_path"], pair["robot_from_path"])
             stem = f"pair{number}_{method}"
             path = out_dir / f"{stem}.gif"
-            clips.append(_clip(nets, pair["robot"], pair["task"], path, f"{method}: stitched"))
+            clips.append(_clip(nets, pair["robot"], pair["task"], path, method, "stitched"))
             for role, key in (("task source", pair["task_from"]), ("robot source", pair["robot_from"])):
                 entry = sources[key]
-                caption = f"{method}: {role} ({short_name(entry.robot)}, {short_name(entry.task)})"
                 path = out_dir / f"{stem}_{role.split()[0]}.gif"
-                clips.append(_clip(entry.path, entry.robot, entry.task, path, caption))
+                clips.append(_clip(entry.path, entry.robot, entry.task, path, method, role))
         rows.append((label, clips))
     return rows

@@ -378,8 +378,8 @@ def _clips(report: Report, spec: SweepSpec, say) -> None:
         "Rollouts",
         "One episode per policy from the same start state (env seed "
         f"{clips.START_SEED}): each stitched pair under every method in its target env, then the "
-        "task-module source and the robot-module source in their own envs. Captions say whether "
-        "the episode ended at the goal.",
+        "task-module source and the robot-module source in their own envs. Captions name the env "
+        "(robot, task) and say whether the episode ended at the goal.",
     )
     section.items += [("clips", row) for row in rows]
     say(f"report: {sum(len(c) for _, c in rows)} rollout clips of {len(rows)} stitched pair(s)")
@@ -499,8 +499,8 @@ table { border-collapse: collapse; margin: 0.5em 0 1.5em; font-size: 0.9em; }
 th, td { border: 1px solid #ccc; padding: 3px 8px; text-align: right; }
 th { background: #f0f0f0; } caption { font-weight: bold; text-align: left; padding: 4px 0; }
 img { max-width: 100%; display: block; margin: 1em 0; } .meta td { text-align: left; }
-.clips { display: flex; flex-wrap: wrap; gap: 8px; } .clips figure { margin: 0; width: 240px; }
-.clips img { margin: 0; } figcaption { font-size: 0.8em; }
+.clips td { text-align: left; vertical-align: top; width: 240px; } .clips img { margin: 0; }
+.caption { font-size: 0.8em; }
 """
 
 
@@ -539,15 +539,19 @@ def render_html(spec: SweepSpec, report: Report) -> str:
                 parts.append(f"<img alt='{esc(item.stem)}' src='data:image/png;base64,{data}'>")
             elif kind == "clips":
                 label, row = item
-                parts.append(f"<h3>{esc(label)}</h3><div class='clips'>")
-                for clip in row:
-                    data = base64.b64encode(clip.path.read_bytes()).decode()
-                    verdict = "reached the goal" if clip.success else "did not reach the goal"
-                    parts.append(
-                        f"<figure><img alt='{esc(clip.path.stem)}' src='data:image/gif;base64,{data}'>"
-                        f"<figcaption>{esc(clip.caption)}: {verdict}</figcaption></figure>"
-                    )
-                parts.append("</div>")
+                parts.append(f"<h3>{esc(label)}</h3><table class='clips'><tr><th>method</th>")
+                parts += [f"<th>{esc(role)}</th>" for role in clips.ROLES]
+                for method in dict.fromkeys(c.method for c in row):
+                    parts.append(f"<tr><th>{esc(method)}</th>")
+                    for clip in (c for c in row if c.method == method):
+                        data = base64.b64encode(clip.path.read_bytes()).decode()
+                        verdict = "reached the goal" if clip.success else "did not reach the goal"
+                        parts.append(
+                            f"<td><img alt='{esc(clip.path.stem)}' src='data:image/gif;base64,{data}'>"
+                            f"<div class='caption'>{esc(clip.env)}: {verdict}</div></td>"
+                        )
+                    parts.append("</tr>")
+                parts.append("</table>")
             else:
                 caption, frame = item
                 head, rest = frame.to_html(border=0, na_rep="–").split(">", 1)

@@ -218,11 +218,12 @@ def _load(args: argparse.Namespace):
 
     path = Path(args.sweep)
     if path.is_dir():  # a sweep folder: its resolved spec, stored where the folder is
-        from ps_ray.sweep import SPEC_FILE
+        from ps_ray.layout import SweepLayout
 
-        if not (path / SPEC_FILE).exists():
-            raise ValueError(f"{path}: not a sweep folder (no {SPEC_FILE})")
-        spec = dataclasses.replace(load_sweep(path / SPEC_FILE), storage=str(path.resolve().parent))
+        spec_file = SweepLayout(path).spec_file
+        if not spec_file.exists():
+            raise ValueError(f"{path}: not a sweep folder (no {spec_file.name})")
+        spec = dataclasses.replace(load_sweep(spec_file), storage=str(path.resolve().parent))
         if spec.name != path.resolve().name:
             raise ValueError(
                 f"{path}: holds sweep {spec.name!r}; a sweep folder must keep its "
@@ -283,6 +284,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     from ps_ray.cost import budget_note, project
     from ps_ray.pipeline import run_pipeline
     from ps_ray.sweep import sweep_dir
+    from ps_ray.tracking import default_tracking_uri
 
     spec = _load(args)
     started = time.time()
@@ -297,7 +299,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     print(f"sweep {spec.name!r}: all stages done in {(time.time() - started) / 60:.1f} min")
     if "report" in summaries:
         print(f"report: {sweep_dir(spec) / 'report' / 'index.html'}")
-    uri = spec.tracking_uri or f"sqlite:///{sweep_dir(spec) / 'mlflow.db'}"
+    uri = spec.tracking_uri or default_tracking_uri(sweep_dir(spec))
     print(f"MLflow: .venv/bin/mlflow ui --backend-store-uri {uri}")
     note = budget_note(spec)
     if note:

@@ -124,10 +124,6 @@ class TrainSpec:
         """What defines the policy being trained; budget and reporting settings may change on resume."""
         return {k: v for k, v in self.to_dict().items() if k not in RESUMABLE_CHANGES}
 
-    def digest(self) -> str:
-        """Stable hash of the identity: a run directory belongs to exactly one policy."""
-        return hashlib.sha256(json.dumps(self.identity(), sort_keys=True).encode()).hexdigest()[:16]
-
     def label(self) -> str:
         return trial_key(self.to_dict())
 

@@ -20,6 +20,7 @@ from pathlib import Path
 
 from ps_ray.config import SpecError, SweepSpec, TrainSpec
 from ps_ray.envs import EPISODE_STEPS
+from ps_ray.layout import SweepLayout
 
 
 @dataclass(frozen=True)
@@ -243,28 +244,13 @@ def describe(p: Projection) -> list[str]:
     return lines
 
 
-def stage_folders(root: Path) -> dict[str, Path]:
-    """Each stage's Tune experiment folder in a sweep folder."""
-    from ps_ray.few_shot import FEW_SHOT_DIR
-    from ps_ray.few_shot import TUNE_DIR as FEW_SHOT_TUNE
-    from ps_ray.sweep import PLAIN_TUNE_DIR, TUNE_DIR
-    from ps_ray.zero_shot import TUNE_DIR as ZERO_SHOT_TUNE
-
-    return {
-        "anchors_plain": root / PLAIN_TUNE_DIR,
-        "train": root / TUNE_DIR,
-        "zero_shot": root / ZERO_SHOT_TUNE,
-        "few_shot": root / FEW_SHOT_DIR / FEW_SHOT_TUNE,
-    }
-
-
 def spent(root: Path) -> dict[str, tuple[int, float]]:
     """What each stage of a sweep folder actually used: (attempts, core-seconds inside trials,
     from the last result of every attempt, retries and resumed attempts included)."""
     from ps_ray.trials import PARAMS_FILE, read_rows
 
     out = {}
-    for stage, folder in stage_folders(root).items():
+    for stage, folder in SweepLayout(root).stage_folders().items():
         attempts = [p.parent for p in sorted(folder.glob(f"*/{PARAMS_FILE}"))]
         if attempts:
             lasts = [rows[-1] for a in attempts if (rows := read_rows(a))]

@@ -15,10 +15,7 @@ from typing import Any
 
 from ps_ray.config import FewShotSpec, SweepSpec, TrainSpec, trial_key
 from ps_ray.nets.modular import uses_anchors
-from ps_ray.sweep import anchor_path, sweep_dir, task_input_dim
-
-FEW_SHOT_DIR = "few_shot"
-TUNE_DIR = "tune_few_shot"
+from ps_ray.sweep import layout, sweep_dir, task_input_dim
 
 
 def few_shot_trials(spec: SweepSpec, settings: FewShotSpec) -> list[dict[str, Any]]:
@@ -27,7 +24,6 @@ def few_shot_trials(spec: SweepSpec, settings: FewShotSpec) -> list[dict[str, An
     from ps_ray.weights import save_policy
     from ps_ray.zero_shot import pairs
 
-    root = sweep_dir(spec) / FEW_SHOT_DIR
     selected, taken = [], Counter()
     for pair in pairs(spec, list(settings.methods) or None):
         if settings.max_pairs is None or taken[pair["method"]] < settings.max_pairs:
@@ -37,7 +33,7 @@ def few_shot_trials(spec: SweepSpec, settings: FewShotSpec) -> list[dict[str, An
     for pair in selected:
         nets, signature = stitch_policies(pair["task_from_path"], pair["robot_from_path"])
         digest = hashlib.sha256(f"{pair['task_from']}|{pair['robot_from']}".encode()).hexdigest()
-        path = root / "stitched" / f"{digest[:16]}.safetensors"
+        path = layout(spec).stitched / f"{digest[:16]}.safetensors"
         if not path.exists():  # a resumed stage keeps the files its trials started from
             save_policy(
                 path,
@@ -76,7 +72,7 @@ def few_shot_trials(spec: SweepSpec, settings: FewShotSpec) -> list[dict[str, An
                 "key": f"scratch/{key}",
                 "label": key,
                 "kind": "scratch",
-                "anchors": str(anchor_path(sweep_dir(spec), task_input_dim(base.task), base.interface_dim))
+                "anchors": str(layout(spec).anchor_set(task_input_dim(base.task), base.interface_dim))
                 if uses_anchors(base.method)
                 else None,
             }
@@ -97,10 +93,9 @@ def run_few_shot(spec: SweepSpec, *, resume: bool = False, progress: bool = True
     tracking = connect(spec)
     return run_tune(
         trials,
-        name=TUNE_DIR,
+        folder=layout(spec).tune_few_shot,
         stage="few_shot",
         spec=spec,
-        root=root / FEW_SHOT_DIR,
         tracking=tracking,
         resume=resume,
         progress=progress,

@@ -14,7 +14,7 @@ Pure numpy: no torch, no Ray. Checkpoints are plain ``.npz`` files read with
 from __future__ import annotations
 
 import json
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -22,22 +22,12 @@ import numpy as np
 
 from ps_ray.atomic import atomic_file
 
-__all__ = ["HindsightReplay", "ObsSpec", "RewardFn", "stack_episodes"]
+__all__ = ["HindsightReplay", "ObsSpec", "RewardFn"]
 
 ObsSpec = Mapping[str, tuple[tuple[int, ...], Any]]  # key -> (per-step shape, dtype-like)
 RewardFn = Callable[[np.ndarray, np.ndarray], np.ndarray]  # (achieved (N,G), goal (N,G)) -> (N,)
 
 _FORMAT = "ps_ray.HindsightReplay/1"
-
-
-def stack_episodes(
-    episodes: Sequence[Mapping[str, np.ndarray]], action_key: str = "actions"
-) -> tuple[dict[str, np.ndarray], np.ndarray]:
-    """Stack per-episode dicts ({key: (T+1, *shape)}, action_key: (T, A)) into add_episodes input."""
-    if not episodes:
-        raise ValueError("stack_episodes: no episodes given")
-    obs = {k: np.stack([ep[k] for ep in episodes]) for k in episodes[0] if k != action_key}
-    return obs, np.stack([ep[action_key] for ep in episodes])
 
 
 class HindsightReplay:

@@ -23,9 +23,8 @@ from pathlib import Path
 
 from ps_ray.atomic import write_text
 from ps_ray.config import STAGES, SweepSpec
-from ps_ray.sweep import raise_on_errors, sweep_dir
-
-MARKER_DIR = "stages"
+from ps_ray.layout import SweepLayout
+from ps_ray.sweep import layout, raise_on_errors, sweep_dir
 
 # The settings each stage's outputs depend on, besides those of the earlier stages.
 STAGE_SETTINGS = {"train": None, "zero_shot": "zero_shot", "few_shot": "few_shot", "report": "report"}
@@ -43,7 +42,7 @@ def fingerprint(spec: SweepSpec, stage: str) -> str:
 
 
 def _marker(root: Path, stage: str, suffix: str = "") -> Path:
-    return root / MARKER_DIR / f"{stage}{suffix}.json"
+    return SweepLayout(root).stages / f"{stage}{suffix}.json"
 
 
 def _write_json(path: Path, data: dict) -> None:
@@ -84,20 +83,20 @@ def _train(spec: SweepSpec, resume: bool, progress: bool) -> str:
 
 
 def _zero_shot(spec: SweepSpec, resume: bool, progress: bool) -> str:
-    from ps_ray.zero_shot import TUNE_DIR, run_zero_shot, summary
+    from ps_ray.zero_shot import run_zero_shot, summary
 
     if not resume:
-        shutil.rmtree(sweep_dir(spec) / TUNE_DIR, ignore_errors=True)
+        shutil.rmtree(layout(spec).tune_zero_shot, ignore_errors=True)
     table = run_zero_shot(spec, resume=resume, progress=progress)
     means = summary(table)["success"].to_dict()
     return f"{len(table)} stitched pairs; mean success " + ", ".join(f"{m} {v:.2f}" for m, v in means.items())
 
 
 def _few_shot(spec: SweepSpec, resume: bool, progress: bool) -> str:
-    from ps_ray.few_shot import FEW_SHOT_DIR, run_few_shot
+    from ps_ray.few_shot import run_few_shot
 
     if not resume:
-        shutil.rmtree(sweep_dir(spec) / FEW_SHOT_DIR, ignore_errors=True)
+        shutil.rmtree(layout(spec).few_shot, ignore_errors=True)
     grid = run_few_shot(spec, resume=resume, progress=progress)
     raise_on_errors(grid, "few-shot trials")
     return f"{len(grid)} fine-tuning trials"

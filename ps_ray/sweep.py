@@ -1,11 +1,8 @@
 """`ps-ray sweep`: a SweepSpec's training trials as Ray Tune trials, resumable, tracked in MLflow.
 
-Layout under <storage>/<name>/:
-  sweep.yaml       the resolved spec (a resumed sweep must match it)
-  tune_plain/      stage 1: the plain source policies of the anchors (anchors.policy: plain)
-  anchors/         stage 2: one anchor set per (task-input width, k), made by the driver
-  tune/            stage 3: every trial of the grid (trial checkpoints hold policy.safetensors)
-  mlflow.db        the default MLflow store (sqlite), created once by the driver
+Stage 1 trains the plain source policies of the anchors (anchors.policy: plain), stage 2 makes
+one anchor set per (task-input width, k) in the driver, stage 3 runs every trial of the grid.
+Where each goes: :class:`ps_ray.layout.SweepLayout`.
 """
 
 from __future__ import annotations
@@ -17,19 +14,18 @@ from pathlib import Path
 from typing import Any
 
 from ps_ray.config import SpecError, SweepSpec, TrainSpec
+from ps_ray.layout import SweepLayout
 from ps_ray.nets.modular import uses_anchors
 
-SPEC_FILE = "sweep.yaml"
-TUNE_DIR = "tune"
-PLAIN_TUNE_DIR = "tune_plain"
-# Test hook for FailureConfig: a marker path; the first trial to find it absent after saving a
-# checkpoint creates it and crashes.
-CRASH_ENV = "PS_RAY_CRASH_ONCE"
 METRIC_KEYS = ("env_steps", "updates", "train_success", "train_touching", "eval_success", "eval_touching")
 
 
+def layout(spec: SweepSpec) -> SweepLayout:
+    return SweepLayout.of(spec.storage, spec.name)
+
+
 def sweep_dir(spec: SweepSpec) -> Path:
-    return Path(spec.storage).resolve() / spec.name
+    return layout(spec).root
 
 
 # -- anchors -------------------------------------------------------------------------------------
@@ -37,10 +33,6 @@ def task_input_dim(task) -> int:
     from ps_ray.envs.tasks import resolve_task
 
     return 3 if resolve_task(task).family.__name__ == "Reach" else 15
-
-
-def anchor_path(root: Path, dim: int, k: int) -> Path:
-    return root / "anchors" / f"anchors_{dim}d_k{k}.npz"
 
 
 def anchor_sources(spec: SweepSpec) -> list[TrainSpec]:
@@ -78,7 +70,7 @@ def prepare_sweep_anchors(
     sources = anchor_sources(spec) if ps else []
     paths: dict[tuple[int, int], str] = {}
     for dim, k in sorted({(task_input_dim(t.task), t.interface_dim) for t in ps}):
-        path = anchor_path(root, dim, k)
+        path = SweepLayout(root).anchor_set(dim, k)
         paths[(dim, k)] = str(path)
         if path.exists():
             continue
@@ -162,19 +154,11 @@ def sweep_trial(config: dict[str, Any]) -> None:
                     final = {f"final_{k}": v for k, v in run.final_eval().items()}
                     row.update(final, converged=run.converged, **{FINISHED: True})
                 tune.report(row, checkpoint=tune.Checkpoint.from_directory(directory))
-            _maybe_crash()
         elif row.get("eval_success") is not None:
             tune.report(row)
         if row.get(FINISHED):
             break
     run.stop()
-
-
-def _maybe_crash() -> None:
-    marker = os.environ.get(CRASH_ENV)
-    if marker and not Path(marker).exists():
-        Path(marker).write_text("crashed once")
-        raise RuntimeError(f"injected crash ({CRASH_ENV}={marker})")
 
 
 # -- the driver ----------------------------------------------------------------------------------
@@ -190,7 +174,7 @@ def run_sweep(spec: SweepSpec, *, resume: bool = False, progress: bool = True):
     from ps_ray.envs.registry import register
 
     root = sweep_dir(spec)
-    spec_file = root / SPEC_FILE
+    spec_file = SweepLayout(root).spec_file
     if resume and spec_file.exists():
         stored = yaml.safe_load(spec_file.read_text()) or {}
         changed = sorted(k for k, v in spec.training_identity().items() if stored.get(k) != v)
@@ -202,7 +186,7 @@ def run_sweep(spec: SweepSpec, *, resume: bool = False, progress: bool = True):
     root.mkdir(parents=True, exist_ok=True)
     spec_file.write_text(yaml.safe_dump(spec.to_dict(), sort_keys=True))
     register()
-    tune_args = dict(spec=spec, root=root, tracking=connect(spec), resume=resume, progress=progress)
+    tune_args = dict(spec=spec, tracking=connect(spec), resume=resume, progress=progress)
 
     plain_policies = None
     needs_anchors = any(not Path(p).exists() for p in _anchor_paths(spec, root))
@@ -210,7 +194,7 @@ def run_sweep(spec: SweepSpec, *, resume: bool = False, progress: bool = True):
         sources = anchor_sources(spec)
         grid = run_tune(
             [{"spec": s.to_dict(), "anchors": None} for s in sources],
-            name=PLAIN_TUNE_DIR,
+            folder=SweepLayout(root).tune_plain,
             stage="anchors_plain",
             **tune_args,
         )
@@ -227,7 +211,7 @@ def run_sweep(spec: SweepSpec, *, resume: bool = False, progress: bool = True):
         }
         for t in spec.trials()
     ]
-    return run_tune(trials, name=TUNE_DIR, stage="train", **tune_args)
+    return run_tune(trials, folder=SweepLayout(root).tune_train, stage="train", **tune_args)
 
 
 def connect(spec: SweepSpec) -> tuple[str, str]:
@@ -245,14 +229,14 @@ def connect(spec: SweepSpec) -> tuple[str, str]:
             log_to_driver=False,
             configure_logging=False,
         )
-    root = sweep_dir(spec)
-    tracking_uri = spec.tracking_uri or default_tracking_uri(root)
-    return tracking_uri, ensure_experiment(tracking_uri, spec.name, root / "mlartifacts")
+    where = layout(spec)
+    tracking_uri = spec.tracking_uri or default_tracking_uri(where.root)
+    return tracking_uri, ensure_experiment(tracking_uri, spec.name, where.artifacts)
 
 
 def _anchor_paths(spec: SweepSpec, root: Path) -> list[Path]:
     return [
-        anchor_path(root, task_input_dim(t.task), t.interface_dim)
+        SweepLayout(root).anchor_set(task_input_dim(t.task), t.interface_dim)
         for t in spec.trials()
         if uses_anchors(t.method)
     ]
@@ -272,20 +256,20 @@ def raise_on_errors(grid, what: str) -> None:
 def run_tune(
     trials: list[dict],
     *,
-    name: str,
+    folder: Path,
     stage: str,
     spec: SweepSpec,
-    root: Path,
     tracking: tuple[str, str],
     resume: bool,
     progress: bool,
     key_fn=None,
     tags_fn=None,
 ):
-    """Training trials (sweep_trial) as one Tune experiment `root/name`, tracked in MLflow."""
+    """Training trials (sweep_trial) as one Tune experiment in ``folder``, tracked in MLflow."""
 
-    from ps_ray.tracking import MLflowTuneCallback, git_commit
+    from ps_ray.tracking import git_commit
     from ps_ray.trials import run_trials
+    from ps_ray.tune_tracking import MLflowTuneCallback
 
     callback = MLflowTuneCallback(
         *tracking,
@@ -298,9 +282,8 @@ def run_tune(
     return run_trials(
         sweep_trial,
         {"trial": trials},
-        name=name,
+        folder=folder,
         stage=stage,
-        root=root,
         callback=callback,
         resume=resume,
         progress=progress,

@@ -150,9 +150,8 @@ def run_trials(
     trainable,
     grid: dict[str, list],
     *,
-    name: str,
+    folder: Path,
     stage: str,
-    root: Path,
     callback,
     resume: bool,
     progress: bool,
@@ -160,16 +159,16 @@ def run_trials(
     max_failures: int,
     constants: dict | None = None,
 ) -> list[TrialOutcome]:
-    """Run a grid over ``grid``'s one key (plus ``constants``) as the Tune experiment
-    ``root/name``: one CPU per trial, the sweep's retry policy, the MLflow ``callback``, a compact
-    live view on the terminal and Tune's own output in ``root/logs/<name>.log``
+    """Run a grid over ``grid``'s one key (plus ``constants``) as the Tune experiment in
+    ``folder``: one CPU per trial, the sweep's retry policy, the MLflow ``callback``, a compact
+    live view on the terminal and Tune's own output in ``<folder's parent>/logs/<folder name>.log``
     (:mod:`ps_ray.progress`). ``resume`` keeps the trials that finished earlier and runs the rest."""
     from ray import tune
 
     from ps_ray.progress import StageProgress, quiet_tune, verbose
 
     ((key, trials),) = grid.items()
-    path = root / name
+    path, name, root = Path(folder), Path(folder).name, Path(folder).parent
     if not resume and attempts(path, key):
         raise StageExistsError(
             f"{path} holds an earlier run of stage {stage!r}; pass --resume to finish it "

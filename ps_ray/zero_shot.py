@@ -16,10 +16,8 @@ import pandas as pd
 
 from ps_ray.atomic import atomic_path
 from ps_ray.config import SweepSpec, short_name
-from ps_ray.sweep import raise_on_errors, sweep_dir
+from ps_ray.sweep import layout, raise_on_errors, sweep_dir
 
-TUNE_DIR = "tune_zero_shot"
-RESULT_FILE = "zero_shot.csv"
 RESULT_KEYS = (
     "success_mean",
     "success_std",
@@ -100,8 +98,9 @@ def run_zero_shot(
 
     ``resume`` finishes an interrupted matrix (restores ``tune_zero_shot``)."""
     from ps_ray.sweep import connect
-    from ps_ray.tracking import MLflowTuneCallback, git_commit, source_tags
+    from ps_ray.tracking import git_commit, source_tags
     from ps_ray.trials import run_trials
+    from ps_ray.tune_tracking import MLflowTuneCallback
 
     settings = dataclasses.replace(spec.zero_shot, **overrides)
     root = sweep_dir(spec)
@@ -137,9 +136,8 @@ def run_zero_shot(
     results = run_trials(
         zero_shot_trial,
         {"pair": trials},
-        name=TUNE_DIR,
+        folder=layout(spec).tune_zero_shot,
         stage="zero_shot",
-        root=root,
         callback=callback,
         resume=resume,
         progress=progress,
@@ -163,7 +161,7 @@ def run_zero_shot(
         for r in results
     ]
     table = pd.DataFrame(rows).sort_values(["method", "seed", "label"]).reset_index(drop=True)
-    write_atomic_csv(table, root / RESULT_FILE)
+    write_atomic_csv(table, layout(spec).zero_shot_table)
     return table
 
 

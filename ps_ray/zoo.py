@@ -25,7 +25,7 @@ from ps_ray.config import short_name, trial_key
 from ps_ray.weights import Signature, read_signature
 
 if TYPE_CHECKING:
-    import pandas as pd
+    pass
 
 POLICY_FILE = "policy.safetensors"
 SPEC_FILE = "spec.json"
@@ -163,11 +163,6 @@ class ModuleZoo:
                     problems.append(str(e))
         return cls(entries, problems)
 
-    @classmethod
-    def from_paths(cls, *paths: str | Path) -> ModuleZoo:
-        """Policy files, or directories holding one (a ``ps-ray train`` run dir, a checkpoint)."""
-        return cls(read_entry(Path(p) / POLICY_FILE if Path(p).is_dir() else p) for p in paths)
-
     # -- lookup ---------------------------------------------------------------------------------
     def __len__(self) -> int:
         return len(self._entries)
@@ -208,45 +203,6 @@ class ModuleZoo:
             and (seed is None or e.key.seed == seed)
             and (interface_dim is None or e.key.interface_dim == interface_dim)
         ]
-
-    def table(self) -> pd.DataFrame:
-        """One row per policy: key fields, stage, signature and path."""
-        import pandas as pd
-
-        rows = [
-            {
-                "key": str(e.key),
-                "method": e.key.method,
-                "robot": e.key.robot,
-                "task": e.key.task,
-                "seed": e.key.seed,
-                "interface_dim": e.key.interface_dim,
-                "stage": e.stage,
-                "hidden": e.signature.hidden,
-                "anchors": e.signature.anchor_hash[:12],
-                "task_dim": e.signature.task_dim,
-                "robot_dim": e.signature.robot_dim,
-                "action_dim": e.signature.action_dim,
-                "path": str(e.path),
-            }
-            for e in self
-        ]
-        columns = [
-            "key",
-            "method",
-            "robot",
-            "task",
-            "seed",
-            "interface_dim",
-            "stage",
-            "hidden",
-            "anchors",
-            "task_dim",
-            "robot_dim",
-            "action_dim",
-            "path",
-        ]
-        return pd.DataFrame(rows, columns=columns)
 
 
 def _preference(entry: ZooEntry) -> tuple[int, float]:

@@ -54,8 +54,8 @@ def test_unknown_train_key_lists_valid_keys():
 
 def test_resumable_changes_keep_the_identity():
     base = TrainSpec()
-    assert TrainSpec(env_steps=99, eval_every=3).digest() == base.digest()
-    assert TrainSpec(seed=102).digest() != base.digest()
+    assert TrainSpec(env_steps=99, eval_every=3).identity() == base.identity()
+    assert TrainSpec(seed=102).identity() != base.identity()
 
 
 @pytest.mark.parametrize(

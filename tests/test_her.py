@@ -8,7 +8,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from ps_ray.her import HindsightReplay, stack_episodes
+from ps_ray.her import HindsightReplay
+
+
+def stack_episodes(episodes, action_key: str = "actions"):
+    """Per-episode dicts ({key: (T+1, *shape)}, action_key: (T, A)) -> add_episodes input."""
+    obs = {k: np.stack([ep[k] for ep in episodes]) for k in episodes[0] if k != action_key}
+    return obs, np.stack([ep[action_key] for ep in episodes])
+
 
 T, A = 6, 2
 SPEC = {

@@ -225,6 +225,19 @@ def test_report_opens_in_headless_chromium(cli, smoke, tmp_path):
     assert text.index("near zero by design") < text.index("Headline per method")
 
 
+def test_building_and_logging_a_report_never_loads_ray(smoke):
+    spec, _, _ = smoke
+    code = (
+        "import sys, dataclasses; from ps_ray.config import load_sweep; "
+        "from ps_ray.analysis.report import build_report; "
+        f"spec = dataclasses.replace(load_sweep({str(SMOKE)!r}), storage={spec.storage!r}); "
+        "build_report(spec, progress=False); print('ray' in sys.modules)"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr[-3000:]
+    assert done.stdout.split()[-1] == "False"
+
+
 def _free_port() -> int:
     with socket.socket() as sock:
         sock.bind(("127.0.0.1", 0))

@@ -17,6 +17,7 @@ import yaml
 from safetensors.torch import save_file
 
 from ps_ray import cli
+from ps_ray.checkpoint import STATE_FILE, seal
 from ps_ray.envs import make
 from ps_ray.nets.modular import NetDims, update_normalizers, uses_anchors
 from ps_ray.nets.obs import dims_from_spaces
@@ -31,8 +32,9 @@ from ps_ray.stitch import (
     env_dims,
     stitch_policies,
 )
+from ps_ray.trials import FINISHED, PARAMS_FILE, RESULT_FILE
 from ps_ray.weights import Signature, load_policy, nets_state, save_policy, signature_of
-from ps_ray.zoo import ModuleZoo
+from ps_ray.zoo import ModuleZoo, read_entry
 
 torch.set_num_threads(1)
 
@@ -109,7 +111,9 @@ def write_trial(
     trial: str | None = None,
     seed: int | None = None,
 ) -> Path:
-    """A Tune-like trial checkpoint of random nets: policy.safetensors, signature.json, spec.json."""
+    """A trial as Tune and ps_ray leave it, with random nets: params.json naming the trial, a
+    finished result row, and a sealed checkpoint (policy.safetensors, signature.json, spec.json,
+    ps_ray_state.json, manifest.json); ``checkpoint`` x 100 env steps."""
     dims = env_dims(trial_spec["robot"], trial_spec["task"])
     k = trial_spec["interface_dim"]
     nets = make_nets(
@@ -124,6 +128,13 @@ def write_trial(
     save_policy(directory / "policy.safetensors", *nets)
     (directory / "signature.json").write_text(json.dumps(dataclasses.asdict(nets[1])))
     (directory / "spec.json").write_text(json.dumps(trial_spec))
+    state = {"counters": {"env_steps": 100 * checkpoint}, "iteration": checkpoint}
+    (directory / STATE_FILE).write_text(json.dumps(state))
+    seal(directory)
+    (directory.parent / PARAMS_FILE).write_text(json.dumps({"trial": {"spec": trial_spec}}))
+    row = {"env_steps": 100 * checkpoint, FINISHED: True, "timestamp": checkpoint}
+    with open(directory.parent / RESULT_FILE, "a") as f:
+        f.write(json.dumps(row) + "\n")
     return directory / "policy.safetensors"
 
 
@@ -171,10 +182,8 @@ def test_zoo_indexes_a_tune_tree(sweep):
     assert entry.robot == "panda_l3" and entry.task == "pick_cube" and entry.stage == "train"
     assert entry.signature.action_dim == 8 and entry.signature.anchor_hash
     assert zoo.get("plain/panda/push/1/i8").stage == "plain_source"
-    table = zoo.table()
-    assert list(table.columns[:7]) == ["key", "method", "robot", "task", "seed", "interface_dim", "stage"]
-    assert len(table) == 12 and set(table["method"]) == {"ps", "ablation", "plain"}
-    assert table.set_index("key").loc["ps/panda/pick_cube/1/i8", "action_dim"] == 8
+    assert {e.key.method for e in zoo} == {"ps", "ablation", "plain"}
+    assert zoo.get("ps/panda/pick_cube/1/i8").signature.action_dim == 8
 
 
 def test_zoo_uses_the_latest_checkpoint_and_prefers_train_entries(tmp_path):
@@ -196,22 +205,26 @@ def test_zoo_get_unknown_key_names_close_keys(sweep):
 
 def test_zoo_refuses_corrupt_files_unless_lenient(sweep, tmp_path):
     bad = write_trial(sweep, "tune", spec("ps", "panda_l5", "push"))
-    bad.write_bytes(b"not a safetensors file")
-    with pytest.raises(ValueError, match=re.escape(f"{bad}: not a ps_ray policy file")):
+    bad.write_bytes(b"not a safetensors file")  # changed after sealing: the manifest catches it
+    changed = f"{bad.parent}: not a usable ps_ray checkpoint (policy.safetensors has 22 bytes"
+    with pytest.raises(ValueError, match=re.escape(changed)):
         ModuleZoo.from_sweep(sweep)
     zoo = ModuleZoo.from_sweep(sweep, strict=False)
-    assert len(zoo) == 12 and len(zoo.problems) == 1 and str(bad) in zoo.problems[0]
+    assert len(zoo) == 12 and len(zoo.problems) == 1 and str(bad.parent) in zoo.problems[0]
+    seal(bad.parent)  # sealed over a foreign file: the policy reader refuses it
+    with pytest.raises(ValueError, match=re.escape(f"{bad}: not a ps_ray policy file")):
+        ModuleZoo.from_sweep(sweep)
+    assert len(ModuleZoo.from_sweep(sweep, strict=False).problems) == 1
     with pytest.raises(ValueError, match="no trained policies"):
         ModuleZoo.from_sweep(tmp_path / "empty")
 
 
-def test_zoo_from_run_dirs(tmp_path):
+def test_a_zoo_entry_needs_its_training_spec(tmp_path):
     path = write_trial(tmp_path, "runs", spec("ablation", "panda", "reach", seed=5), trial="r")
-    zoo = ModuleZoo.from_paths(path.parent, path)
-    assert [str(k) for k in zoo.keys()] == ["ablation/panda/reach/5/i8"]
+    assert str(read_entry(path, "run").key) == "ablation/panda/reach/5/i8"
     path.with_name("spec.json").unlink()
     with pytest.raises(ValueError, match="spec.json: missing or unreadable training spec"):
-        ModuleZoo.from_paths(path)
+        read_entry(path, "run")
 
 
 def test_zoo_from_a_real_tiny_sweep(tmp_path, ray_local):

@@ -12,7 +12,7 @@ import pytest
 import yaml
 
 from ps_ray.config import load_sweep
-from ps_ray.sweep import CRASH_ENV, sweep_dir
+from ps_ray.sweep import sweep_dir
 
 
 def write_sweep(
@@ -106,17 +106,42 @@ def test_resume_after_sigkill_reruns_only_missing_trials_and_never_unpickles(
     assert not planted.marker.exists(), "a planted pickle was loaded on resume"
 
 
-def test_crashed_trial_is_retried_from_its_checkpoint(tmp_path, cli, tiny_train):
-    path = write_sweep(tmp_path, "crash", tiny_train, seeds=(1,))
-    marker = tmp_path / "crashed"
-    proc = cli("sweep", str(path), env={CRASH_ENV: str(marker)})
+def _trial_workers(tag: str) -> list[int]:
+    """PIDs of Tune trial workers (``ray::ImplicitFunc``) started under the environment ``tag``."""
+    found = []
+    for proc in Path("/proc").iterdir():
+        try:
+            if (
+                b"ray::ImplicitFunc" in (proc / "cmdline").read_bytes()
+                and tag.encode() in (proc / "environ").read_bytes()
+            ):
+                found.append(int(proc.name))
+        except (OSError, ValueError):
+            continue
+    return found
+
+
+def test_a_killed_trial_worker_is_retried_from_its_checkpoint(tmp_path, cli, tiny_train):
+    """SIGKILL of a trial's worker process once it has a sealed checkpoint, as a crash or an
+    out-of-memory kill would: Tune retries the trial (FailureConfig), from that checkpoint."""
+    path = write_sweep(tmp_path, "crash", {**tiny_train, "env_steps": 3000}, seeds=(1,))
+    tag = f"PS_RAY_TEST_RUN={tmp_path.name}"
+    proc = cli("sweep", str(path), env={"PS_RAY_TEST_RUN": tmp_path.name})
+    tune_dir = sweep_dir(load_sweep(path)) / "tune"
+    deadline = time.time() + 300
+    while not list(tune_dir.glob("*/checkpoint_*/manifest.json")):
+        assert proc.poll() is None and time.time() < deadline, "no checkpoint before the kill"
+        time.sleep(0.2)
+    workers = _trial_workers(tag)
+    assert len(workers) == 1, workers
+    os.kill(workers[0], signal.SIGKILL)
     out, _ = proc.communicate(timeout=600)
     assert proc.returncode == 0, out[-3000:]
-    assert marker.exists(), "the injected crash did not happen"
+    assert len(list(tune_dir.glob("*/params.json"))) == 1  # one trial, retried in place
     (run,) = runs(path).values()
     assert run.info.status == "FINISHED"
     points = history(path, run, "env_steps")
-    assert points[-1][1] >= 300
+    assert points[-1][1] >= 3000
     # Restored from the checkpoint saved just before the crash: iterations and env steps go on
     # from there, none is trained twice.
     iterations, steps = [i for i, _ in points], [v for _, v in points]

@@ -13,16 +13,12 @@ from mlflow.entities import ViewType
 
 from ps_ray.tracking import (
     TRIAL_KEY_TAG,
-    MLflowTuneCallback,
     TrialTracker,
-    default_key_fn,
-    default_params_fn,
     default_tracking_uri,
     ensure_experiment,
     git_commit,
-    lookup,
-    spec_key,
 )
+from ps_ray.tune_tracking import MLflowTuneCallback, default_key_fn, default_params_fn, lookup, spec_key
 
 
 @pytest.fixture(scope="module")

@@ -23,8 +23,8 @@ import pandas as pd
 from ps_ray.analysis import clips, latent, plots, results, tables
 from ps_ray.atomic import fsync_dir, write_text
 from ps_ray.config import SweepSpec, short_name
+from ps_ray.layout import SweepLayout
 
-REPORT_DIR = "report"
 REPORT_RUN = "report"  # the MLflow run's trial key
 
 
@@ -72,7 +72,8 @@ def build_report(spec: SweepSpec, *, progress: bool = True, log_to_mlflow: bool 
 
     root = sweep_dir(spec)
     say = print if progress else (lambda *a, **k: None)
-    partial = root / f"{REPORT_DIR}.partial"
+    final = SweepLayout(root).report
+    partial = final.with_name(f"{final.name}.partial")
     shutil.rmtree(partial, ignore_errors=True)
     partial.mkdir(parents=True)
     report = Report(partial)
@@ -85,8 +86,7 @@ def build_report(spec: SweepSpec, *, progress: bool = True, log_to_mlflow: bool 
     _cost(report, spec, root)
     _summary(report, spec, target)
     write_text(partial / "index.html", render_html(spec, report))
-    _swap_in(partial, root / REPORT_DIR)
-    final = root / REPORT_DIR
+    _swap_in(partial, final)
     if log_to_mlflow:
         log_report(spec, final, report.metrics)
         say(f"report: logged to MLflow run {REPORT_RUN!r} of experiment {spec.name!r}")
@@ -272,9 +272,8 @@ def _latent(report: Report, spec: SweepSpec, root: Path, say) -> None:
 
 
 def _zero_shot(report: Report, root: Path, target: float, say) -> None:
-    from ps_ray.zero_shot import RESULT_FILE
 
-    table = results.zero_shot_results(root / RESULT_FILE)
+    table = results.zero_shot_results(SweepLayout(root).zero_shot_table)
     if table is None:
         return
     if not _has_object(table["task"]):  # reach: nothing to touch, so touching means nothing
@@ -333,9 +332,7 @@ def _has_object(tasks: pd.Series) -> bool:
 
 
 def _few_shot(report: Report, root: Path, say) -> None:
-    from ps_ray.few_shot import FEW_SHOT_DIR, TUNE_DIR
-
-    frame = results.curves(root / FEW_SHOT_DIR / TUNE_DIR)
+    frame = results.curves(SweepLayout(root).tune_few_shot)
     if frame.empty:
         return
     section = report.section(
@@ -569,7 +566,7 @@ def log_report(spec: SweepSpec, report_dir: Path, metrics: dict[str, float]) -> 
 
     root = sweep_dir(spec)
     uri = spec.tracking_uri or default_tracking_uri(root)
-    experiment = ensure_experiment(uri, spec.name, root / "mlartifacts")
+    experiment = ensure_experiment(uri, spec.name, SweepLayout(root).artifacts)
     tracker = TrialTracker(
         uri,
         experiment,

@@ -21,7 +21,8 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-from ps_ray.tracking import MLflowTuneCallback, default_tracking_uri, ensure_experiment
+from ps_ray.tracking import default_tracking_uri, ensure_experiment
+from ps_ray.tune_tracking import MLflowTuneCallback
 
 SPEC = {
     "method": "ps",

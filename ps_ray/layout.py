@@ -1,0 +1,96 @@
+"""Every path of a sweep folder, in one place (docs/state.md). Stages, the zoo, the report and
+the cost projection ask a :class:`SweepLayout` where things are; no module spells a file name of
+another's."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+
+@dataclass(frozen=True)
+class SweepLayout:
+    """``<storage>/<name>/``:
+
+    sweep.yaml        the resolved spec (a resumed sweep must match it)
+    .ps_ray.lock      held by the one driver writing the folder (ps_ray/lock.py)
+    mlflow.db, mlartifacts/   the default MLflow store and its artifacts
+    tune_plain/       plain source policies of the anchors (anchors.policy: plain)
+    anchors/          one anchor set per (task-input width, k)
+    tune/             every training trial (checkpoints hold policy.safetensors)
+    tune_zero_shot/, zero_shot.csv      the zero-shot matrix
+    few_shot/         tune_few_shot/ (fine-tuning and scratch runs), stitched/ (their starts)
+    report/           the report (index.html, figures/, tables/, clips/)
+    stages/           the pipeline's stage markers
+    logs/             Tune's own output per stage (few_shot/logs/ for the few-shot stage)
+    """
+
+    root: Path
+
+    @classmethod
+    def of(cls, storage: str | Path, name: str) -> SweepLayout:
+        return cls(Path(storage).resolve() / name)
+
+    @property
+    def spec_file(self) -> Path:
+        return self.root / "sweep.yaml"
+
+    @property
+    def mlflow_db(self) -> Path:
+        return self.root / "mlflow.db"
+
+    @property
+    def artifacts(self) -> Path:
+        return self.root / "mlartifacts"
+
+    @property
+    def anchors(self) -> Path:
+        return self.root / "anchors"
+
+    def anchor_set(self, task_input_dim: int, k: int) -> Path:
+        return self.anchors / f"anchors_{task_input_dim}d_k{k}.npz"
+
+    @property
+    def tune_plain(self) -> Path:
+        return self.root / "tune_plain"
+
+    @property
+    def tune_train(self) -> Path:
+        return self.root / "tune"
+
+    @property
+    def tune_zero_shot(self) -> Path:
+        return self.root / "tune_zero_shot"
+
+    @property
+    def zero_shot_table(self) -> Path:
+        return self.root / "zero_shot.csv"
+
+    @property
+    def few_shot(self) -> Path:
+        return self.root / "few_shot"
+
+    @property
+    def tune_few_shot(self) -> Path:
+        return self.few_shot / "tune_few_shot"
+
+    @property
+    def stitched(self) -> Path:
+        return self.few_shot / "stitched"
+
+    @property
+    def report(self) -> Path:
+        return self.root / "report"
+
+    @property
+    def stages(self) -> Path:
+        return self.root / "stages"
+
+    def stage_folders(self) -> dict[str, Path]:
+        """Each Tune stage's experiment folder."""
+        return {
+            "anchors_plain": self.tune_plain,
+            "train": self.tune_train,
+            "zero_shot": self.tune_zero_shot,
+            "few_shot": self.tune_few_shot,
+        }

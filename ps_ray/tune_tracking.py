@@ -1,0 +1,215 @@
+"""The driver-side Tune callback that logs every trial to MLflow (:mod:`ps_ray.tracking`):
+one run per trial key, metrics in batches, artifacts and status at the end."""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Callable, Mapping, Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from ray.tune import Callback
+
+from ps_ray.config import trial_key
+from ps_ray.tracking import (
+    GIT_COMMIT_TAG,
+    TrialTracker,
+    _client,
+    _first_line,
+    flatten_params,
+    git_commit,
+)
+
+if TYPE_CHECKING:
+    from mlflow import MlflowClient
+    from ray.tune.experiment import Trial
+
+log = logging.getLogger(__name__)
+
+
+def trial_spec(trial: Trial) -> Mapping[str, Any]:
+    """``trial.config["spec"]``, or ``trial.config[<k>]["spec"]`` for a grid over whole trial
+    dicts (``{"trial": tune.grid_search([{"spec": ...}, ...])}``), as a plain mapping (a
+    TrainSpec is converted with ``to_dict``)."""
+    config = trial.config
+    spec = config.get("spec")
+    if spec is None:
+        nested = [v["spec"] for v in config.values() if isinstance(v, Mapping) and "spec" in v]
+        spec = nested[0] if len(nested) == 1 else None
+    if hasattr(spec, "to_dict"):
+        spec = spec.to_dict()
+    if not isinstance(spec, Mapping):
+        raise ValueError(f"trial {trial.trial_id} has no config['spec'] mapping; pass key_fn/params_fn")
+    return spec
+
+
+def spec_key(spec: Mapping[str, Any]) -> str:
+    """``method/robot/task/seed`` (+ ``/i<dim>`` off the default interface), see trial_key."""
+    return trial_key(spec)
+
+
+def spec_params(spec: Mapping[str, Any]) -> dict[str, str]:
+    """The spec's fields as params (nested robot/task mappings as ``robot.x`` keys)."""
+    return flatten_params(spec)
+
+
+def default_key_fn(trial: Trial) -> str:
+    return spec_key(trial_spec(trial))
+
+
+def default_params_fn(trial: Trial) -> dict[str, str]:
+    return spec_params(trial_spec(trial))
+
+
+# ---------------------------------------------------------------------------------- Tune
+
+
+def lookup(result: Mapping[str, Any], key: str) -> Any:
+    """``result[key]``, or the nested value for ``a/b`` keys (``result["a"]["b"]``); None if absent."""
+    if key in result:
+        return result[key]
+    head, sep, tail = key.partition("/")
+    if sep and isinstance(result.get(head), Mapping):
+        return lookup(result[head], tail)
+    return None
+
+
+class MLflowTuneCallback(Callback):
+    """Driver-side: only the driver process touches the store. Results → batched metrics of the trial's run.
+
+    Each result contributes the whitelisted ``metric_keys`` (nested ``a/b`` keys are looked up in
+    the nested result dict, logged under the same name) at step ``result[step_key]`` (default
+    ``training_iteration``; e.g. ``num_env_steps_sampled_lifetime`` for env-step curves). A
+    trial's metrics are written every ``flush_every`` results or ``flush_secs`` seconds, and on
+    completion/error/recovery/experiment end. Trackers are keyed by ``key_fn(trial)`` and find
+    their run by tag, so a trial restored after a driver restart continues the SAME run.
+    Errors while writing metrics, artifacts or status are logged as warnings, never raised into
+    Tune: a sweep does not die for its bookkeeping (unflushed metrics are retried at the next
+    flush). Finding or creating a trial's run does raise (e.g. its key's run has other params).
+    """
+
+    def __init__(
+        self,
+        tracking_uri: str,
+        experiment_id: str,
+        *,
+        metric_keys: Sequence[str],
+        params_fn: Callable[[Trial], Mapping[str, Any]] = default_params_fn,
+        key_fn: Callable[[Trial], str] = default_key_fn,
+        tags: Mapping[str, str] | None = None,
+        tags_fn: Callable[[Trial, MlflowClient], Mapping[str, str]] | None = None,
+        flush_every: int = 20,
+        artifacts_fn: Callable[[Trial], list[Path]] | None = None,
+        step_key: str = "training_iteration",
+        flush_secs: float = 60.0,
+    ) -> None:
+        if flush_every < 1:
+            raise ValueError(f"flush_every must be >= 1, got {flush_every}")
+        self.tracking_uri = tracking_uri
+        self.experiment_id = experiment_id
+        self.metric_keys = tuple(metric_keys)
+        self.params_fn = params_fn
+        self.key_fn = key_fn
+        self.tags = dict(tags or {})
+        self.tags_fn = tags_fn
+        if GIT_COMMIT_TAG not in self.tags and (commit := git_commit()):
+            self.tags[GIT_COMMIT_TAG] = commit
+        self.flush_every = flush_every
+        self.flush_secs = flush_secs
+        self.artifacts_fn = artifacts_fn
+        self.step_key = step_key
+        self._trackers: dict[str, TrialTracker] = {}
+        self._results: dict[str, int] = {}
+        self._last_flush: dict[str, float] = {}
+        self._client_cache: MlflowClient | None = None
+
+    # Tuner.restore unpickles the callback from the experiment state: keep no store handles there.
+    def __getstate__(self) -> dict[str, Any]:
+        state = dict(self.__dict__)
+        state.update(_trackers={}, _results={}, _last_flush={}, _client_cache=None)
+        return state
+
+    @property
+    def _client(self) -> MlflowClient:
+        if self._client_cache is None:
+            self._client_cache = _client(self.tracking_uri)
+        return self._client_cache
+
+    def tracker(self, trial: Trial) -> TrialTracker:
+        """The trial's tracker, creating (or finding again) its run on first use."""
+        key = self.key_fn(trial)
+        if key not in self._trackers:
+            tags = {**self.tags, "ps_ray.tune_trial_id": trial.trial_id}
+            if self.tags_fn is not None:
+                tags.update(self.tags_fn(trial, self._client))
+            self._trackers[key] = TrialTracker(
+                self.tracking_uri,
+                self.experiment_id,
+                key,
+                params=self.params_fn(trial),
+                tags=tags,
+                client=self._client,
+            )
+            self._results[key] = 0
+            self._last_flush[key] = time.monotonic()
+        return self._trackers[key]
+
+    def run_id(self, trial: Trial) -> str:
+        return self.tracker(trial).run_id
+
+    def on_trial_start(self, iteration: int, trials: list[Trial], trial: Trial, **info: Any) -> None:
+        self.tracker(trial)
+
+    def on_trial_result(
+        self, iteration: int, trials: list[Trial], trial: Trial, result: dict, **info: Any
+    ) -> None:
+        tracker = self.tracker(trial)
+        step = lookup(result, self.step_key)
+        stamp = result.get("timestamp")
+        tracker.log_metrics(
+            {k: lookup(result, k) for k in self.metric_keys},
+            step=int(step) if step is not None else self._results[tracker.trial_key],
+            timestamp_ms=int(stamp * 1000) if stamp else None,
+        )
+        key = tracker.trial_key
+        self._results[key] += 1
+        due = time.monotonic() - self._last_flush[key] >= self.flush_secs
+        if self._results[key] % self.flush_every == 0 or due:
+            self._flush(tracker)
+
+    def on_trial_recover(self, iteration: int, trials: list[Trial], trial: Trial, **info: Any) -> None:
+        key = self.key_fn(trial)
+        if key in self._trackers:
+            self._flush(self._trackers[key])
+
+    def on_trial_complete(self, iteration: int, trials: list[Trial], trial: Trial, **info: Any) -> None:
+        tracker = self.tracker(trial)
+        if self.artifacts_fn is not None:
+            for path in self.artifacts_fn(trial):
+                self._guard(f"log artifact {path}", tracker.log_artifact, path)
+        self._close(trial, "FINISHED")
+
+    def on_trial_error(self, iteration: int, trials: list[Trial], trial: Trial, **info: Any) -> None:
+        self._close(trial, "FAILED")
+
+    def on_experiment_end(self, trials: list[Trial], **info: Any) -> None:
+        """Trials still open (interrupted) are flushed and marked KILLED; a resume reopens them."""
+        for key in list(self._trackers):
+            self._guard(f"close run of {key}", self._trackers.pop(key).close, "KILLED")
+
+    def _flush(self, tracker: TrialTracker) -> None:
+        self._guard(f"flush metrics of {tracker.trial_key}", tracker.flush)
+        self._last_flush[tracker.trial_key] = time.monotonic()
+
+    def _close(self, trial: Trial, status: str) -> None:
+        tracker = self.tracker(trial)
+        del self._trackers[tracker.trial_key]
+        self._guard(f"close run of {tracker.trial_key}", tracker.close, status)
+
+    @staticmethod
+    def _guard(what: str, fn: Callable[..., None], *args: Any) -> None:
+        try:
+            fn(*args)
+        except Exception as e:  # noqa: BLE001 - tracking must not end a sweep
+            log.warning("MLflow: could not %s: %s", what, _first_line(e))

@@ -47,6 +47,7 @@ from typing import Any
 import numpy as np
 
 from ps_ray.atomic import atomic_file
+from ps_ray.checkpoint import file_sha256
 
 __all__ = [
     "AnchorSet",
@@ -490,14 +491,6 @@ def load_anchor_set(path: str | os.PathLike) -> AnchorSet:
         raise ValueError(f"{path}: {exc}") from None
 
 
-def _file_sha256(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as fh:
-        for chunk in iter(lambda: fh.read(1 << 20), b""):
-            h.update(chunk)
-    return h.hexdigest()
-
-
 def anchors_from_file(
     path: str | os.PathLike, k: int, *, seed: int = 0, n_init: int = 10, distinct: bool = True
 ) -> AnchorSet:
@@ -558,7 +551,7 @@ def anchors_from_file(
     provenance: dict[str, Any] = {
         "method": "kmeans_nearest_real_state",
         "source_file": str(path),
-        "source_sha256": _file_sha256(path),
+        "source_sha256": file_sha256(path),
         "num_states": int(x.shape[0]),
         "dim": int(x.shape[1]),
         "k": int(k),

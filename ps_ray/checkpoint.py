@@ -33,7 +33,8 @@ class CheckpointError(ValueError):
     """A checkpoint folder that is incomplete, altered, foreign or from an older ps_ray."""
 
 
-def _sha256(path: Path) -> str:
+def file_sha256(path: Path) -> str:
+    """SHA-256 of a file's bytes, read in 1 MiB blocks."""
     digest = hashlib.sha256()
     with open(path, "rb") as f:
         for block in iter(lambda: f.read(1 << 20), b""):
@@ -45,7 +46,7 @@ def seal(directory: str | Path) -> None:
     """Write the manifest over every file in ``directory`` (call it after the last file)."""
     directory = Path(directory)
     files = {
-        p.name: {"sha256": _sha256(p), "bytes": p.stat().st_size}
+        p.name: {"sha256": file_sha256(p), "bytes": p.stat().st_size}
         for p in sorted(directory.iterdir())
         if p.is_file() and p.name != MANIFEST
     }
@@ -81,7 +82,7 @@ def verify(directory: str | Path, hashed: tuple[str, ...] | None = None) -> Path
     for name in files if hashed is None else hashed:
         if name not in files:
             raise bad(f"{MANIFEST} lists no {name}")
-        if _sha256(directory / name) != files[name].get("sha256"):
+        if file_sha256(directory / name) != files[name].get("sha256"):
             raise bad(f"{name} does not match its hash")
     return directory
 

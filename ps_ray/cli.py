@@ -44,13 +44,14 @@ def _bench_parser(sub) -> None:
     p.add_argument("options", nargs=argparse.REMAINDER, help="passed to the benchmark (see --help)")
 
 
+def _verbose_flag(p) -> None:
+    help_text = "Tune's tables and Ray's warnings on the terminal (default: a log file)"
+    p.add_argument("--verbose", action="store_true", help=help_text)
+
+
 def _sweep_parser(sub) -> None:
     p = sub.add_parser("sweep", help="run a sweep YAML's training trials on Ray Tune")
-    p.add_argument(
-        "--verbose",
-        action="store_true",
-        help="Tune's tables and Ray's warnings on the terminal (default: a log file)",
-    )
+    _verbose_flag(p)
     p.add_argument("sweep", help="path to a sweep YAML, e.g. sweeps/smoke.yaml")
     p.add_argument(
         "--resume", action="store_true", help="finish only the missing trials of an interrupted sweep"
@@ -65,11 +66,7 @@ def _sweep_parser(sub) -> None:
 
 def _zero_shot_parser(sub) -> None:
     p = sub.add_parser("zero-shot", help="evaluate every stitched pair of a trained sweep (Tune)")
-    p.add_argument(
-        "--verbose",
-        action="store_true",
-        help="Tune's tables and Ray's warnings on the terminal (default: a log file)",
-    )
+    _verbose_flag(p)
     p.add_argument("sweep", help="the sweep YAML whose trained policies are stitched")
     p.add_argument("--methods", nargs="+", default=None, help="default: the spec's zero_shot.methods")
     p.add_argument("--episodes", type=int, default=None, help="default: the spec's (200)")
@@ -81,11 +78,7 @@ def _zero_shot_parser(sub) -> None:
 
 def _few_shot_parser(sub) -> None:
     p = sub.add_parser("few-shot", help="fine-tune stitched policies of a sweep, beside from-scratch runs")
-    p.add_argument(
-        "--verbose",
-        action="store_true",
-        help="Tune's tables and Ray's warnings on the terminal (default: a log file)",
-    )
+    _verbose_flag(p)
     p.add_argument("sweep", help="the sweep YAML whose trained policies are stitched")
     p.add_argument("--env-steps", type=int, default=None, help="fine-tuning budget per trial")
     p.add_argument(
@@ -106,11 +99,7 @@ def _run_parser(sub) -> None:
         help="the whole pipeline of a sweep YAML: train, zero-shot, few-shot, "
         "report (its 'stages'); finished stages are skipped",
     )
-    p.add_argument(
-        "--verbose",
-        action="store_true",
-        help="Tune's tables and Ray's warnings on the terminal (default: a log file)",
-    )
+    _verbose_flag(p)
     p.add_argument("sweep", help="path to a sweep YAML, e.g. sweeps/smoke.yaml")
     p.add_argument("--storage", default=None, help="override the spec's storage directory")
     p.add_argument("--tracking-uri", default=None, help="override the MLflow tracking URI")

@@ -81,7 +81,7 @@ def ray_head(tmp_path):
     shutil.rmtree(Path("/tmp") / f"ps_ray_head_{dashboard}", ignore_errors=True)
 
 
-def test_sweep_submitted_as_a_ray_job_lands_in_mlflow(ray_head, tmp_path):
+def test_sweep_submitted_as_a_ray_job_lands_in_mlflow(ray_head, tmp_path, tiny_train):
     address, env = ray_head
     storage = tmp_path / "store"
     sweep = tmp_path / "job.yaml"
@@ -95,16 +95,7 @@ def test_sweep_submitted_as_a_ray_job_lands_in_mlflow(ray_head, tmp_path):
                 "seeds": [1],
                 "interface_dims": [8],
                 "storage": str(storage),
-                "train": {
-                    "env_steps": 200,
-                    "hidden": 32,
-                    "learning_starts": 100,
-                    "random_episodes": 2,
-                    "eval_every": 2,
-                    "eval_episodes": 2,
-                    "checkpoint_every": 2,
-                    "batch_size": 32,
-                },
+                "train": {**tiny_train, "env_steps": 200},
             }
         )
     )

@@ -227,20 +227,11 @@ def test_a_zoo_entry_needs_its_training_spec(tmp_path):
         read_entry(path, "run")
 
 
-def test_zoo_from_a_real_tiny_sweep(tmp_path, ray_local):
+def test_zoo_from_a_real_tiny_sweep(tmp_path, ray_local, tiny_train):
     from ps_ray.config import load_sweep
     from ps_ray.sweep import run_sweep, sweep_dir
 
-    train = {
-        "env_steps": 300,
-        "hidden": 32,
-        "learning_starts": 100,
-        "random_episodes": 2,
-        "eval_every": 2,
-        "eval_episodes": 2,
-        "checkpoint_every": 2,
-        "batch_size": 32,
-    }
+    train = tiny_train
     path = tmp_path / "tiny.yaml"
     path.write_text(
         yaml.safe_dump(

@@ -105,6 +105,16 @@ def _swap_in(new: Path, final: Path) -> None:
     shutil.rmtree(old, ignore_errors=True)
 
 
+def _success_curves(report: Report, section: Section, name: str, frame, panel: str, line: str, title: str):
+    """Greedy success against env steps, a panel per ``panel`` value and a line per ``line``."""
+    draw = plots.learning_curves
+    report.figure(
+        section,
+        name,
+        lambda p: draw(frame, x="env_steps", y="success", panel=panel, line=line, title=title, path=p),
+    )
+
+
 # -- sections -------------------------------------------------------------------------------------
 def source_target(spec: SweepSpec) -> float:
     """The success a source must reach to be trusted: the sweep's early-stop target, else 0.9."""
@@ -125,19 +135,7 @@ def _training(report: Report, root: Path, target: float, say) -> None:
     frame["panel"] = frame["task"] + (
         ", interface " + frame["interface_dim"].astype(str) if frame["interface_dim"].nunique() > 1 else ""
     )
-    report.figure(
-        section,
-        "training_curves",
-        lambda p: plots.learning_curves(
-            frame,
-            x="env_steps",
-            y="success",
-            panel="panel",
-            line="method",
-            title="training: greedy success",
-            path=p,
-        ),
-    )
+    _success_curves(report, section, "training_curves", frame, "panel", "method", "training: greedy success")
     final = results.final_success(frame)
     report.table(
         section,
@@ -343,19 +341,8 @@ def _few_shot(report: Report, root: Path, say) -> None:
     )
     frame["target"] = frame["robot"] + " / " + frame["task"]
     frame["line"] = frame["kind"] + ": " + frame["method"]
-    report.figure(
-        section,
-        "few_shot_curves",
-        lambda p: plots.learning_curves(
-            frame,
-            x="env_steps",
-            y="success",
-            panel="target",
-            line="line",
-            title="few-shot: greedy success in the target env",
-            path=p,
-        ),
-    )
+    title = "few-shot: greedy success in the target env"
+    _success_curves(report, section, "few_shot_curves", frame, "target", "line", title)
     final = results.final_success(frame)
     summary = final.groupby(["target", "line"])["success"].mean().unstack("line")
     report.table(

@@ -37,17 +37,6 @@ def rollout(
     return frames, success
 
 
-def rollout_frames(
-    env: RobotTaskEnv,
-    policy: Policy | None = None,
-    seed: int | None = 0,
-    steps: int | None = None,
-    every: int = 1,
-) -> list[np.ndarray]:
-    """The frames of :func:`rollout`."""
-    return rollout(env, policy, seed, steps, every)[0]
-
-
 def save_png(frame: np.ndarray, path: str | Path) -> Path:
     from PIL import Image  # Pillow comes with matplotlib
 
@@ -77,7 +66,7 @@ def record(
     """Roll out ``policy`` in a fresh env and write the last frame to ``png`` and all to ``gif``."""
     env = make(robot, task, render_mode="rgb_array", **options)
     try:
-        frames = rollout_frames(env, policy, seed=seed, every=every)
+        frames, _ = rollout(env, policy, seed=seed, every=every)
     finally:
         env.close()
     if png is not None:

@@ -25,9 +25,8 @@ Here:
   case - the result is bit-identical to the authors' rule; ``distinct=False`` reproduces it
   always, duplicates included.
 - :class:`AnchorSet` bundles the anchors with a content hash (:func:`anchor_hash`) and a
-  provenance dict; :func:`save_anchor_set` / :func:`load_anchor_set` store it as an ``.npz``
-  that never needs pickle, and :func:`anchors_from_file` accepts either such a file or a
-  plain array of task states.
+  provenance dict; :mod:`ps_ray.anchor_file` stores it as an ``.npz`` that never needs pickle
+  and makes one from any file of task states.
 
 No torch and no Ray here: numpy, scikit-learn and gymnasium-style env objects only.
 """
@@ -38,37 +37,24 @@ import hashlib
 import json
 import logging
 import operator
-import os
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from ps_ray.atomic import atomic_file
-from ps_ray.checkpoint import file_sha256
-
 __all__ = [
     "AnchorSet",
     "anchor_hash",
-    "anchors_from_file",
     "collect_task_states",
-    "load_anchor_set",
     "make_anchor_set",
-    "save_anchor_set",
     "select_anchor_indices",
     "select_anchors",
 ]
 
 log = logging.getLogger(__name__)
 
-FORMAT = "ps_ray.anchor_set"
-FORMAT_VERSION = 1
 _HASH_DOMAIN = b"ps_ray.anchors.v1\x00"
-_ANCHOR_KEY, _META_KEY = "anchors", "meta"
-_ZIP_MAGIC = b"PK\x03\x04"
-_NPY_MAGIC = b"\x93NUMPY"
 
 Policy = Callable[[dict[str, np.ndarray]], Any]
 
@@ -376,190 +362,4 @@ def make_anchor_set(
         "versions": _library_versions(),
     }
     provenance.update(dict(extra_provenance or {}))
-    return AnchorSet.of(anchors, provenance)
-
-
-# --------------------------------------------------------------------------- files
-
-
-def save_anchor_set(path: str | os.PathLike, anchor_set: AnchorSet) -> None:
-    """Write ``anchor_set`` to ``path`` (exactly that name) as an ``.npz`` without pickle.
-
-    Members: ``anchors`` (float32) and ``meta`` (a 0-d unicode array holding JSON with the
-    format tag, hash and provenance). The file is written to a temporary file in the same
-    directory and renamed over ``path``, so a crash never leaves a half-written file there.
-    """
-    path = Path(path)
-    meta = json.dumps(
-        {
-            "format": FORMAT,
-            "version": FORMAT_VERSION,
-            "hash": anchor_set.hash,
-            "provenance": anchor_set.provenance,
-        },
-        sort_keys=True,
-        allow_nan=False,
-    )
-    with atomic_file(path) as fh:
-        np.savez(
-            fh, **{_ANCHOR_KEY: np.ascontiguousarray(anchor_set.anchors, "<f4"), _META_KEY: np.array(meta)}
-        )
-
-
-class _BadFile(Exception):
-    """Internal: what is wrong with a file; turned into a one-line ValueError naming it."""
-
-
-def _magic(path: Path) -> bytes:
-    with open(path, "rb") as fh:
-        return fh.read(6)
-
-
-def _read_npz(path: Path) -> dict[str, np.ndarray]:
-    """All members of an .npz, loaded without pickle."""
-    try:
-        with np.load(path, allow_pickle=False) as npz:
-            members = {key: npz[key] for key in npz.files}
-    except Exception as exc:  # zipfile, zlib, numpy format errors: all mean "bad file"
-        msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-        if "pickle" in msg.lower():
-            raise _BadFile("it contains pickled (object) data, which is never loaded") from None
-        raise _BadFile(f"unreadable .npz archive ({msg})") from None
-    for key, value in members.items():
-        if not isinstance(value, np.ndarray):  # numpy hands back raw bytes for non-.npy members
-            raise _BadFile(f"unreadable .npz archive (member {key!r} is not a .npy array)")
-    return members
-
-
-def _parse_anchor_npz(members: dict[str, np.ndarray]) -> AnchorSet:
-    missing = sorted({_ANCHOR_KEY, _META_KEY} - set(members))
-    extra = sorted(set(members) - {_ANCHOR_KEY, _META_KEY})
-    if missing:
-        raise _BadFile(f"not an anchor-set file: missing member(s) {missing}, found {sorted(members)}")
-    if extra:
-        raise _BadFile(f"not an anchor-set file: unexpected member(s) {extra}")
-    raw_meta = members[_META_KEY]
-    if raw_meta.dtype.kind != "U" or raw_meta.ndim != 0:
-        raise _BadFile(f"'meta' must be a 0-d unicode string, got {raw_meta.dtype} {raw_meta.shape}")
-    try:
-        meta = json.loads(str(raw_meta[()]))
-    except json.JSONDecodeError as exc:
-        raise _BadFile(f"'meta' is not valid JSON ({exc})") from None
-    if not isinstance(meta, dict) or meta.get("format") != FORMAT:
-        raise _BadFile(f"'meta' does not describe a {FORMAT} file")
-    if meta.get("version") != FORMAT_VERSION:
-        raise _BadFile(
-            f"unsupported {FORMAT} version {meta.get('version')!r} (this code reads version {FORMAT_VERSION})"
-        )
-    stored_hash, provenance = meta.get("hash"), meta.get("provenance")
-    if not isinstance(stored_hash, str) or not isinstance(provenance, dict):
-        raise _BadFile("'meta' lacks a string 'hash' or a dict 'provenance'")
-    anchors = members[_ANCHOR_KEY]
-    if anchors.dtype != np.float32 or anchors.ndim != 2 or 0 in anchors.shape:
-        raise _BadFile(
-            f"'anchors' must be a non-empty 2-D float32 array, got {anchors.dtype} {anchors.shape}"
-        )
-    if not np.all(np.isfinite(anchors)):
-        raise _BadFile("'anchors' contains NaN or infinite values")
-    actual = anchor_hash(anchors)
-    if actual != stored_hash:
-        raise _BadFile(
-            f"hash mismatch: stored {stored_hash[:16]}..., anchors hash to "
-            f"{actual[:16]}... (the file was modified)"
-        )
-    return AnchorSet(anchors, stored_hash, provenance)
-
-
-def load_anchor_set(path: str | os.PathLike) -> AnchorSet:
-    """Load and verify an anchor set written by :func:`save_anchor_set`.
-
-    Never unpickles. Any corrupt, foreign or tampered file raises a one-line ``ValueError``
-    that names the file; a missing file raises ``FileNotFoundError``.
-    """
-    path = Path(path)
-    try:
-        magic = _magic(path)
-        if magic.startswith(_NPY_MAGIC):
-            raise _BadFile(
-                "it is a plain .npy array, not an anchor-set .npz "
-                "(use anchors_from_file to select anchors from task states)"
-            )
-        if not magic.startswith(_ZIP_MAGIC):
-            raise _BadFile("not an .npz archive")
-        return _parse_anchor_npz(_read_npz(path))
-    except _BadFile as exc:
-        raise ValueError(f"{path}: {exc}") from None
-
-
-def anchors_from_file(
-    path: str | os.PathLike, k: int, *, seed: int = 0, n_init: int = 10, distinct: bool = True
-) -> AnchorSet:
-    """An anchor set from "any file of task states".
-
-    - an anchor-set ``.npz`` (:func:`save_anchor_set`): loaded and verified; it must have
-      exactly ``k`` rows;
-    - a plain ``.npy`` array, or an ``.npz`` with a single array (or a member named
-      ``states`` / ``task_states``), of shape ``(N, dim)`` with ``N >= k``: ``k`` anchors are
-      selected with :func:`select_anchors`; the provenance names the file and its sha256.
-
-    Never unpickles; bad files raise a one-line ``ValueError`` naming the file.
-    """
-    path = Path(path)
-    try:
-        magic = _magic(path)
-        if magic.startswith(_NPY_MAGIC):
-            try:
-                states = np.load(path, allow_pickle=False)
-            except Exception as exc:  # numpy format errors of any kind mean "bad file"
-                msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-                if "pickle" in msg.lower():
-                    raise _BadFile("it contains pickled (object) data, which is never loaded") from None
-                raise _BadFile(f"unreadable .npy file ({msg})") from None
-            member = None
-        elif magic.startswith(_ZIP_MAGIC):
-            members = _read_npz(path)
-            if _META_KEY in members:
-                anchor_set = _parse_anchor_npz(members)
-                if anchor_set.k != k:
-                    raise _BadFile(f"anchor set has {anchor_set.k} anchors, {k} requested")
-                return anchor_set
-            for key in ("task_states", "states"):
-                if key in members:
-                    member = key
-                    break
-            else:
-                if len(members) != 1:
-                    raise _BadFile(
-                        f"expected one array (or a 'states' member) in the .npz, found {sorted(members)}"
-                    )
-                member = next(iter(members))
-            states = members[member]
-        else:
-            raise _BadFile("neither an .npy nor an .npz file")
-        try:
-            x = _as_states(states)
-        except ValueError as exc:
-            raise _BadFile(str(exc)) from None
-        if x.shape[0] < k:
-            raise _BadFile(f"{x.shape[0]} task states, fewer than the {k} anchors requested")
-        try:
-            anchors = select_anchors(x, k, seed=seed, n_init=n_init, distinct=distinct)
-        except ValueError as exc:
-            raise _BadFile(str(exc)) from None
-    except _BadFile as exc:
-        raise ValueError(f"{path}: {exc}") from None
-    provenance: dict[str, Any] = {
-        "method": "kmeans_nearest_real_state",
-        "source_file": str(path),
-        "source_sha256": file_sha256(path),
-        "num_states": int(x.shape[0]),
-        "dim": int(x.shape[1]),
-        "k": int(k),
-        "seed": int(seed),
-        "n_init": int(n_init),
-        "distinct": bool(distinct),
-        "versions": _library_versions(),
-    }
-    if member is not None:
-        provenance["source_member"] = member
     return AnchorSet.of(anchors, provenance)

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import dataclasses
-import hashlib
 import json
 import re
 from collections.abc import Mapping
@@ -13,6 +12,7 @@ from typing import Any
 
 from ps_ray.envs.robots import resolve_robot
 from ps_ray.envs.tasks import resolve_task
+from ps_ray.names import trial_key
 from ps_ray.nets.modular import METHODS
 
 POINT_TASK = "point"  # the physics-free PointGoalEnv (robot is ignored), for fast checks
@@ -130,32 +130,6 @@ class TrainSpec:
     def slug(self) -> str:
         """The label as a directory name."""
         return re.sub(r"[^\w.-]+", "-", self.label()).strip("-")
-
-
-DEFAULT_INTERFACE_DIM = 128
-
-
-def short_name(value: Any, limit: int = 64) -> str:
-    """A robot/task: its name; a mapping ``{"name": base, ...}`` as ``base{json of the rest}``,
-    or ``base#<hash>`` when that is longer than ``limit`` characters."""
-    if not isinstance(value, Mapping):
-        return str(value)
-    rest = {k: v for k, v in value.items() if k != "name"}
-    base = str(value.get("name", "custom"))
-    if not rest:
-        return base
-    text = json.dumps(rest, sort_keys=True, separators=(",", ":"), default=str)
-    if len(base) + len(text) <= limit:
-        return base + text
-    return f"{base}#{hashlib.sha256(text.encode()).hexdigest()[:8]}"
-
-
-def trial_key(spec: Mapping[str, Any]) -> str:
-    """``method/robot/task/seed``, plus ``/i<dim>`` for a non-default interface dim: the name of
-    a trial's run directory, MLflow run and zoo entry."""
-    key = "/".join(short_name(spec.get(k)) for k in ("method", "robot", "task", "seed"))
-    dim = spec.get("interface_dim", DEFAULT_INTERFACE_DIM)
-    return key if dim == DEFAULT_INTERFACE_DIM else f"{key}/i{dim}"
 
 
 def _plain(value: Any) -> Any:

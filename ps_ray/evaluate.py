@@ -31,8 +31,8 @@ import numpy as np
 import torch
 from torch import nn
 
-from ps_ray.config import short_name
 from ps_ray.envs import make
+from ps_ray.names import short_name
 from ps_ray.nets.modular import Actor, NetDims
 from ps_ray.nets.obs import dims_from_spaces, split_obs
 from ps_ray.nets.relative import AnchorReference

@@ -13,7 +13,8 @@ import hashlib
 from collections import Counter
 from typing import Any
 
-from ps_ray.config import FewShotSpec, SweepSpec, TrainSpec, trial_key
+from ps_ray.config import FewShotSpec, SweepSpec, TrainSpec
+from ps_ray.names import trial_key
 from ps_ray.nets.modular import uses_anchors
 from ps_ray.sweep import layout, sweep_dir, task_input_dim
 

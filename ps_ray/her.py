@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 
 from ps_ray.atomic import atomic_file
+from ps_ray.npz import NpzError, read_npz
 
 __all__ = ["HindsightReplay", "ObsSpec", "RewardFn"]
 
@@ -217,21 +218,10 @@ class HindsightReplay:
         def bad(why: str) -> ValueError:
             return ValueError(f"{path}: not a valid HindsightReplay checkpoint: {why}")
 
-        with open(path, "rb") as f:  # FileNotFoundError passes through as is
-            magic = f.read(4)
-        if magic != b"PK\x03\x04":  # only zip archives reach np.load: no pickle fallback at all
-            raise bad(f"not an .npz (zip) archive (starts with {magic!r})")
         try:
-            npz = np.load(path, allow_pickle=False)
-        except Exception as exc:  # BadZipFile (truncated/corrupt archive), ...
-            raise bad(f"{type(exc).__name__}: {exc}") from exc
-        if not isinstance(npz, np.lib.npyio.NpzFile):
-            raise bad("not an .npz archive")
-        try:
-            with npz:
-                arrays = {k: npz[k] for k in npz.files}
-        except Exception as exc:  # truncated/corrupt member, object array refused, ...
-            raise bad(f"{type(exc).__name__}: {exc}") from exc
+            arrays = read_npz(path)  # FileNotFoundError passes through as is
+        except NpzError as exc:
+            raise bad(str(exc)) from None
         meta_arr = arrays.pop("meta", None)
         if meta_arr is None or meta_arr.shape != () or meta_arr.dtype.kind != "U":
             raise bad("no 'meta' string (not written by HindsightReplay.save)")

@@ -33,9 +33,9 @@ import numpy as np
 import torch
 from torch import nn
 
-from ps_ray.config import short_name, trial_key
 from ps_ray.envs.robots import N_ARM, RobotSpec, resolve_robot
 from ps_ray.envs.tasks import resolve_task
+from ps_ray.names import short_name
 from ps_ray.nets.modular import NetDims, method_spec
 from ps_ray.nets.sac import NET_NAMES, SACNets, build_sac_nets
 from ps_ray.nets.translation import LatentTranslation, check_kind
@@ -317,88 +317,6 @@ def combos(zoo: ModuleZoo, method: str, seed: int, interface_dim: int | None = N
             if not stitch_problems(t.signature, r.signature, target):
                 found.append(Combo(t, r, *target))
     return found
-
-
-# -- the paper's eight combinations (docs/authors_code.md §10) -------------------------------------
-PANDA_L3_GRIPPER = {"name": "panda_l3", "gripper": True}  # R2 with the gripper, on push (Push-v4)
-PAPER_TASKS = {
-    "Pu1": "push",
-    "Pu2": "push_slippery",
-    "Pu3": "push_rocks",
-    "Pi1": "pick_cube",
-    "Pi2": "pick_stick",
-}
-PAPER_ROBOTS = {"R1": "panda", "R2": "panda_l3", "R3": "panda_l5"}
-
-
-@dataclass(frozen=True)
-class Source:
-    task: str
-    robot: str | Mapping  # a name, or a mapping such as PANDA_L3_GRIPPER
-
-
-@dataclass(frozen=True)
-class PaperCombo:
-    """E1-E8 of the paper's few-shot figure, with ps_ray's task and robot names."""
-
-    name: str
-    label: str  # as in the figure: "t: <task>-<robot> & r: <task>-<robot>"
-    task_from: Source
-    robot_from: Source
-    target: Source  # (task of task_from, robot of robot_from)
-    epochs: int  # few-shot epochs shown in the figure (1 epoch = 35,000 env steps)
-
-    def keys(self, method: str, seed: int, interface_dim: int = 128) -> tuple[str, str]:
-        """Zoo keys (trial keys) of the task-module and robot-module sources."""
-        task_key, robot_key = (
-            trial_key(
-                {
-                    "method": method,
-                    "robot": s.robot,
-                    "task": s.task,
-                    "seed": seed,
-                    "interface_dim": interface_dim,
-                }
-            )
-            for s in (self.task_from, self.robot_from)
-        )
-        return task_key, robot_key
-
-
-def _paper(
-    name: str,
-    label: str,
-    target: tuple[str, str | Mapping],
-    epochs: int,
-    robot_from: str | Mapping | None = None,
-) -> PaperCombo:
-    (t_task, t_robot), (r_task, r_robot) = (
-        part.split("-") for part in label.removeprefix("t: ").split(" & r: ")
-    )
-    return PaperCombo(
-        name,
-        label,
-        Source(PAPER_TASKS[t_task], PAPER_ROBOTS[t_robot]),
-        Source(PAPER_TASKS[r_task], robot_from or PAPER_ROBOTS[r_robot]),
-        Source(PAPER_TASKS[target[0]], target[1]),
-        epochs,
-    )
-
-
-# E5: the robot module comes from push, so its robot has the gripper (8-D actions, like pick).
-# E6: the robot module comes from pick (gripper on), so the target push robot has the gripper.
-# For plain (one MLP cut in the middle) E6 also needs the task source trained with the gripper
-# ({"name": "panda_l5", "gripper": true} on push): its bottom half sees the critic's action.
-PAPER_COMBOS: tuple[PaperCombo, ...] = (
-    _paper("E1", "t: Pu1-R1 & r: Pu2-R2", ("Pu1", "panda_l3"), 30),
-    _paper("E2", "t: Pu2-R1 & r: Pu1-R2", ("Pu2", "panda_l3"), 90),
-    _paper("E3", "t: Pu1-R3 & r: Pu3-R1", ("Pu1", "panda"), 30),
-    _paper("E4", "t: Pu3-R1 & r: Pu1-R2", ("Pu3", "panda_l3"), 70),
-    _paper("E5", "t: Pi1-R1 & r: Pu1-R2", ("Pi1", "panda_l3"), 190, robot_from=PANDA_L3_GRIPPER),
-    _paper("E6", "t: Pu1-R3 & r: Pi1-R2", ("Pu1", PANDA_L3_GRIPPER), 40),
-    _paper("E7", "t: Pi2-R1 & r: Pi1-R3", ("Pi2", "panda_l5"), 40),
-    _paper("E8", "t: Pi1-R3 & r: Pi2-R1", ("Pi1", "panda"), 190),
-)
 
 
 def stitch_metadata(task_from: str, robot_from: str) -> dict[str, str]:

@@ -62,7 +62,8 @@ def prepare_sweep_anchors(
     States come from `spec.anchors.file`, from greedy rollouts of the trained plain policies
     (policy: plain, after stage 1) or from random-action rollouts (policy: random).
     """
-    from ps_ray.anchors import anchors_from_file, collect_task_states, make_anchor_set, save_anchor_set
+    from ps_ray.anchor_file import anchors_from_file, save_anchor_set
+    from ps_ray.anchors import collect_task_states, make_anchor_set
     from ps_ray.envs import make
     from ps_ray.policy import GreedyPolicy
 
@@ -122,7 +123,7 @@ def sweep_trial(config: dict[str, Any]) -> None:
     import ray
     from ray import tune
 
-    from ps_ray.anchors import load_anchor_set
+    from ps_ray.anchor_file import load_anchor_set
     from ps_ray.train import TrainingRun
     from ps_ray.trials import FINISHED, earlier_checkpoint
     from ps_ray.weights import policy_anchor_set

@@ -59,14 +59,8 @@ def make_env(spec: TrainSpec):
 
 def prepare_anchors(spec: TrainSpec, run_dir: Path):
     """The anchor set of a PS run: from spec.anchors, else k-means over random-policy rollouts."""
-    from ps_ray.anchors import (
-        AnchorSet,
-        anchors_from_file,
-        collect_task_states,
-        load_anchor_set,
-        save_anchor_set,
-        select_anchors,
-    )
+    from ps_ray.anchor_file import anchors_from_file, load_anchor_set, save_anchor_set
+    from ps_ray.anchors import AnchorSet, collect_task_states, select_anchors
 
     path = run_dir / "anchors.npz"
     if path.exists():

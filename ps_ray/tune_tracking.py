@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING, Any
 
 from ray.tune import Callback
 
-from ps_ray.config import trial_key
+from ps_ray.names import trial_key
 from ps_ray.tracking import (
     GIT_COMMIT_TAG,
     TrialTracker,

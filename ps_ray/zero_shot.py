@@ -15,7 +15,8 @@ import numpy as np
 import pandas as pd
 
 from ps_ray.atomic import atomic_path
-from ps_ray.config import SweepSpec, short_name
+from ps_ray.config import SweepSpec
+from ps_ray.names import short_name
 from ps_ray.sweep import layout, raise_on_errors, sweep_dir
 
 RESULT_KEYS = (

@@ -16,14 +16,12 @@ from sklearn.cluster import KMeans
 from sklearn.metrics import pairwise_distances_argmin_min
 
 from ps_ray import anchors as A
+from ps_ray.anchor_file import anchors_from_file, load_anchor_set, save_anchor_set
 from ps_ray.anchors import (
     AnchorSet,
     anchor_hash,
-    anchors_from_file,
     collect_task_states,
-    load_anchor_set,
     make_anchor_set,
-    save_anchor_set,
     select_anchor_indices,
     select_anchors,
 )

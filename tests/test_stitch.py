@@ -22,9 +22,8 @@ from ps_ray.envs import make
 from ps_ray.nets.modular import NetDims, update_normalizers, uses_anchors
 from ps_ray.nets.obs import dims_from_spaces
 from ps_ray.nets.sac import NET_NAMES, SACNets, build_sac_nets
+from ps_ray.paper import PANDA_L3_GRIPPER, PAPER_COMBOS
 from ps_ray.stitch import (
-    PANDA_L3_GRIPPER,
-    PAPER_COMBOS,
     check_stitchable,
     combos,
     default_target,

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from ps_ray.config import short_name, trial_key
+from ps_ray.names import short_name, trial_key
 from ps_ray.trials import PARAMS_FILE, attempts, merged_rows
 
 CURVE_COLUMNS = [

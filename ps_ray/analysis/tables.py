@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from ps_ray.config import short_name
+from ps_ray.names import short_name
 from ps_ray.nets.modular import METHODS
 
 METHOD_ORDER = tuple(METHODS)  # the method table's order: ps, its variants, then the baselines
@@ -69,7 +69,7 @@ def pool_seeds(table: pd.DataFrame) -> pd.DataFrame:
 
 def paper_names() -> dict[str, str]:
     """ps_ray-style combination label -> the paper's name, e.g. ``E1 (t: Pu1-R1 & r: Pu2-R2)``."""
-    from ps_ray.stitch import PAPER_COMBOS
+    from ps_ray.paper import PAPER_COMBOS
 
     names = {}
     for combo in PAPER_COMBOS:

@@ -1,0 +1,122 @@
+"""The report page: sections of figures, tables and clips, in order, and their one
+self-contained HTML file (figures and clips embedded as data URIs, so it opens anywhere)."""
+
+from __future__ import annotations
+
+import base64
+import html
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import pandas as pd
+
+from ps_ray.analysis import clips
+from ps_ray.config import SweepSpec
+from ps_ray.names import short_name
+
+
+@dataclass
+class Section:
+    title: str
+    intro: str = ""
+    # ("figure", Path) | ("table", (caption, frame)) | ("clips", (pair label, [Clip, ...]))
+    items: list[tuple[str, object]] = field(default_factory=list)
+
+
+@dataclass
+class Report:
+    """What the page shows, in order; files are written under ``root`` as they are added."""
+
+    root: Path
+    sections: list[Section] = field(default_factory=list)
+    metrics: dict[str, float] = field(default_factory=dict)
+    headline: dict[str, pd.DataFrame] = field(default_factory=dict)  # per-method figures for the top
+
+    def section(self, title: str, intro: str = "") -> Section:
+        self.sections.append(Section(title, intro))
+        return self.sections[-1]
+
+    def figure(self, section: Section, name: str, draw: Callable[[Path], Path]) -> None:
+        section.items.append(("figure", draw(self.root / "figures" / f"{name}.png")))
+
+    def table(
+        self,
+        section: Section,
+        name: str,
+        caption: str,
+        frame: pd.DataFrame,
+        numbers: pd.DataFrame | None = None,
+    ) -> None:
+        path = self.root / "tables" / f"{name}.csv"
+        path.parent.mkdir(parents=True, exist_ok=True)
+        (frame if numbers is None else numbers).to_csv(path)
+        section.items.append(("table", (caption, frame)))
+
+
+STYLE = """
+body { font-family: system-ui, sans-serif; margin: 2em auto; max-width: 1200px; color: #222; }
+h1 { border-bottom: 2px solid #444; } h2 { margin-top: 2em; border-bottom: 1px solid #bbb; }
+table { border-collapse: collapse; margin: 0.5em 0 1.5em; font-size: 0.9em; }
+th, td { border: 1px solid #ccc; padding: 3px 8px; text-align: right; }
+th { background: #f0f0f0; } caption { font-weight: bold; text-align: left; padding: 4px 0; }
+img { max-width: 100%; display: block; margin: 1em 0; } .meta td { text-align: left; }
+.clips td { text-align: left; vertical-align: top; width: 240px; } .clips img { margin: 0; }
+.caption { font-size: 0.8em; }
+"""
+
+
+def render_html(spec: SweepSpec, report: Report) -> str:
+    """One page, figures embedded as data URIs, so the file opens anywhere without its folder."""
+    from ps_ray.tracking import git_commit
+
+    esc = html.escape
+    meta = {
+        "methods": ", ".join(spec.methods),
+        "robots": ", ".join(map(short_name, spec.robots)),
+        "tasks": ", ".join(map(short_name, spec.tasks)),
+        "seeds": ", ".join(map(str, spec.seeds)),
+        "interface dims": ", ".join(map(str, spec.interface_dims)),
+        "stages": ", ".join(spec.stages),
+        "code": git_commit() or "unknown",
+    }
+    parts = [
+        f"<!DOCTYPE html><html><head><meta charset='utf-8'>"
+        f"<title>ps_ray report: {esc(spec.name)}</title><style>{STYLE}</style></head><body>",
+        f"<h1>ps_ray report: {esc(spec.name)}</h1>",
+        "<table class='meta'>",
+        *(f"<tr><th>{esc(k)}</th><td>{esc(v)}</td></tr>" for k, v in meta.items()),
+        "</table>",
+    ]
+    parts.append(
+        "<ul>"
+        + "".join(f"<li><a href='#s{i}'>{esc(s.title)}</a></li>" for i, s in enumerate(report.sections))
+        + "</ul>"
+    )
+    for index, section in enumerate(report.sections):
+        parts.append(f"<h2 id='s{index}'>{esc(section.title)}</h2><p>{esc(section.intro)}</p>")
+        for kind, item in section.items:
+            if kind == "figure":
+                data = base64.b64encode(item.read_bytes()).decode()
+                parts.append(f"<img alt='{esc(item.stem)}' src='data:image/png;base64,{data}'>")
+            elif kind == "clips":
+                label, row = item
+                parts.append(f"<h3>{esc(label)}</h3><table class='clips'><tr><th>method</th>")
+                parts += [f"<th>{esc(role)}</th>" for role in clips.ROLES]
+                for method in dict.fromkeys(c.method for c in row):
+                    parts.append(f"<tr><th>{esc(method)}</th>")
+                    for clip in (c for c in row if c.method == method):
+                        data = base64.b64encode(clip.path.read_bytes()).decode()
+                        verdict = "reached the goal" if clip.success else "did not reach the goal"
+                        parts.append(
+                            f"<td><img alt='{esc(clip.path.stem)}' src='data:image/gif;base64,{data}'>"
+                            f"<div class='caption'>{esc(clip.env)}: {verdict}</div></td>"
+                        )
+                    parts.append("</tr>")
+                parts.append("</table>")
+            else:
+                caption, frame = item
+                head, rest = frame.to_html(border=0, na_rep="–").split(">", 1)
+                parts.append(f"{head}><caption>{esc(caption)}</caption>{rest}")
+    parts.append("</body></html>")
+    return "\n".join(parts)

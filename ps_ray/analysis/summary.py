@@ -1,0 +1,118 @@
+"""The report's answer-first parts: the headline table per method at the top, and the cost
+that ``ps-ray sweep --check`` projected beside what the stages used."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pandas as pd
+
+from ps_ray.analysis import tables
+from ps_ray.analysis.page import Report, Section
+from ps_ray.config import SweepSpec
+
+
+def cost_section(report: Report, spec: SweepSpec, root: Path) -> None:
+    """The cost `--check` projected beside what the stages used."""
+    from ps_ray import cost
+    from ps_ray.pipeline import stage_wall_s
+
+    projection = cost.project(spec)
+    used = cost.spent(root)
+    rows = {}
+    for load in projection.loads:
+        attempts, core_s = used.get(load.stage, (0, 0.0))
+        rows[load.stage] = {
+            "trials (projected)": len(load.trials),
+            "core-hours (projected)": round(sum(cost.trial_seconds(load, projection.rates)) / 3600, 3),
+            "attempts (ran)": attempts,
+            "core-hours in trials (used)": round(core_s / 3600, 3),
+        }
+    if not any(r["attempts (ran)"] for r in rows.values()):
+        return
+    walls = [w for stage in spec.stages if stage != "report" and (w := stage_wall_s(spec, stage)) is not None]
+    measured = f"measured {sum(walls) / 60:.1f} min over the pipeline's stages" if walls else "not measured"
+    section = report.section(
+        "Cost: projected and used",
+        f"Projected by `ps-ray sweep --check` from {projection.rates.source}: "
+        f"{projection.core_s / 3600:.2f} core-hours, wall time {projection.wall_s_here / 60:.1f} min "
+        f"on {projection.cores_here} cores; {measured}. Used core-hours count time inside trials "
+        "only (starting Ray workers and stages is not in them), over every attempt.",
+    )
+    frame = pd.DataFrame.from_dict(rows, orient="index")
+    frame.index.name = "stage"
+    report.table(section, "cost", "Projected and used cost per stage", frame)
+
+
+def summary_section(report: Report, spec: SweepSpec, target: float) -> None:
+    """The answer first: per method, zero-shot success and touching with CIs, cross-robot
+    alignment and training success, with the budget in one sentence; put at the top."""
+    h = report.headline
+    rows = {}
+    translated = [] if h.get("zero_shot") is None else list(h["zero_shot"].index)
+    for method in tables.method_order([*spec.methods, *translated]):  # "ablation+affine" rows too
+        row: dict[str, str] = {}
+        zs = h.get("zero_shot")
+        if zs is not None and method in zs.index:
+            r = zs.loc[method]
+            row["zero-shot success, mean [95% CI]"] = f"{r['success_mean']:.2f} " + tables.ci(
+                r["success_mean_lo"], r["success_mean_hi"]
+            )
+            row["zero-shot success IQM"] = f"{r['success_iqm']:.2f}"
+            if "touching_mean" in r and r["touching_mean"] == r["touching_mean"]:
+                row["touching, mean [95% CI]"] = f"{r['touching_mean']:.2f} " + tables.ci(
+                    r["touching_mean_lo"], r["touching_mean_hi"]
+                )
+            row["cells"] = str(int(r["success_cells"]))
+        al = h.get("alignment")
+        if al is not None:
+            part = al[(al["method"] == method) & (al["comparison"] == "robots")]
+            if len(part):
+                r = part.sort_values("interface_dim").iloc[-1]
+                row["across robots: MRR"] = f"{r['mrr_mean']:.3f}"
+                row["across robots: cosine dist."] = f"{r['cosine_mean']:.4f}"
+        if h.get("collapsed") is not None and method in h["collapsed"].index:
+            row["collapsed interfaces"] = str(int(h["collapsed"][method]))
+        steps = h.get("steps")
+        if steps is not None and method in steps.index:
+            r = steps.loc[method]
+            row[f"env steps to {target:.2f}"] = (
+                f"{r['steps_mean']:.0f} ({int(r['reached'])}/{int(r['runs'])} reached)"
+            )
+        src = h.get("sources")
+        if src is not None and (src["method"] == method).any():
+            mine = src[src["method"] == method]
+            row["training success (mean)"] = f"{mine['success'].mean():.2f}"
+            row[f"sources < {target:.2f}"] = f"{int(mine['below_target'].sum())}/{len(mine)}"
+        if row:
+            rows[method] = row
+    if not rows:
+        return
+    train = spec.train
+    budget = (
+        f"Budget: {len(spec.seeds)} seed(s), up to {train.get('env_steps', 'default')} env "
+        f"steps per source"
+        + (
+            f", stopping early at greedy success {train['target_success']}"
+            if train.get("target_success") is not None
+            else ""
+        )
+        + ". "
+    )
+    from ps_ray.cost import budget_note
+
+    note = budget_note(spec)
+    budget += f"{note} " if note else ""
+    section = Section(
+        "Summary",
+        budget + "Zero-shot: stitched pairs in their target env, no "
+        "training; CIs resample seeds (fewer than two seeds: n/a). MRR: retrieval of "
+        "the same probe state across networks (1 = perfect; a collapsed interface "
+        "cannot score).",
+    )
+    frame = pd.DataFrame.from_dict(rows, orient="index").fillna("–")
+    frame.index.name = "method"
+    path = report.root / "tables" / "summary.csv"
+    frame.to_csv(path)
+    section.items.append(("table", ("Headline per method", frame)))
+    report.sections.insert(0, section)

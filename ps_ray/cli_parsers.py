@@ -1,0 +1,174 @@
+"""The arguments of every `ps-ray` command (the commands themselves are in :mod:`ps_ray.cli`)."""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+
+from ps_ray.config import TrainSpec
+
+
+def build_parser(description: str | None) -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="ps-ray", description=description)
+    sub = parser.add_subparsers(dest="command", required=True)
+    for add in (
+        _train_parser,
+        _sweep_parser,
+        _zero_shot_parser,
+        _few_shot_parser,
+        _render_parser,
+        _bench_parser,
+        _stitch_parser,
+        _run_parser,
+        _report_parser,
+    ):
+        add(sub)
+    return parser
+
+
+def _train_parser(sub) -> None:
+    p = sub.add_parser("train", help="train one policy (SAC + HER on RLlib); re-running resumes")
+    defaults = TrainSpec()
+    for f in dataclasses.fields(TrainSpec):
+        if f.name in ("robot", "task"):
+            p.add_argument(
+                f"--{f.name}",
+                default=getattr(defaults, f.name),
+                help=f"built-in name or a JSON mapping (default {getattr(defaults, f.name)})",
+            )
+            continue
+        kind = next((t for t in (float, int, str) if t.__name__ in str(f.type)), str)
+        p.add_argument(
+            f"--{f.name.replace('_', '-')}", dest=f.name, type=kind, default=getattr(defaults, f.name)
+        )
+    p.add_argument(
+        "--run-dir",
+        default=None,
+        help="where checkpoints, policy and metrics go (default runs/<method>-<robot>-...)",
+    )
+    p.add_argument("--quiet", action="store_true")
+
+
+def _bench_parser(sub) -> None:
+    p = sub.add_parser("bench", help="print speed figures")
+    p.add_argument("what", choices=["env", "her", "train", "learn", "tracking", "evaluate", "rates"])
+    p.add_argument("options", nargs=argparse.REMAINDER, help="passed to the benchmark (see --help)")
+
+
+def _verbose_flag(p) -> None:
+    help_text = "Tune's tables and Ray's warnings on the terminal (default: a log file)"
+    p.add_argument("--verbose", action="store_true", help=help_text)
+
+
+def _sweep_parser(sub) -> None:
+    p = sub.add_parser("sweep", help="run a sweep YAML's training trials on Ray Tune")
+    _verbose_flag(p)
+    p.add_argument("sweep", help="path to a sweep YAML, e.g. sweeps/smoke.yaml")
+    p.add_argument(
+        "--resume", action="store_true", help="finish only the missing trials of an interrupted sweep"
+    )
+    p.add_argument("--storage", default=None, help="override the spec's storage directory")
+    p.add_argument("--tracking-uri", default=None, help="override the MLflow tracking URI")
+    p.add_argument(
+        "--check", action="store_true", help="validate the spec, list trials, project the cost; run nothing"
+    )
+    p.add_argument("--cores", type=int, default=64, help="cluster size for the --check wall-time projection")
+
+
+def _zero_shot_parser(sub) -> None:
+    p = sub.add_parser("zero-shot", help="evaluate every stitched pair of a trained sweep (Tune)")
+    _verbose_flag(p)
+    p.add_argument("sweep", help="the sweep YAML whose trained policies are stitched")
+    p.add_argument("--methods", nargs="+", default=None, help="default: the spec's zero_shot.methods")
+    p.add_argument("--episodes", type=int, default=None, help="default: the spec's (200)")
+    p.add_argument("--repeats", type=int, default=None, help="default: the spec's (5)")
+    p.add_argument("--seed", type=int, default=None, help="first evaluation seed")
+    p.add_argument("--resume", action="store_true", help="finish an interrupted matrix")
+    p.add_argument("--storage", default=None, help="override the spec's storage directory")
+
+
+def _few_shot_parser(sub) -> None:
+    p = sub.add_parser("few-shot", help="fine-tune stitched policies of a sweep, beside from-scratch runs")
+    _verbose_flag(p)
+    p.add_argument("sweep", help="the sweep YAML whose trained policies are stitched")
+    p.add_argument("--env-steps", type=int, default=None, help="fine-tuning budget per trial")
+    p.add_argument(
+        "--collect-steps",
+        type=int,
+        default=None,
+        help="env steps collected before the first update (the paper: 10 epochs)",
+    )
+    p.add_argument("--methods", nargs="+", default=None)
+    p.add_argument("--max-pairs", type=int, default=None, help="stitched pairs per method")
+    p.add_argument("--resume", action="store_true")
+    p.add_argument("--storage", default=None)
+
+
+def _run_parser(sub) -> None:
+    p = sub.add_parser(
+        "run",
+        help="the whole pipeline of a sweep YAML: train, zero-shot, few-shot, "
+        "report (its 'stages'); finished stages are skipped",
+    )
+    _verbose_flag(p)
+    p.add_argument("sweep", help="path to a sweep YAML, e.g. sweeps/smoke.yaml")
+    p.add_argument("--storage", default=None, help="override the spec's storage directory")
+    p.add_argument("--tracking-uri", default=None, help="override the MLflow tracking URI")
+
+
+def _report_parser(sub) -> None:
+    p = sub.add_parser("report", help="rebuild a sweep's report from its stored results")
+    p.add_argument("sweep", help="a sweep YAML, or a sweep folder (<storage>/<name>)")
+    p.add_argument("--storage", default=None, help="override the spec's storage directory")
+    p.add_argument("--no-mlflow", action="store_true", help="write the folder only")
+    p.add_argument(
+        "--screenshot", default=None, help="also save a headless-Chromium screenshot of the page (PNG)"
+    )
+
+
+def _render_parser(sub) -> None:
+    p = sub.add_parser("render", help="roll out one episode headless and save a PNG and/or GIF")
+    p.add_argument("--robot", default="panda")
+    p.add_argument("--task", default="reach")
+    p.add_argument("--policy", default=None, help="a policy.safetensors (default: random actions)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--png", default=None)
+    p.add_argument("--gif", default=None)
+
+
+def _stitch_parser(sub) -> None:
+    p = sub.add_parser("stitch", help="stitch a task module and a robot module; zero-shot evaluation")
+    p.add_argument(
+        "--task-from",
+        required=True,
+        help="policy file/run dir or zoo key (e.g. ps/panda/push/101) giving the task module",
+    )
+    p.add_argument(
+        "--robot-from", required=True, help="policy file/run dir or zoo key giving the robot module"
+    )
+    p.add_argument(
+        "--sweep",
+        action="append",
+        default=[],
+        help="sweep directory (<storage>/<name>) to look keys up in; repeatable",
+    )
+    p.add_argument("--robot", default=None, help="target robot (default: the robot module's robot)")
+    p.add_argument("--task", default=None, help="target task (default: the task module's task)")
+    p.add_argument("--episodes", type=int, default=200, help="episodes per repeat (0: no evaluation)")
+    p.add_argument("--repeats", type=int, default=5, help="repeats (mean +- std over them)")
+    p.add_argument("--seed", type=int, default=0, help="first evaluation seed")
+    p.add_argument("--num-envs", type=int, default=8, help="envs stepped in lockstep")
+    p.add_argument("--save", default=None, help="write the stitched policy (.safetensors) here")
+    p.add_argument(
+        "--translate",
+        default=None,
+        choices=["orthogonal", "affine"],
+        help="fit a latent translation from the task module's latent to the robot "
+        "module's on reset task states of both sources' tasks (no env steps)",
+    )
+    p.add_argument(
+        "--fit-states",
+        type=int,
+        default=128,
+        help="reset task states per goal quadrant and task for --translate",
+    )

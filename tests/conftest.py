@@ -68,12 +68,12 @@ class _Planted:
 RAY_PICKLES = ("algorithm_state.pkl", "class_and_ctor_args.pkl", "state.pkl", "params.pkl", "tuner.pkl")
 
 
-@pytest.fixture
-def planted(tmp_path):
+@pytest.fixture(scope="session")
+def planted(tmp_path_factory):
     """``planted(folder, names=RAY_PICKLES)`` writes hostile pickles there; ``planted.marker``
-    exists once any of them has been unpickled."""
+    exists once any of them has been unpickled (by any test of the session)."""
 
-    marker = tmp_path / "pickle-ran"
+    marker = tmp_path_factory.mktemp("planted") / "pickle-ran"
 
     def plant(folder, names=RAY_PICKLES) -> None:
         for name in names:

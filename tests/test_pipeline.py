@@ -34,8 +34,9 @@ FIGURES = {"training_curves", "heatmap_seeds_i16", "heatmap_robots_i16", "zero_s
 
 
 @pytest.fixture(scope="module")
-def smoke(tmp_path_factory, cli):
-    """The smoke pipeline, SIGKILLed once its zero-shot stage has started, then run again."""
+def smoke(tmp_path_factory, cli, planted):
+    """The smoke pipeline, SIGKILLed once its zero-shot stage has started, then run again after
+    hostile pickles were planted wherever Tune, RLlib or ps_ray might look."""
     storage = tmp_path_factory.mktemp("pipeline") / "sweeps"
     root = storage / "smoke"
     log = storage.parent / "first_run.log"
@@ -54,9 +55,19 @@ def smoke(tmp_path_factory, cli):
         time.sleep(8)
         os.killpg(first.pid, signal.SIGKILL)  # the driver and the Ray processes it started
         first.wait()
+    for place in [
+        root,
+        *root.glob("tune*"),
+        *root.glob("tune*/*"),
+        *root.glob("tune*/*/check*"),
+        root / "anchors",
+    ]:
+        if place.is_dir():
+            planted(place)
     second = cli("run", str(SMOKE), "--storage", str(storage))
     out, _ = second.communicate(timeout=1200)
     assert second.returncode == 0, out[-3000:]
+    assert not planted.marker.exists(), "a planted pickle was loaded"
     spec = dataclasses.replace(load_sweep(SMOKE), storage=str(storage))
     return spec, root, out
 

@@ -8,10 +8,9 @@ from typing import Any
 import torch
 from ray.rllib.algorithms.sac.torch.sac_torch_learner import SACTorchLearner
 from ray.rllib.core import DEFAULT_MODULE_ID
-from ray.rllib.core.learner.learner import Learner
-from ray.rllib.core.learner.torch.torch_learner import TorchLearner
 
 from ps_ray.nets.sac import SACHyper, polyak, sac_losses
+from ps_ray.rllib.private import after_update_without_target_sync, gradients_in_one_backward, learner_module
 from ps_ray.weights import load_nets_state, nets_state
 
 OPTIMIZER_PREFIX = "optimizer."
@@ -20,7 +19,7 @@ LOG_ALPHA = "log_alpha"
 
 class ModularSACLearner(SACTorchLearner):
     def configure_optimizers_for_module(self, module_id, config=None) -> None:
-        nets = self._module[module_id]
+        nets = learner_module(self, module_id)
         groups = {
             "critic": (
                 list(nets.critic.parameters()) + list(nets.critic_twin.parameters()),
@@ -60,22 +59,20 @@ class ModularSACLearner(SACTorchLearner):
         return losses["total"]
 
     def compute_gradients(self, loss_per_module, **kwargs):
-        # The loss terms are detached from each other's parameters: one backward serves all.
-        return TorchLearner.compute_gradients(self, loss_per_module, **kwargs)
+        return gradients_in_one_backward(self, loss_per_module, **kwargs)
 
     def apply_gradients(self, gradients_dict) -> None:
         super().apply_gradients(gradients_dict)
         for module_id in self.module.keys():
-            polyak(self._module[module_id], self.config.get_config_for_module(module_id).tau)
+            polyak(learner_module(self, module_id), self.config.get_config_for_module(module_id).tau)
 
     def after_gradient_based_update(self, *, timesteps: dict[str, Any]) -> None:
-        # Skip DQN's once-per-call target sync: Polyak already ran after every minibatch.
-        Learner.after_gradient_based_update(self, timesteps=timesteps)
+        after_update_without_target_sync(self, timesteps)
 
     # -- checkpoint state as plain tensors (no pickle): nets, log alpha, every Adam slot -----------
     def training_state(self) -> dict[str, torch.Tensor]:
         module_id = DEFAULT_MODULE_ID
-        state = nets_state(self._module[module_id])
+        state = nets_state(learner_module(self, module_id))
         state[LOG_ALPHA] = self.curr_log_alpha[module_id].detach().clone()
         for name, optimizer in self.get_optimizers_for_module(module_id):
             for index, slots in optimizer.state_dict()["state"].items():
@@ -87,7 +84,7 @@ class ModularSACLearner(SACTorchLearner):
 
     def load_training_state(self, state: dict[str, torch.Tensor]) -> None:
         module_id = DEFAULT_MODULE_ID
-        load_nets_state(self._module[module_id], state)
+        load_nets_state(learner_module(self, module_id), state)
         with torch.no_grad():
             self.curr_log_alpha[module_id].copy_(state[LOG_ALPHA])
         for name, optimizer in self.get_optimizers_for_module(module_id):

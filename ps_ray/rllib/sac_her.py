@@ -33,6 +33,7 @@ from ps_ray.nets.obs import dims_from_spaces
 from ps_ray.rllib.episodes import episode_stats, episodes_to_arrays, train_batch
 from ps_ray.rllib.learner import ModularSACLearner
 from ps_ray.rllib.module import ModularSACModule
+from ps_ray.rllib.private import NO_METRICS_REDUCE, set_runner_seed, set_training_iteration
 from ps_ray.weights import load_nets_state, nets_from_state, nets_state, save_policy
 
 LEARNER_FILE = "learner.safetensors"
@@ -144,7 +145,7 @@ class ModularSAC(SAC):
         def sample(runner):
             # RLlib re-seeds the envs with its config seed on every num_episodes call, which
             # would replay the same goals forever: set the seed of this call instead.
-            runner._seed = seed + 1_000 * runner.worker_index
+            set_runner_seed(runner, seed + 1_000 * runner.worker_index)
             return runner.sample(num_episodes=n, explore=explore, random_actions=random)
 
         results = self.env_runner_group.foreach_env_runner(
@@ -185,7 +186,7 @@ class ModularSAC(SAC):
                     timesteps={NUM_ENV_STEPS_SAMPLED_LIFETIME: self.counters["env_steps"]},
                     num_epochs=1,
                     minibatch_size=cfg.train_batch_size,
-                    _no_metrics_reduce=True,
+                    **NO_METRICS_REDUCE,
                 )
             self.counters["updates"] += n_updates
             reduced = self.learner_group.foreach_learner(lambda learner: learner.metrics.reduce())
@@ -225,4 +226,4 @@ class ModularSAC(SAC):
         self.replay.load(directory / REPLAY_FILE)
         state = json.loads((directory / STATE_FILE).read_text())
         self.counters = {k: int(state["counters"][k]) for k in self.counters}
-        self._iteration = int(state["iteration"])  # Trainable's counter: RLlib private API, Ray 2.60
+        set_training_iteration(self, int(state["iteration"]))

@@ -39,9 +39,7 @@ def main(argv: list[str] | None = None) -> None:
                 pass
 
         lock = _per_call(lock_once, args.repeats)
-        print(
-            f"1 KB file: plain write {plain * 1e3:.3f} ms, atomic write (fsync + rename) {atomic * 1e3:.3f} ms"
-        )
+        print(f"1 KB file: plain write {plain * 1e3:.3f} ms, atomic (fsync + rename) {atomic * 1e3:.3f} ms")
         print(f"folder lock: acquire + release {lock * 1e3:.3f} ms (once per command, not per result)")
         if args.checkpoint:
             source = Path(args.checkpoint)

@@ -49,7 +49,7 @@ case "$cmd" in
   test)
     setup
     browser
-    "$VENV/bin/python" -m pytest -q "$@"
+    "$VENV/bin/python" -m pytest -q --durations=15 "$@"
     ;;
   *)
     echo "usage: ./run.sh smoke|test|lint|setup [args]" >&2

@@ -14,6 +14,7 @@ import numpy as np
 from ps_ray.anchors import AnchorSet, _as_states, _library_versions, anchor_hash, select_anchors
 from ps_ray.atomic import atomic_file
 from ps_ray.checkpoint import file_sha256
+from ps_ray.errors import UserError
 from ps_ray.npz import NPY_MAGIC, ZIP_MAGIC, NpzError, magic, read_npy, read_npz
 
 FORMAT = "ps_ray.anchor_set"
@@ -102,7 +103,7 @@ def load_anchor_set(path: str | os.PathLike) -> AnchorSet:
             raise NpzError("not an .npz archive")
         return _parse_anchor_npz(read_npz(path))
     except NpzError as exc:
-        raise ValueError(f"{path}: {exc}") from None
+        raise UserError(f"{path}: {exc}") from None
 
 
 def anchors_from_file(
@@ -154,7 +155,9 @@ def anchors_from_file(
         except ValueError as exc:
             raise NpzError(str(exc)) from None
     except NpzError as exc:
-        raise ValueError(f"{path}: {exc}") from None
+        raise UserError(f"{path}: {exc}") from None
+    except OSError as exc:
+        raise UserError(f"{path}: cannot read the file ({exc.strerror or exc})") from None
     provenance: dict[str, Any] = {
         "method": "kmeans_nearest_real_state",
         "source_file": str(path),

@@ -43,6 +43,8 @@ from typing import Any
 
 import numpy as np
 
+from ps_ray.errors import UserError
+
 __all__ = [
     "AnchorSet",
     "anchor_hash",
@@ -63,21 +65,21 @@ Policy = Callable[[dict[str, np.ndarray]], Any]
 
 
 def _task_input(obs: Mapping[str, Any]) -> np.ndarray:
-    """``concatenate([task_state, desired_goal])`` of one (unbatched) observation, float32."""
-    task = np.asarray(obs["task_state"], np.float32).reshape(-1)
-    goal = np.asarray(obs["desired_goal"], np.float32).reshape(-1)
-    return np.concatenate([task, goal])
+    """The task input (:func:`ps_ray.envs.goals.task_input`) of one observation, flat float32."""
+    from ps_ray.envs.goals import TASK_KEYS, task_input  # lazily: the envs package loads PyBullet
+
+    return task_input({key: np.asarray(obs[key], np.float32).reshape(-1) for key in TASK_KEYS})
 
 
 def _check_steps(steps: Sequence[int]) -> list[int]:
     try:
         out = [operator.index(s) for s in steps]
     except TypeError:
-        raise ValueError(f"steps must be integers, got {list(steps)}") from None
+        raise UserError(f"steps must be integers, got {list(steps)}") from None
     if not out or min(out) < 0:
-        raise ValueError(f"steps must be one or more non-negative integers, got {out}")
+        raise UserError(f"steps must be one or more non-negative integers, got {out}")
     if len(set(out)) != len(out):
-        raise ValueError(f"steps must be distinct, got {out}")
+        raise UserError(f"steps must be distinct, got {out}")
     return sorted(out)
 
 
@@ -104,7 +106,7 @@ def collect_task_states(
     ascending order within an episode.
     """
     if int(episodes) != episodes or episodes < 1:
-        raise ValueError(f"episodes must be a positive integer, got {episodes!r}")
+        raise UserError(f"episodes must be a positive integer, got {episodes!r}")
     episodes = int(episodes)
     wanted = _check_steps(steps)
     wanted_set, last = set(wanted), wanted[-1]
@@ -154,12 +156,12 @@ def collect_task_states(
 def _as_states(states: Any, name: str = "states") -> np.ndarray:
     arr = np.asarray(states)
     if arr.dtype.kind not in "biuf":
-        raise ValueError(f"{name} must be a numeric array, got dtype {arr.dtype}")
+        raise UserError(f"{name} must be a numeric array, got dtype {arr.dtype}")
     if arr.ndim != 2 or arr.shape[0] == 0 or arr.shape[1] == 0:
-        raise ValueError(f"{name} must be a non-empty (N, dim) matrix, got shape {arr.shape}")
+        raise UserError(f"{name} must be a non-empty (N, dim) matrix, got shape {arr.shape}")
     arr = np.ascontiguousarray(arr, dtype=np.float32)
     if not np.all(np.isfinite(arr)):
-        raise ValueError(f"{name} contains NaN or infinite values (after casting to float32)")
+        raise UserError(f"{name} contains NaN or infinite values (after casting to float32)")
     return arr
 
 
@@ -208,11 +210,11 @@ def select_anchor_indices(
 
     x = _as_states(states)
     if int(k) != k or k < 1:
-        raise ValueError(f"k must be a positive integer, got {k!r}")
+        raise UserError(f"k must be a positive integer, got {k!r}")
     k = int(k)
     n_distinct = len(np.unique(x, axis=0))
     if n_distinct < k:
-        raise ValueError(
+        raise UserError(
             f"cannot select {k} anchors from {x.shape[0]} states with only {n_distinct} "
             f"distinct rows; collect more states or lower k"
         )
@@ -243,10 +245,10 @@ def select_anchors(
 def _canonical(anchors: Any) -> np.ndarray:
     arr = np.asarray(anchors)
     if arr.dtype.kind not in "biuf":
-        raise ValueError(f"anchors must be numeric, got dtype {arr.dtype}")
+        raise UserError(f"anchors must be numeric, got dtype {arr.dtype}")
     arr = np.ascontiguousarray(arr, dtype="<f4")
     if not np.all(np.isfinite(arr)):
-        raise ValueError("anchors contain NaN or infinite values")
+        raise UserError("anchors contain NaN or infinite values")
     return arr + np.float32(0.0)  # -0.0 -> +0.0: equal values hash equally
 
 
@@ -282,16 +284,16 @@ class AnchorSet:
     def __post_init__(self) -> None:
         arr = np.asarray(self.anchors)
         if arr.ndim != 2 or arr.shape[0] < 1 or arr.shape[1] < 1:
-            raise ValueError(f"anchors must be a non-empty (k, dim) matrix, got shape {arr.shape}")
+            raise UserError(f"anchors must be a non-empty (k, dim) matrix, got shape {arr.shape}")
         arr = np.array(_canonical(arr), dtype=np.float32, order="C", copy=True)
         arr.setflags(write=False)
         expected = anchor_hash(arr)
         if self.hash != expected:
-            raise ValueError(f"anchor hash {self.hash!r} does not match the anchors ({expected})")
+            raise UserError(f"anchor hash {self.hash!r} does not match the anchors ({expected})")
         try:
             prov = json.loads(json.dumps(dict(self.provenance), sort_keys=True, allow_nan=False))
         except (TypeError, ValueError) as exc:
-            raise ValueError(f"provenance must be JSON-serialisable: {exc}") from None
+            raise UserError(f"provenance must be JSON-serialisable: {exc}") from None
         object.__setattr__(self, "anchors", arr)
         object.__setattr__(self, "provenance", prov)
 
@@ -342,12 +344,12 @@ def make_anchor_set(
     episodes, policy checkpoints) is merged in.
     """
     if not states_by_source:
-        raise ValueError("no task-state sources given")
+        raise UserError("no task-state sources given")
     parts = [_as_states(v, name=f"states of source {name!r}") for name, v in states_by_source.items()]
     dims = {p.shape[1] for p in parts}
     if len(dims) != 1:
         shapes = {name: p.shape for name, p in zip(states_by_source, parts)}
-        raise ValueError(f"task-state sources have different dimensions: {shapes}")
+        raise UserError(f"task-state sources have different dimensions: {shapes}")
     pooled = np.concatenate(parts)
     anchors = select_anchors(pooled, k, seed=seed, n_init=n_init, distinct=distinct)
     provenance: dict[str, Any] = {

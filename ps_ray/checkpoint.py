@@ -21,6 +21,7 @@ import json
 from pathlib import Path
 
 from ps_ray.atomic import write_text
+from ps_ray.errors import UserError
 
 MANIFEST = "manifest.json"
 FORMAT = "ps_ray-checkpoint-1"
@@ -29,7 +30,7 @@ POLICY_FILE = "policy.safetensors"
 POLICY_ONLY = (STATE_FILE, POLICY_FILE)  # what a reader of the policy alone must hash
 
 
-class CheckpointError(ValueError):
+class CheckpointError(UserError):
     """A checkpoint folder that is incomplete, altered, foreign or from an older ps_ray."""
 
 

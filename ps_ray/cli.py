@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
 import json
 import os
@@ -11,20 +12,18 @@ import time
 from pathlib import Path
 
 from ps_ray.cli_parsers import build_parser
-from ps_ray.config import SpecError, TrainSpec
+from ps_ray.config import TrainSpec
+from ps_ray.errors import UserError
 from ps_ray.lock import folder_lock
-from ps_ray.sweep import StageError
-
-
-def _mapping_or_name(value: str):
-    return json.loads(value) if value.strip().startswith("{") else value
+from ps_ray.names import parse_spec_text
+from ps_ray.pipeline.sweep import StageError
 
 
 def cmd_train(args: argparse.Namespace) -> int:
     from ps_ray.train import train
 
     fields = {f.name: getattr(args, f.name) for f in dataclasses.fields(TrainSpec)}
-    fields["robot"], fields["task"] = _mapping_or_name(args.robot), _mapping_or_name(args.task)
+    fields["robot"], fields["task"] = parse_spec_text(args.robot), parse_spec_text(args.task)
     spec = TrainSpec.from_mapping(fields)
     run_dir = Path(args.run_dir or Path("runs") / spec.slug())
     train(spec, run_dir, progress=not args.quiet)
@@ -36,13 +35,13 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     trials = spec.trials()
     print(f"sweep {spec.name!r}: {len(trials)} training trials")
     if args.check:
-        from ps_ray.cost import describe, project
+        from ps_ray.pipeline.cost import describe, project
 
         for trial in trials:
             print(f"  {trial.label()}  {trial.env_steps} env steps")
         print("\n".join(describe(project(spec, cores_on=args.cores))))
         return 0
-    from ps_ray.sweep import run_sweep, sweep_dir
+    from ps_ray.pipeline.sweep import run_sweep, sweep_dir
 
     with folder_lock(sweep_dir(spec), "sweep"):
         results = run_sweep(spec, resume=args.resume)
@@ -60,14 +59,14 @@ def _load(args: argparse.Namespace):
 
     path = Path(args.sweep)
     if path.is_dir():  # a sweep folder: its resolved spec, stored where the folder is
-        from ps_ray.layout import SweepLayout
+        from ps_ray.pipeline.layout import SweepLayout
 
         spec_file = SweepLayout(path).spec_file
         if not spec_file.exists():
-            raise ValueError(f"{path}: not a sweep folder (no {spec_file.name})")
+            raise UserError(f"{path}: not a sweep folder (no {spec_file.name})")
         spec = dataclasses.replace(load_sweep(spec_file), storage=str(path.resolve().parent))
         if spec.name != path.resolve().name:
-            raise ValueError(
+            raise UserError(
                 f"{path}: holds sweep {spec.name!r}; a sweep folder must keep its "
                 f"sweep's name (rename it back to {spec.name!r})"
             )
@@ -83,7 +82,7 @@ def _load(args: argparse.Namespace):
 
 def _sweep_lock(spec):
     """Held for the whole command: a second driver on the same sweep is refused in one line."""
-    from ps_ray.sweep import sweep_dir
+    from ps_ray.pipeline.sweep import sweep_dir
 
     return folder_lock(sweep_dir(spec), "sweep")
 
@@ -95,14 +94,33 @@ def _given(args: argparse.Namespace, *names: str) -> dict:
     return out
 
 
-def cmd_zero_shot(args: argparse.Namespace) -> int:
-    from ps_ray.zero_shot import run_zero_shot, summary
+@contextlib.contextmanager
+def _trained_sweep(args: argparse.Namespace, stage: str, *flags: str):
+    """The sweep spec with a stage's flags applied and checked (as if written in the YAML), held
+    under the sweep's lock. An untrained sweep is refused in one line and no folder is made; a
+    sweep another driver holds is refused as locked, even while its training is still starting."""
+    from ps_ray.pipeline.layout import SweepLayout
+    from ps_ray.pipeline.sweep import sweep_dir
 
     spec = _load(args)
+    settings = dataclasses.replace(getattr(spec, stage), **_given(args, *flags))
+    spec = dataclasses.replace(spec, **{stage: settings})  # checked like the YAML's own settings
+    untrained = UserError(
+        f"{sweep_dir(spec)}: no trained sweep there; train it first (ps-ray sweep {args.sweep})"
+    )
+    if not sweep_dir(spec).is_dir():
+        raise untrained
     with _sweep_lock(spec):
-        table = run_zero_shot(
-            spec, resume=args.resume, **_given(args, "methods", "episodes", "repeats", "seed")
-        )
+        if not SweepLayout(sweep_dir(spec)).spec_file.exists():
+            raise untrained
+        yield spec
+
+
+def cmd_zero_shot(args: argparse.Namespace) -> int:
+    from ps_ray.pipeline.zero_shot import run_zero_shot, summary
+
+    with _trained_sweep(args, "zero_shot", "methods", "episodes", "repeats", "seed") as spec:
+        table = run_zero_shot(spec, resume=args.resume)
     columns = ["method", "label", "success_mean", "success_std", "touching_mean", "touching_std"]
     print(table[columns].to_string(index=False, float_format=lambda x: f"{x:.2f}"))
     print(summary(table).to_string(float_format=lambda x: f"{x:.2f}"))
@@ -110,23 +128,21 @@ def cmd_zero_shot(args: argparse.Namespace) -> int:
 
 
 def cmd_few_shot(args: argparse.Namespace) -> int:
-    from ps_ray.few_shot import curves, run_few_shot
+    from ps_ray.pipeline.few_shot import curves, run_few_shot
 
-    spec = _load(args)
-    with _sweep_lock(spec):
-        results = run_few_shot(
-            spec, resume=args.resume, **_given(args, "env_steps", "collect_steps", "methods", "max_pairs")
-        )
+    flags = ("env_steps", "collect_steps", "methods", "max_pairs")
+    with _trained_sweep(args, "few_shot", *flags) as spec:
+        results = run_few_shot(spec, resume=args.resume)
     for key, points in sorted(curves(results).items()):
         print(key, " ".join(f"{steps}:{success:.2f}" for steps, success in points))
     return 1 if any(r.error for r in results) else 0
 
 
 def cmd_run(args: argparse.Namespace) -> int:
-    from ps_ray.cost import budget_note, project
-    from ps_ray.pipeline import run_pipeline
-    from ps_ray.sweep import sweep_dir
-    from ps_ray.tracking import default_tracking_uri
+    from ps_ray.pipeline.cost import budget_note, project
+    from ps_ray.pipeline.run import run_pipeline
+    from ps_ray.pipeline.sweep import sweep_dir
+    from ps_ray.pipeline.tracking import default_tracking_uri
 
     spec = _load(args)
     started = time.time()
@@ -168,14 +184,23 @@ def cmd_render(args: argparse.Namespace) -> int:
     from ps_ray.policy import GreedyPolicy
 
     if args.png is None and args.gif is None:
-        raise ValueError("nothing to write: give --png and/or --gif")
-    policy = GreedyPolicy.from_file(args.policy) if args.policy else None
+        raise UserError("nothing to write: give --png and/or --gif")
+    robot, task = parse_spec_text(args.robot), parse_spec_text(args.task)
+    policy = None
+    if args.policy:
+        from ps_ray.stitch import target_problems
+        from ps_ray.weights import read_signature
+
+        problems = target_problems(read_signature(args.policy)[0], (robot, task))
+        if problems:  # a policy used on another env
+            raise UserError(f"{args.policy}: cannot run here: " + "; ".join(problems))
+        policy = GreedyPolicy.from_file(args.policy)
     for path in (args.png, args.gif):
         if path:
             Path(path).parent.mkdir(parents=True, exist_ok=True)
     record(
-        _mapping_or_name(args.robot),
-        _mapping_or_name(args.task),
+        robot,
+        task,
         policy,
         seed=args.seed,
         png=args.png,
@@ -192,21 +217,21 @@ def cmd_stitch(args: argparse.Namespace) -> int:
     from ps_ray.zoo import ModuleZoo
 
     if args.episodes < 0:
-        raise ValueError(f"--episodes must be >= 0, got {args.episodes}")
+        raise UserError(f"--episodes must be >= 0, got {args.episodes}")
     zoo = ModuleZoo.from_sweep(*args.sweep) if args.sweep else None
     task_src, robot_src = resolve_source(args.task_from, zoo), resolve_source(args.robot_from, zoo)
     robot, task = resolve_target(
         task_src,
         robot_src,
-        robot=args.robot and _mapping_or_name(args.robot),
-        task=args.task and _mapping_or_name(args.task),
+        robot=args.robot and parse_spec_text(args.robot),
+        task=args.task and parse_spec_text(args.task),
     )
     states = None
     if args.translate:
-        from ps_ray.zero_shot import fit_states
+        from ps_ray.pipeline.zero_shot import fit_states
 
         if args.fit_states <= 0:
-            raise ValueError(f"--fit-states must be positive, got {args.fit_states}")
+            raise UserError(f"--fit-states must be positive, got {args.fit_states}")
         tasks = [task] + ([robot_src.spec["task"]] if robot_src.spec is not None else [])
         states = fit_states(tasks, args.fit_states, args.seed)
     nets, signature = stitch_policies(
@@ -246,7 +271,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
 def main(argv: list[str] | None = None) -> int:
     args = build_parser(__doc__).parse_args(argv)
     if getattr(args, "verbose", False):
-        from ps_ray.progress import VERBOSE_ENV
+        from ps_ray.pipeline.progress import VERBOSE_ENV
 
         os.environ[VERBOSE_ENV] = "1"  # Tune's tables and Ray's warnings on the terminal
     try:
@@ -261,7 +286,7 @@ def main(argv: list[str] | None = None) -> int:
             "bench": cmd_bench,
             "stitch": cmd_stitch,
         }[args.command](args)
-    except (SpecError, ValueError, json.JSONDecodeError) as e:
+    except (UserError, json.JSONDecodeError) as e:  # bad input: one line; any other error is a bug
         print(f"ps-ray {args.command}: error: {e}", file=sys.stderr)
         return 2
     except StageError as e:  # trials failed: the first error's last line, the rest is in Tune's logs

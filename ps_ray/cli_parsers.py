@@ -30,16 +30,17 @@ def _train_parser(sub) -> None:
     p = sub.add_parser("train", help="train one policy (SAC + HER on RLlib); re-running resumes")
     defaults = TrainSpec()
     for f in dataclasses.fields(TrainSpec):
+        help = f"{f.metadata['help']} (default {getattr(defaults, f.name)})"
         if f.name in ("robot", "task"):
-            p.add_argument(
-                f"--{f.name}",
-                default=getattr(defaults, f.name),
-                help=f"built-in name or a JSON mapping (default {getattr(defaults, f.name)})",
-            )
+            p.add_argument(f"--{f.name}", default=getattr(defaults, f.name), help=help)
             continue
         kind = next((t for t in (float, int, str) if t.__name__ in str(f.type)), str)
         p.add_argument(
-            f"--{f.name.replace('_', '-')}", dest=f.name, type=kind, default=getattr(defaults, f.name)
+            f"--{f.name.replace('_', '-')}",
+            dest=f.name,
+            type=kind,
+            default=getattr(defaults, f.name),
+            help=help,
         )
     p.add_argument(
         "--run-dir",

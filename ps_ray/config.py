@@ -12,6 +12,7 @@ from typing import Any
 
 from ps_ray.envs.robots import resolve_robot
 from ps_ray.envs.tasks import resolve_task
+from ps_ray.errors import UserError
 from ps_ray.names import trial_key
 from ps_ray.nets.modular import METHODS
 
@@ -28,40 +29,63 @@ RESUMABLE_CHANGES = (
 )
 
 
-class SpecError(ValueError):
+class SpecError(UserError):
     """A spec that cannot run; the message is one line naming the bad key or value."""
+
+
+def check_keys(data: Mapping[str, Any], cls: type, where: str) -> None:
+    """The one unknown-key check: the first key that is not a field of ``cls`` fails, naming the
+    valid keys."""
+    valid = [f.name for f in dataclasses.fields(cls)]
+    bad = [key for key in data if key not in valid]
+    if bad:
+        raise SpecError(f"{where}: unknown key {bad[0]!r}; valid keys: {', '.join(valid)}")
+
+
+def require_same(stored: Mapping[str, Any], current: Mapping[str, Any], what: str, advice: str) -> None:
+    """The one "same spec or refuse" check of a folder that already holds work: ``what`` names
+    the folder's content, ``advice`` what to do instead."""
+    changed = sorted(k for k in {*stored, *current} if stored.get(k) != current.get(k))
+    if changed:
+        raise SpecError(f"{what} (changed: {', '.join(changed)}); {advice}")
+
+
+def setting(default: Any, help: str) -> Any:
+    """A spec field with its documentation, read by the code and by ``ps-ray train --help``."""
+    return dataclasses.field(default=default, metadata={"help": help})
 
 
 @dataclass(frozen=True)
 class TrainSpec:
-    """One SAC + HER training run of one (robot, task, method, seed)."""
+    """One SAC + HER training run of one (robot, task, method, seed). Every field is a flag of
+    ``ps-ray train`` and a key of a sweep's ``train:`` block; its help text is its doc."""
 
-    robot: str | Mapping = "panda"
-    task: str | Mapping = "reach"
-    method: str = "ps"
-    seed: int = 101
-    interface_dim: int = 128
-    hidden: int = 256
-    env_steps: int = 50_000  # training budget (a cap when target_success is set)
-    target_success: float | None = None  # stop early at this greedy success ...
-    target_evals: int = 2  # ... reached in this many evaluations in a row
-    episodes_per_step: int = 2  # whole episodes collected per training step
-    num_envs: int = 2  # vectorised envs in the env runner
-    updates_per_step: float = 0.4  # gradient updates per collected env step (authors: 0.4)
-    batch_size: int = 256
-    lr: float = 1e-3
-    initial_alpha: float = 0.1  # entropy temperature at the start (auto-tuned after)
-    gamma: float = 0.98
-    tau: float = 0.005
-    action_l2: float = 0.0
-    random_episodes: int = 10  # warm-up episodes with uniform random actions
-    learning_starts: int = 1000  # transitions before the first update
-    eval_every: int = 10  # training steps between greedy evaluations
-    eval_episodes: int = 10
-    checkpoint_every: int = 50  # training steps between checkpoints
-    anchors: str | None = None  # file of task states / an anchor set (PS); None: random rollouts
-    anchor_episodes: int = 200  # random-policy episodes collected for anchors when anchors=None
-    init_policy: str | None = None  # start from these weights (a stitched policy: few-shot)
+    robot: str | Mapping = setting("panda", "built-in robot name or a JSON mapping")
+    task: str | Mapping = setting("reach", "built-in task name or a JSON mapping")
+    method: str = setting("ps", "row of the method table: " + ", ".join(METHODS))
+    seed: int = setting(101, "seed of networks, env runner and replay sampling")
+    interface_dim: int = setting(128, "width of the task-robot interface (PS: number of anchors)")
+    hidden: int = setting(256, "hidden units per layer of every MLP")
+    env_steps: int = setting(50_000, "training budget in env steps (a cap when target_success is set)")
+    target_success: float | None = setting(None, "stop early at this greedy success (None: never)")
+    target_evals: int = setting(2, "evaluations in a row at target_success that stop the run")
+    episodes_per_step: int = setting(2, "whole episodes collected per training step")
+    num_envs: int = setting(2, "vectorised envs in the env runner")
+    updates_per_step: float = setting(0.4, "gradient updates per collected env step (authors: 0.4)")
+    batch_size: int = setting(256, "transitions per gradient update")
+    lr: float = setting(1e-3, "Adam learning rate of actor, critics and temperature")
+    initial_alpha: float = setting(0.1, "entropy temperature at the start (auto-tuned after)")
+    gamma: float = setting(0.98, "discount")
+    tau: float = setting(0.005, "Polyak rate of the target critics")
+    action_l2: float = setting(0.0, "weight of an L2 penalty on the actor's mean action")
+    random_episodes: int = setting(10, "warm-up episodes with uniform random actions")
+    learning_starts: int = setting(1000, "transitions in the buffer before the first update")
+    eval_every: int = setting(10, "training steps between greedy evaluations (0: never)")
+    eval_episodes: int = setting(10, "episodes per greedy evaluation (the final one runs twice as many)")
+    checkpoint_every: int = setting(50, "training steps between sealed checkpoints")
+    anchors: str | None = setting(None, "PS: file of task states or an anchor set (None: random rollouts)")
+    anchor_episodes: int = setting(200, "random-policy episodes collected for anchors when anchors is None")
+    init_policy: str | None = setting(None, "start from these weights (a stitched policy: few-shot)")
 
     def __post_init__(self) -> None:
         if self.method not in METHODS:
@@ -88,6 +112,14 @@ class TrainSpec:
             value = getattr(self, name)
             if not isinstance(value, int) or isinstance(value, bool) or value <= 0:
                 raise SpecError(f"{name} must be a positive integer, got {value!r}")
+        if not isinstance(self.seed, int) or isinstance(self.seed, bool) or self.seed < 0:
+            raise SpecError(f"seed must be a non-negative integer, got {self.seed!r}")
+        for name in ("random_episodes", "learning_starts", "eval_every"):
+            value = getattr(self, name)
+            if not isinstance(value, int) or isinstance(value, bool) or value < 0:
+                raise SpecError(f"{name} must be a non-negative integer, got {value!r}")
+        if not isinstance(self.action_l2, (int, float)) or self.action_l2 < 0:
+            raise SpecError(f"action_l2 must be a non-negative number, got {self.action_l2!r}")
         for name in ("updates_per_step", "lr", "tau", "initial_alpha"):
             if not isinstance(getattr(self, name), (int, float)) or getattr(self, name) <= 0:
                 raise SpecError(f"{name} must be a positive number, got {getattr(self, name)!r}")
@@ -101,10 +133,7 @@ class TrainSpec:
 
     @classmethod
     def from_mapping(cls, data: Mapping[str, Any], where: str = "train spec") -> TrainSpec:
-        valid = [f.name for f in dataclasses.fields(cls)]
-        for key in data:
-            if key not in valid:
-                raise SpecError(f"unknown key {key!r} in {where}; valid keys: {', '.join(valid)}")
+        check_keys(data, cls, where)
         return cls(**data)
 
     def to_dict(self) -> dict[str, Any]:
@@ -137,7 +166,7 @@ def _plain(value: Any) -> Any:
 
 
 ANCHOR_POLICIES = ("plain", "random")
-# Pipeline stages in order; "train" covers plain sources, anchors and the grid (ps_ray.sweep).
+# Pipeline stages in order; "train" covers plain sources, anchors and the grid (ps_ray.pipeline.sweep).
 STAGES = ("train", "zero_shot", "few_shot", "report")
 
 
@@ -260,7 +289,9 @@ class SweepSpec:
     seeds: tuple[int, ...]
     stages: tuple[str, ...] = ("train",)
     interface_dims: tuple[int, ...] = (128,)
-    train: Mapping[str, Any] = dataclasses.field(default_factory=dict)  # TrainSpec settings
+    # TrainSpec fields shared by every trial (documented by `ps-ray train --help`); each key and
+    # value is checked against TrainSpec's typed fields when the sweep loads (see trials()).
+    train: Mapping[str, Any] = dataclasses.field(default_factory=dict)
     anchors: AnchorSpec = AnchorSpec()
     zero_shot: ZeroShotSpec = ZeroShotSpec()
     few_shot: FewShotSpec = FewShotSpec()
@@ -321,10 +352,7 @@ class SweepSpec:
     def from_mapping(cls, data: Mapping[str, Any], where: str = "sweep") -> SweepSpec:
         if not isinstance(data, Mapping):
             raise SpecError(f"{where}: expected a mapping at the top level, got {type(data).__name__}")
-        valid = [f.name for f in dataclasses.fields(cls)]
-        for key in data:
-            if key not in valid:
-                raise SpecError(f"{where}: unknown key {key!r}; valid keys: {', '.join(valid)}")
+        check_keys(data, cls, where)
         fields = dict(data)
         for key in ("methods", "robots", "tasks", "seeds", "stages", "interface_dims"):
             if key in fields:
@@ -341,14 +369,11 @@ class SweepSpec:
 
 def _sub_spec(cls, data: Any, where: str):
     """A nested mapping as a typed spec; unknown keys fail with the valid ones listed."""
-    names = [f.name for f in dataclasses.fields(cls)]
     if data is None:
         data = {}
     if not isinstance(data, Mapping):
         raise SpecError(f"{where}: expected a mapping, got {data!r}")
-    bad = [k for k in data if k not in names]
-    if bad:
-        raise SpecError(f"{where}: unknown key {bad[0]!r}; valid keys: {', '.join(names)}")
+    check_keys(data, cls, where)
     try:
         return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in data.items()})
     except TypeError as e:

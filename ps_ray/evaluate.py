@@ -17,10 +17,8 @@ no object, so its touching and contact are 0.
 
 from __future__ import annotations
 
-import copy
 import math
 import time
-import warnings
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass
@@ -32,11 +30,12 @@ import torch
 from torch import nn
 
 from ps_ray.envs import make
+from ps_ray.errors import UserError
 from ps_ray.names import short_name
 from ps_ray.nets.modular import Actor, NetDims
-from ps_ray.nets.obs import dims_from_spaces, split_obs
-from ps_ray.nets.relative import AnchorReference
+from ps_ray.nets.obs import dims_from_spaces
 from ps_ray.nets.sac import SACNets
+from ps_ray.policy import GreedyPolicy
 from ps_ray.weights import Signature
 
 Obs = dict[str, np.ndarray]
@@ -57,64 +56,6 @@ class EpisodeRecord:
 
 
 # -- the policy -----------------------------------------------------------------------------------
-class _GreedyNet(nn.Module):
-    """tanh(mean) of an actor; with ``reference`` the relative projection's anchor side is given
-    (computed once) instead of re-embedded at every forward."""
-
-    def __init__(self, actor: Actor, reference: AnchorReference | None) -> None:
-        super().__init__()
-        self.actor, self.reference = actor, reference
-
-    def forward(self, task_in: torch.Tensor, robot_in: torch.Tensor) -> torch.Tensor:
-        if self.reference is None:
-            mean, _ = self.actor(task_in, robot_in)
-        else:
-            task = self.actor.task
-            latent = task.relative.project(task.encode(task_in), self.reference)
-            mean, _ = self.actor.robot(self.actor.to_robot(latent), robot_in)
-        return torch.tanh(mean)
-
-
-class BatchedGreedy:
-    """Greedy actions tanh(mean) of an actor for a batch of Dict observations.
-
-    ``fast`` (default): a PS actor's anchors are embedded once, not at every forward, and the
-    forward is traced and frozen with TorchScript (half the eager per-op overhead at these batch
-    sizes). Weights and normaliser statistics are fixed during evaluation, so the actions
-    equal the actor's own forward up to float rounding. ``fast=False``: the actor's own forward,
-    as :class:`ps_ray.policy.GreedyPolicy`.
-    """
-
-    def __init__(self, actor: Actor, fast: bool = True) -> None:
-        actor = copy.deepcopy(actor).eval()  # the caller's module keeps its mode
-        self.dims: NetDims = actor.dims
-        reference = None
-        with torch.no_grad():
-            if fast and actor.task.relative is not None:
-                relative = actor.task.relative
-                reference = relative.reference(actor.task.encode(relative.anchors))
-            self.net: nn.Module = _GreedyNet(actor, reference).eval()
-            if fast:
-                self.net = _traced(
-                    self.net, (torch.zeros(2, self.dims.task_dim), torch.zeros(2, self.dims.robot_dim))
-                )
-
-    @torch.inference_mode()
-    def __call__(self, obs: Obs) -> np.ndarray:
-        return self.net(*split_obs(obs)).numpy()
-
-
-def _traced(net: nn.Module, example: tuple[torch.Tensor, ...]) -> nn.Module:
-    """TorchScript trace + freeze: about half the eager per-op overhead at these batch sizes.
-    torch.jit is deprecated (still working in the pinned torch); without it, the eager module."""
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", DeprecationWarning)
-            return torch.jit.freeze(torch.jit.trace(net, example))
-    except (AttributeError, RuntimeError):
-        return net
-
-
 def as_action_fn(policy: PolicyLike, fast: bool = True) -> tuple[ActionFn, NetDims | None]:
     """A batched action function and the dims it expects (None for a bare callable)."""
     if isinstance(policy, (str, Path)):
@@ -126,11 +67,11 @@ def as_action_fn(policy: PolicyLike, fast: bool = True) -> tuple[ActionFn, NetDi
     if isinstance(policy, SACNets):
         policy = policy.actor
     if isinstance(policy, nn.Module):
-        fn = BatchedGreedy(policy, fast)
+        fn = GreedyPolicy(policy, fast)
         return fn, fn.dims
     if callable(policy):
         return policy, None
-    raise ValueError(
+    raise UserError(
         f"cannot evaluate a {type(policy).__name__}: give a policy file, SACNets, "
         f"an Actor or a batched action function"
     )
@@ -228,7 +169,7 @@ def check_dims(dims: NetDims, env) -> None:
         if getattr(dims, f) != getattr(env_dims, f)
     ]
     if wrong:
-        raise ValueError("policy does not fit the env: " + "; ".join(wrong))
+        raise UserError("policy does not fit the env: " + "; ".join(wrong))
 
 
 def evaluate(
@@ -252,7 +193,7 @@ def evaluate(
     """
     for name, value in (("episodes", episodes), ("repeats", repeats), ("num_envs", num_envs)):
         if not isinstance(value, int) or value < 1:
-            raise ValueError(f"{name} must be a positive integer, got {value!r}")
+            raise UserError(f"{name} must be a positive integer, got {value!r}")
     act, dims = as_action_fn(policy, fast)
     seeds = [seed + r * episodes + j for r in range(repeats) for j in range(episodes)]
     repeat_of = lambda s: (s - seed) // episodes  # noqa: E731

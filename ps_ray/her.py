@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 
 from ps_ray.atomic import atomic_file
+from ps_ray.errors import UserError
 from ps_ray.npz import NpzError, read_npz
 
 __all__ = ["HindsightReplay", "ObsSpec", "RewardFn"]
@@ -216,7 +217,7 @@ class HindsightReplay:
         path = Path(path)
 
         def bad(why: str) -> ValueError:
-            return ValueError(f"{path}: not a valid HindsightReplay checkpoint: {why}")
+            return UserError(f"{path}: not a valid HindsightReplay checkpoint: {why}")
 
         try:
             arrays = read_npz(path)  # FileNotFoundError passes through as is
@@ -265,12 +266,12 @@ class HindsightReplay:
         mine = self._meta()
         for key in ("obs_spec", "action_dim", "horizon", "capacity_episodes", "achieved_key", "goal_key"):
             if meta[key] != mine[key]:
-                raise ValueError(f"{path}: {key} {meta[key]!r} does not match this buffer's {mine[key]!r}")
+                raise UserError(f"{path}: {key} {meta[key]!r} does not match this buffer's {mine[key]!r}")
         rng = np.random.Generator(np.random.PCG64())
         try:
             rng.bit_generator.state = meta["rng_state"]
         except (TypeError, ValueError, KeyError) as exc:
-            raise ValueError(f"{path}: bad rng_state ({exc})") from exc
+            raise UserError(f"{path}: bad rng_state ({exc})") from exc
         n, stale = arrays["actions"].shape[0], self.num_episodes
         for k, a in self._obs.items():
             a[:n] = arrays[f"obs/{k}"]

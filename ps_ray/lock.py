@@ -18,10 +18,12 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
+from ps_ray.errors import UserError
+
 LOCK_FILE = ".ps_ray.lock"
 
 
-class FolderLocked(ValueError):
+class FolderLocked(UserError):
     """Another live process writes this folder (a user error: one line, exit 2)."""
 
 
@@ -32,7 +34,7 @@ def folder_lock(folder: str | Path, what: str = "folder") -> Iterator[None]:
         folder.mkdir(parents=True, exist_ok=True)
         handle = open(folder / LOCK_FILE, "a+")
     except OSError as e:
-        raise ValueError(f"{folder}: cannot write the {what} folder ({e.strerror})") from None
+        raise UserError(f"{folder}: cannot write the {what} folder ({e.strerror})") from None
     try:
         try:
             fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)

@@ -1,5 +1,5 @@
-"""Names of trials: a robot or task as a short string, and a trial's key (its run folder,
-MLflow run and zoo entry)."""
+"""Names: a robot or task as a mapping, as an exact string and as a short one, and a trial's key
+(its run folder, MLflow run and zoo entry). The one place that converts between them."""
 
 from __future__ import annotations
 
@@ -8,7 +8,30 @@ import json
 from collections.abc import Mapping
 from typing import Any
 
+from ps_ray.errors import UserError
+
 DEFAULT_INTERFACE_DIM = 128
+
+
+def as_mapping(value: str | Mapping) -> dict:
+    """A robot or task as a mapping: a name ``n`` becomes ``{"name": n}``."""
+    return {"name": value} if isinstance(value, str) else dict(value)
+
+
+def spec_text(value: str | Mapping) -> str:
+    """A robot or task as one exact string (its name, or its mapping as sorted JSON), to key
+    dicts by and to pass on a command line; :func:`parse_spec_text` gives the value back."""
+    return value if isinstance(value, str) else json.dumps(value, sort_keys=True)
+
+
+def parse_spec_text(text: str) -> str | dict:
+    """The robot or task a :func:`spec_text` string (or a ``--robot/--task`` flag) stands for."""
+    if not text.strip().startswith("{"):
+        return text
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError as e:
+        raise UserError(f"{text!r} is neither a name nor a JSON mapping ({e})") from None
 
 
 def short_name(value: Any, limit: int = 64) -> str:

@@ -9,11 +9,13 @@ from pathlib import Path
 
 import numpy as np
 
+from ps_ray.errors import UserError
+
 ZIP_MAGIC = b"PK\x03\x04"
 NPY_MAGIC = b"\x93NUMPY"
 
 
-class NpzError(ValueError):
+class NpzError(UserError):
     """What is wrong with a file, in one line, without its name."""
 
 

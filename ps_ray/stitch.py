@@ -35,6 +35,7 @@ from torch import nn
 
 from ps_ray.envs.robots import N_ARM, RobotSpec, resolve_robot
 from ps_ray.envs.tasks import resolve_task
+from ps_ray.errors import UserError
 from ps_ray.names import short_name
 from ps_ray.nets.modular import NetDims, method_spec
 from ps_ray.nets.sac import NET_NAMES, SACNets, build_sac_nets
@@ -42,7 +43,6 @@ from ps_ray.nets.translation import LatentTranslation, check_kind
 from ps_ray.weights import Signature, load_policy, signature_of
 from ps_ray.zoo import POLICY_FILE, SPEC_FILE, ModuleZoo, ZooEntry
 
-GOAL_DIM = 3
 PolicySource = str | Path | ZooEntry | tuple[SACNets, Signature]
 EnvSpec = tuple[str | Mapping, str | Mapping]  # (robot, task) as make() takes them
 
@@ -56,8 +56,7 @@ def effective_gripper(robot: str | Mapping | RobotSpec, task: str | Mapping) -> 
 
 def env_dims(robot: str | Mapping, task: str | Mapping) -> NetDims:
     """The network dims of ``make(robot, task)``, without building it."""
-    family = resolve_task(task).family
-    return NetDims(family.state_dim + GOAL_DIM, N_ARM + 1, N_ARM + int(effective_gripper(robot, task)))
+    return NetDims(resolve_task(task).input_dim, N_ARM + 1, N_ARM + int(effective_gripper(robot, task)))
 
 
 def same_robot(
@@ -99,9 +98,9 @@ def resolve_source(ref: str, zoo: ModuleZoo | None = None) -> Resolved:
         try:
             return Resolved(path, dict(json.loads(spec_path.read_text())))
         except (json.JSONDecodeError, TypeError, ValueError) as e:
-            raise ValueError(f"{spec_path}: unreadable training spec ({e})") from None
+            raise UserError(f"{spec_path}: unreadable training spec ({e})") from None
     if zoo is None:
-        raise ValueError(f"{ref}: no such policy file (give --sweep DIR to look keys up)")
+        raise UserError(f"{ref}: no such policy file (give --sweep DIR to look keys up)")
     entry = zoo.get(ref)
     return Resolved(entry.path, entry.spec)
 
@@ -120,7 +119,7 @@ def resolve_target(
     ]
     if needs:
         src, what = needs[0]
-        raise ValueError(f"{src.path}: no spec.json beside it to tell the target {what}; give --{what}")
+        raise UserError(f"{src.path}: no spec.json beside it to tell the target {what}; give --{what}")
     task = task_src.spec["task"] if task is None else task
     if robot is None:
         robot = default_target({"task": task}, robot_src.spec)[0]
@@ -191,7 +190,7 @@ def check_stitchable(sig_task: Signature, sig_robot: Signature, target: EnvSpec 
     """The stitched policy's signature, or one ValueError naming every mismatch."""
     problems = stitch_problems(sig_task, sig_robot, target)
     if problems:
-        raise ValueError("cannot stitch: " + "; ".join(problems))
+        raise UserError("cannot stitch: " + "; ".join(problems))
     return _stitched_signature(sig_task, sig_robot)
 
 
@@ -205,7 +204,7 @@ def load_source(source: PolicySource) -> tuple[SACNets, Signature]:
         return source
     path = Path(source.path if isinstance(source, ZooEntry) else source)
     if not path.is_file():
-        raise ValueError(f"{path}: no such policy file")
+        raise UserError(f"{path}: no such policy file")
     return load_policy(path)
 
 
@@ -228,14 +227,14 @@ def stitch_policies(
     nets_t, sig_t = load_source(task_from)
     nets_r, sig_r = load_source(robot_from)
     if sig_t.translation or sig_r.translation:
-        raise ValueError("cannot stitch a policy that is itself a translated stitch; use its sources")
+        raise UserError("cannot stitch a policy that is itself a translated stitch; use its sources")
     signature = check_stitchable(sig_t, sig_r, target)
     if translation is not None:
         check_kind(translation)
         if fit_states is None:
-            raise ValueError("a translated stitch needs fit_states (task inputs for the fit)")
+            raise UserError("a translated stitch needs fit_states (task inputs for the fit)")
         if sig_t.task_dim != sig_r.task_dim:
-            raise ValueError(
+            raise UserError(
                 f"cannot translate: the robot module's own task module takes "
                 f"{sig_r.task_dim}-D task inputs, the target task has {sig_t.task_dim}"
             )

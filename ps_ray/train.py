@@ -26,7 +26,8 @@ import torch
 
 from ps_ray import checkpoint
 from ps_ray.atomic import atomic_file, atomic_path, fsync_dir, write_text
-from ps_ray.config import SpecError, TrainSpec
+from ps_ray.config import POINT_TASK, TrainSpec, require_same
+from ps_ray.errors import UserError
 from ps_ray.lock import folder_lock
 from ps_ray.nets.modular import uses_anchors
 
@@ -57,20 +58,18 @@ def make_env(spec: TrainSpec):
     return make(**spec.env_config)
 
 
-def prepare_anchors(spec: TrainSpec, run_dir: Path):
-    """The anchor set of a PS run: from spec.anchors, else k-means over random-policy rollouts."""
-    from ps_ray.anchor_file import anchors_from_file, load_anchor_set, save_anchor_set
+def prepare_anchors(spec: TrainSpec, run_dir: Path, given=None):
+    """The anchor set of a PS run: the run folder's own (a resume), else the one its inputs give
+    (:func:`read_inputs`: the init policy's or the anchors file's), else k-means over
+    random-policy rollouts; saved into the run folder."""
+    from ps_ray.anchor_file import load_anchor_set, save_anchor_set
     from ps_ray.anchors import AnchorSet, collect_task_states, select_anchors
 
     path = run_dir / "anchors.npz"
     if path.exists():
         return load_anchor_set(path)
-    if spec.init_policy is not None:  # the anchors travel inside the policy file
-        from ps_ray.weights import policy_anchor_set
-
-        anchor_set = policy_anchor_set(spec.init_policy)
-    elif spec.anchors is not None:
-        anchor_set = anchors_from_file(spec.anchors, spec.interface_dim, seed=0)
+    if given is not None:
+        anchor_set = given
     else:
         states = collect_task_states(lambda: make_env(spec), episodes=spec.anchor_episodes, seed=spec.seed)
         anchor_set = AnchorSet.of(
@@ -91,12 +90,9 @@ def _check_run_dir(spec: TrainSpec, run_dir: Path, write: bool = True) -> None:
     spec_file = run_dir / "spec.json"
     if spec_file.exists():
         stored = TrainSpec.from_mapping(json.loads(spec_file.read_text())).identity()
-        changed = sorted(k for k in stored if stored[k] != spec.identity()[k])
-        if changed:
-            raise SpecError(
-                f"{run_dir} holds a run of another spec (differs in {', '.join(changed)});"
-                f" use another --run-dir"
-            )
+        require_same(
+            stored, spec.identity(), f"{run_dir} holds a run of another spec", "use another --run-dir"
+        )
     if write:
         write_text(spec_file, json.dumps(spec.to_dict(), indent=2))
 
@@ -245,7 +241,7 @@ def _best_so_far(run_dir: Path) -> float:
         return -1.0
     try:
         return float(read_signature(path)[1].get("eval_success", -1.0))
-    except ValueError:
+    except UserError:
         return -1.0
 
 
@@ -254,14 +250,43 @@ def train(spec: TrainSpec, run_dir: str | Path, *, progress: bool = True) -> dic
     One process at a time per run folder (:mod:`ps_ray.lock`)."""
     run_dir = Path(run_dir).resolve()  # RLlib's checkpoint writer needs absolute paths
     _check_run_dir(spec, run_dir, write=False)
+    given = read_inputs(spec)  # a bad --init-policy or --anchors fails before the folder is made
     with folder_lock(run_dir, "run"):
-        return _train(spec, run_dir, progress)
+        return _train(spec, run_dir, given, progress)
 
 
-def _train(spec: TrainSpec, run_dir: Path, progress: bool) -> dict[str, Any]:
+def read_inputs(spec: TrainSpec):
+    """Read and check the files a run starts from, before anything is written: the policy of
+    ``init_policy`` must fit the spec's method, sizes and env; ``anchors`` must give an anchor
+    set of K = interface_dim. Returns the anchor set they give (None: none given)."""
+    if spec.init_policy is not None:
+        from ps_ray.stitch import target_problems
+        from ps_ray.weights import load_policy, policy_anchor_set
+
+        _, signature = load_policy(spec.init_policy)
+        wanted = (spec.method, spec.interface_dim, spec.hidden)
+        found = (signature.method, signature.interface_dim, signature.hidden)
+        problems = [] if found == wanted else [f"(method, interface dim, hidden) {found} vs {wanted}"]
+        if spec.task != POINT_TASK:
+            problems += target_problems(signature, (spec.robot, spec.task))
+        if signature.translation:
+            problems.append(
+                f"a stitch with a latent translation ({signature.translation}) is for zero-shot use"
+            )
+        if problems:
+            raise UserError(f"{spec.init_policy}: cannot start this run: " + "; ".join(problems))
+        return policy_anchor_set(spec.init_policy) if uses_anchors(spec.method) else None
+    if spec.anchors is not None and uses_anchors(spec.method):
+        from ps_ray.anchor_file import anchors_from_file
+
+        return anchors_from_file(spec.anchors, spec.interface_dim, seed=0)
+    return None
+
+
+def _train(spec: TrainSpec, run_dir: Path, given, progress: bool) -> dict[str, Any]:
     import ray
 
-    anchor_set = prepare_anchors(spec, run_dir) if uses_anchors(spec.method) else None
+    anchor_set = prepare_anchors(spec, run_dir, given) if uses_anchors(spec.method) else None
     if not ray.is_initialized():
         ray.init(
             address="local",
@@ -308,7 +333,7 @@ def _train(spec: TrainSpec, run_dir: Path, progress: bool) -> dict[str, Any]:
         "best_eval_success": best,
         "converged": run.converged,
     }
-    (run_dir / "result.json").write_text(json.dumps(row, indent=2))
+    write_text(run_dir / "result.json", json.dumps(row, indent=2))
     run.stop()
     if progress:
         print(

@@ -20,6 +20,7 @@ from torch import nn
 
 from ps_ray.anchors import AnchorSet, anchor_hash
 from ps_ray.atomic import atomic_path
+from ps_ray.errors import UserError
 from ps_ray.nets.modular import NetDims
 from ps_ray.nets.sac import NET_NAMES, SACNets, build_sac_nets
 
@@ -104,18 +105,18 @@ def read_signature(path: str | Path) -> tuple[Signature, dict[str, str]]:
         with safe_open(str(path), framework="pt") as f:
             metadata = f.metadata() or {}
     except (SafetensorError, OSError, ValueError) as e:
-        raise ValueError(f"{path}: not a ps_ray policy file ({e})") from None
+        raise UserError(f"{path}: not a ps_ray policy file ({e})") from None
     if metadata.get("format") != FORMAT:
-        raise ValueError(
+        raise UserError(
             f"{path}: not a ps_ray policy file (format {metadata.get('format')!r}, expected {FORMAT!r})"
         )
     try:
         signature = Signature(**json.loads(metadata["signature"]))
     except (KeyError, TypeError, json.JSONDecodeError) as e:
-        raise ValueError(f"{path}: corrupt policy signature ({e})") from None
+        raise UserError(f"{path}: corrupt policy signature ({e})") from None
     problem = signature_problem(signature)
     if problem:
-        raise ValueError(f"{path}: bad policy signature: {problem}")
+        raise UserError(f"{path}: bad policy signature: {problem}")
     return signature, metadata
 
 
@@ -144,7 +145,7 @@ def nets_from_state(state: dict[str, torch.Tensor], signature: Signature, source
     """Build the nets a signature describes and load `state` into them, strictly."""
     anchors = state.get(ANCHORS_KEY)
     if (anchor_hash(anchors.numpy()) if anchors is not None else "") != signature.anchor_hash:
-        raise ValueError(f"{source}: anchors do not match the signature's anchor hash")
+        raise UserError(f"{source}: anchors do not match the signature's anchor hash")
     try:
         nets = build_sac_nets(
             signature.method,
@@ -154,14 +155,14 @@ def nets_from_state(state: dict[str, torch.Tensor], signature: Signature, source
             anchors=None if anchors is None else anchors.numpy(),
         )
     except ValueError as e:
-        raise ValueError(f"{source}: {e}") from None
+        raise UserError(f"{source}: {e}") from None
     if signature.translation:
         attach_translations(nets)
     expected = nets_state(nets)
     missing, unexpected = sorted(expected.keys() - state.keys()), sorted(state.keys() - expected.keys())
     wrong_shape = [k for k in expected.keys() & state.keys() if expected[k].shape != state[k].shape]
     if missing or unexpected or wrong_shape:
-        raise ValueError(
+        raise UserError(
             f"{source}: tensors do not match the signature (missing {missing[:3]}, "
             f"unexpected {unexpected[:3]}, wrong shape {wrong_shape[:3]})"
         )
@@ -192,7 +193,7 @@ def policy_anchor_set(path: str | Path) -> AnchorSet:
     signature, _ = read_signature(path)
     with safe_open(str(path), framework="pt") as f:
         if ANCHORS_KEY not in f.keys():
-            raise ValueError(f"{path}: a {signature.method!r} policy has no anchors")
+            raise UserError(f"{path}: a {signature.method!r} policy has no anchors")
         return AnchorSet.of(f.get_tensor(ANCHORS_KEY).numpy(), {"source": str(path)})
 
 
@@ -204,5 +205,5 @@ def load_policy(path: str | Path) -> tuple[SACNets, Signature]:
         with safe_open(str(path), framework="pt") as f:
             state = {k: f.get_tensor(k) for k in f.keys()}
     except (SafetensorError, OSError, ValueError) as e:
-        raise ValueError(f"{path}: unreadable tensors ({e})") from None
+        raise UserError(f"{path}: unreadable tensors ({e})") from None
     return nets_from_state(state, signature, str(path)), signature

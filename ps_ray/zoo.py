@@ -5,10 +5,10 @@ A key is (method, robot, task, seed, interface_dim); robots and tasks are render
 the trial key (:func:`ps_ray.names.trial_key`, also the MLflow run name): ``ps/panda/push/101``,
 with ``/i<dim>`` appended off the default interface dim (``ps/panda/push/101/i16``).
 
-Sweep layout read (see :mod:`ps_ray.sweep`): ``<sweep>/tune/<trial>/checkpoint_N/`` (stage
+Sweep layout read (see :mod:`ps_ray.pipeline.sweep`): ``<sweep>/tune/<trial>/checkpoint_N/`` (stage
 "train") and ``<sweep>/tune_plain/<trial>/checkpoint_N/`` (stage "plain_source", the anchors' plain
 source policies), each with ``policy.safetensors`` and ``spec.json``. Of a trial's checkpoints
-over all its attempts (:mod:`ps_ray.trials`), the furthest one whose manifest verifies is used.
+over all its attempts (:mod:`ps_ray.pipeline.trials`), the furthest one whose manifest verifies is used.
 When one key appears twice, a "train" entry beats a "plain_source" one, then the newest file wins.
 """
 
@@ -21,6 +21,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from ps_ray.errors import UserError
 from ps_ray.names import short_name, trial_key
 from ps_ray.weights import Signature, read_signature
 
@@ -88,16 +89,16 @@ def read_entry(policy_path: str | Path, stage: str = "run") -> ZooEntry:
     """A policy file and the ``spec.json`` beside it; ValueError naming the file if either is bad."""
     path = Path(policy_path)
     if not path.is_file():
-        raise ValueError(f"{path}: no such policy file")
+        raise UserError(f"{path}: no such policy file")
     signature, _ = read_signature(path)
     spec_path = path.parent / SPEC_FILE
     try:
         spec = json.loads(spec_path.read_text())
         key = key_of(spec)
     except (OSError, json.JSONDecodeError, KeyError, TypeError, ValueError) as e:
-        raise ValueError(f"{spec_path}: missing or unreadable training spec ({e})") from None
+        raise UserError(f"{spec_path}: missing or unreadable training spec ({e})") from None
     if (spec["method"], int(spec["interface_dim"])) != (signature.method, signature.interface_dim):
-        raise ValueError(
+        raise UserError(
             f"{path}: signature ({signature.method}, interface dim "
             f"{signature.interface_dim}) disagrees with {spec_path}"
         )
@@ -105,10 +106,10 @@ def read_entry(policy_path: str | Path, stage: str = "run") -> ZooEntry:
 
 
 def _latest_checkpoints(stage_dir: Path) -> tuple[list[Path], list[str]]:
-    """The policy file of each trial's furthest checkpoint over its attempts (ps_ray.trials)
+    """The policy file of each trial's furthest checkpoint over its attempts (ps_ray.pipeline.trials)
     whose manifest and policy file verify, and a problem line per trial that has none."""
     from ps_ray import checkpoint
-    from ps_ray.trials import attempts, checkpoint_dirs
+    from ps_ray.pipeline.trials import attempts, checkpoint_dirs
 
     policies, problems = [], []
     for folders in attempts(stage_dir, "trial").values():
@@ -148,16 +149,16 @@ class ModuleZoo:
                 policies, unusable = _latest_checkpoints(sweep / folder)
                 found += [(p, stage) for p in policies]
                 if unusable and strict:
-                    raise ValueError(unusable[0])
+                    raise UserError(unusable[0])
                 problems += unusable
             if not found:
-                raise ValueError(
+                raise UserError(
                     f"{sweep}: no trained policies (expected tune/<trial>/checkpoint_*/{POLICY_FILE})"
                 )
             for path, stage in found:
                 try:
                     entries.append(read_entry(path, stage))
-                except ValueError as e:
+                except UserError as e:
                     if strict:
                         raise
                     problems.append(str(e))
@@ -173,7 +174,7 @@ class ModuleZoo:
     def __contains__(self, key: object) -> bool:
         try:
             self.get(key)  # type: ignore[arg-type]
-        except ValueError:
+        except UserError:
             return False
         return True
 
@@ -191,7 +192,7 @@ class ModuleZoo:
             if close
             else f"valid keys include: {', '.join(sorted(by_name)[:5])}"
         )
-        raise ValueError(f"no policy {str(key)!r} in the zoo ({len(self)} policies); {hint}")
+        raise UserError(f"no policy {str(key)!r} in the zoo ({len(self)} policies); {hint}")
 
     def select(
         self, *, method: str | None = None, seed: int | None = None, interface_dim: int | None = None

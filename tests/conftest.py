@@ -16,15 +16,44 @@ os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
 os.environ["PS_RAY_CACHE"] = tempfile.mkdtemp(prefix="ps_ray_cache_")
 
 
-@pytest.fixture(scope="session")
-def ray_local():
+def _init_local_ray() -> None:
     import ray
 
     ray.init(
         address="local", num_cpus=2, include_dashboard=False, log_to_driver=False, configure_logging=False
     )
+
+
+@pytest.fixture(scope="session")
+def ray_local():
+    import ray
+
+    _init_local_ray()
     yield
     ray.shutdown()
+
+
+@pytest.fixture
+def two_node_cluster():
+    """A local two-node Ray cluster (head and one worker, one CPU each), connected. The session's
+    single-node instance, if running, is stopped for it and restarted afterwards, so no later test
+    depends on the order tests run in."""
+    import ray
+    from ray.cluster_utils import Cluster
+
+    was_running = ray.is_initialized()
+    if was_running:
+        ray.shutdown()
+    cluster = Cluster(initialize_head=True, head_node_args={"num_cpus": 1})
+    cluster.add_node(num_cpus=1)
+    try:
+        ray.init(address=cluster.address, log_to_driver=False)
+        yield cluster
+    finally:
+        ray.shutdown()
+        cluster.shutdown()
+        if was_running:
+            _init_local_ray()
 
 
 # A small `ps-ray train` on the point task: PS, interface 8, checkpoints every 3 steps.

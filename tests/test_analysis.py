@@ -121,6 +121,9 @@ def test_zero_shot_table_has_combinations_as_rows_and_methods_as_columns():
     # mean of the seeds' means; std pooled: sqrt(mean within-seed var + between-seed var)
     assert table.loc["E1 (t: Pu1-R1 & r: Pu2-R2)", ("ps", "success")] == tables.pm(0.7, np.sqrt(0.01 + 0.01))
     assert table.loc["E1 (t: Pu1-R1 & r: Pu2-R2)", ("ablation", "touching")] == "0.50 ± 0.00"
+    # reach has nothing to touch: the report blanks touching, and the table leaves it out
+    reach = tables.zero_shot_table(frame.assign(touching_mean=float("nan"), touching_std=float("nan")))
+    assert list(reach.columns) == [("ps", "success"), ("ablation", "success")]
 
 
 def test_goal_quadrants_follow_the_reach_regions():

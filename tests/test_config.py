@@ -6,6 +6,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from ps_ray.config import SpecError, SweepSpec, TrainSpec, load_sweep
@@ -35,7 +36,10 @@ def test_train_spec_defaults_are_valid_and_label_names_the_trial():
         ),
         ({"robot": "pandaa"}, "unknown robot 'pandaa'; valid robots: panda, panda_l3, panda_l5"),
         ({"task": "pushh"}, "unknown task 'pushh'"),
-        ({"robot": {"base": "panda", "locked_joints": [9]}}, "9"),
+        (
+            {"robot": {"base": "panda", "locked_joints": [9]}},
+            "bad locked joint 9; valid locked joints: 0-based arm joint indices 0..6",
+        ),
         ({"env_steps": 0}, "env_steps must be a positive integer, got 0"),
         ({"gamma": 1.5}, "gamma must be in (0, 1), got 1.5"),
     ],
@@ -48,7 +52,7 @@ def test_bad_train_spec_values_name_the_value(fields, message):
 
 
 def test_unknown_train_key_lists_valid_keys():
-    with pytest.raises(SpecError, match=r"unknown key 'env_step' in train spec; valid keys: robot, task"):
+    with pytest.raises(SpecError, match=r"train spec: unknown key 'env_step'; valid keys: robot, task"):
         TrainSpec.from_mapping({"env_step": 10})
 
 
@@ -105,8 +109,12 @@ seeds: [1]
     [
         (GOOD + "colour: red\n", "unknown key 'colour'; valid keys: name, methods"),
         (GOOD.replace("[ps]", "[ps, nope]"), "unknown method 'nope'"),
-        (GOOD.replace("[panda]", "[{base: panda, locked_joints: [8]}]"), "8"),
+        (
+            GOOD.replace("[panda]", "[{base: panda, locked_joints: [8]}]"),
+            "bad locked joint 8; valid locked joints: 0-based arm joint indices 0..6",
+        ),
         (GOOD + "train: {env_steps: -1}\n", "env_steps must be a positive integer, got -1"),
+        (GOOD.replace("seeds: [1]", "seeds: abc"), "seed must be a non-negative integer, got 'abc'"),
         (GOOD + "train: {method: ps}\n", "train.method is set by the sweep grid"),
         (
             GOOD + "stages: [train, fly]\n",
@@ -192,3 +200,32 @@ def test_a_binary_sweep_file_is_refused_in_one_line(tmp_path):
     path.write_bytes(b"\xff\xfe\x00name: t")
     with pytest.raises(SpecError, match=r"sweep.yaml: not a UTF-8 text file \(byte 0\)"):
         load_sweep(path)
+
+
+def test_a_bad_json_robot_flag_is_one_line_but_a_bug_keeps_its_traceback(tmp_path, monkeypatch, capsys):
+    from ps_ray import cli
+
+    run_dir = tmp_path / "run"
+    assert cli.main(["train", "--robot", '{"name": "panda",', "--run-dir", str(run_dir)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith('ps-ray train: error: \'{"name": "panda",\' is neither a name nor a JSON mapping')
+    assert "\n" not in err and not run_dir.exists()
+
+    # a ValueError that is not a user error (here numpy's) is a bug: it is raised, not summarised
+    def broken(args):
+        return np.zeros(2) + np.zeros(3)
+
+    monkeypatch.setattr(cli, "cmd_train", broken)
+    with pytest.raises(ValueError, match="could not be broadcast"):
+        cli.main(["train", "--run-dir", str(run_dir)])
+
+
+@pytest.mark.parametrize(
+    "value", ["push_slippery", {"name": "reach", "goal_region": "q2"}, {"base": "panda"}]
+)
+def test_a_robot_or_task_survives_its_text_form_and_becomes_a_mapping(value):
+    from ps_ray.names import as_mapping, parse_spec_text, spec_text
+
+    assert parse_spec_text(spec_text(value)) == value
+    assert spec_text({"b": 1, "a": 2}) == spec_text({"a": 2, "b": 1})  # one text per value
+    assert as_mapping(value) == ({"name": value} if isinstance(value, str) else value)

@@ -9,8 +9,9 @@ import pytest
 import torch
 
 from ps_ray.envs import make
-from ps_ray.evaluate import BatchedGreedy, EpisodeRecord, evaluate, summarize
+from ps_ray.evaluate import EpisodeRecord, evaluate, summarize
 from ps_ray.nets.modular import NetDims, uses_anchors
+from ps_ray.nets.obs import split_obs
 from ps_ray.nets.sac import build_sac_nets
 from ps_ray.policy import GreedyPolicy
 
@@ -136,9 +137,13 @@ def test_fast_actions_match_the_actor(method, translation):
     obs = [env.reset(seed=s)[0] for s in range(5)]
     env.close()
     batch = {k: np.stack([o[k] for o in obs]) for k in obs[0]}
-    want = GreedyPolicy(nets.actor)(batch)
-    np.testing.assert_allclose(BatchedGreedy(nets.actor)(batch), want, atol=1e-6)
-    np.testing.assert_array_equal(BatchedGreedy(nets.actor, fast=False)(batch), want)
+    with torch.no_grad():
+        mean, _ = nets.actor.eval()(*split_obs(batch))
+    want = torch.tanh(mean).numpy()  # the actor's own forward
+    np.testing.assert_allclose(GreedyPolicy(nets.actor, fast=True)(batch), want, atol=1e-6)
+    np.testing.assert_array_equal(GreedyPolicy(nets.actor)(batch), want)
+    single = {k: v[0] for k, v in batch.items()}  # one observation, no batch axis
+    np.testing.assert_allclose(GreedyPolicy(nets.actor)(single), want[0], atol=1e-6)
 
 
 def test_refuses_a_policy_that_does_not_fit_the_env_and_bad_counts():
@@ -150,12 +155,7 @@ def test_refuses_a_policy_that_does_not_fit_the_env_and_bad_counts():
         evaluate(lean_if_goal_ahead, "panda", "push", episodes=0)
 
 
-def test_progress_line_per_repeat_and_bench_runs(capsys):
+def test_progress_line_per_repeat(capsys):
     evaluate(lean_if_goal_ahead, "panda", "push", episodes=2, repeats=3, num_envs=2, verbose=True)
     lines = [line for line in capsys.readouterr().out.splitlines() if "repeat" in line]
     assert [line.split("repeat ")[1][:3] for line in lines] == ["1/3", "2/3", "3/3"]
-    from ps_ray.bench.evaluate import main
-
-    main(["--episodes", "2", "--rounds", "1", "--hidden", "16", "--interface-dim", "8"])
-    out = capsys.readouterr().out
-    assert "evaluate num_envs=8" in out and "ratio" in out

@@ -138,3 +138,5 @@ def test_job_cli_without_a_token_is_refused(ray_head):
         timeout=60,
     )
     assert listing.returncode != 0
+    # refused for the missing token, not for any other reason (a dead head, a wrong address)
+    assert "Unauthorized: Missing authentication token" in listing.stderr, listing.stderr[-2000:]

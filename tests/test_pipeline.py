@@ -7,6 +7,7 @@ import base64
 import dataclasses
 import hashlib
 import os
+import re
 import signal
 import socket
 import subprocess
@@ -24,8 +25,8 @@ import pytest
 
 from ps_ray.analysis.browser import find_chromium, screenshot, visible_text
 from ps_ray.config import load_sweep
-from ps_ray.cost import workload
-from ps_ray.pipeline import stage_state
+from ps_ray.pipeline.cost import workload
+from ps_ray.pipeline.run import stage_state
 
 SMOKE = Path(__file__).resolve().parents[1] / "sweeps" / "smoke.yaml"
 FIGURES = {"training_curves", "heatmap_seeds_i16", "heatmap_robots_i16", "zero_shot", "few_shot_curves"} | {
@@ -33,28 +34,44 @@ FIGURES = {"training_curves", "heatmap_seeds_i16", "heatmap_robots_i16", "zero_s
 }
 
 
+# Moments at which the fixture SIGKILLs `ps-ray run` (driver and the Ray processes it started):
+# (stage under way, the sign that it is, seconds to wait after the sign).
+KILLS = (
+    ("train", lambda root: any(root.glob("tune/*/checkpoint_*/manifest.json")), 0.0),
+    ("zero_shot", lambda root: (root / "stages" / "zero_shot.started.json").exists(), 8.0),
+    ("report", lambda root: (root / "stages" / "report.started.json").exists(), 1.0),
+)
+
+
 @pytest.fixture(scope="module")
 def smoke(tmp_path_factory, cli, planted):
-    """The smoke pipeline, SIGKILLed once its zero-shot stage has started, then run again after
-    hostile pickles were planted wherever Tune, RLlib or ps_ray might look."""
+    """The smoke pipeline, SIGKILLed during training, during zero-shot and during the report,
+    rerun after each kill, and finished by a last run after hostile pickles were planted wherever
+    Tune, RLlib or ps_ray might look. Returns (spec, root, the output of every run in order)."""
     storage = tmp_path_factory.mktemp("pipeline") / "sweeps"
     root = storage / "smoke"
-    log = storage.parent / "first_run.log"
-    with log.open("w") as sink:  # a file, not a pipe nobody reads while waiting (it would fill)
-        first = subprocess.Popen(
-            [sys.executable, "-m", "ps_ray.cli", "run", str(SMOKE), "--storage", str(storage)],
-            stdout=sink,
-            stderr=subprocess.STDOUT,
-            start_new_session=True,
-        )
-        deadline = time.time() + 1200
-        while not (root / "stages" / "zero_shot.started.json").exists():
-            assert first.poll() is None, log.read_text()[-3000:]
-            assert time.time() < deadline, "the zero-shot stage did not start in time"
-            time.sleep(0.5)
-        time.sleep(8)
-        os.killpg(first.pid, signal.SIGKILL)  # the driver and the Ray processes it started
-        first.wait()
+    outs = []
+    for number, (stage, under_way, delay) in enumerate(KILLS):
+        log = storage.parent / f"run_{number}.log"
+        with log.open("w") as sink:  # a file, not a pipe nobody reads while waiting (it would fill)
+            run = subprocess.Popen(
+                [sys.executable, "-m", "ps_ray.cli", "run", str(SMOKE), "--storage", str(storage)],
+                stdout=sink,
+                stderr=subprocess.STDOUT,
+                start_new_session=True,
+            )
+            deadline = time.time() + 1200
+            while not under_way(root):
+                assert run.poll() is None, (
+                    f"run {number} ended before its {stage} kill: {log.read_text()[-3000:]}"
+                )
+                assert time.time() < deadline, f"the {stage} stage did not get under way in time"
+                time.sleep(0.2)
+            time.sleep(delay)
+            assert run.poll() is None, f"the {stage} stage finished before it could be killed"
+            os.killpg(run.pid, signal.SIGKILL)
+            run.wait()
+        outs.append(log.read_text())
     for place in [
         root,
         *root.glob("tune*"),
@@ -64,12 +81,12 @@ def smoke(tmp_path_factory, cli, planted):
     ]:
         if place.is_dir():
             planted(place)
-    second = cli("run", str(SMOKE), "--storage", str(storage))
-    out, _ = second.communicate(timeout=1200)
-    assert second.returncode == 0, out[-3000:]
+    last = cli("run", str(SMOKE), "--storage", str(storage))
+    out, _ = last.communicate(timeout=1200)
+    assert last.returncode == 0, out[-3000:]
     assert not planted.marker.exists(), "a planted pickle was loaded"
     spec = dataclasses.replace(load_sweep(SMOKE), storage=str(storage))
-    return spec, root, out
+    return spec, root, [*outs, out]
 
 
 def _runs(root: Path, stage: str):
@@ -80,13 +97,32 @@ def _runs(root: Path, stage: str):
     ]
 
 
-def test_a_killed_pipeline_resumes_without_redoing_finished_work(smoke):
-    spec, root, out = smoke
-    assert "[1/4] train: done earlier, skipped (16 training trials)" in out
-    assert "[2/4] zero_shot: resuming" in out
-    assert "[3/4] few_shot: starting" in out and "[4/4] report: done" in out
-    assert f"report: {root / 'report' / 'index.html'}" in out
-    assert len(_runs(root, "train")) == 16  # one MLflow run per trial, none duplicated
+def test_a_pipeline_killed_at_three_moments_resumes_without_redoing_finished_work(smoke):
+    spec, root, (killed_in_train, killed_in_zero_shot, killed_in_report, last) = smoke
+    assert "[1/4] train: starting" in killed_in_train
+    assert (
+        "[1/4] train: resuming" in killed_in_zero_shot and "[2/4] zero_shot: starting" in killed_in_zero_shot
+    )
+    assert "[1/4] train: done earlier, skipped (16 training trials)" in killed_in_report
+    assert "[2/4] zero_shot: resuming" in killed_in_report and "[3/4] few_shot: starting" in killed_in_report
+    assert "[3/4] few_shot: done earlier, skipped" in last
+    assert "[4/4] report: resuming" in last and "[4/4] report: done" in last
+    assert f"report: {root / 'report' / 'index.html'}" in last
+    train_runs = _runs(root, "train")
+    assert len(train_runs) == 16  # one MLflow run per trial, none duplicated
+    client = mlflow.MlflowClient(f"sqlite:///{root / 'mlflow.db'}")
+    for run in train_runs:  # a trial cut short resumed from its checkpoint: no step logged twice
+        steps = [m.step for m in client.get_metric_history(run.info.run_id, "env_steps")]
+        assert len(steps) == len(set(steps)) and run.data.metrics["env_steps"] >= 1500, run.info.run_name
+    # the report covers exactly the trials and stitched pairs an uninterrupted run would have
+    from ps_ray.pipeline.zero_shot import pairs
+
+    tables = root / "report" / "tables"
+    assert set(pd.read_csv(tables / "training_sources.csv")["run"]) == {t.label() for t in spec.trials()}
+    expected = {(p["method"], p["label"]) for p in pairs(spec)}
+    zero_shot = pd.read_csv(tables / "zero_shot.csv")
+    assert set(zip(zero_shot["method"], zero_shot["label"])) == expected
+    assert (zero_shot["seeds"] == len(spec.seeds)).all()
     assert len(_runs(root, "zero_shot")) == 16
     assert len(_runs(root, "few_shot")) == 4  # one stitched pair per method + their scratch runs
     assert len(pd.read_csv(root / "zero_shot.csv")) == 16
@@ -102,9 +138,11 @@ def test_a_killed_pipeline_resumes_without_redoing_finished_work(smoke):
 
 
 def test_the_terminal_gets_a_compact_view_and_the_log_keeps_tunes_tables(smoke):
-    spec, root, out = smoke
+    spec, root, outs = smoke
+    assert all(len(o.splitlines()) <= 150 for o in outs), [len(o.splitlines()) for o in outs]
+    out = "\n".join(outs)
     lines = out.splitlines()
-    assert len(lines) <= 150, f"{len(lines)} lines"
+    assert len(lines) <= 150 + 10 * len(KILLS), f"{len(lines)} lines over all runs"
     assert "\x1b[" not in out  # no TTY here: plain lines, no control codes
     assert "Trial status" not in out and "sweep_trial_" not in out
     assert any(line.startswith("  zero_shot: ") and " done, " in line for line in lines)
@@ -112,7 +150,7 @@ def test_the_terminal_gets_a_compact_view_and_the_log_keeps_tunes_tables(smoke):
     assert "Trial status" in (root / "logs" / "tune_zero_shot.log").read_text()
     assert "Trial status" in (root / "few_shot" / "logs" / "tune_few_shot.log").read_text()
     assert any(line.startswith("sweep 'smoke': projected ") and "core-hours" in line for line in lines)
-    assert lines[-1].startswith("note: ") and "near zero by design" in lines[-1]
+    assert outs[-1].splitlines()[-1].startswith("note: ") and "near zero by design" in lines[-1]
 
 
 def test_rerunning_a_finished_pipeline_skips_every_stage(cli, smoke):
@@ -165,6 +203,9 @@ def test_report_embeds_every_figure_and_table(smoke):
             first_frames[gif.stem] = np.asarray(image.convert("RGB"))
     for pair in ("pair0", "pair1"):  # the same pair starts from the same state under every method
         assert np.array_equal(first_frames[f"{pair}_ps"], first_frames[f"{pair}_ablation"])
+    captions = re.findall(r"(did not reach|reached) the goal \(ended ([\d.]+) cm from it\)", page)
+    assert len(captions) == 12  # each caption agrees with its final distance (success: < 5 cm)
+    assert all((verdict == "reached") == (float(cm) < 5.0) for verdict, cm in captions)
     cost = pd.read_csv(root / "report" / "tables" / "cost.csv", index_col=0)
     assert (cost["attempts (ran)"] >= cost["trials (projected)"]).all()  # a killed attempt is rerun
     assert (cost["core-hours in trials (used)"] > 0).all()
@@ -318,3 +359,42 @@ def test_report_of_a_renamed_sweep_folder_fails_with_one_line(cli, tmp_path):
         "sweep's name (rename it back to 'smoke')"
     )
     assert sorted(p.name for p in folder.iterdir()) == ["sweep.yaml"]  # nothing written
+
+
+def test_no_entry_point_runs_the_pickles_planted_in_the_sweep_folder(smoke, cli, planted, tmp_path):
+    """The smoke folder still holds the fixture's hostile pickles (in the sweep folder, every Tune
+    folder, trial folder and checkpoint, and the anchors): every command that reads it succeeds
+    and none loads them. (`run` and `sweep --resume` are checked by the fixture and test_sweep.)"""
+    from ps_ray.names import spec_text
+    from ps_ray.zoo import ModuleZoo
+
+    spec, root, _ = smoke
+    assert list(root.glob("tune/*/checkpoint_*/*.pkl")), "the fixture planted pickles beside the policies"
+    zoo = ModuleZoo.from_sweep(root)
+    ps = sorted((e for e in zoo if e.key.method == "ps" and e.stage == "train"), key=lambda e: str(e.key))
+    task_from = next(e for e in ps if e.robot == "panda")
+    robot_from = next(e for e in ps if e.robot == "panda_l3" and e.task != task_from.task)
+    storage = str(root.parent)
+    commands = [
+        ("zero-shot", str(SMOKE), "--storage", storage, "--resume"),
+        ("few-shot", str(SMOKE), "--storage", storage, "--resume"),
+        ("report", str(root), "--no-mlflow"),
+        (
+            "stitch",
+            "--sweep",
+            str(root),
+            "--task-from",
+            str(task_from.key),
+            "--robot-from",
+            str(robot_from.key),
+        )
+        + ("--episodes", "2", "--repeats", "1", "--save", str(tmp_path / "stitched.safetensors")),
+        ("render", "--policy", str(robot_from.path), "--robot", "panda_l3")
+        + ("--task", spec_text(robot_from.task), "--png", str(tmp_path / "last.png")),
+    ]
+    for args in commands:
+        proc = cli(*args)
+        out, _ = proc.communicate(timeout=600)
+        assert proc.returncode == 0, (args[0], out[-3000:])
+    assert (tmp_path / "stitched.safetensors").exists() and (tmp_path / "last.png").exists()
+    assert not planted.marker.exists(), "a planted pickle was loaded"

@@ -40,33 +40,38 @@ def _learner_module(algo):
     return algo.learner_group._learner.module["default_policy"]
 
 
+TARGETS = ("target_critic", "target_critic_twin")
+
+
 @pytest.fixture(scope="module", params=["ps", "ps_center_ln"])
 def trained(ray_local, tmp_path_factory, request):
     spec = TrainSpec(method=request.param, anchors=None, **SMALL)
     anchors = np.random.default_rng(0).uniform(-0.5, 0.5, (16, 2)).astype(np.float32)
     algo = algo_config(spec, anchors).build_algo()
+    module = _learner_module(algo)
+    initial = {name: [p.detach().clone() for p in getattr(module, name).parameters()] for name in TARGETS}
     for _ in range(4):
         algo.train()
     path = tmp_path_factory.mktemp("ckpt")
     algo.save_checkpoint(str(path))
-    yield spec, anchors, algo, path
+    yield spec, anchors, algo, path, initial
     algo.stop()
 
 
 def test_training_steps_update_weights_and_targets(trained):
-    _, _, algo, _ = trained
+    _, _, algo, _, initial = trained
     assert algo.counters["updates"] > 0
     module = _learner_module(algo)
-    for online, target in (
-        (module.critic, module.target_critic),
-        (module.critic_twin, module.target_critic_twin),
-    ):
-        diffs = [(o - t).abs().max().item() for o, t in zip(online.parameters(), target.parameters())]
-        assert max(diffs) > 0, "targets must lag the online critics (Polyak, not a copy)"
+    for online_name, target_name in zip(("critic", "critic_twin"), TARGETS):
+        online, target = getattr(module, online_name), getattr(module, target_name)
+        lag = max((o - t).abs().max().item() for o, t in zip(online.parameters(), target.parameters()))
+        assert lag > 0, "targets must lag the online critics (Polyak, not a copy)"
+        moved = max((t - t0).abs().max().item() for t, t0 in zip(target.parameters(), initial[target_name]))
+        assert moved > 0, "targets must follow the online critics (a missing Polyak update leaves them)"
 
 
 def test_checkpoint_round_trip_restores_every_net_and_the_replay(trained):
-    spec, anchors, algo, path = trained
+    spec, anchors, algo, path, _ = trained
     batch = train_batch(algo.replay.sample(32))
     fresh = algo_config(spec, anchors).build_algo()
     try:
@@ -102,7 +107,7 @@ def test_checkpoint_round_trip_restores_every_net_and_the_replay(trained):
 
 
 def test_policy_file_round_trip_keeps_actions_q_and_targets(trained, tmp_path):
-    spec, anchors, algo, _ = trained
+    spec, anchors, algo, _, _ = trained
     signature = Signature(
         method=spec.method, interface_dim=16, hidden=64, anchor_hash=anchor_hash(anchors), **algo.replay_dims
     )
@@ -161,7 +166,7 @@ def test_a_run_can_start_from_given_weights(ray_local, tmp_path):
     """Few-shot fine-tuning starts from the stitched weights, not a fresh initialisation."""
     from ps_ray.nets.modular import NetDims
     from ps_ray.nets.sac import build_sac_nets
-    from ps_ray.train import TrainingRun, prepare_anchors
+    from ps_ray.train import TrainingRun, prepare_anchors, read_inputs
     from ps_ray.weights import nets_state, save_policy
 
     anchors = np.random.default_rng(1).uniform(-0.5, 0.5, (16, 2)).astype(np.float32)
@@ -177,7 +182,7 @@ def test_a_run_can_start_from_given_weights(ray_local, tmp_path):
     )
     save_policy(tmp_path / "start.safetensors", nets, signature)
     spec = TrainSpec(method="ps", init_policy=str(tmp_path / "start.safetensors"), **SMALL)
-    anchor_set = prepare_anchors(spec, tmp_path)
+    anchor_set = prepare_anchors(spec, tmp_path, read_inputs(spec))
     assert anchor_set.hash == signature.anchor_hash
     run = TrainingRun(spec, anchor_set)
     try:
@@ -186,3 +191,31 @@ def test_a_run_can_start_from_given_weights(ray_local, tmp_path):
             assert torch.equal(loaded[key], value), key
     finally:
         run.stop()
+
+
+def test_training_settings_come_from_the_train_spec_alone():
+    import dataclasses
+
+    from ps_ray.rllib.sac_her import TRAIN_SETTINGS, ModularSACConfig
+
+    defaults = TrainSpec()
+    fresh = ModularSACConfig()  # its defaults are TrainSpec's, not a second copy
+    assert {name: getattr(fresh, name) for name in TRAIN_SETTINGS} == {
+        name: getattr(defaults, name) for name in TRAIN_SETTINGS
+    }
+    changed = {"eval_every": 3, "eval_episodes": 7, "updates_per_step": 0.25, "learning_starts": 50}
+    config = algo_config(dataclasses.replace(defaults, method="ablation", **changed))
+    assert {name: getattr(config, name) for name in changed} == changed
+    assert (config.train_batch_size, config.gamma, config.tau) == (256, 0.98, 0.005)
+    with pytest.raises(TypeError):  # an unknown setting is not silently stored
+        ModularSACConfig().training(eval_interval=5)
+
+
+def test_every_train_setting_is_documented_in_the_help(cli):
+    import dataclasses
+
+    out, _ = cli("train", "--help").communicate(timeout=120)
+    for f in dataclasses.fields(TrainSpec):
+        assert f.metadata["help"], f.name
+        flag = f"--{f.name.replace('_', '-')}"
+        assert flag in out and f"(default {getattr(TrainSpec(), f.name)})" in " ".join(out.split()), flag

@@ -10,7 +10,7 @@ import torch
 from torch.distributions import Normal, TanhTransform, TransformedDistribution
 
 from ps_ray.nets.modular import NetDims
-from ps_ray.nets.sac import SACHyper, build_sac_nets, sac_forward, sac_losses, squashed_sample
+from ps_ray.nets.sac import SACHyper, build_sac_nets, polyak, sac_forward, sac_losses, squashed_sample
 
 DIMS = NetDims(task_dim=6, robot_dim=8, action_dim=7)
 GAMMA = 0.98
@@ -93,3 +93,31 @@ def test_each_loss_moves_only_its_own_parameters(method):
                 assert grads, f"{loss_name} loss: no gradient reached {group}"
             else:
                 assert not grads, f"{loss_name} loss leaked a gradient into {group}"
+
+
+def test_polyak_moves_each_target_parameter_tau_of_the_way_and_copies_buffers():
+    torch.manual_seed(0)
+    nets = build_sac_nets("ps", DIMS, interface_dim=16, hidden=32, anchors=np.random.rand(16, DIMS.task_dim))
+    with torch.no_grad():
+        for p in (*nets.critic.parameters(), *nets.critic_twin.parameters()):
+            p.add_(torch.randn_like(p))  # online critics trained away from their targets
+        for b in nets.critic.buffers():
+            b.add_(1.0)
+    before = {k: v.clone() for k, v in nets.state_dict().items()}
+    polyak(nets, 0.25)
+    after = nets.state_dict()
+    params = {name for name, _ in nets.named_parameters()}
+    checked = {"parameters": 0, "buffers": 0}
+    for online in ("critic", "critic_twin"):
+        for key in (k for k in before if k.startswith(online + ".")):
+            target = "target_" + key
+            checked["parameters" if key in params else "buffers"] += 1
+            if key in params:
+                want = 0.75 * before[target] + 0.25 * before[key]
+                torch.testing.assert_close(after[target], want)
+            else:  # normaliser statistics and anchors follow exactly
+                torch.testing.assert_close(after[target], before[key])
+            torch.testing.assert_close(after[key], before[key])  # the online critic is untouched
+    for key in (k for k in before if k.startswith("actor.")):
+        torch.testing.assert_close(after[key], before[key])
+    assert checked["parameters"] >= 8 and checked["buffers"] >= 2, checked

@@ -12,7 +12,7 @@ import pytest
 import yaml
 
 from ps_ray.config import load_sweep
-from ps_ray.sweep import sweep_dir
+from ps_ray.pipeline.sweep import sweep_dir
 
 
 def write_sweep(
@@ -149,23 +149,85 @@ def test_a_killed_trial_worker_is_retried_from_its_checkpoint(tmp_path, cli, tin
     assert steps == sorted(set(steps))
 
 
-def test_trials_spread_over_two_nodes(tmp_path, tiny_train):
-    import ray
-    from ray.cluster_utils import Cluster
-
-    from ps_ray.sweep import run_sweep
+def test_trials_spread_over_two_nodes(tmp_path, tiny_train, two_node_cluster):
+    from ps_ray.pipeline.sweep import run_sweep
 
     path = write_sweep(tmp_path, "nodes", tiny_train, seeds=(1, 2))
-    if ray.is_initialized():  # the session's single-node instance
-        ray.shutdown()
-    cluster = Cluster(initialize_head=True, head_node_args={"num_cpus": 1})
-    cluster.add_node(num_cpus=1)
-    try:
-        ray.init(address=cluster.address, log_to_driver=False)
-        results = run_sweep(load_sweep(path), progress=False)
-        assert not any(r.error for r in results)
-        node_ids = {r.metrics["node_id"] for r in results}
-        assert len(node_ids) == 2, node_ids
-    finally:
-        ray.shutdown()
-        cluster.shutdown()
+    results = run_sweep(load_sweep(path), progress=False)
+    assert not any(r.error for r in results)
+    node_ids = {r.metrics["node_id"] for r in results}
+    assert len(node_ids) == 2, node_ids
+
+
+def test_a_resumed_sweep_with_other_training_settings_is_refused_before_anything_runs(tmp_path):
+    from ps_ray.config import SpecError
+    from ps_ray.pipeline.layout import SweepLayout
+    from ps_ray.pipeline.sweep import run_sweep
+
+    trained = load_sweep(write_sweep(tmp_path, "same", {"env_steps": 400}))
+    root = sweep_dir(trained)
+    root.mkdir(parents=True)
+    SweepLayout(root).spec_file.write_text(yaml.safe_dump(trained.to_dict()))
+    before = sorted(p.name for p in root.iterdir())
+    other = load_sweep(write_sweep(tmp_path, "same", {"env_steps": 400, "hidden": 32}, seeds=(1, 3)))
+    refused = r"trained from a different sweep spec \(changed: seeds, train\); resume"
+    with pytest.raises(SpecError, match=refused):
+        run_sweep(other, resume=True)
+    assert sorted(p.name for p in root.iterdir()) == before  # nothing written, no Ray started
+    assert yaml.safe_load(SweepLayout(root).spec_file.read_text()) == trained.to_dict()
+
+
+def _rows(trial_dir: Path) -> list[dict]:
+    import json
+
+    path = trial_dir / "result.json"
+    if not path.exists():
+        return []
+    return [json.loads(line) for line in path.read_text().splitlines() if line.strip().endswith("}")]
+
+
+@pytest.mark.slow
+def test_a_killed_worker_node_s_trial_resumes_from_its_checkpoint_on_another_node(
+    tmp_path, tiny_train, two_node_cluster
+):
+    """A worker node dies mid-sweep (its raylet and every process on it killed): Tune retries its
+    trial from the last sealed checkpoint on the node that is left, and the sweep completes."""
+    import threading
+
+    from ps_ray.pipeline.sweep import run_sweep
+
+    path = write_sweep(tmp_path, "nodekill", {**tiny_train, "env_steps": 3000}, seeds=(1, 2))
+    spec = load_sweep(path)
+    cluster = two_node_cluster
+    worker = cluster.list_all_nodes()[1]  # [head, worker]
+    tune_dir = sweep_dir(spec) / "tune"
+    killed: dict[str, object] = {}
+
+    def kill_the_worker_once_its_trial_has_a_checkpoint():
+        deadline = time.time() + 300
+        while time.time() < deadline:
+            for trial_dir in tune_dir.glob("*"):
+                rows = _rows(trial_dir)
+                on_worker = rows and rows[-1].get("node_id") == worker.node_id
+                if on_worker and list(trial_dir.glob("checkpoint_*/manifest.json")):
+                    killed.update(trial=trial_dir.name, env_steps=rows[-1]["env_steps"])
+                    cluster.remove_node(worker, allow_graceful=False)
+                    return
+            time.sleep(0.2)
+
+    killer = threading.Thread(target=kill_the_worker_once_its_trial_has_a_checkpoint)
+    killer.start()
+    results = run_sweep(spec, progress=False)
+    killer.join()
+    assert killed, "no trial ran on the worker node long enough to checkpoint"
+    assert killed["env_steps"] < 3000  # killed mid-training
+    assert not any(r.error for r in results)
+    assert all(r.metrics["env_steps"] >= 3000 for r in results)
+    retried = [r for r in results if Path(r.path).name == killed["trial"]]
+    assert retried and retried[0].metrics["node_id"] != worker.node_id  # finished on the head
+    from ps_ray.config import TrainSpec
+
+    run = runs(path)[TrainSpec.from_mapping(retried[0].config["trial"]["spec"]).label()]
+    steps = [v for _, v in history(path, run, "env_steps")]
+    # restored from its checkpoint, not from zero: no env step is reported twice
+    assert steps == sorted(set(steps)) and steps[-1] >= 3000

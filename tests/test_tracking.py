@@ -1,8 +1,9 @@
-"""ps_ray.tracking against a real sqlite MLflow store and a real (local) Tune."""
+"""ps_ray.pipeline.tracking against a real sqlite MLflow store and a real (local) Tune."""
 
 from __future__ import annotations
 
 import pickle
+import subprocess
 import sys
 from pathlib import Path
 from urllib.parse import urlparse
@@ -11,14 +12,20 @@ import pytest
 from mlflow import MlflowClient
 from mlflow.entities import ViewType
 
-from ps_ray.tracking import (
+from ps_ray.pipeline.tracking import (
     TRIAL_KEY_TAG,
     TrialTracker,
     default_tracking_uri,
     ensure_experiment,
     git_commit,
 )
-from ps_ray.tune_tracking import MLflowTuneCallback, default_key_fn, default_params_fn, lookup, spec_key
+from ps_ray.pipeline.tune_tracking import (
+    MLflowTuneCallback,
+    default_key_fn,
+    default_params_fn,
+    lookup,
+    spec_key,
+)
 
 
 @pytest.fixture(scope="module")
@@ -77,9 +84,11 @@ def test_ensure_experiment_errors_are_one_line(store, tmp_path):
 
 
 def test_git_commit(tmp_path):
-    commit = git_commit()
-    assert commit is None or (len(commit) == 40 and int(commit, 16) >= 0)
-    assert git_commit(tmp_path) is None
+    # the tests run from a git checkout (CI clones the repo): the source tree's HEAD is recorded
+    repo = Path(__file__).resolve().parents[1]
+    head = subprocess.run(["git", "rev-parse", "HEAD"], cwd=repo, capture_output=True, text=True, check=True)
+    assert git_commit() == head.stdout.strip() and len(git_commit()) == 40
+    assert git_commit(tmp_path) is None  # not a repository
 
 
 # ------------------------------------------------------------------------- TrialTracker

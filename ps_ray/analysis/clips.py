@@ -23,6 +23,7 @@ class Clip:
     env: str  # robot and task it ran in
     path: Path
     success: bool
+    distance: float  # final distance (m) from the goal
 
 
 def _clip(policy_file_or_nets, robot, task, path: Path, method: str, role: str) -> Clip:
@@ -34,22 +35,22 @@ def _clip(policy_file_or_nets, robot, task, path: Path, method: str, role: str) 
     policy = GreedyPolicy(actor) if actor is not None else GreedyPolicy.from_file(policy_file_or_nets)
     env = make(robot, task, render_mode="rgb_array", render_size=CLIP_SIZE)
     try:
-        frames, success = rollout(env, policy, seed=START_SEED, every=2)
+        frames, success, distance = rollout(env, policy, seed=START_SEED, every=2)
         fps = env.metadata["render_fps"] / 2
     finally:
         env.close()
     path.parent.mkdir(parents=True, exist_ok=True)
     save_gif(frames, path, fps=fps)
-    return Clip(method, role, f"{short_name(robot)}, {short_name(task)}", path, success)
+    return Clip(method, role, f"{short_name(robot)}, {short_name(task)}", path, success, distance)
 
 
 def stitched_clips(spec: SweepSpec, out_dir: Path, pairs_per_method: int = 2) -> list[tuple[str, list[Clip]]]:
     """Rows of clips: per chosen pair (the first ``pairs_per_method`` that every method has, at the
     first seed), each method's stitched policy in the target env, then its two sources in their
     own envs. Returns (pair label, clips) rows; empty when the sweep has no stitchable pairs."""
+    from ps_ray.pipeline.sweep import sweep_dir
+    from ps_ray.pipeline.zero_shot import pairs
     from ps_ray.stitch import stitch_policies
-    from ps_ray.sweep import sweep_dir
-    from ps_ray.zero_shot import pairs
     from ps_ray.zoo import ModuleZoo
 
     methods = list(spec.zero_shot.methods) or list(spec.methods)

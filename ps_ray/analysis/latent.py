@@ -20,6 +20,9 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from ps_ray.errors import UserError
+from ps_ray.names import as_mapping
+
 QUADRANTS = ("q1", "q2", "q3", "q4")  # goal x/y signs (+,+), (-,+), (-,-), (+,-), as reach regions
 COMPARISONS = {"seeds": "seed", "robots": "robot"}  # comparison -> the field that varies
 
@@ -33,10 +36,6 @@ class Probes:
     labels: np.ndarray  # (N,) str, one of QUADRANTS
 
 
-def _task_mapping(task: str | Mapping) -> dict:
-    return {"name": task} if isinstance(task, str) else dict(task)
-
-
 def probe_states(task: str | Mapping, per_group: int = 250, seed: int = 0) -> Probes:
     """Task inputs at reset of the real env, ``per_group`` per goal quadrant.
 
@@ -48,9 +47,9 @@ def probe_states(task: str | Mapping, per_group: int = 250, seed: int = 0) -> Pr
     from ps_ray.envs.tasks import resolve_task
 
     states, labels = [], []
-    if resolve_task(task).family.__name__ == "Reach":
+    if hasattr(resolve_task(task).options, "goal_region"):  # a task whose goals can be placed
         for index, quadrant in enumerate(QUADRANTS):
-            env = make("panda", {**_task_mapping(task), "goal_region": quadrant})
+            env = make("panda", {**as_mapping(task), "goal_region": quadrant})
             for i in range(per_group):
                 obs, _ = env.reset(seed=seed + index * per_group + i)
                 states.append(task_input(obs))
@@ -90,7 +89,7 @@ def interface_of(policy_path: str | Path, states: np.ndarray) -> np.ndarray:
 
     nets, signature = load_policy(policy_path)
     if not method_spec(signature.method).modular:
-        raise ValueError(f"{policy_path}: method {signature.method!r} has no task-only interface")
+        raise UserError(f"{policy_path}: method {signature.method!r} has no task-only interface")
     with torch.no_grad():
         return nets.actor.interface(torch.as_tensor(states), None).numpy()
 

@@ -68,7 +68,7 @@ img { max-width: 100%; display: block; margin: 1em 0; } .meta td { text-align: l
 
 def render_html(spec: SweepSpec, report: Report) -> str:
     """One page, figures embedded as data URIs, so the file opens anywhere without its folder."""
-    from ps_ray.tracking import git_commit
+    from ps_ray.pipeline.tracking import git_commit
 
     esc = html.escape
     meta = {
@@ -108,6 +108,7 @@ def render_html(spec: SweepSpec, report: Report) -> str:
                     for clip in (c for c in row if c.method == method):
                         data = base64.b64encode(clip.path.read_bytes()).decode()
                         verdict = "reached the goal" if clip.success else "did not reach the goal"
+                        verdict += f" (ended {100 * clip.distance:.1f} cm from it)"
                         parts.append(
                             f"<td><img alt='{esc(clip.path.stem)}' src='data:image/gif;base64,{data}'>"
                             f"<div class='caption'>{esc(clip.env)}: {verdict}</div></td>"

@@ -25,13 +25,14 @@ from ps_ray.analysis.report_run import REPORT_RUN, log_report
 from ps_ray.analysis.summary import cost_section, summary_section
 from ps_ray.atomic import fsync_dir, write_text
 from ps_ray.config import SweepSpec
-from ps_ray.layout import SweepLayout
+from ps_ray.errors import UserError
 from ps_ray.names import short_name
+from ps_ray.pipeline.layout import SweepLayout
 
 
 def build_report(spec: SweepSpec, *, progress: bool = True, log_to_mlflow: bool = True) -> Path:
     """Rebuild ``<sweep>/report/`` from the stored results; returns the path of ``index.html``."""
-    from ps_ray.sweep import sweep_dir
+    from ps_ray.pipeline.sweep import sweep_dir
 
     root = sweep_dir(spec)
     say = print if progress else (lambda *a, **k: None)
@@ -147,7 +148,7 @@ def _latent(report: Report, spec: SweepSpec, root: Path, say) -> None:
     )
     try:
         zoo = ModuleZoo.from_sweep(root)
-    except ValueError:
+    except UserError:
         section.intro = "No trained modules yet."
         return
     entries = [e for e in zoo if e.stage == "train"]
@@ -289,7 +290,7 @@ def _has_object(tasks: pd.Series) -> bool:
     object, i.e. a task state beyond the goal."""
     from ps_ray.envs.tasks import resolve_task
 
-    return any(resolve_task(str(name).split("{")[0]).family.state_dim > 0 for name in tasks.unique())
+    return any(resolve_task(str(name).split("{")[0]).has_object for name in tasks.unique())
 
 
 def _few_shot(report: Report, root: Path, say) -> None:

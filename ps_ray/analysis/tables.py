@@ -81,16 +81,18 @@ def paper_names() -> dict[str, str]:
 
 def zero_shot_table(table: pd.DataFrame) -> pd.DataFrame:
     """Table 1 layout: one row per stitched combination (paper E-names where they apply), columns
-    (method, touching | success) holding ``mean ± std`` pooled over seeds."""
+    (method, touching | success) holding ``mean ± std`` pooled over seeds. Touching is left out
+    where no row has it (tasks without an object)."""
     pooled = pool_seeds(table)
     names = paper_names()
     pooled["row"] = pooled["label"].map(lambda label: names.get(label, label))
     methods = method_order(pooled["method"])
     rows = sorted(pooled["row"].unique())
-    columns = pd.MultiIndex.from_product([methods, ["touching", "success"]])
+    metrics = ["touching", "success"] if pooled["touching_mean"].notna().any() else ["success"]
+    columns = pd.MultiIndex.from_product([methods, metrics])
     out = pd.DataFrame("–", index=pd.Index(rows, name="task module & robot module"), columns=columns)
     for _, r in pooled.iterrows():
-        for metric in ("touching", "success"):
+        for metric in metrics:
             out.loc[r["row"], (r["method"], metric)] = pm(r[f"{metric}_mean"], r[f"{metric}_std"])
     return out
 

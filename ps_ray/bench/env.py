@@ -18,6 +18,7 @@ from collections.abc import Sequence
 import numpy as np
 import pybullet as p
 
+from ps_ray.bench import positive_int
 from ps_ray.envs import EPISODE_STEPS, TASKS, make
 
 
@@ -88,8 +89,8 @@ def run(
 
 def main(argv: Sequence[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
-    parser.add_argument("--steps", type=int, default=2000)
-    parser.add_argument("--rounds", type=int, default=3)
+    parser.add_argument("--steps", type=positive_int, default=2000)
+    parser.add_argument("--rounds", type=positive_int, default=3)
     parser.add_argument("--tasks", nargs="*", default=None)
     args = parser.parse_args(argv)
     print(f"{'task':<15}{'env steps/s':>13}{'bare steps/s':>14}{'ratio':>8}")

@@ -20,7 +20,8 @@ from collections.abc import Sequence
 import numpy as np
 import torch
 
-from ps_ray.envs import make
+from ps_ray.bench import positive_int
+from ps_ray.envs import make, task_input
 from ps_ray.evaluate import evaluate
 from ps_ray.nets.modular import uses_anchors
 from ps_ray.nets.obs import dims_from_spaces
@@ -47,7 +48,7 @@ def policy_nets(robot: str, task: str, method: str, interface_dim: int, hidden: 
     states = []
     for s in range(interface_dim):  # anchors: real task inputs from resets
         obs, _ = env.reset(seed=s)
-        states.append(np.concatenate([obs["task_state"], obs["desired_goal"]]))
+        states.append(task_input(obs))
     env.close()
     torch.manual_seed(0)
     return build_sac_nets(
@@ -87,10 +88,10 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument("--robot", default="panda")
     parser.add_argument("--task", default="push")
     parser.add_argument("--method", default="ps")
-    parser.add_argument("--episodes", type=int, default=24)
-    parser.add_argument("--rounds", type=int, default=3)
-    parser.add_argument("--hidden", type=int, default=256)
-    parser.add_argument("--interface-dim", type=int, default=128)
+    parser.add_argument("--episodes", type=positive_int, default=24)
+    parser.add_argument("--rounds", type=positive_int, default=3)
+    parser.add_argument("--hidden", type=positive_int, default=256)
+    parser.add_argument("--interface-dim", type=positive_int, default=128)
     args = parser.parse_args(argv)
     out = run(
         args.robot,

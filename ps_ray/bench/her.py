@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ps_ray.bench import positive_int
 from ps_ray.envs.goals import goal_reward
 from ps_ray.her import HindsightReplay
 
@@ -90,8 +91,8 @@ def bench(capacity: int, repeats: int) -> None:
 
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--capacities", type=int, nargs="+", default=[2_000, 20_000])
-    ap.add_argument("--repeats", type=int, default=300)
+    ap.add_argument("--capacities", type=positive_int, nargs="+", default=[2_000, 20_000])
+    ap.add_argument("--repeats", type=positive_int, default=300)
     args = ap.parse_args(argv)
     floats = sum(int(np.prod(s)) for s, _ in PUSH_SPEC.values())
     print(f"numpy {np.__version__}; push spec T={T}, A={A}, obs {floats} floats/step")

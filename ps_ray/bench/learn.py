@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from ps_ray.bench import positive_int
 from ps_ray.config import TrainSpec
 from ps_ray.train import train
 
@@ -65,10 +66,10 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--task", default="reach")
     parser.add_argument("--methods", nargs="+", default=["ps", "ps_normreg_ln", "ablation", "plain"])
     parser.add_argument("--seeds", nargs="+", type=int, default=[101, 102, 103])
-    parser.add_argument("--env-steps", type=int, default=20_000, help="budget cap per run")
+    parser.add_argument("--env-steps", type=positive_int, default=20_000, help="budget cap per run")
     parser.add_argument("--target", type=float, default=0.9, help="greedy success target")
-    parser.add_argument("--eval-episodes", type=int, default=20)
-    parser.add_argument("--interface-dim", type=int, default=128)
+    parser.add_argument("--eval-episodes", type=positive_int, default=20)
+    parser.add_argument("--interface-dim", type=positive_int, default=128)
     parser.add_argument("--out", default="runs/bench_learn")
     args = parser.parse_args(argv)
     for name in ("env_steps", "eval_episodes", "interface_dim"):

@@ -7,7 +7,7 @@ is not the whole fixed cost of a trial, because a Tune trial is a fresh worker p
 torch, Ray and RLlib first: the fixed cost is the wall time of a whole `ps-ray train` process with
 one training step. Two hidden sizes fit ``fixed + per_unit * batch * hidden**2``; ps
 over ablation gives the relative methods' factor. A greedy evaluation of the last policy gives
-seconds per evaluation step. The rates go to ``ps_ray.cost.rates_path()``.
+seconds per evaluation step. The rates go to ``ps_ray.pipeline.cost.rates_path()``.
 """
 
 from __future__ import annotations
@@ -25,9 +25,10 @@ import numpy as np
 import pandas as pd
 
 from ps_ray.atomic import write_text
+from ps_ray.bench import positive_int
 from ps_ray.config import TrainSpec
-from ps_ray.cost import DEFAULT_RATES, Rates, rates_path
 from ps_ray.envs import EPISODE_STEPS
+from ps_ray.pipeline.cost import DEFAULT_RATES, Rates, rates_path
 
 
 def _slope(x: pd.Series, y: pd.Series) -> float:
@@ -100,7 +101,7 @@ def measure(env_steps: int, learning_starts: int, root: Path) -> tuple[Rates, li
 
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(prog="ps-ray bench rates", description=__doc__)
-    parser.add_argument("--env-steps", type=int, default=2400, help="per run (default 2400)")
+    parser.add_argument("--env-steps", type=positive_int, default=2400, help="per run (default 2400)")
     parser.add_argument("--learning-starts", type=int, default=1000, help="warm-up steps (no updates)")
     parser.add_argument("--out", default=None, help="rates file (default: this machine's cache)")
     args = parser.parse_args(argv)

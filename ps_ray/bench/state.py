@@ -11,6 +11,7 @@ from pathlib import Path
 
 from ps_ray import checkpoint
 from ps_ray.atomic import write_text
+from ps_ray.bench import positive_int
 from ps_ray.lock import folder_lock
 
 
@@ -24,7 +25,7 @@ def _per_call(fn, n: int) -> float:
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(prog="ps-ray bench state", description=__doc__)
     parser.add_argument("--checkpoint", default=None, help="a training checkpoint folder to seal and verify")
-    parser.add_argument("--repeats", type=int, default=200)
+    parser.add_argument("--repeats", type=positive_int, default=200)
     args = parser.parse_args(argv)
     if args.repeats < 1:
         parser.error(f"--repeats must be positive, got {args.repeats}")

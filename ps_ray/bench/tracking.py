@@ -21,8 +21,9 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-from ps_ray.tracking import default_tracking_uri, ensure_experiment
-from ps_ray.tune_tracking import MLflowTuneCallback
+from ps_ray.bench import positive_int
+from ps_ray.pipeline.tracking import default_tracking_uri, ensure_experiment
+from ps_ray.pipeline.tune_tracking import MLflowTuneCallback
 
 SPEC = {
     "method": "ps",
@@ -109,8 +110,8 @@ def main(argv: list[str] | None = None) -> None:
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    parser.add_argument("--results", type=int, default=200, help="results per variant")
-    parser.add_argument("--metrics", type=int, default=10, help="whitelisted metrics per result")
+    parser.add_argument("--results", type=positive_int, default=200, help="results per variant")
+    parser.add_argument("--metrics", type=positive_int, default=10, help="whitelisted metrics per result")
     args = parser.parse_args(argv)
     with tempfile.TemporaryDirectory(prefix="ps_ray_bench_tracking_") as tmp:
         uri = default_tracking_uri(tmp)

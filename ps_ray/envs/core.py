@@ -10,8 +10,10 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
+from ps_ray.errors import UserError
+
 from .camera import Camera
-from .goals import SUCCESS_DISTANCE, goal_distance, goal_reward
+from .goals import GOAL_DIM, SUCCESS_DISTANCE, goal_distance, goal_reward
 from .robots import N_ARM, Panda, RobotSpec, resolve_robot
 from .sim import Sim
 from .tasks import TaskSpec, resolve_task
@@ -55,7 +57,7 @@ class RobotTaskEnv(gym.Env[Obs, np.ndarray]):
         **task_options: Any,
     ) -> None:
         if render_mode not in (None, *self.metadata["render_modes"]):
-            raise ValueError(f"unknown render_mode {render_mode!r}; valid render_modes: None, rgb_array")
+            raise UserError(f"unknown render_mode {render_mode!r}; valid render_modes: None, rgb_array")
         self.robot_spec = resolve_robot(robot)
         self.task_spec = resolve_task(task, **task_options)
         gripper = self.robot_spec.gripper
@@ -71,8 +73,8 @@ class RobotTaskEnv(gym.Env[Obs, np.ndarray]):
             {
                 "robot_state": _box(N_ARM + 1),
                 "task_state": _box(self.task.state_dim),
-                "achieved_goal": _box(3),
-                "desired_goal": _box(3),
+                "achieved_goal": _box(GOAL_DIM),
+                "desired_goal": _box(GOAL_DIM),
             }
         )
         self._steps = 0
@@ -82,7 +84,7 @@ class RobotTaskEnv(gym.Env[Obs, np.ndarray]):
     def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[Obs, dict]:
         super().reset(seed=seed)
         if options:
-            raise ValueError(f"unknown reset options {sorted(options)}; valid reset options: none")
+            raise UserError(f"unknown reset options {sorted(options)}; valid reset options: none")
         self.robot.reset()
         self.task.reset(self.np_random)
         self.sim.detect_collisions()

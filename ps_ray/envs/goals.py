@@ -7,6 +7,9 @@ from collections.abc import Mapping
 import numpy as np
 
 SUCCESS_DISTANCE = 0.05  # metres, the paper's threshold for reward and success
+GOAL_DIM = 3  # achieved_goal and desired_goal: a position in metres
+TASK_KEYS = ("task_state", "desired_goal")  # the task module's input, in this order
+ROBOT_KEY = "robot_state"  # the robot module's input (joint angles and velocities, gripper)
 
 
 def goal_distance(achieved: np.ndarray, desired: np.ndarray) -> np.ndarray:
@@ -19,6 +22,7 @@ def goal_reward(achieved: np.ndarray, desired: np.ndarray, threshold: float = SU
     return (goal_distance(achieved, desired) <= threshold).astype(np.float32) - np.float32(1.0)
 
 
-def task_input(obs: Mapping[str, np.ndarray]) -> np.ndarray:
-    """The task module's input: ``task_state`` then ``desired_goal`` (single or batched obs)."""
-    return np.concatenate([obs["task_state"], obs["desired_goal"]], axis=-1)
+def task_input(obs: Mapping[str, np.ndarray], prefix: str = "") -> np.ndarray:
+    """The task module's input: ``task_state`` then ``desired_goal`` (single or batched obs;
+    ``prefix`` reads flat replay keys such as ``"obs/task_state"``)."""
+    return np.concatenate([np.asarray(obs[prefix + key]) for key in TASK_KEYS], axis=-1)

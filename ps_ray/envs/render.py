@@ -9,6 +9,7 @@ from typing import Any
 import numpy as np
 
 from .core import RobotTaskEnv, make
+from .goals import goal_distance
 
 Policy = Callable[[dict[str, np.ndarray]], np.ndarray]
 
@@ -19,10 +20,11 @@ def rollout(
     seed: int | None = 0,
     steps: int | None = None,
     every: int = 1,
-) -> tuple[list[np.ndarray], bool]:
+) -> tuple[list[np.ndarray], bool, float]:
     """Run one episode (``policy(obs) -> action``; random actions if None); returns RGB frames,
-    the initial one and then one every ``every`` steps, and whether the last step succeeded.
-    ``env`` needs ``render_mode="rgb_array"``."""
+    the initial one and then one every ``every`` steps, whether the last step succeeded, and the
+    final distance (m) between the achieved and the desired goal. ``env`` needs
+    ``render_mode="rgb_array"``."""
     obs, _ = env.reset(seed=seed)
     env.action_space.seed(seed)
     frames, success = [env.render()], False
@@ -34,7 +36,8 @@ def rollout(
             frames.append(env.render())
         if terminated or truncated:
             break
-    return frames, success
+    distance = float(goal_distance(obs["achieved_goal"], obs["desired_goal"]))
+    return frames, success, distance
 
 
 def save_png(frame: np.ndarray, path: str | Path) -> Path:
@@ -66,7 +69,7 @@ def record(
     """Roll out ``policy`` in a fresh env and write the last frame to ``png`` and all to ``gif``."""
     env = make(robot, task, render_mode="rgb_array", **options)
     try:
-        frames, _ = rollout(env, policy, seed=seed, every=every)
+        frames, _, _ = rollout(env, policy, seed=seed, every=every)
     finally:
         env.close()
     if png is not None:

@@ -13,7 +13,8 @@ from dataclasses import dataclass
 import numpy as np
 import pybullet as p
 
-from .errors import choice_error
+from ps_ray.errors import UserError, choice_error
+
 from .sim import Sim
 from .urdf import locked_panda_urdf
 
@@ -51,17 +52,17 @@ class RobotSpec:
         joints = (self.locked_joints,) if isinstance(self.locked_joints, int) else tuple(self.locked_joints)
         for j in joints:
             if isinstance(j, bool) or not isinstance(j, (int, np.integer)) or not 0 <= j < N_ARM:
-                raise ValueError(
+                raise UserError(
                     f"bad locked joint {j!r}; valid locked joints: 0-based arm joint indices 0..{N_ARM - 1}"
                 )
         object.__setattr__(self, "locked_joints", tuple(sorted({int(j) for j in joints})))
         if len(self.locked_joints) == N_ARM:
-            raise ValueError(
+            raise UserError(
                 f"bad locked joints {list(self.locked_joints)}: all {N_ARM} arm joints "
                 f"locked leaves nothing to control; lock at most {N_ARM - 1}"
             )
         if self.gripper not in (None, True, False):
-            raise ValueError(f"bad gripper {self.gripper!r}; valid grippers: None, True, False")
+            raise UserError(f"bad gripper {self.gripper!r}; valid grippers: None, True, False")
 
 
 ROBOTS: dict[str, RobotSpec] = {
@@ -88,7 +89,7 @@ def resolve_robot(robot: str | RobotSpec | Mapping) -> RobotSpec:
                 raise choice_error("robot key", key, _SPEC_KEYS)
         start = resolve_robot(fields.pop("name")) if "name" in fields else RobotSpec()
         return dataclasses.replace(start, **fields)
-    raise ValueError(f"unknown robot {robot!r}; valid robots: {', '.join(ROBOTS)}, a RobotSpec or a mapping")
+    raise UserError(f"unknown robot {robot!r}; valid robots: {', '.join(ROBOTS)}, a RobotSpec or a mapping")
 
 
 class Panda:

@@ -25,6 +25,7 @@ from typing import TypeVar
 import torch
 from torch import Tensor, nn
 
+from ps_ray.errors import UserError
 from ps_ray.nets.mlp import mlp
 from ps_ray.nets.normalize import RunningNorm
 from ps_ray.nets.relative import RelativeProjection, RelativeSpec
@@ -89,7 +90,7 @@ def method_spec(method: str) -> MethodSpec:
     try:
         return METHODS[method]
     except KeyError:
-        raise ValueError(f"unknown method {method!r}; expected one of {sorted(METHODS)}") from None
+        raise UserError(f"unknown method {method!r}; expected one of {sorted(METHODS)}") from None
 
 
 def uses_anchors(method: str) -> bool:
@@ -164,9 +165,9 @@ def _relative_projection(
     expected = (latent_dim, dims.task_dim)
     if anchors is None:
         hint = "(K = interface dim, task_dim)"
-        raise ValueError(f"method {spec.name!r} needs anchors of shape {expected} {hint}")
+        raise UserError(f"method {spec.name!r} needs anchors of shape {expected} {hint}")
     if tuple(anchors.shape) != expected:
-        raise ValueError(
+        raise UserError(
             f"method {spec.name!r}: anchors have shape {tuple(anchors.shape)}, expected {expected} "
             f"(K = interface dim {latent_dim}, task_dim {dims.task_dim})"
         )
@@ -296,7 +297,7 @@ def _check_compatible(task: TaskModule, robot: _RobotModule) -> None:
     if task.sees_action != (robot.takes_action and not task.spec.modular):
         problems.append("actor/critic role differs")
     if problems:
-        raise ValueError("cannot combine task module and robot module: " + "; ".join(problems))
+        raise UserError("cannot combine task module and robot module: " + "; ".join(problems))
 
 
 Net = TypeVar("Net", Actor, Critic)
@@ -357,11 +358,11 @@ def stitch(task_from: Net, robot_from: Net) -> Net:
     """
     if type(task_from) is not type(robot_from):
         task_kind, robot_kind = type(task_from).__name__, type(robot_from).__name__
-        raise ValueError(f"cannot stitch an {task_kind} task side with a {robot_kind} robot side")
+        raise UserError(f"cannot stitch an {task_kind} task side with a {robot_kind} robot side")
     _check_compatible(task_from.task, robot_from.robot)
     a, b = task_from.anchors, robot_from.anchors
     if a is not None and b is not None and (a.shape != b.shape or not torch.equal(a, b.to(a.device))):
-        raise ValueError(
+        raise UserError(
             f"cannot stitch {task_from.spec.name!r} modules trained with different anchor sets "
             f"(shapes {tuple(a.shape)} vs {tuple(b.shape)})"
         )

@@ -5,14 +5,15 @@ from __future__ import annotations
 import numpy as np
 import torch
 
+from ps_ray.envs.goals import ROBOT_KEY, TASK_KEYS
 from ps_ray.nets.modular import NetDims
 
 
 def dims_from_spaces(observation_space, action_space) -> NetDims:
     spaces = observation_space.spaces
     return NetDims(
-        task_dim=spaces["task_state"].shape[0] + spaces["desired_goal"].shape[0],
-        robot_dim=spaces["robot_state"].shape[0],
+        task_dim=sum(spaces[key].shape[0] for key in TASK_KEYS),
+        robot_dim=spaces[ROBOT_KEY].shape[0],
         action_dim=action_space.shape[0],
     )
 
@@ -20,5 +21,5 @@ def dims_from_spaces(observation_space, action_space) -> NetDims:
 def split_obs(obs: dict) -> tuple[torch.Tensor, torch.Tensor]:
     """Dict observation (tensors or arrays, any batch shape) -> (task input, robot input) tensors."""
     as_t = lambda x: torch.as_tensor(np.asarray(x, np.float32)) if not torch.is_tensor(x) else x  # noqa: E731
-    task = torch.cat([as_t(obs["task_state"]), as_t(obs["desired_goal"])], dim=-1)
-    return task, as_t(obs["robot_state"])
+    task = torch.cat([as_t(obs[key]) for key in TASK_KEYS], dim=-1)
+    return task, as_t(obs[ROBOT_KEY])

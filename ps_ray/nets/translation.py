@@ -19,13 +19,15 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
+from ps_ray.errors import UserError
+
 TRANSLATIONS = ("orthogonal", "affine")
 SCALE_EPS = 1e-8
 
 
 def check_kind(kind: str) -> str:
     if kind not in TRANSLATIONS:
-        raise ValueError(f"unknown translation {kind!r}; expected one of {list(TRANSLATIONS)}")
+        raise UserError(f"unknown translation {kind!r}; expected one of {list(TRANSLATIONS)}")
     return kind
 
 

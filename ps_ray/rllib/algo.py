@@ -6,7 +6,7 @@ import numpy as np
 
 from ps_ray.config import TrainSpec
 from ps_ray.envs.registry import register
-from ps_ray.rllib.sac_her import ModularSACConfig
+from ps_ray.rllib.sac_her import TRAIN_SETTINGS, ModularSACConfig
 
 
 def algo_config(spec: TrainSpec, anchors: np.ndarray | None = None) -> ModularSACConfig:
@@ -32,15 +32,9 @@ def algo_config(spec: TrainSpec, anchors: np.ndarray | None = None) -> ModularSA
             critic_lr=spec.lr,
             alpha_lr=spec.lr,
             initial_alpha=spec.initial_alpha,
+            **{name: getattr(spec, name) for name in TRAIN_SETTINGS},
         )
         .reporting(metrics_num_episodes_for_smoothing=1)
         .debugging(seed=spec.seed)
     )
-    config.episodes_per_step = spec.episodes_per_step
-    config.updates_per_step = spec.updates_per_step
-    config.random_episodes = spec.random_episodes
-    config.learning_starts = spec.learning_starts
-    config.action_l2 = spec.action_l2
-    config.eval_interval = spec.eval_every
-    config.eval_episodes = spec.eval_episodes
     return config

@@ -5,6 +5,8 @@ from __future__ import annotations
 import numpy as np
 import torch
 
+from ps_ray.envs.goals import ROBOT_KEY, task_input
+
 OBS_PREFIX, NEXT_PREFIX = "obs/", "next_obs/"
 
 
@@ -33,8 +35,8 @@ def train_batch(sample: dict[str, np.ndarray]) -> dict[str, torch.Tensor]:
     """HER sample (flat 'obs/<key>' arrays) -> the tensors `sac_forward` reads."""
 
     def halves(prefix: str) -> tuple[torch.Tensor, torch.Tensor]:
-        task = np.concatenate([sample[prefix + "task_state"], sample[prefix + "desired_goal"]], -1)
-        return torch.from_numpy(task), torch.from_numpy(sample[prefix + "robot_state"])
+        task = task_input(sample, prefix)
+        return torch.from_numpy(task), torch.from_numpy(sample[prefix + ROBOT_KEY])
 
     task_in, robot_in = halves(OBS_PREFIX)
     next_task_in, next_robot_in = halves(NEXT_PREFIX)

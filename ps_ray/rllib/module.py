@@ -1,7 +1,8 @@
 """The SAC RLModule (new API stack): maps ps_ray's plain-torch nets onto RLlib.
 
 The module takes the env's Dict observation directly. Its actor, twin critics and target critics
-are built together in `setup`, so a checkpoint always carries the targets.
+are built together in `setup`, so a checkpoint always carries the targets. Acting returns actions
+(and their log-probabilities) itself, so the module declares no RLlib action distribution.
 """
 
 from __future__ import annotations
@@ -11,7 +12,6 @@ from typing import Any
 import numpy as np
 import torch
 from ray.rllib.core.columns import Columns
-from ray.rllib.core.distribution.torch.torch_distribution import TorchSquashedGaussian
 from ray.rllib.core.rl_module.apis import InferenceOnlyAPI, QNetAPI, TargetNetworkAPI
 from ray.rllib.core.rl_module.torch.torch_rl_module import TorchRLModule
 
@@ -74,12 +74,3 @@ class ModularSACModule(TorchRLModule, InferenceOnlyAPI, TargetNetworkAPI, QNetAP
 
     def get_non_inference_attributes(self) -> list[str]:
         return list(CRITIC_ATTRS)
-
-    def get_inference_action_dist_cls(self):
-        return TorchSquashedGaussian
-
-    def get_exploration_action_dist_cls(self):
-        return TorchSquashedGaussian
-
-    def get_train_action_dist_cls(self):
-        return TorchSquashedGaussian

@@ -8,6 +8,7 @@ forward pass, the episodes go into `HindsightReplay` in one vectorised write, K 
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 
@@ -27,6 +28,9 @@ from ray.rllib.utils.metrics import (
 from safetensors.torch import load_file, save_file
 
 from ps_ray.checkpoint import STATE_FILE
+from ps_ray.config import TrainSpec
+from ps_ray.envs.goals import ROBOT_KEY, task_input
+from ps_ray.errors import UserError
 from ps_ray.her import HindsightReplay
 from ps_ray.nets.modular import update_normalizers
 from ps_ray.nets.obs import dims_from_spaces
@@ -41,8 +45,20 @@ EVAL_SEED_OFFSET = 500_000
 REPLAY_FILE = "replay.npz"
 
 
+# TrainSpec fields the training step reads; their defaults and docs live in TrainSpec alone.
+TRAIN_SETTINGS = (
+    "episodes_per_step",
+    "updates_per_step",
+    "random_episodes",
+    "learning_starts",
+    "action_l2",
+    "eval_every",
+    "eval_episodes",
+)
+
+
 class ModularSACConfig(SACConfig):
-    """SACConfig plus the HER / update-ratio settings of ps_ray."""
+    """SACConfig plus the HER / update-ratio settings of ps_ray, set through :meth:`training`."""
 
     def __init__(self, algo_class=None):
         super().__init__(algo_class=algo_class or ModularSAC)
@@ -50,16 +66,20 @@ class ModularSACConfig(SACConfig):
         self.min_time_s_per_iteration = None
         self.min_sample_timesteps_per_iteration = 0
         self.min_train_timesteps_per_iteration = 0
-        self.episodes_per_step = 2  # whole episodes collected per training step
-        self.updates_per_step = 0.4  # gradient updates per collected env step (authors: 0.4)
-        self.random_episodes = 10  # warm-up episodes with uniform random actions
-        self.learning_starts = 1000  # transitions in the buffer before the first update
-        self.buffer_episodes = 20_000
+        defaults = {f.name: f.default for f in dataclasses.fields(TrainSpec)}
+        for name in TRAIN_SETTINGS:
+            setattr(self, name, defaults[name])
+        self.buffer_episodes = 20_000  # replay capacity in whole episodes
         self.relabel_prob = 0.8  # HER 'future' with k = 4
-        self.action_l2 = 0.0
-        self.clip_targets = True
-        self.eval_interval = 10  # training steps between greedy evaluations (0: never)
-        self.eval_episodes = 10
+        self.clip_targets = True  # critic targets clipped to the returns a -1/0 reward allows
+
+    def training(self, **kwargs) -> ModularSACConfig:
+        """``SACConfig.training`` that also takes :data:`TRAIN_SETTINGS`, ``buffer_episodes``,
+        ``relabel_prob`` and ``clip_targets``."""
+        for name in (*TRAIN_SETTINGS, "buffer_episodes", "relabel_prob", "clip_targets"):
+            if name in kwargs:
+                setattr(self, name, kwargs.pop(name))
+        return super().training(**kwargs)
 
     def get_default_learner_class(self):
         return ModularSACLearner
@@ -110,7 +130,7 @@ class ModularSAC(SAC):
 
         nets, signature = load_policy(path)
         if signature.translation:
-            raise ValueError(
+            raise UserError(
                 f"{path}: a stitch with a fitted latent translation "
                 f"({signature.translation}) is for zero-shot use; fine-tune an "
                 f"untranslated stitch instead"
@@ -118,7 +138,7 @@ class ModularSAC(SAC):
         ours = {k: self.replay_dims[k] for k in ("task_dim", "robot_dim", "action_dim")}
         theirs = {k: getattr(signature, k) for k in ours}
         if ours != theirs:
-            raise ValueError(f"{path}: policy dims {theirs} do not fit this env {ours}")
+            raise UserError(f"{path}: policy dims {theirs} do not fit this env {ours}")
         state = nets_state(nets)
 
         self.learner_group.foreach_learner(
@@ -166,10 +186,9 @@ class ModularSAC(SAC):
         self.counters["episodes"] += actions.shape[0]
         self._log_episode_stats("train", episodes)
 
-        task_in = np.concatenate([obs["task_state"], obs["desired_goal"]], -1).reshape(
-            -1, sum(obs[k].shape[-1] for k in ("task_state", "desired_goal"))
-        )
-        robot_in = obs["robot_state"].reshape(-1, obs["robot_state"].shape[-1])
+        task_in = task_input(obs)
+        task_in = task_in.reshape(-1, task_in.shape[-1])
+        robot_in = obs[ROBOT_KEY].reshape(-1, obs[ROBOT_KEY].shape[-1])
         task_t, robot_t = torch.from_numpy(task_in), torch.from_numpy(robot_in)
         self.learner_group.foreach_learner(
             lambda learner: update_normalizers(learner.module[DEFAULT_MODULE_ID], task_t, robot_t)
@@ -196,7 +215,7 @@ class ModularSAC(SAC):
             from_worker_or_learner_group=self.learner_group, inference_only=True
         )
 
-        if cfg.eval_interval and self.iteration % cfg.eval_interval == 0:
+        if cfg.eval_every and self.iteration % cfg.eval_every == 0:
             self._log_episode_stats("eval", self._collect(explore=False, random=False, n=cfg.eval_episodes))
         for key, value in self.counters.items():
             self.metrics.log_value(("ps_ray", key), value, reduce="item")

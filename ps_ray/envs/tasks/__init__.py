@@ -12,7 +12,9 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from ..errors import choice_error
+from ps_ray.errors import UserError, choice_error
+
+from ..goals import GOAL_DIM
 from .base import Task, TaskOptions
 from .pick import Pick
 from .push import Push
@@ -24,6 +26,16 @@ class TaskSpec:
     name: str
     family: type[Task]
     options: TaskOptions
+
+    @property
+    def input_dim(self) -> int:
+        """Width of the task module's input (``task_state`` then ``desired_goal``)."""
+        return self.family.state_dim + GOAL_DIM
+
+    @property
+    def has_object(self) -> bool:
+        """Whether the task moves an object (so touching it means something)."""
+        return self.family.state_dim > 0
 
 
 _SLIPPERY_RGBA = (0.75, 0.85, 0.95, 1.0)  # recoloured table; the object carries the low friction
@@ -46,7 +58,7 @@ def resolve_task(task: str | Mapping | TaskSpec, **options: Any) -> TaskSpec:
     if isinstance(task, Mapping):
         options = {**{k: v for k, v in task.items() if k != "name"}, **options}
         if "name" not in task:
-            raise ValueError(f"task mapping {dict(task)!r} needs a 'name'; valid tasks: {', '.join(TASKS)}")
+            raise UserError(f"task mapping {dict(task)!r} needs a 'name'; valid tasks: {', '.join(TASKS)}")
         task = task["name"]
     if not isinstance(task, str) or task not in TASKS:
         raise choice_error("task", task, TASKS)
@@ -54,7 +66,7 @@ def resolve_task(task: str | Mapping | TaskSpec, **options: Any) -> TaskSpec:
     valid = [f.name for f in dataclasses.fields(family.Options)]
     for key in options:
         if key not in valid:
-            raise ValueError(f"unknown option {key!r} for task {task!r}; valid options: {', '.join(valid)}")
+            raise UserError(f"unknown option {key!r} for task {task!r}; valid options: {', '.join(valid)}")
     return TaskSpec(task, family, family.Options(**{**preset, **options}))
 
 

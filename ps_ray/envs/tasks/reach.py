@@ -7,7 +7,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import choice_error
+from ps_ray.errors import choice_error
+
 from ..sim import Sim
 from .base import Task, TaskOptions
 

@@ -21,6 +21,7 @@ from pathlib import Path
 from typing import Any
 
 from ps_ray import checkpoint
+from ps_ray.errors import UserError
 
 FINISHED = "ps_ray_finished"  # in the last result of a trial that ran to its end
 STAGE_DIR_KEY = "stage_dir"  # a constant of every grid: where earlier attempts lie
@@ -28,7 +29,7 @@ PARAMS_FILE = "params.json"
 RESULT_FILE = "result.json"
 
 
-class StageExistsError(ValueError):
+class StageExistsError(UserError):
     """A stage folder already holds trials and resuming was not asked for."""
 
 
@@ -162,10 +163,10 @@ def run_trials(
     """Run a grid over ``grid``'s one key (plus ``constants``) as the Tune experiment in
     ``folder``: one CPU per trial, the sweep's retry policy, the MLflow ``callback``, a compact
     live view on the terminal and Tune's own output in ``<folder's parent>/logs/<folder name>.log``
-    (:mod:`ps_ray.progress`). ``resume`` keeps the trials that finished earlier and runs the rest."""
+    (:mod:`ps_ray.pipeline.progress`). ``resume`` keeps the trials that finished earlier and runs the rest."""
     from ray import tune
 
-    from ps_ray.progress import StageProgress, quiet_tune, verbose
+    from ps_ray.pipeline.progress import StageProgress, quiet_tune, verbose
 
     ((key, trials),) = grid.items()
     path, name, root = Path(folder), Path(folder).name, Path(folder).parent

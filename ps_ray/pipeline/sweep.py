@@ -2,20 +2,22 @@
 
 Stage 1 trains the plain source policies of the anchors (anchors.policy: plain), stage 2 makes
 one anchor set per (task-input width, k) in the driver, stage 3 runs every trial of the grid.
-Where each goes: :class:`ps_ray.layout.SweepLayout`.
+Where each goes: :class:`ps_ray.pipeline.layout.SweepLayout`.
 """
 
 from __future__ import annotations
 
-import json
 import os
 import tempfile
+from functools import partial
 from pathlib import Path
 from typing import Any
 
-from ps_ray.config import SpecError, SweepSpec, TrainSpec
-from ps_ray.layout import SweepLayout
+from ps_ray.atomic import write_text
+from ps_ray.config import SweepSpec, TrainSpec, require_same
+from ps_ray.names import parse_spec_text, spec_text
 from ps_ray.nets.modular import uses_anchors
+from ps_ray.pipeline.layout import SweepLayout
 
 METRIC_KEYS = ("env_steps", "updates", "train_success", "train_touching", "eval_success", "eval_touching")
 
@@ -30,22 +32,32 @@ def sweep_dir(spec: SweepSpec) -> Path:
 
 # -- anchors -------------------------------------------------------------------------------------
 def task_input_dim(task) -> int:
+    """Width of ``task``'s task-module input: anchor sets are shared by tasks of one width."""
     from ps_ray.envs.tasks import resolve_task
 
-    return 3 if resolve_task(task).family.__name__ == "Reach" else 15
+    return resolve_task(task).input_dim
+
+
+def anchor_file(spec: SweepSpec, trial: TrainSpec) -> str | None:
+    """The one place that decides where a PS trial of this sweep (train, few-shot scratch) gets
+    its anchors: the sweep's anchor set for the trial's task-input width and K. None for methods
+    without anchors. (A stitched start carries its anchors in its policy file.)"""
+    if not uses_anchors(trial.method):
+        return None
+    return str(layout(spec).anchor_set(task_input_dim(trial.task), trial.interface_dim))
 
 
 def anchor_sources(spec: SweepSpec) -> list[TrainSpec]:
     """The plain trials whose greedy rollouts give the anchor states (policy: plain)."""
     ps = [t for t in spec.trials() if uses_anchors(t.method)]
-    tasks = list(spec.anchors.source_tasks) or list(dict.fromkeys(_name(t.task) for t in ps))
+    tasks = list(spec.anchors.source_tasks) or list(dict.fromkeys(spec_text(t.task) for t in ps))
     return [
         TrainSpec.from_mapping(
             {
                 **t.to_dict(),
                 "method": "plain",
                 "robot": spec.anchors.robot,
-                "task": _task(task),
+                "task": parse_spec_text(task),
                 "seed": spec.seeds[0],
             }
         )
@@ -55,7 +67,7 @@ def anchor_sources(spec: SweepSpec) -> list[TrainSpec]:
 
 
 def prepare_sweep_anchors(
-    spec: SweepSpec, root: Path, plain_policies: dict[str, Path] | None = None
+    spec: SweepSpec, plain_policies: dict[str, Path] | None = None
 ) -> dict[tuple[int, int], str]:
     """Stage 2: one anchor set per (task-input width, k), pooled over that width's source tasks.
 
@@ -70,9 +82,10 @@ def prepare_sweep_anchors(
     ps = [t for t in spec.trials() if uses_anchors(t.method)]
     sources = anchor_sources(spec) if ps else []
     paths: dict[tuple[int, int], str] = {}
-    for dim, k in sorted({(task_input_dim(t.task), t.interface_dim) for t in ps}):
-        path = SweepLayout(root).anchor_set(dim, k)
-        paths[(dim, k)] = str(path)
+    for t in ps:
+        paths.setdefault((task_input_dim(t.task), t.interface_dim), anchor_file(spec, t))
+    for (dim, k), name in sorted(paths.items()):
+        path = Path(name)
         if path.exists():
             continue
         if spec.anchors.file:
@@ -83,7 +96,7 @@ def prepare_sweep_anchors(
                 policy = None
                 if spec.anchors.policy == "plain":
                     policy = GreedyPolicy.from_file(plain_policies[source.label()])
-                states[_name(source.task)] = collect_task_states(
+                states[spec_text(source.task)] = collect_task_states(
                     lambda source=source: make(source.robot, source.task),
                     episodes=spec.anchors.episodes,
                     steps=spec.anchors.steps,
@@ -107,25 +120,17 @@ def prepare_sweep_anchors(
     return paths
 
 
-def _name(task) -> str:
-    return task if isinstance(task, str) else json.dumps(task, sort_keys=True)
-
-
-def _task(name: str):
-    return json.loads(name) if name.startswith("{") else name
-
-
 # -- the Tune trial ------------------------------------------------------------------------------
 def sweep_trial(config: dict[str, Any]) -> None:
     """Tune function trainable: one TrainingRun, checkpointed to Tune. It continues from Tune's
     checkpoint after a retry, else from the furthest checkpoint an earlier attempt of the same
-    trial left (a resumed stage, :mod:`ps_ray.trials`); its last result carries ``FINISHED``."""
+    trial left (a resumed stage, :mod:`ps_ray.pipeline.trials`); its last result carries ``FINISHED``."""
     import ray
     from ray import tune
 
     from ps_ray.anchor_file import load_anchor_set
+    from ps_ray.pipeline.trials import FINISHED, earlier_checkpoint
     from ps_ray.train import TrainingRun
-    from ps_ray.trials import FINISHED, earlier_checkpoint
     from ps_ray.weights import policy_anchor_set
 
     trial = config["trial"]
@@ -177,20 +182,20 @@ def run_sweep(spec: SweepSpec, *, resume: bool = False, progress: bool = True):
     root = sweep_dir(spec)
     spec_file = SweepLayout(root).spec_file
     if resume and spec_file.exists():
-        stored = yaml.safe_load(spec_file.read_text()) or {}
-        changed = sorted(k for k, v in spec.training_identity().items() if stored.get(k) != v)
-        if changed:
-            raise SpecError(
-                f"{root} was trained from a different sweep spec (changed: "
-                f"{', '.join(changed)}); resume needs the same training settings"
-            )
+        stored = SweepSpec.from_mapping(yaml.safe_load(spec_file.read_text()) or {}, where=str(spec_file))
+        require_same(
+            stored.training_identity(),
+            spec.training_identity(),
+            f"{root} was trained from a different sweep spec",
+            "resume needs the same training settings",
+        )
     root.mkdir(parents=True, exist_ok=True)
-    spec_file.write_text(yaml.safe_dump(spec.to_dict(), sort_keys=True))
+    write_text(spec_file, yaml.safe_dump(spec.to_dict(), sort_keys=True))
     register()
     tune_args = dict(spec=spec, tracking=connect(spec), resume=resume, progress=progress)
 
     plain_policies = None
-    needs_anchors = any(not Path(p).exists() for p in _anchor_paths(spec, root))
+    needs_anchors = any(not Path(p).exists() for p in _anchor_paths(spec))
     if spec.anchors.policy == "plain" and needs_anchors and not spec.anchors.file:
         sources = anchor_sources(spec)
         grid = run_tune(
@@ -204,14 +209,8 @@ def run_sweep(spec: SweepSpec, *, resume: bool = False, progress: bool = True):
             TrainSpec.from_mapping(r.config["trial"]["spec"]).label(): r.checkpoint / "policy.safetensors"
             for r in grid
         }
-    anchors = prepare_sweep_anchors(spec, root, plain_policies)
-    trials = [
-        {
-            "spec": t.to_dict(),
-            "anchors": anchors[(task_input_dim(t.task), t.interface_dim)] if uses_anchors(t.method) else None,
-        }
-        for t in spec.trials()
-    ]
+    prepare_sweep_anchors(spec, plain_policies)
+    trials = [{"spec": t.to_dict(), "anchors": anchor_file(spec, t)} for t in spec.trials()]
     return run_tune(trials, folder=SweepLayout(root).tune_train, stage="train", **tune_args)
 
 
@@ -221,7 +220,7 @@ def connect(spec: SweepSpec) -> tuple[str, str]:
     The driver creates the store and experiment once, before any trial could race for it."""
     import ray
 
-    from ps_ray.tracking import default_tracking_uri, ensure_experiment
+    from ps_ray.pipeline.tracking import default_tracking_uri, ensure_experiment
 
     if not ray.is_initialized():
         ray.init(
@@ -235,12 +234,8 @@ def connect(spec: SweepSpec) -> tuple[str, str]:
     return tracking_uri, ensure_experiment(tracking_uri, spec.name, where.artifacts)
 
 
-def _anchor_paths(spec: SweepSpec, root: Path) -> list[Path]:
-    return [
-        SweepLayout(root).anchor_set(task_input_dim(t.task), t.interface_dim)
-        for t in spec.trials()
-        if uses_anchors(t.method)
-    ]
+def _anchor_paths(spec: SweepSpec) -> list[Path]:
+    return [Path(path) for path in map(partial(anchor_file, spec), spec.trials()) if path is not None]
 
 
 class StageError(RuntimeError):
@@ -268,9 +263,9 @@ def run_tune(
 ):
     """Training trials (sweep_trial) as one Tune experiment in ``folder``, tracked in MLflow."""
 
-    from ps_ray.tracking import git_commit
-    from ps_ray.trials import run_trials
-    from ps_ray.tune_tracking import MLflowTuneCallback
+    from ps_ray.pipeline.tracking import git_commit
+    from ps_ray.pipeline.trials import run_trials
+    from ps_ray.pipeline.tune_tracking import MLflowTuneCallback
 
     callback = MLflowTuneCallback(
         *tracking,

@@ -20,7 +20,7 @@ from pathlib import Path
 
 from ps_ray.config import SpecError, SweepSpec, TrainSpec
 from ps_ray.envs import EPISODE_STEPS
-from ps_ray.layout import SweepLayout
+from ps_ray.pipeline.layout import SweepLayout
 
 
 @dataclass(frozen=True)
@@ -104,8 +104,8 @@ def stitch_pairs(spec: SweepSpec, method: str) -> list[tuple[TrainSpec, TrainSpe
     """(task source, robot source) pairs the stitching stages will build for one method, by the
     rule of :func:`ps_ray.stitch.combos`: another task, another arm, the same seed and interface,
     and for relative methods the same anchor set (the same task-input width)."""
+    from ps_ray.pipeline.sweep import task_input_dim
     from ps_ray.stitch import arm
-    from ps_ray.sweep import task_input_dim
 
     cells = [t for t in spec.trials() if t.method == method]
     return [
@@ -122,7 +122,7 @@ def stitch_pairs(spec: SweepSpec, method: str) -> list[tuple[TrainSpec, TrainSpe
 
 def workload(spec: SweepSpec) -> list[StageLoad]:
     """The work of every stage the spec runs, in order."""
-    from ps_ray.sweep import anchor_sources
+    from ps_ray.pipeline.sweep import anchor_sources
 
     loads = []
     if "train" in spec.stages:
@@ -247,7 +247,7 @@ def describe(p: Projection) -> list[str]:
 def spent(root: Path) -> dict[str, tuple[int, float]]:
     """What each stage of a sweep folder actually used: (attempts, core-seconds inside trials,
     from the last result of every attempt, retries and resumed attempts included)."""
-    from ps_ray.trials import PARAMS_FILE, read_rows
+    from ps_ray.pipeline.trials import PARAMS_FILE, read_rows
 
     out = {}
     for stage, folder in SweepLayout(root).stage_folders().items():

@@ -14,16 +14,16 @@ from collections import Counter
 from typing import Any
 
 from ps_ray.config import FewShotSpec, SweepSpec, TrainSpec
+from ps_ray.errors import UserError
 from ps_ray.names import trial_key
-from ps_ray.nets.modular import uses_anchors
-from ps_ray.sweep import layout, sweep_dir, task_input_dim
+from ps_ray.pipeline.sweep import anchor_file, layout, sweep_dir
 
 
 def few_shot_trials(spec: SweepSpec, settings: FewShotSpec) -> list[dict[str, Any]]:
     """Trial configs for `sweep_trial`: stitched starts, plus from-scratch baselines."""
+    from ps_ray.pipeline.zero_shot import pairs
     from ps_ray.stitch import stitch_policies
     from ps_ray.weights import save_policy
-    from ps_ray.zero_shot import pairs
 
     selected, taken = [], Counter()
     for pair in pairs(spec, list(settings.methods) or None):
@@ -73,9 +73,7 @@ def few_shot_trials(spec: SweepSpec, settings: FewShotSpec) -> list[dict[str, An
                 "key": f"scratch/{key}",
                 "label": key,
                 "kind": "scratch",
-                "anchors": str(layout(spec).anchor_set(task_input_dim(base.task), base.interface_dim))
-                if uses_anchors(base.method)
-                else None,
+                "anchors": anchor_file(spec, base),
             }
             for key, base in targets.items()
         ]
@@ -84,13 +82,13 @@ def few_shot_trials(spec: SweepSpec, settings: FewShotSpec) -> list[dict[str, An
 
 def run_few_shot(spec: SweepSpec, *, resume: bool = False, progress: bool = True, **overrides: Any):
     """Settings from ``spec.few_shot`` (``overrides`` replace fields); returns the ResultGrid."""
-    from ps_ray.sweep import connect, run_tune
+    from ps_ray.pipeline.sweep import connect, run_tune
 
     settings = dataclasses.replace(spec.few_shot, **overrides)
     root = sweep_dir(spec)
     trials = few_shot_trials(spec, settings)
     if not trials:
-        raise ValueError(f"{root}: no stitchable pairs (train the sweep first: ps-ray sweep)")
+        raise UserError(f"{root}: no stitchable pairs (train the sweep first: ps-ray sweep)")
     tracking = connect(spec)
     return run_tune(
         trials,
@@ -107,7 +105,7 @@ def run_few_shot(spec: SweepSpec, *, resume: bool = False, progress: bool = True
 
 def _source_tags(trial: dict, client, experiment_id: str) -> dict[str, str]:
     """A fine-tuning run of a stitched start names its two sources (their runs) and anchor set."""
-    from ps_ray.tracking import source_tags
+    from ps_ray.pipeline.tracking import source_tags
     from ps_ray.weights import read_signature
 
     start = trial["spec"].get("init_policy")

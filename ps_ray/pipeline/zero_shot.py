@@ -16,8 +16,9 @@ import pandas as pd
 
 from ps_ray.atomic import atomic_path
 from ps_ray.config import SweepSpec
+from ps_ray.errors import UserError
 from ps_ray.names import short_name
-from ps_ray.sweep import layout, raise_on_errors, sweep_dir
+from ps_ray.pipeline.sweep import layout, raise_on_errors, sweep_dir
 
 RESULT_KEYS = (
     "success_mean",
@@ -75,8 +76,8 @@ def zero_shot_trial(config: dict[str, Any]) -> None:
     from ray import tune
 
     from ps_ray.evaluate import evaluate
+    from ps_ray.pipeline.trials import FINISHED
     from ps_ray.stitch import stitch_policies
-    from ps_ray.trials import FINISHED
 
     pair, settings = config["pair"], config["eval"]
     translation = pair.get("translation") or None
@@ -98,16 +99,16 @@ def run_zero_shot(
     """The matrix as Tune trials, settings from ``spec.zero_shot`` (``overrides`` replace fields).
 
     ``resume`` finishes an interrupted matrix (restores ``tune_zero_shot``)."""
-    from ps_ray.sweep import connect
-    from ps_ray.tracking import git_commit, source_tags
-    from ps_ray.trials import run_trials
-    from ps_ray.tune_tracking import MLflowTuneCallback
+    from ps_ray.pipeline.sweep import connect
+    from ps_ray.pipeline.tracking import git_commit, source_tags
+    from ps_ray.pipeline.trials import run_trials
+    from ps_ray.pipeline.tune_tracking import MLflowTuneCallback
 
     settings = dataclasses.replace(spec.zero_shot, **overrides)
     root = sweep_dir(spec)
     trials = pairs(spec, list(settings.methods) or None, translate=True)
     if not trials:
-        raise ValueError(f"{root}: no stitchable pairs (train the sweep first: ps-ray sweep)")
+        raise UserError(f"{root}: no stitchable pairs (train the sweep first: ps-ray sweep)")
     tracking_uri, experiment_id = connect(spec)
     callback = MLflowTuneCallback(
         tracking_uri,

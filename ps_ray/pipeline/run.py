@@ -1,9 +1,9 @@
 """`ps-ray run`: every stage of a sweep in order, skipping finished ones, resuming a killed one.
 
 Stages (``SweepSpec.stages``, run in the order of ``config.STAGES``):
-  train      plain sources -> anchors -> the grid's trials (ps_ray.sweep)
-  zero_shot  every stitched pair evaluated (ps_ray.zero_shot)
-  few_shot   stitched starts fine-tuned beside from-scratch runs (ps_ray.few_shot)
+  train      plain sources -> anchors -> the grid's trials (ps_ray.pipeline.sweep)
+  zero_shot  every stitched pair evaluated (ps_ray.pipeline.zero_shot)
+  few_shot   stitched starts fine-tuned beside from-scratch runs (ps_ray.pipeline.few_shot)
   report     figures, tables, HTML and the MLflow report run (ps_ray.analysis.report)
 
 A finished stage leaves ``<sweep>/stages/<stage>.json`` with a fingerprint of the settings its
@@ -23,8 +23,8 @@ from pathlib import Path
 
 from ps_ray.atomic import write_text
 from ps_ray.config import STAGES, SweepSpec
-from ps_ray.layout import SweepLayout
-from ps_ray.sweep import layout, raise_on_errors, sweep_dir
+from ps_ray.pipeline.layout import SweepLayout
+from ps_ray.pipeline.sweep import layout, raise_on_errors, sweep_dir
 
 # The settings each stage's outputs depend on, besides those of the earlier stages.
 STAGE_SETTINGS = {"train": None, "zero_shot": "zero_shot", "few_shot": "few_shot", "report": "report"}
@@ -74,7 +74,7 @@ def stage_state(spec: SweepSpec, stage: str) -> str:
 
 # -- the stages -------------------------------------------------------------------------------------
 def _train(spec: SweepSpec, resume: bool, progress: bool) -> str:
-    from ps_ray.sweep import run_sweep
+    from ps_ray.pipeline.sweep import run_sweep
 
     # the training stage always resumes: run_sweep refuses a folder trained with other settings
     grid = run_sweep(spec, resume=True, progress=progress)
@@ -83,7 +83,7 @@ def _train(spec: SweepSpec, resume: bool, progress: bool) -> str:
 
 
 def _zero_shot(spec: SweepSpec, resume: bool, progress: bool) -> str:
-    from ps_ray.zero_shot import run_zero_shot, summary
+    from ps_ray.pipeline.zero_shot import run_zero_shot, summary
 
     if not resume:
         shutil.rmtree(layout(spec).tune_zero_shot, ignore_errors=True)
@@ -93,7 +93,7 @@ def _zero_shot(spec: SweepSpec, resume: bool, progress: bool) -> str:
 
 
 def _few_shot(spec: SweepSpec, resume: bool, progress: bool) -> str:
-    from ps_ray.few_shot import run_few_shot
+    from ps_ray.pipeline.few_shot import run_few_shot
 
     if not resume:
         shutil.rmtree(layout(spec).few_shot, ignore_errors=True)

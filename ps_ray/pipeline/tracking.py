@@ -1,5 +1,5 @@
 """MLflow tracking: one run per trial key, batched metrics. No Ray here: a report is built and
-logged without loading it; the driver-side Tune callback is in :mod:`ps_ray.tune_tracking`.
+logged without loading it; the driver-side Tune callback is in :mod:`ps_ray.pipeline.tune_tracking`.
 
 Only the process that calls these functions touches the MLflow store; in a sweep that is the
 Tune driver, never the trial workers. The store is a sqlite file
@@ -20,6 +20,8 @@ import time
 from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
+
+from ps_ray.errors import UserError
 
 if TYPE_CHECKING:
     from mlflow import MlflowClient
@@ -46,7 +48,7 @@ TERMINAL_STATUSES = ("FINISHED", "FAILED", "KILLED")
 
 def default_tracking_uri(root: str | Path) -> str:
     """The sqlite store of a project root: ``sqlite:////abs/root/mlflow.db``."""
-    from ps_ray.layout import SweepLayout
+    from ps_ray.pipeline.layout import SweepLayout
 
     return f"sqlite:///{SweepLayout(Path(root).expanduser().resolve()).mlflow_db}"
 
@@ -74,9 +76,9 @@ def ensure_experiment(tracking_uri: str, name: str, artifact_root: str | Path) -
         if experiment is None:
             return client.create_experiment(name, artifact_location=artifact_location)
     except Exception as e:  # noqa: BLE001 - any failure here means the URI is unusable
-        raise ValueError(f"cannot use MLflow tracking URI {tracking_uri!r}: {_first_line(e)}") from e
+        raise UserError(f"cannot use MLflow tracking URI {tracking_uri!r}: {_first_line(e)}") from e
     if experiment.artifact_location != artifact_location:
-        raise ValueError(
+        raise UserError(
             f"MLflow experiment {name!r} in {tracking_uri} keeps artifacts in "
             f"{experiment.artifact_location}, not {artifact_location}"
         )
@@ -192,7 +194,7 @@ class TrialTracker:
     def _check_params(self, logged: Mapping[str, str], wanted: Mapping[str, str]) -> None:
         for key, value in wanted.items():
             if key in logged and logged[key] != value:
-                raise ValueError(
+                raise UserError(
                     f"trial {self.trial_key!r} already has run {self.run_id} with param "
                     f"{key}={logged[key]!r}, not {value!r}; use another trial key"
                 )

@@ -1,0 +1,82 @@
+"""Bad input at the command line, as a user would give it: every case exits 2 with one error line
+naming the bad value, and writes nothing (no run or sweep folder, no output file)."""
+
+from __future__ import annotations
+
+import pickle
+import subprocess
+import sys
+
+import pytest
+
+from ps_ray.nets.sac import build_sac_nets
+from ps_ray.stitch import env_dims
+from ps_ray.weights import save_policy, signature_of
+
+
+class _Evil:
+    def __reduce__(self):
+        return (exec, ("open('PICKLE_RAN', 'w')",))
+
+
+@pytest.fixture(scope="module")
+def files(tmp_path_factory):
+    """A reach policy (ablation, untrained), a garbage file, a pickle and a sweep YAML."""
+    root = tmp_path_factory.mktemp("inputs")
+    nets = build_sac_nets("ablation", env_dims("panda", "reach"), interface_dim=8, hidden=16)
+    save_policy(root / "reach.safetensors", nets, signature_of(nets, "ablation", 8, 16))
+    (root / "garbage.safetensors").write_bytes(bytes(range(256)) * 2)
+    (root / "evil.npy").write_bytes(pickle.dumps(_Evil()))
+    (root / "sweep.yaml").write_text(
+        f"name: never\nmethods: [ablation]\nrobots: [panda]\ntasks: [reach]\nseeds: [1]\n"
+        f"storage: {root / 'sweeps'}\n"
+    )
+    return root
+
+
+CASES = [  # (arguments, with {f} the input folder and {out} a path that must not appear; message)
+    (
+        "train --method ablation --interface-dim 8 --hidden 16 --init-policy {f}/garbage.safetensors "
+        "--run-dir {out}",
+        "garbage.safetensors: not a ps_ray policy file",
+    ),
+    (
+        "train --method ablation --interface-dim 8 --hidden 16 --task push --init-policy "
+        "{f}/reach.safetensors --run-dir {out}",
+        "reach.safetensors: cannot start this run: task dim: policy 3 vs target env (panda, push) 15",
+    ),
+    (
+        "train --method ablation --hidden 32 --init-policy {f}/reach.safetensors --run-dir {out}",
+        "(method, interface dim, hidden) ('ablation', 8, 16) vs ('ablation', 128, 32)",
+    ),
+    ("train --anchors {f}/missing.npz --run-dir {out}", "missing.npz: cannot read the file (No such file"),
+    ("train --anchors {f}/evil.npy --run-dir {out}", "evil.npy: neither an .npy nor an .npz file"),
+    ("train --seed -1 --run-dir {out}", "seed must be a non-negative integer, got -1"),
+    ("train --eval-every -2 --run-dir {out}", "eval_every must be a non-negative integer, got -2"),
+    ("zero-shot {f}/sweep.yaml --methods ps", "method 'ps' is not trained by this sweep; valid: ablation"),
+    ("zero-shot {f}/sweep.yaml", "sweeps/never: no trained sweep there; train it first"),
+    ("few-shot {f}/sweep.yaml --env-steps 0", "few_shot.env_steps must be positive, got 0"),
+    (
+        "render --policy {f}/reach.safetensors --task push --png {out}",
+        "reach.safetensors: cannot run here: task dim: policy 3 vs target env (panda, push) 15",
+    ),
+    ("bench env --steps 0", "argument --steps: expected a positive integer, got 0"),
+    ("bench her --repeats -3", "argument --repeats: expected a positive integer, got -3"),
+]
+
+
+@pytest.mark.parametrize(
+    "args, message", CASES, ids=[c[0].split(" --")[0] + f"-{i}" for i, c in enumerate(CASES)]
+)
+def test_bad_input_is_one_line_exit_2_and_writes_nothing(files, tmp_path, args, message):
+    out = tmp_path / "out"
+    argv = args.format(f=files, out=out).split()
+    proc = subprocess.run(
+        [sys.executable, "-m", "ps_ray.cli", *argv], capture_output=True, text=True, timeout=120, cwd=tmp_path
+    )
+    errors = [line for line in proc.stderr.splitlines() if "error" in line]
+    assert proc.returncode == 2, proc.stderr[-3000:]
+    assert len(errors) == 1 and message in errors[0], proc.stderr[-3000:]
+    assert "Traceback" not in proc.stderr
+    assert not out.exists() and not (files / "sweeps").exists()
+    assert not (tmp_path / "PICKLE_RAN").exists()

@@ -55,7 +55,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
 
 def _load(args: argparse.Namespace):
     """The sweep spec named on the command line, with --storage/--tracking-uri applied."""
-    from ps_ray.config import load_sweep
+    from ps_ray.sweep_spec import load_sweep
 
     path = Path(args.sweep)
     if path.is_dir():  # a sweep folder: its resolved spec, stored where the folder is

@@ -9,8 +9,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from ps_ray.config import SpecError, SweepSpec, TrainSpec, load_sweep
+from ps_ray.config import SpecError, TrainSpec
 from ps_ray.nets.modular import METHODS
+from ps_ray.sweep_spec import SweepSpec, load_sweep
 
 SWEEPS = Path(__file__).resolve().parents[1] / "sweeps"
 

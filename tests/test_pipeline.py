@@ -24,9 +24,9 @@ import PIL.Image
 import pytest
 
 from ps_ray.analysis.browser import find_chromium, screenshot, visible_text
-from ps_ray.config import load_sweep
 from ps_ray.pipeline.cost import workload
 from ps_ray.pipeline.run import stage_state
+from ps_ray.sweep_spec import load_sweep
 
 SMOKE = Path(__file__).resolve().parents[1] / "sweeps" / "smoke.yaml"
 FIGURES = {"training_curves", "heatmap_seeds_i16", "heatmap_robots_i16", "zero_shot", "few_shot_curves"} | {
@@ -280,7 +280,7 @@ def test_report_opens_in_headless_chromium(cli, smoke, tmp_path):
 def test_building_and_logging_a_report_never_loads_ray(smoke):
     spec, _, _ = smoke
     code = (
-        "import sys, dataclasses; from ps_ray.config import load_sweep; "
+        "import sys, dataclasses; from ps_ray.sweep_spec import load_sweep; "
         "from ps_ray.analysis.report import build_report; "
         f"spec = dataclasses.replace(load_sweep({str(SMOKE)!r}), storage={spec.storage!r}); "
         "build_report(spec, progress=False); print('ray' in sys.modules)"

@@ -227,8 +227,8 @@ def test_a_zoo_entry_needs_its_training_spec(tmp_path):
 
 
 def test_zoo_from_a_real_tiny_sweep(tmp_path, ray_local, tiny_train):
-    from ps_ray.config import load_sweep
     from ps_ray.pipeline.sweep import run_sweep, sweep_dir
+    from ps_ray.sweep_spec import load_sweep
 
     train = tiny_train
     path = tmp_path / "tiny.yaml"
@@ -503,7 +503,7 @@ def arm_name(robot) -> str:
 
 
 def test_paper_combo_sources_are_trials_of_the_few_shot_sweep():
-    from ps_ray.config import load_sweep
+    from ps_ray.sweep_spec import load_sweep
 
     sweep_file = Path(__file__).resolve().parents[1] / "sweeps" / "few_shot.yaml"  # any working dir
     trials = {t.label() for t in load_sweep(sweep_file).trials()}

@@ -11,8 +11,8 @@ import mlflow
 import pytest
 import yaml
 
-from ps_ray.config import load_sweep
 from ps_ray.pipeline.sweep import sweep_dir
+from ps_ray.sweep_spec import load_sweep
 
 
 def write_sweep(

@@ -6,8 +6,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-from ps_ray.config import SweepSpec
 from ps_ray.names import short_name
+from ps_ray.sweep_spec import SweepSpec
 
 CLIP_SIZE = (240, 180)  # pixels; every second step, so a clip is about 26 frames
 START_SEED = 0  # the env reset every clip starts from

@@ -12,8 +12,8 @@ from pathlib import Path
 import pandas as pd
 
 from ps_ray.analysis import clips
-from ps_ray.config import SweepSpec
 from ps_ray.names import short_name
+from ps_ray.sweep_spec import SweepSpec
 
 
 @dataclass

@@ -24,10 +24,10 @@ from ps_ray.analysis.page import Report, Section, render_html
 from ps_ray.analysis.report_run import REPORT_RUN, log_report
 from ps_ray.analysis.summary import cost_section, summary_section
 from ps_ray.atomic import fsync_dir, write_text
-from ps_ray.config import SweepSpec
 from ps_ray.errors import UserError
 from ps_ray.names import short_name
 from ps_ray.pipeline.layout import SweepLayout
+from ps_ray.sweep_spec import SweepSpec
 
 
 def build_report(spec: SweepSpec, *, progress: bool = True, log_to_mlflow: bool = True) -> Path:

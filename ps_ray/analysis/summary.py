@@ -9,7 +9,7 @@ import pandas as pd
 
 from ps_ray.analysis import tables
 from ps_ray.analysis.page import Report, Section
-from ps_ray.config import SweepSpec
+from ps_ray.sweep_spec import SweepSpec
 
 
 def cost_section(report: Report, spec: SweepSpec, root: Path) -> None:

@@ -18,9 +18,10 @@ import socket
 from dataclasses import dataclass
 from pathlib import Path
 
-from ps_ray.config import SpecError, SweepSpec, TrainSpec
+from ps_ray.config import SpecError, TrainSpec
 from ps_ray.envs import EPISODE_STEPS
 from ps_ray.pipeline.layout import SweepLayout
+from ps_ray.sweep_spec import SweepSpec
 
 
 @dataclass(frozen=True)

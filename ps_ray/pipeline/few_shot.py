@@ -13,10 +13,11 @@ import hashlib
 from collections import Counter
 from typing import Any
 
-from ps_ray.config import FewShotSpec, SweepSpec, TrainSpec
+from ps_ray.config import TrainSpec
 from ps_ray.errors import UserError
 from ps_ray.names import trial_key
 from ps_ray.pipeline.sweep import anchor_file, layout, sweep_dir
+from ps_ray.sweep_spec import FewShotSpec, SweepSpec
 
 
 def few_shot_trials(spec: SweepSpec, settings: FewShotSpec) -> list[dict[str, Any]]:

@@ -22,9 +22,9 @@ from collections.abc import Callable
 from pathlib import Path
 
 from ps_ray.atomic import write_text
-from ps_ray.config import STAGES, SweepSpec
 from ps_ray.pipeline.layout import SweepLayout
 from ps_ray.pipeline.sweep import layout, raise_on_errors, sweep_dir
+from ps_ray.sweep_spec import STAGES, SweepSpec
 
 # The settings each stage's outputs depend on, besides those of the earlier stages.
 STAGE_SETTINGS = {"train": None, "zero_shot": "zero_shot", "few_shot": "few_shot", "report": "report"}

@@ -14,10 +14,11 @@ from pathlib import Path
 from typing import Any
 
 from ps_ray.atomic import write_text
-from ps_ray.config import SweepSpec, TrainSpec, require_same
+from ps_ray.config import TrainSpec, require_same
 from ps_ray.names import parse_spec_text, spec_text
 from ps_ray.nets.modular import uses_anchors
 from ps_ray.pipeline.layout import SweepLayout
+from ps_ray.sweep_spec import SweepSpec
 
 METRIC_KEYS = ("env_steps", "updates", "train_success", "train_touching", "eval_success", "eval_touching")
 

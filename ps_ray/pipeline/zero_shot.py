@@ -15,10 +15,10 @@ import numpy as np
 import pandas as pd
 
 from ps_ray.atomic import atomic_path
-from ps_ray.config import SweepSpec
 from ps_ray.errors import UserError
 from ps_ray.names import short_name
 from ps_ray.pipeline.sweep import layout, raise_on_errors, sweep_dir
+from ps_ray.sweep_spec import SweepSpec
 
 RESULT_KEYS = (
     "success_mean",

@@ -1,0 +1,252 @@
+"""The sweep spec: a grid of training trials and the settings of the stages that follow. Loaded
+strictly: unknown keys and bad values fail with one line naming them."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from ps_ray.config import SpecError, TrainSpec, check_keys
+from ps_ray.envs.tasks import resolve_task
+
+ANCHOR_POLICIES = ("plain", "random")
+# Pipeline stages in order; "train" covers plain sources, anchors and the grid (ps_ray.pipeline.sweep).
+STAGES = ("train", "zero_shot", "few_shot", "report")
+
+
+@dataclass(frozen=True)
+class AnchorSpec:
+    """Where PS anchors come from: a file of task states / an anchor set, or rollouts of the
+    source tasks (greedy trained plain policies, as the paper, or random actions)."""
+
+    file: str | None = None  # anchor set (.npz) or task-state array; overrides rollouts
+    source_tasks: tuple[str, ...] = ()  # tasks whose states are pooled (default: the sweep's tasks)
+    robot: str = "panda"
+    episodes: int = 200
+    steps: tuple[int, ...] = (5, 6, 7, 8, 9)
+    seed: int = 0
+    policy: str = "plain"  # roll out trained plain policies (paper) or "random"
+
+    def __post_init__(self) -> None:
+        if self.policy not in ANCHOR_POLICIES:
+            raise SpecError(f"unknown anchors.policy {self.policy!r}; valid: {', '.join(ANCHOR_POLICIES)}")
+        for task in self.source_tasks:
+            try:
+                resolve_task(task)
+            except ValueError as e:
+                raise SpecError(f"anchors.source_tasks: {e}") from None
+        if self.episodes <= 0 or not self.steps:
+            raise SpecError("anchors: episodes must be positive and steps non-empty")
+
+
+def _positive(where: str, **values: int | None) -> None:
+    for key, value in values.items():
+        if value is not None and value <= 0:
+            raise SpecError(f"{where}.{key} must be positive, got {value}")
+
+
+@dataclass(frozen=True)
+class ZeroShotSpec:
+    """The zero-shot stage: every stitched pair evaluated on fixed seeds (episodes x repeats)."""
+
+    episodes: int = 200  # the paper: 200 episodes x 5 repeats
+    repeats: int = 5
+    seed: int = 0  # first evaluation seed
+    methods: tuple[str, ...] = ()  # default: the sweep's methods
+    # method -> latent translations also evaluated for its pairs, e.g. {ablation: [affine]};
+    # shown as rows "ablation+affine" (ps_ray.nets.translation)
+    translate: Mapping[str, tuple[str, ...]] = dataclasses.field(default_factory=dict)
+    fit_states_per_quadrant: int = 128  # reset task states per goal quadrant and source task
+
+    def __post_init__(self) -> None:
+        from ps_ray.nets.translation import TRANSLATIONS
+
+        _positive(
+            "zero_shot",
+            episodes=self.episodes,
+            repeats=self.repeats,
+            fit_states_per_quadrant=self.fit_states_per_quadrant,
+        )
+        if not isinstance(self.translate, Mapping):
+            raise SpecError(f"zero_shot.translate must map methods to translations, got {self.translate!r}")
+        for method, kinds in self.translate.items():
+            kinds = [kinds] if isinstance(kinds, str) else kinds
+            if not isinstance(kinds, (list, tuple)) or not kinds:
+                raise SpecError(
+                    f"zero_shot.translate.{method}: expected a list of translations, "
+                    f"got {kinds!r}; valid: {', '.join(TRANSLATIONS)}"
+                )
+            for kind in kinds:
+                if kind not in TRANSLATIONS:
+                    raise SpecError(
+                        f"zero_shot.translate.{method}: unknown translation {kind!r}; "
+                        f"valid: {', '.join(TRANSLATIONS)}"
+                    )
+            if len(set(kinds)) != len(kinds):
+                raise SpecError(f"zero_shot.translate.{method}: duplicate translation in {list(kinds)}")
+
+    def translations(self, method: str) -> tuple[str, ...]:
+        kinds = self.translate.get(method, ())
+        return (kinds,) if isinstance(kinds, str) else tuple(kinds)
+
+
+@dataclass(frozen=True)
+class FewShotSpec:
+    """The few-shot stage: stitched starts fine-tuned with SAC + HER beside from-scratch runs."""
+
+    env_steps: int = 20000
+    collect_steps: int = 1000  # env steps before the first update (the paper: 10 epochs)
+    max_pairs: int | None = None  # per method; default: every stitched pair
+    methods: tuple[str, ...] = ()  # default: the sweep's methods
+    scratch: bool = True  # also train each target env from scratch
+
+    def __post_init__(self) -> None:
+        _positive("few_shot", env_steps=self.env_steps, max_pairs=self.max_pairs)
+        if not 0 <= self.collect_steps < self.env_steps:
+            raise SpecError(f"few_shot.collect_steps must be in [0, env_steps), got {self.collect_steps}")
+
+
+@dataclass(frozen=True)
+class ReportSpec:
+    """The analysis stage: interface dumps on fixed probe states, plots, tables, HTML report."""
+
+    probes_per_group: int = 250  # task states per goal quadrant
+    seed: int = 0  # probe-state seed
+
+    def __post_init__(self) -> None:
+        _positive("report", probes_per_group=self.probes_per_group)
+
+
+SUB_SPECS = {"anchors": AnchorSpec, "zero_shot": ZeroShotSpec, "few_shot": FewShotSpec, "report": ReportSpec}
+# Settings that do not change what the training stage produces (a resumed sweep may change them).
+NOT_TRAINING = ("stages", "zero_shot", "few_shot", "report", "max_concurrent", "max_failures")
+
+
+@dataclass(frozen=True)
+class SweepSpec:
+    """A grid of training trials (methods x robots x tasks x seeds) run as Ray Tune trials."""
+
+    name: str
+    methods: tuple[str, ...]
+    robots: tuple[str | Mapping, ...]
+    tasks: tuple[str | Mapping, ...]
+    seeds: tuple[int, ...]
+    stages: tuple[str, ...] = ("train",)
+    interface_dims: tuple[int, ...] = (128,)
+    # TrainSpec fields shared by every trial (documented by `ps-ray train --help`); each key and
+    # value is checked against TrainSpec's typed fields when the sweep loads (see trials()).
+    train: Mapping[str, Any] = dataclasses.field(default_factory=dict)
+    anchors: AnchorSpec = AnchorSpec()
+    zero_shot: ZeroShotSpec = ZeroShotSpec()
+    few_shot: FewShotSpec = FewShotSpec()
+    report: ReportSpec = ReportSpec()
+    max_concurrent: int | None = None  # default: one trial per available CPU
+    max_failures: int = 2  # retries of a crashed trial, from its last checkpoint
+    storage: str = "runs/sweeps"
+    tracking_uri: str | None = None  # default: sqlite under <storage>/<name>/
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.name, str) or not self.name.replace("_", "").replace("-", "").isalnum():
+            raise SpecError(f"sweep name must be letters, digits, '-' or '_', got {self.name!r}")
+        for stage in self.stages:
+            if stage not in STAGES:
+                raise SpecError(f"unknown stage {stage!r}; valid stages: {', '.join(STAGES)}")
+        for key in ("methods", "robots", "tasks", "seeds", "interface_dims", "stages"):
+            if not getattr(self, key) and key != "stages":
+                raise SpecError(f"{key} must be a non-empty list")
+            values = [json.dumps(v, sort_keys=True) for v in getattr(self, key)]
+            repeated = sorted({v for v in values if values.count(v) > 1})
+            if repeated:  # two trials would share one run folder, MLflow run and zoo key
+                raise SpecError(f"{key}: duplicate entries {', '.join(repeated)}; list each once")
+        for stage in (self.zero_shot, self.few_shot):
+            for method in (*stage.methods, *getattr(stage, "translate", ())):
+                if method not in self.methods:
+                    raise SpecError(
+                        f"{type(stage).__name__}: method {method!r} is not trained by "
+                        f"this sweep; valid: {', '.join(self.methods)}"
+                    )
+        self.trials()  # every trial's TrainSpec is validated before anything starts
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain JSON-able data (tuples as lists)."""
+        return json.loads(json.dumps(dataclasses.asdict(self)))
+
+    def training_identity(self) -> dict[str, Any]:
+        """What the training stage's outputs depend on (a resumed sweep must keep it)."""
+        return {k: v for k, v in self.to_dict().items() if k not in NOT_TRAINING}
+
+    def trials(self) -> list[TrainSpec]:
+        overrides = dict(self.train)
+        for key in ("method", "robot", "task", "seed", "interface_dim"):
+            if key in overrides:
+                raise SpecError(f"train.{key} is set by the sweep grid; remove it from 'train'")
+        return [
+            TrainSpec.from_mapping(
+                {**overrides, "method": m, "robot": r, "task": t, "seed": s, "interface_dim": d},
+                where="sweep 'train'",
+            )
+            for m in self.methods
+            for r in self.robots
+            for t in self.tasks
+            for s in self.seeds
+            for d in self.interface_dims
+        ]
+
+    @classmethod
+    def from_mapping(cls, data: Mapping[str, Any], where: str = "sweep") -> SweepSpec:
+        if not isinstance(data, Mapping):
+            raise SpecError(f"{where}: expected a mapping at the top level, got {type(data).__name__}")
+        check_keys(data, cls, where)
+        fields = dict(data)
+        for key in ("methods", "robots", "tasks", "seeds", "stages", "interface_dims"):
+            if key in fields:
+                value = fields[key]
+                fields[key] = tuple(value) if isinstance(value, (list, tuple)) else (value,)
+        for key, sub in SUB_SPECS.items():
+            if key in fields:
+                fields[key] = _sub_spec(sub, fields[key], f"{where}: {key}")
+        try:
+            return cls(**fields)
+        except TypeError as e:
+            raise SpecError(f"{where}: {e}") from None
+
+
+def _sub_spec(cls, data: Any, where: str):
+    """A nested mapping as a typed spec; unknown keys fail with the valid ones listed."""
+    if data is None:
+        data = {}
+    if not isinstance(data, Mapping):
+        raise SpecError(f"{where}: expected a mapping, got {data!r}")
+    check_keys(data, cls, where)
+    try:
+        return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in data.items()})
+    except TypeError as e:
+        raise SpecError(f"{where}: {e}") from None
+
+
+def load_sweep(path: str | Path) -> SweepSpec:
+    """Strict YAML loading: malformed YAML, unknown keys and bad values fail with one line."""
+    import yaml
+
+    path = Path(path)
+    try:
+        data = yaml.safe_load(path.read_text())
+    except FileNotFoundError:
+        raise SpecError(f"{path}: no such sweep file") from None
+    except IsADirectoryError:
+        raise SpecError(f"{path}: is a folder, not a sweep file") from None
+    except UnicodeDecodeError as e:
+        raise SpecError(f"{path}: not a UTF-8 text file (byte {e.start}); a sweep is YAML text") from None
+    except yaml.YAMLError as e:
+        mark = getattr(e, "problem_mark", None)
+        where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""
+        raise SpecError(f"{path}: malformed YAML{where}: {getattr(e, 'problem', e)}") from None
+    try:
+        return SweepSpec.from_mapping(data, where=str(path))
+    except SpecError as e:
+        message = str(e)
+        raise SpecError(message if message.startswith(str(path)) else f"{path}: {message}") from None

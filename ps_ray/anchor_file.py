@@ -7,11 +7,10 @@ from __future__ import annotations
 import json
 import os
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
-from ps_ray.anchors import AnchorSet, _as_states, _library_versions, anchor_hash, select_anchors
+from ps_ray.anchors import AnchorSet, _as_states, anchor_hash, select_anchors, selection_provenance
 from ps_ray.atomic import atomic_file
 from ps_ray.checkpoint import file_sha256
 from ps_ray.errors import UserError
@@ -158,18 +157,9 @@ def anchors_from_file(
         raise UserError(f"{path}: {exc}") from None
     except OSError as exc:
         raise UserError(f"{path}: cannot read the file ({exc.strerror or exc})") from None
-    provenance: dict[str, Any] = {
-        "method": "kmeans_nearest_real_state",
-        "source_file": str(path),
-        "source_sha256": file_sha256(path),
-        "num_states": int(x.shape[0]),
-        "dim": int(x.shape[1]),
-        "k": int(k),
-        "seed": int(seed),
-        "n_init": int(n_init),
-        "distinct": bool(distinct),
-        "versions": _library_versions(),
-    }
+    provenance = selection_provenance(
+        x, k, seed, n_init, distinct, source_file=str(path), source_sha256=file_sha256(path)
+    )
     if member is not None:
         provenance["source_member"] = member
     return AnchorSet.of(anchors, provenance)

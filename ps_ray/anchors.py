@@ -322,6 +322,24 @@ class AnchorSet:
         return hash(self.hash)
 
 
+def selection_provenance(
+    states: np.ndarray, k: int, seed: int, n_init: int, distinct: bool, **source: Any
+) -> dict[str, Any]:
+    """What an anchor set records about its selection: ``source`` names where the states came
+    from; then their count and width, the k-means settings and the library versions."""
+    return {
+        "method": "kmeans_nearest_real_state",
+        **source,
+        "num_states": int(states.shape[0]),
+        "dim": int(states.shape[1]),
+        "k": int(k),
+        "seed": int(seed),
+        "n_init": int(n_init),
+        "distinct": bool(distinct),
+        "versions": _library_versions(),
+    }
+
+
 def _library_versions() -> dict[str, str]:
     import sklearn
 
@@ -352,16 +370,7 @@ def make_anchor_set(
         raise UserError(f"task-state sources have different dimensions: {shapes}")
     pooled = np.concatenate(parts)
     anchors = select_anchors(pooled, k, seed=seed, n_init=n_init, distinct=distinct)
-    provenance: dict[str, Any] = {
-        "method": "kmeans_nearest_real_state",
-        "sources": {name: int(p.shape[0]) for name, p in zip(states_by_source, parts)},
-        "num_states": int(pooled.shape[0]),
-        "dim": int(pooled.shape[1]),
-        "k": int(k),
-        "seed": int(seed),
-        "n_init": int(n_init),
-        "distinct": bool(distinct),
-        "versions": _library_versions(),
-    }
+    sources = {name: int(p.shape[0]) for name, p in zip(states_by_source, parts)}
+    provenance = selection_provenance(pooled, k, seed, n_init, distinct, sources=sources)
     provenance.update(dict(extra_provenance or {}))
     return AnchorSet.of(anchors, provenance)

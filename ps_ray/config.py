@@ -13,7 +13,7 @@ from typing import Any
 from ps_ray.envs.robots import resolve_robot
 from ps_ray.envs.tasks import resolve_task
 from ps_ray.errors import UserError
-from ps_ray.names import trial_key
+from ps_ray.names import canonical, trial_key
 from ps_ray.nets.modular import METHODS
 
 POINT_TASK = "point"  # the physics-free PointGoalEnv (robot is ignored), for fast checks
@@ -88,6 +88,8 @@ class TrainSpec:
     init_policy: str | None = setting(None, "start from these weights (a stitched policy: few-shot)")
 
     def __post_init__(self) -> None:
+        object.__setattr__(self, "robot", canonical(self.robot))
+        object.__setattr__(self, "task", canonical(self.task))
         if self.method not in METHODS:
             raise SpecError(f"unknown method {self.method!r}; valid methods: {', '.join(METHODS)}")
         if self.task != POINT_TASK:

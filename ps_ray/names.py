@@ -18,6 +18,14 @@ def as_mapping(value: str | Mapping) -> dict:
     return {"name": value} if isinstance(value, str) else dict(value)
 
 
+def canonical(value: str | Mapping) -> str | dict:
+    """A robot or task in one spelling, applied when a spec loads: a mapping that holds only a
+    name is that name."""
+    if isinstance(value, Mapping):
+        return value["name"] if set(value) == {"name"} else dict(value)
+    return value
+
+
 def spec_text(value: str | Mapping) -> str:
     """A robot or task as one exact string (its name, or its mapping as sorted JSON), to key
     dicts by and to pass on a command line; :func:`parse_spec_text` gives the value back."""

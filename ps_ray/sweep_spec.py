@@ -11,7 +11,9 @@ from pathlib import Path
 from typing import Any
 
 from ps_ray.config import SpecError, TrainSpec, check_keys
+from ps_ray.envs.robots import resolve_robot
 from ps_ray.envs.tasks import resolve_task
+from ps_ray.names import canonical
 
 ANCHOR_POLICIES = ("plain", "random")
 # Pipeline stages in order; "train" covers plain sources, anchors and the grid (ps_ray.pipeline.sweep).
@@ -155,12 +157,17 @@ class SweepSpec:
         for stage in self.stages:
             if stage not in STAGES:
                 raise SpecError(f"unknown stage {stage!r}; valid stages: {', '.join(STAGES)}")
+        for key in ("robots", "tasks"):
+            object.__setattr__(self, key, tuple(canonical(v) for v in getattr(self, key)))
         for key in ("methods", "robots", "tasks", "seeds", "interface_dims", "stages"):
             if not getattr(self, key) and key != "stages":
                 raise SpecError(f"{key} must be a non-empty list")
-            values = [json.dumps(v, sort_keys=True) for v in getattr(self, key)]
-            repeated = sorted({v for v in values if values.count(v) > 1})
-            if repeated:  # two trials would share one run folder, MLflow run and zoo key
+            values = getattr(self, key)
+            same = [_identity(key, v) for v in values]
+            repeated = sorted(
+                {json.dumps(v, sort_keys=True) for v, i in zip(values, same) if same.count(i) > 1}
+            )
+            if repeated:  # the same trial twice: one run folder, MLflow run and zoo key, or wasted work
                 raise SpecError(f"{key}: duplicate entries {', '.join(repeated)}; list each once")
         for stage in (self.zero_shot, self.few_shot):
             for method in (*stage.methods, *getattr(stage, "translate", ())):
@@ -213,6 +220,19 @@ class SweepSpec:
             return cls(**fields)
         except TypeError as e:
             raise SpecError(f"{where}: {e}") from None
+
+
+def _identity(key: str, value: Any) -> Any:
+    """What makes two entries of a sweep list the same: the robot or task they resolve to (two
+    spellings of one robot are duplicates), else the value itself."""
+    try:
+        if key == "robots":
+            return resolve_robot(value)
+        if key == "tasks":
+            return resolve_task(value)
+    except (ValueError, TypeError):
+        pass  # an unknown robot or task fails later, naming the choices
+    return json.dumps(value, sort_keys=True)
 
 
 def _sub_spec(cls, data: Any, where: str):

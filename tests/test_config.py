@@ -133,6 +133,14 @@ seeds: [1]
         ("- just\n- a list\n", "expected a mapping at the top level"),
         (GOOD.replace("seeds: [1]", "seeds: []"), "seeds must be a non-empty list"),
         (GOOD.replace("seeds: [1]", "seeds: [1, 2, 1]"), "seeds: duplicate entries 1; list each once"),
+        (  # two spellings of one robot: one trial twice
+            GOOD.replace("[panda]", "[panda_l3, {name: panda, locked_joints: [2]}]"),
+            'robots: duplicate entries "panda_l3", {"locked_joints": [2], "name": "panda"}; list each once',
+        ),
+        (
+            GOOD.replace("[reach]", "[reach, {name: reach}]"),
+            'tasks: duplicate entries "reach"; list each once',
+        ),
         (
             GOOD.replace("[panda]", "[{base: panda, locked_joints: [0, 1, 2, 3, 4, 5, 6]}]"),
             "all 7 arm joints locked leaves nothing to control; lock at most 6",
@@ -158,6 +166,24 @@ def test_bad_sweep_files_fail_with_one_line_naming_the_problem(tmp_path, text, m
     assert message in str(err.value)
     assert str(path) in str(err.value)
     assert "\n" not in str(err.value)
+
+
+def test_a_robot_or_task_given_by_name_alone_is_that_name():
+    spec = SweepSpec.from_mapping(
+        {
+            "name": "t",
+            "methods": ["ps"],
+            "robots": [{"name": "panda_l5"}],
+            "tasks": [{"name": "reach"}],
+            "seeds": [1],
+        }
+    )
+    assert spec.robots == ("panda_l5",) and spec.tasks == ("reach",)
+    assert [t.label() for t in spec.trials()] == ["ps/panda_l5/reach/1"]
+    assert TrainSpec(robot={"name": "panda"}, task={"name": "push", "object_friction": 0.1}).task == {
+        "name": "push",
+        "object_friction": 0.1,
+    }
 
 
 def test_cli_rejects_a_bad_sweep_with_exit_code_2_and_writes_nothing(tmp_path):

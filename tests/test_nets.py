@@ -22,7 +22,6 @@ from ps_ray.nets import (
     build_critic,
     count_parameters,
     mlp,
-    stitch,
     update_normalizers,
 )
 
@@ -266,61 +265,6 @@ def test_update_normalizers_routes_inputs() -> None:
         torch.testing.assert_close(modular.task(task), z, rtol=0, atol=1e-6)
     critic = build("critic", "ablation")
     assert critic.robot.norm.dim == PUSH.robot_dim  # the critic's action is not normalised
-
-
-# --- stitching -------------------------------------------------------------------------------------
-
-
-@pytest.mark.parametrize("kind", ["actor", "critic"])
-@pytest.mark.parametrize("method", sorted(METHODS))
-def test_self_stitch_reproduces_outputs(method: str, kind: str) -> None:
-    net = build(kind, method).eval()
-    task, robot, action = inputs(PUSH)
-    update_normalizers(net, task, robot)
-    stitched = stitch(net, net).eval()
-    assert type(stitched) is type(net)
-    for a, b in zip(run(stitched, task, robot, action), run(net, task, robot, action)):
-        assert torch.equal(a, b)
-
-
-@pytest.mark.parametrize("kind", ["actor", "critic"])
-@pytest.mark.parametrize("method", sorted(METHODS))
-def test_stitch_takes_task_of_first_and_robot_of_second(method: str, kind: str) -> None:
-    a, b = build(kind, method, seed=1), build(kind, method, seed=2)
-    task, robot, action = inputs(PUSH)
-    update_normalizers(a, task, robot)
-    stitched = stitch(a, b)
-    for part, source in ((stitched.task, a.task), (stitched.robot, b.robot)):
-        theirs = source.state_dict()
-        for name, tensor in part.state_dict().items():
-            assert torch.equal(tensor, theirs[name]), name
-            assert tensor.data_ptr() != theirs[name].data_ptr()  # deep copies, not shared
-    assert not torch.equal(stitched.robot.head[0].weight, a.robot.head[0].weight)
-    a.eval(), b.eval(), stitched.eval()
-    latent = interface(a, task, robot, action)
-    torch.testing.assert_close(interface(stitched, task, robot, action), latent)
-    expected = b.robot(latent, robot) if kind == "actor" else (b.robot(latent, robot, action),)
-    for got, want in zip(run(stitched, task, robot, action), expected):
-        torch.testing.assert_close(got, want)
-
-
-def test_stitch_refuses_mismatches() -> None:
-    ps = build("actor", "ps")
-    cases = [
-        (build("actor", "ablation"), "method differs"),
-        (build("actor", "ps", interface_dim=16), "latent width differs"),
-        (build("actor", "ps", NetDims(15, 8, 8)), "dims differs"),
-        (build("critic", "ps"), "cannot stitch an Actor task side with a Critic robot side"),
-    ]
-    for other, message in cases:
-        with pytest.raises(ValueError, match=message):
-            stitch(ps, other)
-    other_anchors = build_actor("ps", PUSH, anchors=anchors_for(PUSH, seed=5))
-    with pytest.raises(ValueError, match="different anchor sets"):
-        stitch(ps, other_anchors)
-    with pytest.raises(ValueError, match="dims differs"):
-        stitch(build("actor", "ablation", REACH), build("actor", "ablation", PUSH))
-    stitch(build("actor", "ps", seed=3), ps)  # same anchors, different weights: fine
 
 
 # --- sizes -----------------------------------------------------------------------------------------

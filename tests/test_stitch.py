@@ -19,7 +19,7 @@ from safetensors.torch import save_file
 from ps_ray import cli
 from ps_ray.checkpoint import STATE_FILE, seal
 from ps_ray.envs import make
-from ps_ray.nets.modular import NetDims, update_normalizers, uses_anchors
+from ps_ray.nets.modular import METHODS, NetDims, update_normalizers, uses_anchors
 from ps_ray.nets.obs import dims_from_spaces
 from ps_ray.nets.sac import NET_NAMES, SACNets, build_sac_nets
 from ps_ray.paper import PANDA_L3_GRIPPER, PAPER_COMBOS
@@ -271,7 +271,7 @@ def test_zoo_from_a_real_tiny_sweep(tmp_path, ray_local, tiny_train):
 
 
 # -- stitching ------------------------------------------------------------------------------------
-@pytest.mark.parametrize("method", ["ps", "ablation", "devin", "plain"])
+@pytest.mark.parametrize("method", sorted(METHODS))
 def test_self_stitch_is_identity(method):
     nets, signature = make_nets(method)
     stitched, stitched_sig = stitch_policies((nets, signature), (nets, signature))

@@ -14,7 +14,6 @@ from ps_ray.nets.modular import (
     build_critic,
     count_parameters,
     method_spec,
-    stitch,
     update_normalizers,
 )
 from ps_ray.nets.normalize import RunningNorm
@@ -37,6 +36,5 @@ __all__ = [
     "count_parameters",
     "method_spec",
     "mlp",
-    "stitch",
     "update_normalizers",
 ]

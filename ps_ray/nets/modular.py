@@ -17,7 +17,6 @@ configured from a :class:`MethodSpec` and :class:`NetDims`. Architecture (hidden
 
 from __future__ import annotations
 
-import copy
 import dataclasses
 from dataclasses import dataclass
 from typing import TypeVar
@@ -347,26 +346,6 @@ def update_normalizers(module: nn.Module, task_in: Tensor, robot_in: Tensor) -> 
     for sub in module.modules():
         if isinstance(sub, (TaskModule, _RobotModule)):
             sub.update_norm(task_in, robot_in)
-
-
-def stitch(task_from: Net, robot_from: Net) -> Net:
-    """Deep copies of ``task_from.task`` and ``robot_from.robot`` joined into a new network.
-
-    For plain this is the bottom half of ``task_from`` with the top half of ``robot_from``.
-    Refuses (ValueError) unless both are the same kind (actor/critic), method, latent width and
-    dims, and for PS the anchor tensors are exactly equal.
-    """
-    if type(task_from) is not type(robot_from):
-        task_kind, robot_kind = type(task_from).__name__, type(robot_from).__name__
-        raise UserError(f"cannot stitch an {task_kind} task side with a {robot_kind} robot side")
-    _check_compatible(task_from.task, robot_from.robot)
-    a, b = task_from.anchors, robot_from.anchors
-    if a is not None and b is not None and (a.shape != b.shape or not torch.equal(a, b.to(a.device))):
-        raise UserError(
-            f"cannot stitch {task_from.spec.name!r} modules trained with different anchor sets "
-            f"(shapes {tuple(a.shape)} vs {tuple(b.shape)})"
-        )
-    return type(task_from)(copy.deepcopy(task_from.task), copy.deepcopy(robot_from.robot))
 
 
 def count_parameters(module: nn.Module) -> int:

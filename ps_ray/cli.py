@@ -212,7 +212,8 @@ def cmd_render(args: argparse.Namespace) -> int:
 
 def cmd_stitch(args: argparse.Namespace) -> int:
     from ps_ray.evaluate import evaluate, format_result
-    from ps_ray.stitch import resolve_source, resolve_target, stitch_metadata, stitch_policies
+    from ps_ray.stitch import stitch_metadata, stitch_policies
+    from ps_ray.stitch_sources import resolve_source, resolve_target
     from ps_ray.weights import save_policy
     from ps_ray.zoo import ModuleZoo
 

@@ -24,7 +24,6 @@ true}`` among the sweep's robots, as ``sweeps/few_shot.yaml`` does.
 from __future__ import annotations
 
 import dataclasses
-import json
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -33,7 +32,8 @@ import numpy as np
 import torch
 from torch import nn
 
-from ps_ray.envs.robots import N_ARM, RobotSpec, resolve_robot
+from ps_ray.envs.core import effective_gripper, env_widths
+from ps_ray.envs.robots import resolve_robot
 from ps_ray.envs.tasks import resolve_task
 from ps_ray.errors import UserError
 from ps_ray.names import short_name
@@ -41,22 +41,16 @@ from ps_ray.nets.modular import NetDims, method_spec
 from ps_ray.nets.sac import NET_NAMES, SACNets, build_sac_nets
 from ps_ray.nets.translation import LatentTranslation, check_kind
 from ps_ray.weights import Signature, load_policy, signature_of
-from ps_ray.zoo import POLICY_FILE, SPEC_FILE, ModuleZoo, ZooEntry
+from ps_ray.zoo import ModuleZoo, ZooEntry
 
 PolicySource = str | Path | ZooEntry | tuple[SACNets, Signature]
 EnvSpec = tuple[str | Mapping, str | Mapping]  # (robot, task) as make() takes them
 
 
 # -- target envs ----------------------------------------------------------------------------------
-def effective_gripper(robot: str | Mapping | RobotSpec, task: str | Mapping) -> bool:
-    """Whether ``robot`` has a working gripper in ``task`` (None: the task's default)."""
-    spec = resolve_robot(robot)
-    return resolve_task(task).family.default_gripper if spec.gripper is None else spec.gripper
-
-
 def env_dims(robot: str | Mapping, task: str | Mapping) -> NetDims:
     """The network dims of ``make(robot, task)``, without building it."""
-    return NetDims(resolve_task(task).input_dim, N_ARM + 1, N_ARM + int(effective_gripper(robot, task)))
+    return NetDims(*env_widths(robot, task))
 
 
 def same_robot(
@@ -76,54 +70,6 @@ def default_target(task_spec: Mapping, robot_spec: Mapping) -> EnvSpec:
     """(robot, task) of the target env from the two sources' training specs."""
     task = task_spec["task"]
     return same_robot(robot_spec["robot"], robot_spec["task"], task), task
-
-
-@dataclass(frozen=True)
-class Resolved:
-    """A policy named on the command line: its file and training spec (None if unknown)."""
-
-    path: Path
-    spec: Mapping | None
-
-
-def resolve_source(ref: str, zoo: ModuleZoo | None = None) -> Resolved:
-    """A policy file, a directory holding ``policy.safetensors``, or a key of ``zoo``."""
-    path = Path(ref)
-    if path.is_dir():
-        path = path / POLICY_FILE
-    if path.is_file():
-        spec_path = path.parent / SPEC_FILE
-        if not spec_path.is_file():
-            return Resolved(path, None)
-        try:
-            return Resolved(path, dict(json.loads(spec_path.read_text())))
-        except (json.JSONDecodeError, TypeError, ValueError) as e:
-            raise UserError(f"{spec_path}: unreadable training spec ({e})") from None
-    if zoo is None:
-        raise UserError(f"{ref}: no such policy file (give --sweep DIR to look keys up)")
-    entry = zoo.get(ref)
-    return Resolved(entry.path, entry.spec)
-
-
-def resolve_target(
-    task_src: Resolved,
-    robot_src: Resolved,
-    robot: str | Mapping | None = None,
-    task: str | Mapping | None = None,
-) -> EnvSpec:
-    """The target env: the given robot/task, else :func:`default_target`'s choice."""
-    needs = [
-        (src, what)
-        for src, what, given in ((task_src, "task", task), (robot_src, "robot", robot))
-        if given is None and src.spec is None
-    ]
-    if needs:
-        src, what = needs[0]
-        raise UserError(f"{src.path}: no spec.json beside it to tell the target {what}; give --{what}")
-    task = task_src.spec["task"] if task is None else task
-    if robot is None:
-        robot = default_target({"task": task}, robot_src.spec)[0]
-    return robot, task
 
 
 def arm(robot: str | Mapping) -> tuple[str, tuple[int, ...]]:

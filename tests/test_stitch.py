@@ -19,6 +19,7 @@ from safetensors.torch import save_file
 from ps_ray import cli
 from ps_ray.checkpoint import STATE_FILE, seal
 from ps_ray.envs import make
+from ps_ray.envs.core import effective_gripper
 from ps_ray.nets.modular import METHODS, NetDims, update_normalizers, uses_anchors
 from ps_ray.nets.obs import dims_from_spaces
 from ps_ray.nets.sac import NET_NAMES, SACNets, build_sac_nets
@@ -28,7 +29,6 @@ from ps_ray.stitch import (
     check_stitchable,
     combos,
     default_target,
-    effective_gripper,
     env_dims,
     stitch_policies,
 )

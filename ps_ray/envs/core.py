@@ -14,7 +14,7 @@ from ps_ray.errors import UserError
 
 from .camera import Camera
 from .goals import GOAL_DIM, SUCCESS_DISTANCE, goal_distance, goal_reward
-from .robots import N_ARM, Panda, RobotSpec, resolve_robot
+from .robots import ROBOT_STATE_DIM, Panda, RobotSpec, action_dim, resolve_robot
 from .sim import Sim
 from .tasks import TaskSpec, resolve_task
 
@@ -23,6 +23,17 @@ TOUCH_DISTANCE = 0.05  # the authors' "touching": end effector within 5 cm of th
 Obs = dict[str, np.ndarray]
 
 OBS_BOUND = 100.0  # finite (gymnasium warns on infinite bounds), far beyond any physical value
+
+
+def effective_gripper(robot: str | Mapping | RobotSpec, task: str | Mapping | TaskSpec) -> bool:
+    """Whether ``robot`` has a working gripper in ``task`` (a robot's None: the task's default)."""
+    spec = resolve_robot(robot)
+    return resolve_task(task).family.default_gripper if spec.gripper is None else spec.gripper
+
+
+def env_widths(robot: str | Mapping | RobotSpec, task: str | Mapping | TaskSpec) -> tuple[int, int, int]:
+    """(task input, robot state, action) widths of ``make(robot, task)``, without building it."""
+    return resolve_task(task).input_dim, ROBOT_STATE_DIM, action_dim(effective_gripper(robot, task))
 
 
 def _box(dim: int) -> spaces.Box:
@@ -60,8 +71,7 @@ class RobotTaskEnv(gym.Env[Obs, np.ndarray]):
             raise UserError(f"unknown render_mode {render_mode!r}; valid render_modes: None, rgb_array")
         self.robot_spec = resolve_robot(robot)
         self.task_spec = resolve_task(task, **task_options)
-        gripper = self.robot_spec.gripper
-        gripper = self.task_spec.family.default_gripper if gripper is None else gripper
+        gripper = effective_gripper(self.robot_spec, self.task_spec)
         self.render_mode = render_mode
         self.max_episode_steps = max_episode_steps
         self.sim = Sim()
@@ -71,7 +81,7 @@ class RobotTaskEnv(gym.Env[Obs, np.ndarray]):
         self.action_space = spaces.Box(-1.0, 1.0, shape=(self.robot.action_dim,), dtype=np.float32)
         self.observation_space = spaces.Dict(
             {
-                "robot_state": _box(N_ARM + 1),
+                "robot_state": _box(ROBOT_STATE_DIM),
                 "task_state": _box(self.task.state_dim),
                 "achieved_goal": _box(GOAL_DIM),
                 "desired_goal": _box(GOAL_DIM),

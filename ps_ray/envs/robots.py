@@ -20,6 +20,7 @@ from .urdf import locked_panda_urdf
 
 BASES = ("panda",)
 N_ARM = 7
+ROBOT_STATE_DIM = N_ARM + 1  # arm joint angles, then the finger opening (0 without a gripper)
 NEUTRAL = np.array([0.0, 0.41, 0.0, -1.85, 0.0, 2.26, 0.79])  # arm; fingers start closed (0, 0)
 FINGER_JOINTS = (9, 10)
 FORCES = np.array([87.0, 87.0, 87.0, 87.0, 12.0, 120.0, 120.0])
@@ -73,6 +74,11 @@ ROBOTS: dict[str, RobotSpec] = {
 _SPEC_KEYS = ("name", *(f.name for f in dataclasses.fields(RobotSpec)))
 
 
+def action_dim(gripper: bool) -> int:
+    """One action per arm joint, plus the finger command with a working gripper."""
+    return N_ARM + int(gripper)
+
+
 def resolve_robot(robot: str | RobotSpec | Mapping) -> RobotSpec:
     """A built-in name, a :class:`RobotSpec`, or a mapping of its fields (plus an optional ``name``
     of a built-in to start from), e.g. ``{"base": "panda", "locked_joints": [1]}``."""
@@ -97,7 +103,7 @@ class Panda:
 
     def __init__(self, sim: Sim, spec: RobotSpec, gripper: bool) -> None:
         self.sim, self.spec, self.gripper = sim, spec, gripper
-        self.action_dim = N_ARM + int(gripper)
+        self.action_dim = action_dim(gripper)
         urdf = locked_panda_urdf({j: float(NEUTRAL[j]) for j in spec.locked_joints})
         self.body = sim.load_urdf(urdf, BASE_POSITION)
         cid = sim.client
@@ -111,7 +117,7 @@ class Panda:
         self.neutral = [*NEUTRAL[self.free].tolist(), 0.0, 0.0]
         self._free = self.free.tolist()
         self.target = list(self.neutral)
-        self._state = np.zeros(N_ARM + 1)
+        self._state = np.zeros(ROBOT_STATE_DIM)
         self._state[:N_ARM] = NEUTRAL  # locked angles stay here
 
     def reset(self) -> None:

@@ -1,0 +1,61 @@
+"""Policies and target envs named on the ``ps-ray stitch`` command line: a policy file, a run
+folder or a key of a sweep's zoo, and the target env they imply (:func:`ps_ray.stitch.default_target`)."""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+
+from ps_ray.errors import UserError
+from ps_ray.stitch import EnvSpec, default_target
+from ps_ray.zoo import POLICY_FILE, SPEC_FILE, ModuleZoo
+
+
+@dataclass(frozen=True)
+class Resolved:
+    """A policy named on the command line: its file and training spec (None if unknown)."""
+
+    path: Path
+    spec: Mapping | None
+
+
+def resolve_source(ref: str, zoo: ModuleZoo | None = None) -> Resolved:
+    """A policy file, a directory holding ``policy.safetensors``, or a key of ``zoo``."""
+    path = Path(ref)
+    if path.is_dir():
+        path = path / POLICY_FILE
+    if path.is_file():
+        spec_path = path.parent / SPEC_FILE
+        if not spec_path.is_file():
+            return Resolved(path, None)
+        try:
+            return Resolved(path, dict(json.loads(spec_path.read_text())))
+        except (json.JSONDecodeError, TypeError, ValueError) as e:
+            raise UserError(f"{spec_path}: unreadable training spec ({e})") from None
+    if zoo is None:
+        raise UserError(f"{ref}: no such policy file (give --sweep DIR to look keys up)")
+    entry = zoo.get(ref)
+    return Resolved(entry.path, entry.spec)
+
+
+def resolve_target(
+    task_src: Resolved,
+    robot_src: Resolved,
+    robot: str | Mapping | None = None,
+    task: str | Mapping | None = None,
+) -> EnvSpec:
+    """The target env: the given robot/task, else :func:`default_target`'s choice."""
+    needs = [
+        (src, what)
+        for src, what, given in ((task_src, "task", task), (robot_src, "robot", robot))
+        if given is None and src.spec is None
+    ]
+    if needs:
+        src, what = needs[0]
+        raise UserError(f"{src.path}: no spec.json beside it to tell the target {what}; give --{what}")
+    task = task_src.spec["task"] if task is None else task
+    if robot is None:
+        robot = default_target({"task": task}, robot_src.spec)[0]
+    return robot, task

@@ -10,6 +10,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
+from ps_ray.defaults import HIDDEN, INTERFACE_DIM
 from ps_ray.envs.robots import resolve_robot
 from ps_ray.envs.tasks import resolve_task
 from ps_ray.errors import UserError
@@ -64,8 +65,8 @@ class TrainSpec:
     task: str | Mapping = setting("reach", "built-in task name or a JSON mapping")
     method: str = setting("ps", "row of the method table: " + ", ".join(METHODS))
     seed: int = setting(101, "seed of networks, env runner and replay sampling")
-    interface_dim: int = setting(128, "width of the task-robot interface (PS: number of anchors)")
-    hidden: int = setting(256, "hidden units per layer of every MLP")
+    interface_dim: int = setting(INTERFACE_DIM, "width of the task-robot interface (PS: number of anchors)")
+    hidden: int = setting(HIDDEN, "hidden units per layer of every MLP")
     env_steps: int = setting(50_000, "training budget in env steps (a cap when target_success is set)")
     target_success: float | None = setting(None, "stop early at this greedy success (None: never)")
     target_evals: int = setting(2, "evaluations in a row at target_success that stop the run")

@@ -8,9 +8,8 @@ import json
 from collections.abc import Mapping
 from typing import Any
 
+from ps_ray.defaults import INTERFACE_DIM
 from ps_ray.errors import UserError
-
-DEFAULT_INTERFACE_DIM = 128
 
 
 def as_mapping(value: str | Mapping) -> dict:
@@ -61,5 +60,5 @@ def trial_key(spec: Mapping[str, Any]) -> str:
     """``method/robot/task/seed``, plus ``/i<dim>`` for a non-default interface dim: the name of
     a trial's run directory, MLflow run and zoo entry."""
     key = "/".join(short_name(spec.get(k)) for k in ("method", "robot", "task", "seed"))
-    dim = spec.get("interface_dim", DEFAULT_INTERFACE_DIM)
-    return key if dim == DEFAULT_INTERFACE_DIM else f"{key}/i{dim}"
+    dim = spec.get("interface_dim", INTERFACE_DIM)
+    return key if dim == INTERFACE_DIM else f"{key}/i{dim}"

@@ -6,6 +6,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import dataclass
 
+from ps_ray.defaults import INTERFACE_DIM
 from ps_ray.names import trial_key
 
 PANDA_L3_GRIPPER = {"name": "panda_l3", "gripper": True}  # R2 with the gripper, on push (Push-v4)
@@ -36,7 +37,7 @@ class PaperCombo:
     target: Source  # (task of task_from, robot of robot_from)
     epochs: int  # few-shot epochs shown in the figure (1 epoch = 35,000 env steps)
 
-    def keys(self, method: str, seed: int, interface_dim: int = 128) -> tuple[str, str]:
+    def keys(self, method: str, seed: int, interface_dim: int = INTERFACE_DIM) -> tuple[str, str]:
         """Zoo keys (trial keys) of the task-module and robot-module sources."""
         task_key, robot_key = (
             trial_key(

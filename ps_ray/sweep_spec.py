@@ -11,6 +11,7 @@ from pathlib import Path
 from typing import Any
 
 from ps_ray.config import SpecError, TrainSpec, check_keys
+from ps_ray.defaults import INTERFACE_DIM
 from ps_ray.envs.robots import resolve_robot
 from ps_ray.envs.tasks import resolve_task
 from ps_ray.names import canonical
@@ -138,7 +139,7 @@ class SweepSpec:
     tasks: tuple[str | Mapping, ...]
     seeds: tuple[int, ...]
     stages: tuple[str, ...] = ("train",)
-    interface_dims: tuple[int, ...] = (128,)
+    interface_dims: tuple[int, ...] = (INTERFACE_DIM,)
     # TrainSpec fields shared by every trial (documented by `ps-ray train --help`); each key and
     # value is checked against TrainSpec's typed fields when the sweep loads (see trials()).
     train: Mapping[str, Any] = dataclasses.field(default_factory=dict)

@@ -21,6 +21,7 @@ import numpy as np
 import torch
 
 from ps_ray.bench import positive_int
+from ps_ray.defaults import HIDDEN, INTERFACE_DIM
 from ps_ray.envs import make, task_input
 from ps_ray.evaluate import evaluate
 from ps_ray.nets.modular import uses_anchors
@@ -67,8 +68,8 @@ def run(
     episodes: int = 24,
     rounds: int = 3,
     num_envs: Sequence[int] = (1, 8),
-    interface_dim: int = 128,
-    hidden: int = 256,
+    interface_dim: int = INTERFACE_DIM,
+    hidden: int = HIDDEN,
 ) -> dict:
     nets = policy_nets(robot, task, method, interface_dim, hidden)
     variants = [(n, True) for n in num_envs] + [(1, False)]

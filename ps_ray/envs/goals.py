@@ -9,7 +9,7 @@ import numpy as np
 SUCCESS_DISTANCE = 0.05  # metres, the paper's threshold for reward and success
 GOAL_DIM = 3  # achieved_goal and desired_goal: a position in metres
 TASK_KEYS = ("task_state", "desired_goal")  # the task module's input, in this order
-ROBOT_KEY = "robot_state"  # the robot module's input (joint angles and velocities, gripper)
+ROBOT_KEY = "robot_state"  # the robot module's input (7 joint angles, then the finger width)
 
 
 def goal_distance(achieved: np.ndarray, desired: np.ndarray) -> np.ndarray:

@@ -24,6 +24,7 @@ from typing import TypeVar
 import torch
 from torch import Tensor, nn
 
+from ps_ray.defaults import HIDDEN, INTERFACE_DIM
 from ps_ray.errors import UserError
 from ps_ray.nets.mlp import mlp
 from ps_ray.nets.normalize import RunningNorm
@@ -106,7 +107,7 @@ class TaskModule(nn.Module):
         spec: MethodSpec,
         dims: NetDims,
         latent_dim: int,
-        hidden: int = 256,
+        hidden: int = HIDDEN,
         *,
         anchors: Tensor | None = None,
         anchor_grad: bool | None = None,
@@ -210,7 +211,7 @@ class _RobotModule(nn.Module):
 
 
 class ActorRobotModule(_RobotModule):
-    def __init__(self, spec: MethodSpec, dims: NetDims, latent_dim: int, hidden: int = 256) -> None:
+    def __init__(self, spec: MethodSpec, dims: NetDims, latent_dim: int, hidden: int = HIDDEN) -> None:
         super().__init__(spec, dims, latent_dim, hidden, 2 * dims.action_dim, takes_action=False)
 
     def forward(self, latent: Tensor, robot_in: Tensor) -> tuple[Tensor, Tensor]:
@@ -219,7 +220,7 @@ class ActorRobotModule(_RobotModule):
 
 
 class CriticRobotModule(_RobotModule):
-    def __init__(self, spec: MethodSpec, dims: NetDims, latent_dim: int, hidden: int = 256) -> None:
+    def __init__(self, spec: MethodSpec, dims: NetDims, latent_dim: int, hidden: int = HIDDEN) -> None:
         super().__init__(spec, dims, latent_dim, hidden, 1, takes_action=True)
 
     def forward(self, latent: Tensor, robot_in: Tensor, action: Tensor) -> Tensor:
@@ -307,8 +308,8 @@ def _build(
     method: str,
     dims: NetDims,
     *,
-    interface_dim: int = 128,
-    hidden: int = 256,
+    interface_dim: int = INTERFACE_DIM,
+    hidden: int = HIDDEN,
     anchors: Tensor | None = None,
     anchor_grad: bool | None = None,
 ) -> Net:

@@ -20,6 +20,7 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
+from ps_ray.defaults import HIDDEN, INTERFACE_DIM
 from ps_ray.nets.modular import Actor, Critic, NetDims, build_actor, build_critic
 
 LOG_2 = math.log(2.0)
@@ -80,8 +81,8 @@ def build_sac_nets(
     method: str,
     dims: NetDims,
     *,
-    interface_dim: int = 128,
-    hidden: int = 256,
+    interface_dim: int = INTERFACE_DIM,
+    hidden: int = HIDDEN,
     anchors: np.ndarray | None = None,
 ) -> SACNets:
     """Actor and twin critics of one method from the one network builder."""

@@ -31,8 +31,8 @@ class ModularSACModule(TorchRLModule, InferenceOnlyAPI, TargetNetworkAPI, QNetAP
         nets = build_sac_nets(
             cfg["method"],
             self.dims,
-            interface_dim=cfg.get("interface_dim", 128),
-            hidden=cfg.get("hidden", 256),
+            interface_dim=cfg["interface_dim"],
+            hidden=cfg["hidden"],
             anchors=None if anchors is None else np.asarray(anchors, np.float32),
         )
         # The nets become attributes of the module itself: RLlib removes the critics from an

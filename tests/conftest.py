@@ -1,7 +1,9 @@
 """Shared fixtures: one torch thread, one local Ray instance for the whole session."""
 
+import html
 import os
 import pickle
+import re
 import subprocess
 import sys
 import tempfile
@@ -9,6 +11,8 @@ from pathlib import Path
 
 import pytest
 import torch
+
+from ps_ray.analysis.browser import run_chromium
 
 torch.set_num_threads(1)
 os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
@@ -145,3 +149,19 @@ def _cli(*args: str, env: dict | None = None, **kwargs) -> subprocess.Popen:
 def cli():
     """``cli(*args, env=None, **popen_kwargs)``: ``ps-ray`` in a subprocess, output in one pipe."""
     return _cli
+
+
+def _visible_text(page: str | Path, *, wait_ms: int = 20_000, timeout: float = 120) -> str:
+    """The text of ``page`` after its scripts ran for ``wait_ms`` of virtual time (tags, scripts
+    and styles removed, whitespace collapsed)."""
+    wait = (f"--virtual-time-budget={wait_ms}",) if wait_ms else ()
+    dom = run_chromium(page, *wait, "--dump-dom", width=1400, height=1000, timeout=timeout)
+    dom = re.sub(r"<(script|style)\b.*?</\1>", " ", dom, flags=re.S)
+    return " ".join(html.unescape(re.sub(r"<[^>]+>", " ", dom)).split())
+
+
+@pytest.fixture
+def visible_text():
+    """The text of a page (file or URL) in headless Chromium once its scripts ran: what a person
+    reads."""
+    return _visible_text

@@ -23,7 +23,7 @@ import pandas as pd
 import PIL.Image
 import pytest
 
-from ps_ray.analysis.browser import find_chromium, screenshot, visible_text
+from ps_ray.analysis.browser import find_chromium, screenshot
 from ps_ray.pipeline.cost import workload
 from ps_ray.pipeline.run import stage_state
 from ps_ray.sweep_spec import load_sweep
@@ -256,7 +256,7 @@ def test_report_of_a_folder_that_is_not_a_sweep_fails_with_one_line(cli, tmp_pat
     )
 
 
-def test_report_opens_in_headless_chromium(cli, smoke, tmp_path):
+def test_report_opens_in_headless_chromium(cli, smoke, tmp_path, visible_text):
     _, root, _ = smoke
     assert find_chromium(), "Chromium is needed for this check (./run.sh test installs it)"
     shot = tmp_path / "report.png"
@@ -296,7 +296,7 @@ def _free_port() -> int:
         return sock.getsockname()[1]
 
 
-def test_mlflow_ui_lists_the_runs_and_the_report_artifact(smoke, tmp_path):
+def test_mlflow_ui_lists_the_runs_and_the_report_artifact(smoke, tmp_path, visible_text):
     """`mlflow ui` as the README says to open it, read in headless Chromium."""
     _, root, _ = smoke
     assert find_chromium(), "Chromium is needed for this check (./run.sh test installs it)"

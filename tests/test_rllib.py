@@ -36,8 +36,13 @@ def _outputs(nets, batch) -> dict[str, torch.Tensor]:
     return out
 
 
+def _on_learner(algo, fn):
+    """``fn(learner)`` on the (local) learner, through LearnerGroup's public API."""
+    return algo.learner_group.foreach_learner(fn).result_or_errors[0].get()
+
+
 def _learner_module(algo):
-    return algo.learner_group._learner.module["default_policy"]
+    return _on_learner(algo, lambda learner: learner.module["default_policy"])
 
 
 TARGETS = ("target_critic", "target_critic_twin")
@@ -93,7 +98,7 @@ def test_checkpoint_round_trip_restores_every_net_and_the_replay(trained):
         assert fresh.counters == algo.counters
         assert fresh.iteration == algo.iteration == 4
         # Adam's slots and the temperature come back too, so a resumed run steps as it would have.
-        saved, restored = (a.learner_group._learner.training_state() for a in (algo, fresh))
+        saved, restored = (_on_learner(a, lambda learner: learner.training_state()) for a in (algo, fresh))
         assert any(k.startswith("optimizer.") and k.endswith(".exp_avg_sq") for k in saved)
         assert saved.keys() == restored.keys()
         for key in saved:

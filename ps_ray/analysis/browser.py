@@ -1,10 +1,7 @@
-"""Open a page (a report file, or the MLflow UI) in headless Chromium: a screenshot, or the text
-a person would read once its scripts have run."""
+"""Open a page (a report file, or the MLflow UI) in headless Chromium and take a screenshot."""
 
 from __future__ import annotations
 
-import html
-import re
 import shutil
 import subprocess
 import tempfile
@@ -30,7 +27,7 @@ def find_chromium() -> str | None:
     return next((p for p in map(shutil.which, CHROMIUM_NAMES) if p), None)
 
 
-def _run(page: str | Path, *args: str, width: int, height: int, timeout: float) -> str:
+def run_chromium(page: str | Path, *args: str, width: int, height: int, timeout: float) -> str:
     browser = find_chromium()
     if browser is None:
         raise RuntimeError(
@@ -62,16 +59,7 @@ def screenshot(
     png = Path(png).resolve()
     png.parent.mkdir(parents=True, exist_ok=True)
     wait = (f"--virtual-time-budget={wait_ms}",) if wait_ms else ()
-    _run(page, *wait, f"--screenshot={png}", width=width, height=height, timeout=timeout)
+    run_chromium(page, *wait, f"--screenshot={png}", width=width, height=height, timeout=timeout)
     if not png.exists():
         raise RuntimeError(f"Chromium wrote no screenshot for {page}")
     return png
-
-
-def visible_text(page: str | Path, *, wait_ms: int = 20_000, timeout: float = 120) -> str:
-    """The text of ``page`` after its scripts ran for ``wait_ms`` of virtual time (tags, scripts
-    and styles removed, whitespace collapsed)."""
-    wait = (f"--virtual-time-budget={wait_ms}",) if wait_ms else ()
-    dom = _run(page, *wait, "--dump-dom", width=1400, height=1000, timeout=timeout)
-    dom = re.sub(r"<(script|style)\b.*?</\1>", " ", dom, flags=re.S)
-    return " ".join(html.unescape(re.sub(r"<[^>]+>", " ", dom)).split())

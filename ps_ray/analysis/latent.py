@@ -168,12 +168,6 @@ def distance_matrix(named: Mapping[str, np.ndarray], metric: str) -> pd.DataFram
     return out
 
 
-def upper_values(matrix: pd.DataFrame) -> np.ndarray:
-    """The distances of distinct pairs (strict upper triangle)."""
-    values = matrix.to_numpy()
-    return values[np.triu_indices(len(values), k=1)]
-
-
 @dataclass(frozen=True)
 class Group:
     """Modules of one method and interface dim that differ only in the compared field."""

@@ -8,6 +8,8 @@ from pathlib import Path
 import pandas as pd
 
 from ps_ray.analysis import tables
+from ps_ray.analysis.alignment import chance_mrr
+from ps_ray.analysis.latent import QUADRANTS
 from ps_ray.analysis.page import Report, Section
 from ps_ray.sweep_spec import SweepSpec
 
@@ -103,12 +105,13 @@ def summary_section(report: Report, spec: SweepSpec, target: float) -> None:
 
     note = budget_note(spec)
     budget += f"{note} " if note else ""
+    probes = len(QUADRANTS) * spec.report.probes_per_group
     section = Section(
         "Summary",
         budget + "Zero-shot: stitched pairs in their target env, no "
         "training; CIs resample seeds (fewer than two seeds: n/a). MRR: retrieval of "
-        "the same probe state across networks (1 = perfect; a collapsed interface "
-        "cannot score).",
+        "the same probe state across networks (1 = perfect; chance with "
+        f"{probes} probes: {chance_mrr(probes):.3f}; a collapsed interface cannot score).",
     )
     frame = pd.DataFrame.from_dict(rows, orient="index").fillna("–")
     frame.index.name = "method"

@@ -82,9 +82,6 @@ class Sim:
     def add_box(self, half_extents: Vec, position: Vec, **kwargs) -> int:
         return self.add_shape(p.GEOM_BOX, half_extents, position, **kwargs)
 
-    def add_sphere(self, radius: float, position: Vec, **kwargs) -> int:
-        return self.add_shape(p.GEOM_SPHERE, (radius,), position, **kwargs)
-
     def load_urdf(self, path: str, position: Vec = (0.0, 0.0, 0.0)) -> int:
         """Load a fixed-base URDF (once per env: PyBullet does not free a removed URDF's memory)."""
         return p.loadURDF(path, basePosition=list(position), useFixedBase=True, physicsClientId=self.client)

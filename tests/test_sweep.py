@@ -159,9 +159,11 @@ def test_trials_spread_over_two_nodes(tmp_path, tiny_train, two_node_cluster):
     assert len(node_ids) == 2, node_ids
 
 
-def test_a_resumed_sweep_with_other_training_settings_is_refused_before_anything_runs(tmp_path):
+@pytest.mark.parametrize("entry", ["sweep", "sweep --resume", "run"])
+def test_a_sweep_with_other_training_settings_is_refused_before_anything_runs(tmp_path, entry):
     from ps_ray.config import SpecError
     from ps_ray.pipeline.layout import SweepLayout
+    from ps_ray.pipeline.run import run_pipeline
     from ps_ray.pipeline.sweep import run_sweep
 
     trained = load_sweep(write_sweep(tmp_path, "same", {"env_steps": 400}))
@@ -172,7 +174,10 @@ def test_a_resumed_sweep_with_other_training_settings_is_refused_before_anything
     other = load_sweep(write_sweep(tmp_path, "same", {"env_steps": 400, "hidden": 32}, seeds=(1, 3)))
     refused = r"trained from a different sweep spec \(changed: seeds, train\); resume"
     with pytest.raises(SpecError, match=refused):
-        run_sweep(other, resume=True)
+        if entry == "run":
+            run_pipeline(other, progress=False)
+        else:
+            run_sweep(other, resume=entry.endswith("--resume"), progress=False)
     assert sorted(p.name for p in root.iterdir()) == before  # nothing written, no Ray started
     assert yaml.safe_load(SweepLayout(root).spec_file.read_text()) == trained.to_dict()
 

@@ -23,7 +23,7 @@ from pathlib import Path
 
 from ps_ray.atomic import write_text
 from ps_ray.pipeline.layout import SweepLayout
-from ps_ray.pipeline.sweep import layout, raise_on_errors, sweep_dir
+from ps_ray.pipeline.sweep import layout, raise_on_errors, require_same_sweep, sweep_dir
 from ps_ray.sweep_spec import STAGES, SweepSpec
 
 # The settings each stage's outputs depend on, besides those of the earlier stages.
@@ -119,6 +119,7 @@ RUNNERS: dict[str, Callable[[SweepSpec, bool, bool], str]] = {
 def run_pipeline(spec: SweepSpec, *, progress: bool = True) -> dict[str, str]:
     """Run the spec's stages in order; returns a one-line summary per stage."""
     root = sweep_dir(spec)
+    require_same_sweep(spec)
     stages = [s for s in STAGES if s in spec.stages]
     summaries = {}
     for index, stage in enumerate(stages, 1):

@@ -169,6 +169,22 @@ def sweep_trial(config: dict[str, Any]) -> None:
 
 
 # -- the driver ----------------------------------------------------------------------------------
+def require_same_sweep(spec: SweepSpec) -> None:
+    """A folder that holds a sweep keeps it: a spec with other training settings is refused
+    before anything is written, resumed or not, so two experiments never mix."""
+    import yaml
+
+    spec_file = SweepLayout(sweep_dir(spec)).spec_file
+    if spec_file.exists():
+        stored = SweepSpec.from_mapping(yaml.safe_load(spec_file.read_text()) or {}, where=str(spec_file))
+        require_same(
+            stored.training_identity(),
+            spec.training_identity(),
+            f"{sweep_dir(spec)} was trained from a different sweep spec",
+            "resume with the same training settings, or give the sweep another name or storage",
+        )
+
+
 def run_sweep(spec: SweepSpec, *, resume: bool = False, progress: bool = True):
     """Run (or resume) the sweep's stages; returns the training stage's Tune ResultGrid.
 
@@ -182,14 +198,7 @@ def run_sweep(spec: SweepSpec, *, resume: bool = False, progress: bool = True):
 
     root = sweep_dir(spec)
     spec_file = SweepLayout(root).spec_file
-    if resume and spec_file.exists():
-        stored = SweepSpec.from_mapping(yaml.safe_load(spec_file.read_text()) or {}, where=str(spec_file))
-        require_same(
-            stored.training_identity(),
-            spec.training_identity(),
-            f"{root} was trained from a different sweep spec",
-            "resume needs the same training settings",
-        )
+    require_same_sweep(spec)
     root.mkdir(parents=True, exist_ok=True)
     write_text(spec_file, yaml.safe_dump(spec.to_dict(), sort_keys=True))
     register()

@@ -214,15 +214,20 @@ def _latest_checkpoint(run_dir: Path) -> Path | None:
 
 
 def _metrics_up_to(run_dir: Path, env_steps: int) -> None:
-    """Drop metrics rows written after the checkpoint a run resumes from: they will be written
-    again, and must not be there twice."""
+    """Drop metrics rows written after the checkpoint a run resumes from (they will be written
+    again, and must not be there twice) and a last row that a kill cut short."""
     path = run_dir / METRICS_FILE
     if not path.exists():
         return
-    with open(path, newline="") as f:
-        rows = list(csv.DictReader(f))
-    kept = [r for r in rows if r.get("env_steps") and int(r["env_steps"]) <= env_steps]
-    if len(kept) == len(rows):
+    text = path.read_text()
+    complete = text if text.endswith("\n") else text[: text.rfind("\n") + 1]
+    rows = list(csv.DictReader(io.StringIO(complete, newline="")))
+    kept = [
+        r
+        for r in rows
+        if None not in r and None not in r.values() and r["env_steps"] and int(r["env_steps"]) <= env_steps
+    ]
+    if len(kept) == len(rows) and complete == text:
         return
     with atomic_file(path) as f:
         text = io.StringIO()

@@ -158,3 +158,22 @@ def test_a_second_process_on_the_same_run_folder_is_refused_in_one_line(tmp_path
     # the holder died: the lock went with it, and the next process resumes the run
     third = subprocess.run(train_cmd(run_dir, 300), capture_output=True, text=True, timeout=300)
     assert third.returncode == 0, third.stderr[-2000:]
+
+
+def test_resume_drops_rows_after_the_checkpoint_and_a_row_a_kill_cut_short(tmp_path):
+    from ps_ray.train import METRIC_FIELDS, METRICS_FILE, _metrics_up_to
+
+    def row(steps):
+        return ",".join(str(steps) if f == "env_steps" else "1" for f in METRIC_FIELDS)
+
+    path = tmp_path / METRICS_FILE
+    header = ",".join(METRIC_FIELDS)
+    path.write_text(f"{header}\n{row(100)}\n{row(200)}\n{row(300)}\n4,4")  # killed mid-row
+    _metrics_up_to(tmp_path, 200)
+    assert path.read_text().split() == [header, row(100), row(200)]
+    path.write_text(f"{header}\n{row(100)}\n1,1")  # cut short before the checkpoint's steps
+    _metrics_up_to(tmp_path, 200)
+    assert pd.read_csv(path)["env_steps"].tolist() == [100]
+    with open(path, "a", newline="") as f:  # the resumed run appends cleanly
+        f.write(row(200) + "\n")
+    assert pd.read_csv(path)["env_steps"].tolist() == [100, 200]

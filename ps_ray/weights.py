@@ -142,10 +142,28 @@ def signature_problem(signature: Signature) -> str | None:
 
 
 def nets_from_state(state: dict[str, torch.Tensor], signature: Signature, source: str = "state") -> SACNets:
-    """Build the nets a signature describes and load `state` into them, strictly."""
+    """Build the nets a signature describes and load `state` into them, strictly. The tensors'
+    shapes are checked first against nets built on the meta device (no memory), so a signature
+    that claims huge sizes costs nothing."""
     anchors = state.get(ANCHORS_KEY)
     if (anchor_hash(anchors.numpy()) if anchors is not None else "") != signature.anchor_hash:
         raise UserError(f"{source}: anchors do not match the signature's anchor hash")
+    with torch.device("meta"):
+        expected = _shapes(_build(signature, anchors, source))
+    found = {k: tuple(v.shape) for k, v in state.items()}
+    missing, unexpected = sorted(expected.keys() - found.keys()), sorted(found.keys() - expected.keys())
+    wrong_shape = [k for k in expected.keys() & found.keys() if expected[k] != found[k]]
+    if missing or unexpected or wrong_shape:
+        raise UserError(
+            f"{source}: tensors do not match the signature (missing {missing[:3]}, "
+            f"unexpected {unexpected[:3]}, wrong shape {wrong_shape[:3]})"
+        )
+    nets = _build(signature, anchors, source)
+    load_nets_state(nets, state)
+    return nets
+
+
+def _build(signature: Signature, anchors: torch.Tensor | None, source: str) -> SACNets:
     try:
         nets = build_sac_nets(
             signature.method,
@@ -158,16 +176,12 @@ def nets_from_state(state: dict[str, torch.Tensor], signature: Signature, source
         raise UserError(f"{source}: {e}") from None
     if signature.translation:
         attach_translations(nets)
-    expected = nets_state(nets)
-    missing, unexpected = sorted(expected.keys() - state.keys()), sorted(state.keys() - expected.keys())
-    wrong_shape = [k for k in expected.keys() & state.keys() if expected[k].shape != state[k].shape]
-    if missing or unexpected or wrong_shape:
-        raise UserError(
-            f"{source}: tensors do not match the signature (missing {missing[:3]}, "
-            f"unexpected {unexpected[:3]}, wrong shape {wrong_shape[:3]})"
-        )
-    load_nets_state(nets, state)
     return nets
+
+
+def _shapes(nets: nn.Module) -> dict[str, tuple[int, ...]]:
+    nets_shapes = {name: getattr(nets, name).state_dict() for name in NET_NAMES}
+    return {f"{name}.{k}": tuple(v.shape) for name, state in nets_shapes.items() for k, v in state.items()}
 
 
 def attach_translations(nets: nn.Module) -> None:

@@ -8,6 +8,8 @@ import itertools
 import json
 import os
 import re
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -618,3 +620,25 @@ def test_absurd_or_wrong_typed_signatures_are_refused_in_one_line(tmp_path, fiel
         save_file(tensors, str(path), metadata=metadata)
     with pytest.raises(ValueError, match=re.escape(f"{path}: bad policy signature: {message}")):
         load_policy(path)
+
+
+def test_a_signature_claiming_huge_nets_is_refused_before_they_are_built(tmp_path):
+    """8192 wide passes the size bound, but the file's tensors are 16 wide: refused on shapes,
+    checked against nets built on the meta device. Built for real, such nets need about 6 GB; the
+    check runs in a process limited to 3 GB of address space."""
+    nets, signature = make_nets("ablation")
+    path = save_policy(tmp_path / "p.safetensors", nets, signature)
+    with safe_open_pt(path) as (tensors, metadata):
+        data = json.loads(metadata["signature"])
+        data["hidden"] = data["interface_dim"] = 8192
+        metadata["signature"] = json.dumps(data)
+        save_file(tensors, str(path), metadata=metadata)
+    code = (
+        "import resource, sys; resource.setrlimit(resource.RLIMIT_AS, (3 << 30, 3 << 30))\n"
+        "from ps_ray.weights import load_policy\n"
+        "try:\n    load_policy(sys.argv[1])\nexcept ValueError as e:\n    print(e)"
+    )
+    argv = [sys.executable, "-c", code, str(path)]
+    done = subprocess.run(argv, capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert done.stdout.startswith(f"{path}: tensors do not match the signature"), done.stdout

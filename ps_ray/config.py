@@ -6,11 +6,13 @@ from __future__ import annotations
 import dataclasses
 import json
 import re
+import types
+import typing
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from ps_ray.defaults import HIDDEN, INTERFACE_DIM
+from ps_ray.defaults import HIDDEN, INTERFACE_DIM, MAX_WIDTH
 from ps_ray.envs.robots import resolve_robot
 from ps_ray.envs.tasks import resolve_task
 from ps_ray.errors import UserError
@@ -41,6 +43,45 @@ def check_keys(data: Mapping[str, Any], cls: type, where: str) -> None:
     bad = [key for key in data if key not in valid]
     if bad:
         raise SpecError(f"{where}: unknown key {bad[0]!r}; valid keys: {', '.join(valid)}")
+
+
+def check_types(spec: Any, where: str, skip: tuple[str, ...] = ()) -> None:
+    """Every field of a spec dataclass against its annotation (``int``, ``float``, ``str``,
+    ``bool``, ``None``, unions, ``tuple[T, ...]``, mappings): the first mismatch fails in one line."""
+    hints = typing.get_type_hints(type(spec))
+    for field in dataclasses.fields(spec):
+        value = getattr(spec, field.name)
+        if field.name not in skip and not _matches(value, hints[field.name]):
+            raise SpecError(f"{where}.{field.name} must be {_describe(hints[field.name])}, got {value!r}")
+
+
+def _matches(value: Any, hint: Any) -> bool:
+    origin, args = typing.get_origin(hint), typing.get_args(hint)
+    if origin in (typing.Union, types.UnionType):
+        return any(_matches(value, a) for a in args)
+    if hint is type(None):
+        return value is None
+    if hint in (int, float, str, bool):
+        if isinstance(value, bool) and hint is not bool:
+            return False
+        return isinstance(value, (int, float) if hint is float else hint)
+    if origin is tuple:
+        return isinstance(value, (tuple, list)) and all(_matches(v, args[0]) for v in value)
+    if origin is not None and issubclass(origin, Mapping):
+        return isinstance(value, Mapping)
+    return True  # Any, and types checked by the spec itself
+
+
+def _describe(hint: Any) -> str:
+    origin, args = typing.get_origin(hint), typing.get_args(hint)
+    if origin in (typing.Union, types.UnionType):
+        return " or ".join(_describe(a) for a in args)
+    if origin is tuple:
+        return f"a list of {_describe(args[0]).removeprefix('a ').removeprefix('an ')}s"
+    if origin is not None and issubclass(origin, Mapping):
+        return "a mapping"
+    names = {int: "an integer", float: "a number", str: "a string", bool: "true or false", type(None): "null"}
+    return names.get(hint, str(hint))
 
 
 def require_same(stored: Mapping[str, Any], current: Mapping[str, Any], what: str, advice: str) -> None:
@@ -115,6 +156,9 @@ class TrainSpec:
             value = getattr(self, name)
             if not isinstance(value, int) or isinstance(value, bool) or value <= 0:
                 raise SpecError(f"{name} must be a positive integer, got {value!r}")
+        for name in ("interface_dim", "hidden"):
+            if getattr(self, name) > MAX_WIDTH:
+                raise SpecError(f"{name} must be at most {MAX_WIDTH}, got {getattr(self, name)}")
         if not isinstance(self.seed, int) or isinstance(self.seed, bool) or self.seed < 0:
             raise SpecError(f"seed must be a non-negative integer, got {self.seed!r}")
         for name in ("random_episodes", "learning_starts", "eval_every"):

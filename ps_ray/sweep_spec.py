@@ -10,7 +10,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from ps_ray.config import SpecError, TrainSpec, check_keys
+from ps_ray.config import SpecError, TrainSpec, check_keys, check_types
 from ps_ray.defaults import INTERFACE_DIM
 from ps_ray.envs.robots import resolve_robot
 from ps_ray.envs.tasks import resolve_task
@@ -35,6 +35,8 @@ class AnchorSpec:
     policy: str = "plain"  # roll out trained plain policies (paper) or "random"
 
     def __post_init__(self) -> None:
+        check_types(self, "anchors")
+        _unique("anchors", source_tasks=self.source_tasks, steps=self.steps)
         if self.policy not in ANCHOR_POLICIES:
             raise SpecError(f"unknown anchors.policy {self.policy!r}; valid: {', '.join(ANCHOR_POLICIES)}")
         for task in self.source_tasks:
@@ -44,6 +46,14 @@ class AnchorSpec:
                 raise SpecError(f"anchors.source_tasks: {e}") from None
         if self.episodes <= 0 or not self.steps:
             raise SpecError("anchors: episodes must be positive and steps non-empty")
+
+
+def _unique(where: str, **lists: tuple) -> None:
+    for key, values in lists.items():
+        texts = [json.dumps(v, sort_keys=True) for v in values]
+        repeated = sorted({t for t in texts if texts.count(t) > 1})
+        if repeated:
+            raise SpecError(f"{where}.{key}: duplicate entries {', '.join(repeated)}; list each once")
 
 
 def _positive(where: str, **values: int | None) -> None:
@@ -68,6 +78,8 @@ class ZeroShotSpec:
     def __post_init__(self) -> None:
         from ps_ray.nets.translation import TRANSLATIONS
 
+        check_types(self, "zero_shot")
+        _unique("zero_shot", methods=self.methods)
         _positive(
             "zero_shot",
             episodes=self.episodes,
@@ -108,6 +120,8 @@ class FewShotSpec:
     scratch: bool = True  # also train each target env from scratch
 
     def __post_init__(self) -> None:
+        check_types(self, "few_shot")
+        _unique("few_shot", methods=self.methods)
         _positive("few_shot", env_steps=self.env_steps, max_pairs=self.max_pairs)
         if not 0 <= self.collect_steps < self.env_steps:
             raise SpecError(f"few_shot.collect_steps must be in [0, env_steps), got {self.collect_steps}")
@@ -121,6 +135,7 @@ class ReportSpec:
     seed: int = 0  # probe-state seed
 
     def __post_init__(self) -> None:
+        check_types(self, "report")
         _positive("report", probes_per_group=self.probes_per_group)
 
 
@@ -155,6 +170,11 @@ class SweepSpec:
     def __post_init__(self) -> None:
         if not isinstance(self.name, str) or not self.name.replace("_", "").replace("-", "").isalnum():
             raise SpecError(f"sweep name must be letters, digits, '-' or '_', got {self.name!r}")
+        # the grid's lists are checked per trial, by TrainSpec, with messages naming the field
+        check_types(self, "sweep", skip=("methods", "robots", "tasks", "seeds", "interface_dims", "stages"))
+        _positive("sweep", max_concurrent=self.max_concurrent)
+        if self.max_failures < 0:
+            raise SpecError(f"sweep.max_failures must be a non-negative integer, got {self.max_failures}")
         for stage in self.stages:
             if stage not in STAGES:
                 raise SpecError(f"unknown stage {stage!r}; valid stages: {', '.join(STAGES)}")

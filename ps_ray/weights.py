@@ -20,6 +20,7 @@ from torch import nn
 
 from ps_ray.anchors import AnchorSet, anchor_hash
 from ps_ray.atomic import atomic_path
+from ps_ray.defaults import MAX_WIDTH
 from ps_ray.errors import UserError
 from ps_ray.nets.modular import NetDims
 from ps_ray.nets.sac import NET_NAMES, SACNets, build_sac_nets
@@ -118,9 +119,6 @@ def read_signature(path: str | Path) -> tuple[Signature, dict[str, str]]:
     if problem:
         raise UserError(f"{path}: bad policy signature: {problem}")
     return signature, metadata
-
-
-MAX_WIDTH = 8192  # no ps_ray network is wider; a larger size in a file is corrupt or hostile
 
 
 def signature_problem(signature: Signature) -> str | None:

@@ -141,6 +141,23 @@ seeds: [1]
             GOOD.replace("[reach]", "[reach, {name: reach}]"),
             'tasks: duplicate entries "reach"; list each once',
         ),
+        (GOOD + "max_concurrent: lots\n", "sweep.max_concurrent must be an integer or null, got 'lots'"),
+        (GOOD + "max_concurrent: -3\n", "sweep.max_concurrent must be positive, got -3"),
+        (GOOD + "max_failures: -1\n", "sweep.max_failures must be a non-negative integer, got -1"),
+        (GOOD + "storage: 5\n", "sweep.storage must be a string, got 5"),
+        (GOOD + "train: 5\n", "sweep.train must be a mapping, got 5"),
+        (GOOD + "zero_shot: {episodes: ten}\n", "zero_shot.episodes must be an integer, got 'ten'"),
+        (
+            GOOD + "zero_shot: {methods: [ps, ps]}\n",
+            'zero_shot.methods: duplicate entries "ps"; list each once',
+        ),
+        (
+            GOOD + "anchors: {source_tasks: [reach, reach]}\n",
+            'anchors.source_tasks: duplicate entries "reach"; list each once',
+        ),
+        (GOOD + "few_shot: {scratch: maybe}\n", "few_shot.scratch must be true or false, got 'maybe'"),
+        (GOOD + "report: {seed: 1.5}\n", "report.seed must be an integer, got 1.5"),
+        (GOOD + "train: {hidden: 100000}\n", "hidden must be at most 8192, got 100000"),
         (
             GOOD.replace("[panda]", "[{base: panda, locked_joints: [0, 1, 2, 3, 4, 5, 6]}]"),
             "all 7 arm joints locked leaves nothing to control; lock at most 6",

@@ -8,6 +8,7 @@ import dataclasses
 import json
 import os
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -168,8 +169,7 @@ def cmd_run(args: argparse.Namespace) -> int:
 def cmd_report(args: argparse.Namespace) -> int:
     from ps_ray.analysis.report import build_report
 
-    spec = _load(args)
-    with _sweep_lock(spec):
+    with _trained_sweep(args, "report") as spec:
         page = build_report(spec, log_to_mlflow=not args.no_mlflow)
     print(f"report: {page}")
     if args.screenshot:
@@ -181,11 +181,14 @@ def cmd_report(args: argparse.Namespace) -> int:
 
 def cmd_render(args: argparse.Namespace) -> int:
     from ps_ray.envs.render import record
+    from ps_ray.envs.robots import resolve_robot
+    from ps_ray.envs.tasks import resolve_task
     from ps_ray.policy import GreedyPolicy
 
     if args.png is None and args.gif is None:
         raise UserError("nothing to write: give --png and/or --gif")
     robot, task = parse_spec_text(args.robot), parse_spec_text(args.task)
+    resolve_robot(robot), resolve_task(task)  # bad names fail before any folder is made
     policy = None
     if args.policy:
         from ps_ray.stitch import target_problems
@@ -197,7 +200,7 @@ def cmd_render(args: argparse.Namespace) -> int:
         policy = GreedyPolicy.from_file(args.policy)
     for path in (args.png, args.gif):
         if path:
-            Path(path).parent.mkdir(parents=True, exist_ok=True)
+            _output_file(path)
     record(
         robot,
         task,
@@ -208,6 +211,27 @@ def cmd_render(args: argparse.Namespace) -> int:
     )
     print(f"wrote {' and '.join(p for p in (args.png, args.gif) if p)}")
     return 0
+
+
+def _output_file(path: str) -> Path:
+    """An output file's folder, made now that the inputs are checked; a place that cannot hold a
+    file (under a file, a read-only or pseudo file system, a folder by that name) is bad input."""
+    path = Path(path)
+    blocking = next((p for p in path.parents if p.exists() and not p.is_dir()), None)
+    if blocking is not None:
+        raise UserError(f"{path}: cannot write here ({blocking} is a file, not a folder)")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise UserError(f"{path}: cannot write here ({e.strerror})") from None
+    if path.is_dir():
+        raise UserError(f"{path}: is a folder; give a file name")
+    try:  # the one sure test: a file made and removed beside it
+        with tempfile.NamedTemporaryFile(dir=path.parent, prefix=f".{path.name}."):
+            pass
+    except OSError as e:
+        raise UserError(f"{path}: cannot write here ({e.strerror})") from None
+    return path
 
 
 def cmd_stitch(args: argparse.Namespace) -> int:
@@ -231,15 +255,14 @@ def cmd_stitch(args: argparse.Namespace) -> int:
     if args.translate:
         from ps_ray.pipeline.zero_shot import fit_states
 
-        if args.fit_states <= 0:
-            raise UserError(f"--fit-states must be positive, got {args.fit_states}")
         tasks = [task] + ([robot_src.spec["task"]] if robot_src.spec is not None else [])
         states = fit_states(tasks, args.fit_states, args.seed)
     nets, signature = stitch_policies(
         task_src.path, robot_src.path, target=(robot, task), translation=args.translate, fit_states=states
     )
     if args.save:
-        path = save_policy(args.save, nets, signature, extra=stitch_metadata(args.task_from, args.robot_from))
+        extra = stitch_metadata(args.task_from, args.robot_from)
+        path = save_policy(_output_file(args.save), nets, signature, extra=extra)
         print(f"wrote {path}")
     if args.episodes > 0:
         result = evaluate(

@@ -8,8 +8,27 @@ import dataclasses
 from ps_ray.config import TrainSpec
 
 
+def positive_int(text: str) -> int:
+    """argparse type of a size: a zero or negative count is refused in one line (exit 2)."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
+    if value <= 0:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {value}")
+    return value
+
+
+class Parser(argparse.ArgumentParser):
+    """An argument parser whose errors are one line (``ps-ray <command>: error: ...``, exit 2);
+    ``--help`` shows the usage."""
+
+    def error(self, message: str):
+        self.exit(2, f"{self.prog}: error: {message}\n")
+
+
 def build_parser(description: str | None) -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="ps-ray", description=description)
+    parser = Parser(prog="ps-ray", description=description)
     sub = parser.add_subparsers(dest="command", required=True)
     for add in (
         _train_parser,
@@ -156,9 +175,9 @@ def _stitch_parser(sub) -> None:
     p.add_argument("--robot", default=None, help="target robot (default: the robot module's robot)")
     p.add_argument("--task", default=None, help="target task (default: the task module's task)")
     p.add_argument("--episodes", type=int, default=200, help="episodes per repeat (0: no evaluation)")
-    p.add_argument("--repeats", type=int, default=5, help="repeats (mean +- std over them)")
+    p.add_argument("--repeats", type=positive_int, default=5, help="repeats (mean +- std over them)")
     p.add_argument("--seed", type=int, default=0, help="first evaluation seed")
-    p.add_argument("--num-envs", type=int, default=8, help="envs stepped in lockstep")
+    p.add_argument("--num-envs", type=positive_int, default=8, help="envs stepped in lockstep")
     p.add_argument("--save", default=None, help="write the stitched policy (.safetensors) here")
     p.add_argument(
         "--translate",
@@ -169,7 +188,7 @@ def _stitch_parser(sub) -> None:
     )
     p.add_argument(
         "--fit-states",
-        type=int,
+        type=positive_int,
         default=128,
         help="reset task states per goal quadrant and task for --translate",
     )

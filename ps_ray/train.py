@@ -89,7 +89,13 @@ def _check_run_dir(spec: TrainSpec, run_dir: Path, write: bool = True) -> None:
     """A run directory belongs to one policy; only the budget and reporting settings may change."""
     spec_file = run_dir / "spec.json"
     if spec_file.exists():
-        stored = TrainSpec.from_mapping(json.loads(spec_file.read_text())).identity()
+        try:
+            data = json.loads(spec_file.read_text())
+        except (UnicodeDecodeError, json.JSONDecodeError) as e:
+            raise UserError(f"{spec_file}: not a ps_ray run spec (not JSON text: {e})") from None
+        if not isinstance(data, dict):
+            raise UserError(f"{spec_file}: not a ps_ray run spec (a JSON {type(data).__name__})")
+        stored = TrainSpec.from_mapping(data, where=str(spec_file)).identity()
         require_same(
             stored, spec.identity(), f"{run_dir} holds a run of another spec", "use another --run-dir"
         )

@@ -27,6 +27,9 @@ def files(tmp_path_factory):
     save_policy(root / "reach.safetensors", nets, signature_of(nets, "ablation", 8, 16))
     (root / "garbage.safetensors").write_bytes(bytes(range(256)) * 2)
     (root / "evil.npy").write_bytes(pickle.dumps(_Evil()))
+    for name, content in (("binary", bytes(range(256))), ("list", b"[1, 2]")):
+        (root / f"{name}_run").mkdir()
+        (root / f"{name}_run" / "spec.json").write_bytes(content)
     (root / "sweep.yaml").write_text(
         f"name: never\nmethods: [ablation]\nrobots: [panda]\ntasks: [reach]\nseeds: [1]\n"
         f"storage: {root / 'sweeps'}\n"
@@ -60,6 +63,22 @@ CASES = [  # (arguments, with {f} the input folder and {out} a path that must no
         "render --policy {f}/reach.safetensors --task push --png {out}",
         "reach.safetensors: cannot run here: task dim: policy 3 vs target env (panda, push) 15",
     ),
+    ("train --hidden 100000 --run-dir {out}", "hidden must be at most 8192, got 100000"),
+    ("train --run-dir {f}/binary_run", "binary_run/spec.json: not a ps_ray run spec (not JSON text"),
+    ("train --run-dir {f}/list_run", "list_run/spec.json: not a ps_ray run spec (a JSON list)"),
+    ("report {f}/sweep.yaml", "sweeps/never: no trained sweep there; train it first"),
+    ("render --robot pandaa --png {out}/x.png", "unknown robot 'pandaa'; valid robots: panda, panda_l3"),
+    ("render --png {f}/reach.safetensors/x.png", "reach.safetensors is a file, not a folder"),
+    (
+        "stitch --task-from {f}/reach.safetensors --robot-from {f}/reach.safetensors --repeats 0 "
+        "--save {out}/s.safetensors",
+        "argument --repeats: expected a positive integer, got 0",
+    ),
+    (
+        "stitch --task-from {f}/reach.safetensors --robot-from {f}/reach.safetensors --robot panda "
+        "--task reach --episodes 0 --save {f}/garbage.safetensors/s",
+        "garbage.safetensors is a file, not a folder",
+    ),
     ("bench env --steps 0", "argument --steps: expected a positive integer, got 0"),
     ("bench her --repeats -3", "argument --repeats: expected a positive integer, got -3"),
 ]
@@ -77,6 +96,6 @@ def test_bad_input_is_one_line_exit_2_and_writes_nothing(files, tmp_path, args, 
     errors = [line for line in proc.stderr.splitlines() if "error" in line]
     assert proc.returncode == 2, proc.stderr[-3000:]
     assert len(errors) == 1 and message in errors[0], proc.stderr[-3000:]
-    assert "Traceback" not in proc.stderr
+    assert "Traceback" not in proc.stderr and "usage:" not in proc.stderr
     assert not out.exists() and not (files / "sweeps").exists()
     assert not (tmp_path / "PICKLE_RAN").exists()

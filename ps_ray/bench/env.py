@@ -11,14 +11,13 @@ keeps its best round (robust to load from other processes).
 
 from __future__ import annotations
 
-import argparse
 import time
 from collections.abc import Sequence
 
 import numpy as np
 import pybullet as p
 
-from ps_ray.bench import positive_int
+from ps_ray.cli_parsers import Parser, positive_int
 from ps_ray.envs import EPISODE_STEPS, TASKS, make
 
 
@@ -88,7 +87,7 @@ def run(
 
 
 def main(argv: Sequence[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
+    parser = Parser(prog="ps-ray bench env", description=(__doc__ or "").splitlines()[0])
     parser.add_argument("--steps", type=positive_int, default=2000)
     parser.add_argument("--rounds", type=positive_int, default=3)
     parser.add_argument("--tasks", nargs="*", default=None)

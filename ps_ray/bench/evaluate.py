@@ -13,14 +13,13 @@ forward (PS anchors re-embedded at every step, no TorchScript), for comparison.
 
 from __future__ import annotations
 
-import argparse
 import time
 from collections.abc import Sequence
 
 import numpy as np
 import torch
 
-from ps_ray.bench import positive_int
+from ps_ray.cli_parsers import Parser, positive_int
 from ps_ray.defaults import HIDDEN, INTERFACE_DIM
 from ps_ray.envs import make, task_input
 from ps_ray.evaluate import evaluate
@@ -85,7 +84,7 @@ def run(
 
 
 def main(argv: Sequence[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
+    parser = Parser(prog="ps-ray bench evaluate", description=(__doc__ or "").splitlines()[0])
     parser.add_argument("--robot", default="panda")
     parser.add_argument("--task", default="push")
     parser.add_argument("--method", default="ps")

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ps_ray.bench import positive_int
+from ps_ray.cli_parsers import Parser, positive_int
 from ps_ray.envs.goals import goal_reward
 from ps_ray.her import HindsightReplay
 
@@ -90,7 +90,9 @@ def bench(capacity: int, repeats: int) -> None:
 
 
 def main(argv: list[str] | None = None) -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = Parser(
+        prog="ps-ray bench her", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     ap.add_argument("--capacities", type=positive_int, nargs="+", default=[2_000, 20_000])
     ap.add_argument("--repeats", type=positive_int, default=300)
     args = ap.parse_args(argv)

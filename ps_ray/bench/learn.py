@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from ps_ray.bench import positive_int
+from ps_ray.cli_parsers import Parser, positive_int
 from ps_ray.config import TrainSpec
 from ps_ray.train import train
 
@@ -61,7 +61,7 @@ def run_one(args: argparse.Namespace, method: str, seed: int) -> dict:
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(prog="ps-ray bench learn", description=__doc__)
+    parser = Parser(prog="ps-ray bench learn", description=__doc__)
     parser.add_argument("--robot", default="panda")
     parser.add_argument("--task", default="reach")
     parser.add_argument("--methods", nargs="+", default=["ps", "ps_normreg_ln", "ablation", "plain"])

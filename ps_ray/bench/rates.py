@@ -12,7 +12,6 @@ seconds per evaluation step. The rates go to ``ps_ray.pipeline.cost.rates_path()
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import json
 import subprocess
@@ -25,7 +24,7 @@ import numpy as np
 import pandas as pd
 
 from ps_ray.atomic import write_text
-from ps_ray.bench import positive_int
+from ps_ray.cli_parsers import Parser, positive_int
 from ps_ray.config import TrainSpec
 from ps_ray.envs import EPISODE_STEPS
 from ps_ray.pipeline.cost import DEFAULT_RATES, Rates, rates_path
@@ -100,7 +99,7 @@ def measure(env_steps: int, learning_starts: int, root: Path) -> tuple[Rates, li
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(prog="ps-ray bench rates", description=__doc__)
+    parser = Parser(prog="ps-ray bench rates", description=__doc__)
     parser.add_argument("--env-steps", type=positive_int, default=2400, help="per run (default 2400)")
     parser.add_argument("--learning-starts", type=int, default=1000, help="warm-up steps (no updates)")
     parser.add_argument("--out", default=None, help="rates file (default: this machine's cache)")

@@ -3,7 +3,6 @@ checkpoint, each next to its unsafe counterpart (figures, never assertions)."""
 
 from __future__ import annotations
 
-import argparse
 import shutil
 import tempfile
 import time
@@ -11,7 +10,7 @@ from pathlib import Path
 
 from ps_ray import checkpoint
 from ps_ray.atomic import write_text
-from ps_ray.bench import positive_int
+from ps_ray.cli_parsers import Parser, positive_int
 from ps_ray.lock import folder_lock
 
 
@@ -23,7 +22,7 @@ def _per_call(fn, n: int) -> float:
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(prog="ps-ray bench state", description=__doc__)
+    parser = Parser(prog="ps-ray bench state", description=__doc__)
     parser.add_argument("--checkpoint", default=None, help="a training checkpoint folder to seal and verify")
     parser.add_argument("--repeats", type=positive_int, default=200)
     args = parser.parse_args(argv)

@@ -21,7 +21,7 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-from ps_ray.bench import positive_int
+from ps_ray.cli_parsers import Parser, positive_int
 from ps_ray.pipeline.tracking import default_tracking_uri, ensure_experiment
 from ps_ray.pipeline.tune_tracking import MLflowTuneCallback
 
@@ -105,7 +105,7 @@ def bench_log_metric(uri: str, exp_id: str, n: int, n_metrics: int) -> list[floa
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(
+    parser = Parser(
         prog="ps-ray bench tracking",
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,

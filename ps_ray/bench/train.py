@@ -15,6 +15,7 @@ import time
 import numpy as np
 import torch
 
+from ps_ray.cli_parsers import Parser
 from ps_ray.config import TrainSpec
 from ps_ray.her import HindsightReplay
 from ps_ray.nets.modular import update_normalizers
@@ -147,7 +148,7 @@ def run(spec: TrainSpec, seconds: float = 60.0, rounds: int = 2) -> dict[str, fl
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(
+    parser = Parser(
         prog="ps-ray bench train", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
     parser.add_argument("--task", default="push")

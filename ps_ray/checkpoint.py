@@ -20,7 +20,7 @@ import hashlib
 import json
 from pathlib import Path
 
-from ps_ray.atomic import write_text
+from ps_ray.atomic import fsync_file, write_text
 from ps_ray.errors import UserError
 
 MANIFEST = "manifest.json"
@@ -44,13 +44,14 @@ def file_sha256(path: Path) -> str:
 
 
 def seal(directory: str | Path) -> None:
-    """Write the manifest over every file in ``directory`` (call it after the last file)."""
+    """Write the manifest over every file in ``directory`` (call it after the last file). Each
+    file is flushed to disk first, so a sealed checkpoint survives a power loss, not only a kill."""
     directory = Path(directory)
-    files = {
-        p.name: {"sha256": file_sha256(p), "bytes": p.stat().st_size}
-        for p in sorted(directory.iterdir())
-        if p.is_file() and p.name != MANIFEST
-    }
+    files = {}
+    for p in sorted(directory.iterdir()):
+        if p.is_file() and p.name != MANIFEST:
+            fsync_file(p)
+            files[p.name] = {"sha256": file_sha256(p), "bytes": p.stat().st_size}
     write_text(directory / MANIFEST, json.dumps({"format": FORMAT, "files": files}, indent=1))
 
 

@@ -22,11 +22,11 @@ from pathlib import Path
 
 from ps_ray.atomic import fsync_file, write_text
 from ps_ray.errors import UserError
+from ps_ray.run_layout import POLICY_FILE
 
 MANIFEST = "manifest.json"
 FORMAT = "ps_ray-checkpoint-1"
 STATE_FILE = "ps_ray_state.json"
-POLICY_FILE = "policy.safetensors"
 POLICY_ONLY = (STATE_FILE, POLICY_FILE)  # what a reader of the policy alone must hash
 
 

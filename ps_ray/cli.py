@@ -17,6 +17,7 @@ from ps_ray.config import TrainSpec
 from ps_ray.errors import UserError
 from ps_ray.lock import folder_lock
 from ps_ray.names import parse_spec_text
+from ps_ray.pipeline.layout import SweepLayout
 from ps_ray.pipeline.sweep import StageError
 
 
@@ -157,7 +158,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         summaries = run_pipeline(spec)
     print(f"sweep {spec.name!r}: all stages done in {(time.time() - started) / 60:.1f} min")
     if "report" in summaries:
-        print(f"report: {sweep_dir(spec) / 'report' / 'index.html'}")
+        print(f"report: {SweepLayout(sweep_dir(spec)).report / 'index.html'}")
     uri = spec.tracking_uri or default_tracking_uri(sweep_dir(spec))
     print(f"MLflow: .venv/bin/mlflow ui --backend-store-uri {uri}")
     note = budget_note(spec)

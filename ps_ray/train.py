@@ -30,11 +30,16 @@ from ps_ray.config import POINT_TASK, TrainSpec, require_same
 from ps_ray.errors import UserError
 from ps_ray.lock import folder_lock
 from ps_ray.nets.modular import uses_anchors
+from ps_ray.run_layout import (
+    ANCHORS_FILE,
+    BEST_POLICY_FILE,
+    CHECKPOINT_DIR,
+    METRICS_FILE,
+    POLICY_FILE,
+    SIGNATURE_FILE,
+    SPEC_FILE,
+)
 
-CHECKPOINT_DIR = "checkpoint"
-POLICY_FILE = "policy.safetensors"
-BEST_POLICY_FILE = "best_policy.safetensors"
-METRICS_FILE = "metrics.csv"
 PROGRESS_FILE = "progress.json"  # early-stop streak, so a resumed run stops where it would have
 METRIC_FIELDS = [
     "iteration",
@@ -65,7 +70,7 @@ def prepare_anchors(spec: TrainSpec, run_dir: Path, given=None):
     from ps_ray.anchor_file import load_anchor_set, save_anchor_set
     from ps_ray.anchors import AnchorSet, collect_task_states, select_anchors
 
-    path = run_dir / "anchors.npz"
+    path = run_dir / ANCHORS_FILE
     if path.exists():
         return load_anchor_set(path)
     if given is not None:
@@ -87,7 +92,7 @@ def prepare_anchors(spec: TrainSpec, run_dir: Path, given=None):
 
 def _check_run_dir(spec: TrainSpec, run_dir: Path, write: bool = True) -> None:
     """A run directory belongs to one policy; only the budget and reporting settings may change."""
-    spec_file = run_dir / "spec.json"
+    spec_file = run_dir / SPEC_FILE
     if spec_file.exists():
         try:
             data = json.loads(spec_file.read_text())
@@ -153,10 +158,10 @@ class TrainingRun:
 
         self.algo.save_checkpoint(str(directory))
         self.algo.export_policy(Path(directory) / POLICY_FILE, self.signature)
-        (Path(directory) / "signature.json").write_text(
+        (Path(directory) / SIGNATURE_FILE).write_text(
             json.dumps(dataclasses.asdict(self.signature), indent=2)
         )
-        (Path(directory) / "spec.json").write_text(json.dumps(self.spec.to_dict(), indent=2))
+        (Path(directory) / SPEC_FILE).write_text(json.dumps(self.spec.to_dict(), indent=2))
         (Path(directory) / PROGRESS_FILE).write_text(json.dumps({"streak": self.streak}))
         checkpoint.seal(directory)
 

@@ -23,14 +23,13 @@ from typing import TYPE_CHECKING, Any
 
 from ps_ray.errors import UserError
 from ps_ray.names import short_name, trial_key
+from ps_ray.pipeline.layout import SweepLayout
+from ps_ray.run_layout import POLICY_FILE, SPEC_FILE
 from ps_ray.weights import Signature, read_signature
 
 if TYPE_CHECKING:
     pass
 
-POLICY_FILE = "policy.safetensors"
-SPEC_FILE = "spec.json"
-STAGE_DIRS = {"tune": "train", "tune_plain": "plain_source"}
 STAGE_RANK = {"train": 0, "run": 0, "plain_source": 1}  # lower wins a duplicate key
 
 
@@ -145,8 +144,9 @@ class ModuleZoo:
         entries, problems = [], []
         for sweep in map(Path, sweep_dirs):
             found = []
-            for folder, stage in STAGE_DIRS.items():
-                policies, unusable = _latest_checkpoints(sweep / folder)
+            layout = SweepLayout(sweep)
+            for folder, stage in ((layout.tune_train, "train"), (layout.tune_plain, "plain_source")):
+                policies, unusable = _latest_checkpoints(folder)
                 found += [(p, stage) for p in policies]
                 if unusable and strict:
                     raise UserError(unusable[0])

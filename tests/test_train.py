@@ -161,7 +161,8 @@ def test_a_second_process_on_the_same_run_folder_is_refused_in_one_line(tmp_path
 
 
 def test_resume_drops_rows_after_the_checkpoint_and_a_row_a_kill_cut_short(tmp_path):
-    from ps_ray.train import METRIC_FIELDS, METRICS_FILE, _metrics_up_to
+    from ps_ray.run_layout import METRICS_FILE
+    from ps_ray.train import METRIC_FIELDS, _metrics_up_to
 
     def row(steps):
         return ",".join(str(steps) if f == "env_steps" else "1" for f in METRIC_FIELDS)

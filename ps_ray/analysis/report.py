@@ -87,7 +87,7 @@ def source_target(spec: SweepSpec) -> float:
 
 
 def _training(report: Report, root: Path, target: float, say) -> None:
-    frame = results.curves(root / "tune")
+    frame = results.curves(SweepLayout(root).tune_train)
     section = report.section(
         "Training",
         "Greedy success of the sweep's policies during training "

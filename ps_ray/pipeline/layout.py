@@ -7,6 +7,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
+LOG_FOLDER = "logs"  # beside a stage's Tune folder: Tune's own output, one log per stage
+
 
 @dataclass(frozen=True)
 class SweepLayout:

@@ -18,6 +18,7 @@ from ps_ray.config import TrainSpec, require_same
 from ps_ray.names import parse_spec_text, spec_text
 from ps_ray.nets.modular import uses_anchors
 from ps_ray.pipeline.layout import SweepLayout
+from ps_ray.run_layout import POLICY_FILE, SIGNATURE_FILE, SPEC_FILE
 from ps_ray.sweep_spec import SweepSpec
 
 METRIC_KEYS = ("env_steps", "updates", "train_success", "train_touching", "eval_success", "eval_touching")
@@ -302,10 +303,7 @@ def _trial_artifacts(trial) -> list[Path]:
     """Module weights, interface signature, resolved spec and anchors of a finished trial."""
     paths = []
     if trial.checkpoint is not None:
-        paths += [
-            Path(trial.checkpoint.path) / name
-            for name in ("policy.safetensors", "signature.json", "spec.json")
-        ]
+        paths += [Path(trial.checkpoint.path) / name for name in (POLICY_FILE, SIGNATURE_FILE, SPEC_FILE)]
     anchors = trial.config["trial"].get("anchors")
     if anchors:
         paths.append(Path(anchors))

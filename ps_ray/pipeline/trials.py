@@ -22,6 +22,7 @@ from typing import Any
 
 from ps_ray import checkpoint
 from ps_ray.errors import UserError
+from ps_ray.pipeline.layout import LOG_FOLDER
 
 FINISHED = "ps_ray_finished"  # in the last result of a trial that ran to its end
 STAGE_DIR_KEY = "stage_dir"  # a constant of every grid: where earlier attempts lie
@@ -192,7 +193,7 @@ def run_trials(
                 verbose=1 if progress else 0,
             ),
         )
-        with quiet_tune(root / "logs" / f"{name}.log") if quiet else contextlib.nullcontext():
+        with quiet_tune(root / LOG_FOLDER / f"{name}.log") if quiet else contextlib.nullcontext():
             grid_results = tuner.fit()  # quiet: Tune's tables go to the log
         errors = {identity(r.config[key]): str(r.error) for r in grid_results if r.error}
     return outcomes(path, key, trials, errors)

@@ -1,0 +1,11 @@
+"""The file names of a run folder (`ps-ray train --run-dir`, and each training trial) and of the
+policy inside a checkpoint, in one place (docs/state.md). A sweep folder's paths are in
+:class:`ps_ray.pipeline.layout.SweepLayout`; a checkpoint's own files in :mod:`ps_ray.checkpoint`."""
+
+SPEC_FILE = "spec.json"  # the run's TrainSpec; also written into every checkpoint
+ANCHORS_FILE = "anchors.npz"  # PS: the run's anchor set
+CHECKPOINT_DIR = "checkpoint"  # the sealed checkpoint, swapped in through .tmp and .old
+POLICY_FILE = "policy.safetensors"  # the latest policy (also inside every checkpoint)
+SIGNATURE_FILE = "signature.json"  # the policy's interface signature, inside every checkpoint
+BEST_POLICY_FILE = "best_policy.safetensors"  # the best greedy evaluation so far
+METRICS_FILE = "metrics.csv"  # one row per training step

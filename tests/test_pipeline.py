@@ -24,6 +24,7 @@ import PIL.Image
 import pytest
 
 from ps_ray.analysis.browser import find_chromium, screenshot
+from ps_ray.checkpoint import latest as latest_checkpoint
 from ps_ray.pipeline.cost import workload
 from ps_ray.pipeline.run import stage_state
 from ps_ray.sweep_spec import load_sweep
@@ -37,7 +38,8 @@ FIGURES = {"training_curves", "heatmap_seeds_i16", "heatmap_robots_i16", "zero_s
 # Moments at which the fixture SIGKILLs `ps-ray run` (driver and the Ray processes it started):
 # (stage under way, the sign that it is, seconds to wait after the sign).
 KILLS = (
-    ("train", lambda root: any(root.glob("tune/*/checkpoint_*/manifest.json")), 0.0),
+    # a checkpoint with every file there (Tune copies one file by file, its manifest may come first)
+    ("train", lambda root: latest_checkpoint(list(root.glob("tune/*/checkpoint_*"))) is not None, 0.0),
     ("zero_shot", lambda root: (root / "stages" / "zero_shot.started.json").exists(), 8.0),
     ("report", lambda root: (root / "stages" / "report.started.json").exists(), 1.0),
 )

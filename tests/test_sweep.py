@@ -11,6 +11,7 @@ import mlflow
 import pytest
 import yaml
 
+from ps_ray.checkpoint import latest as latest_checkpoint
 from ps_ray.pipeline.sweep import sweep_dir
 from ps_ray.sweep_spec import load_sweep
 
@@ -129,7 +130,7 @@ def test_a_killed_trial_worker_is_retried_from_its_checkpoint(tmp_path, cli, tin
     proc = cli("sweep", str(path), env={"PS_RAY_TEST_RUN": tmp_path.name})
     tune_dir = sweep_dir(load_sweep(path)) / "tune"
     deadline = time.time() + 300
-    while not list(tune_dir.glob("*/checkpoint_*/manifest.json")):
+    while latest_checkpoint(list(tune_dir.glob("*/checkpoint_*"))) is None:  # sealed, every file there
         assert proc.poll() is None and time.time() < deadline, "no checkpoint before the kill"
         time.sleep(0.2)
     workers = _trial_workers(tag)
@@ -142,11 +143,13 @@ def test_a_killed_trial_worker_is_retried_from_its_checkpoint(tmp_path, cli, tin
     assert run.info.status == "FINISHED"
     points = history(path, run, "env_steps")
     assert points[-1][1] >= 3000
-    # Restored from the checkpoint saved just before the crash: iterations and env steps go on
-    # from there, none is trained twice.
     iterations, steps = [i for i, _ in points], [v for _, v in points]
-    assert len(set(iterations)) == len(iterations)
+    assert len(set(iterations)) == len(iterations)  # MLflow holds each step once
     assert steps == sorted(set(steps))
+    # The retry was restored from the checkpoint saved before the crash, not started over: the
+    # trial's results hold iteration 1 once.
+    (trial_dir,) = tune_dir.glob("*/params.json")
+    assert [r["training_iteration"] for r in _rows(trial_dir.parent)].count(1) == 1
 
 
 def test_trials_spread_over_two_nodes(tmp_path, tiny_train, two_node_cluster):

@@ -174,6 +174,22 @@ def test_tracker_resume_reuses_run_and_keys_separate_runs(store):
         TrialTracker(store["uri"], exp, "ps/panda/reach/1", params={**PARAMS, "seed": 7}, tags={})
 
 
+def test_a_restarted_trial_never_logs_a_step_twice(store):
+    """A trial killed after logging steps 1-3 and restarted from its checkpoint at step 1
+    re-reports steps 2 and 3: the run keeps their first record and goes on from step 4."""
+    exp = new_experiment(store, "tracker-restart")
+    first = TrialTracker(store["uri"], exp, "t", params={}, tags={}, once_per_step=True)
+    for step in (1, 2, 3):
+        first.log_metrics({"success": step / 10}, step=step)
+    first.flush()  # then the kill: no close
+    again = TrialTracker(store["uri"], exp, "t", params={}, tags={}, once_per_step=True)
+    for step in (2, 3, 4):
+        again.log_metrics({"success": step}, step=step)
+    again.close()
+    history = store["client"].get_metric_history(again.run_id, "success")
+    assert sorted((m.step, m.value) for m in history) == [(1, 0.1), (2, 0.2), (3, 0.3), (4, 4.0)]
+
+
 def test_tracker_artifacts(store, tmp_path):
     exp = new_experiment(store, "tracker-artifacts")
     tracker = TrialTracker(store["uri"], exp, "k", params={}, tags={})

@@ -160,6 +160,7 @@ class TrialTracker:
         params: Mapping[str, Any],
         tags: Mapping[str, str],
         client: MlflowClient | None = None,
+        once_per_step: bool = False,
     ) -> None:
         if not trial_key:
             raise ValueError("trial_key must be a non-empty string")
@@ -168,6 +169,10 @@ class TrialTracker:
         self.trial_key = trial_key
         self.client = client or _client(tracking_uri)
         self._pending: list[Metric] = []
+        # once_per_step: per metric, the last step in the run. A trial restarted after a kill
+        # re-reports steps it had logged; the first record of a step stays, none is logged twice.
+        self.once_per_step = once_per_step
+        self._last_step: dict[str, int] = {}
         all_tags = {k: str(v)[:MAX_TAG_CHARS] for k, v in tags.items() if v is not None}
         all_tags[TRIAL_KEY_TAG] = trial_key
         flat = flatten_params(params)
@@ -178,6 +183,9 @@ class TrialTracker:
         else:
             self.run_id = run.info.run_id
             self.resumed = True
+            for key in run.data.metrics if once_per_step else ():
+                steps = [m.step for m in self.client.get_metric_history(self.run_id, key)]
+                self._last_step[key] = max(steps, default=-1)
             self._check_params(run.data.params, flat)
             flat = {k: v for k, v in flat.items() if k not in run.data.params}
             if run.info.status != "RUNNING":
@@ -215,14 +223,17 @@ class TrialTracker:
         return len(self._pending)
 
     def log_metrics(self, metrics: Mapping[str, Any], step: int, *, timestamp_ms: int | None = None) -> None:
-        """Buffer ``metrics`` at ``step``; None, NaN, infinities and non-numbers are dropped."""
+        """Buffer ``metrics`` at ``step``; None, NaN, infinities and non-numbers are dropped, and so
+        is, with ``once_per_step``, a step at or before one the run holds for that metric."""
         from mlflow.entities import Metric
 
         stamp = int(time.time() * 1000) if timestamp_ms is None else timestamp_ms
         for key, value in metrics.items():
             number = finite_float(value)
-            if number is not None:
-                self._pending.append(Metric(key, number, stamp, int(step)))
+            if number is None or (self.once_per_step and int(step) <= self._last_step.get(key, -1)):
+                continue
+            self._pending.append(Metric(key, number, stamp, int(step)))
+            self._last_step[key] = int(step)
         if len(self._pending) >= MAX_METRICS_PER_CALL:
             self.flush()
 

@@ -150,6 +150,7 @@ class MLflowTuneCallback(Callback):
                 params=self.params_fn(trial),
                 tags=tags,
                 client=self._client,
+                once_per_step=True,  # a trial retried or relaunched re-reports logged steps
             )
             self._results[key] = 0
             self._last_flush[key] = time.monotonic()

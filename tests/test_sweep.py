@@ -239,3 +239,38 @@ def test_a_killed_worker_node_s_trial_resumes_from_its_checkpoint_on_another_nod
     steps = [v for _, v in history(path, run, "env_steps")]
     # restored from its checkpoint, not from zero: no env step is reported twice
     assert steps == sorted(set(steps)) and steps[-1] >= 3000
+
+
+@pytest.mark.parametrize("stage", ["train", "zero_shot", "few_shot"])
+def test_a_stage_run_afresh_on_a_folder_with_earlier_attempts_is_refused_before_writing(tmp_path, stage):
+    """Without --resume, a stage whose Tune folder holds attempts is refused in one line naming
+    --resume, before Ray starts or anything (stitched starts, sweep.yaml) is written."""
+    import json
+
+    from ps_ray.pipeline.few_shot import run_few_shot
+    from ps_ray.pipeline.layout import SweepLayout
+    from ps_ray.pipeline.trials import PARAMS_FILE, StageExistsError
+    from ps_ray.pipeline.zero_shot import run_zero_shot
+
+    spec = load_sweep(write_sweep(tmp_path, "again", {"env_steps": 400}))
+    layout = SweepLayout(sweep_dir(spec))
+    folder, key = {
+        "train": (layout.tune_train, "trial"),
+        "zero_shot": (layout.tune_zero_shot, "pair"),
+        "few_shot": (layout.tune_few_shot, "trial"),
+    }[stage]
+    attempt = folder / "attempt_0"
+    attempt.mkdir(parents=True)
+    (attempt / PARAMS_FILE).write_text(json.dumps({key: {"earlier": True}}))
+    layout.spec_file.write_text(yaml.safe_dump(spec.to_dict()))
+    before = sorted(p.relative_to(layout.root) for p in layout.root.rglob("*"))
+    run = {
+        "train": lambda: __import__("ps_ray.pipeline.sweep", fromlist=["run_sweep"]).run_sweep(
+            spec, progress=False
+        ),
+        "zero_shot": lambda: run_zero_shot(spec, progress=False),
+        "few_shot": lambda: run_few_shot(spec, progress=False),
+    }[stage]
+    with pytest.raises(StageExistsError, match=f"holds an earlier run of stage '{stage}'; pass --resume"):
+        run()
+    assert sorted(p.relative_to(layout.root) for p in layout.root.rglob("*")) == before

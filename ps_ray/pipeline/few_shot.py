@@ -84,9 +84,12 @@ def few_shot_trials(spec: SweepSpec, settings: FewShotSpec) -> list[dict[str, An
 def run_few_shot(spec: SweepSpec, *, resume: bool = False, progress: bool = True, **overrides: Any):
     """Settings from ``spec.few_shot`` (``overrides`` replace fields); returns the ResultGrid."""
     from ps_ray.pipeline.sweep import connect, run_tune
+    from ps_ray.pipeline.trials import require_fresh
 
     settings = dataclasses.replace(spec.few_shot, **overrides)
     root = sweep_dir(spec)
+    if not resume:  # refused before the stitched starts are written
+        require_fresh(layout(spec).tune_few_shot, "trial", "few_shot")
     trials = few_shot_trials(spec, settings)
     if not trials:
         raise UserError(f"{root}: no stitchable pairs (train the sweep first: ps-ray sweep)")

@@ -196,10 +196,14 @@ def run_sweep(spec: SweepSpec, *, resume: bool = False, progress: bool = True):
     import yaml
 
     from ps_ray.envs.registry import register
+    from ps_ray.pipeline.trials import require_fresh
 
     root = sweep_dir(spec)
     spec_file = SweepLayout(root).spec_file
     require_same_sweep(spec)
+    if not resume:  # refused before Ray starts and anything is written
+        require_fresh(SweepLayout(root).tune_plain, "trial", "anchors_plain")
+        require_fresh(SweepLayout(root).tune_train, "trial", "train")
     root.mkdir(parents=True, exist_ok=True)
     write_text(spec_file, yaml.safe_dump(spec.to_dict(), sort_keys=True))
     register()

@@ -148,6 +148,16 @@ def checkpoint_dirs(folders: list[Path]) -> list[Path]:
     return [c for folder in folders for c in sorted(folder.glob("checkpoint_*")) if c.is_dir()]
 
 
+def require_fresh(folder: Path, key: str, stage: str) -> None:
+    """A stage run afresh (no --resume) on a folder that holds attempts of it is refused, before
+    anything is written: a second experiment is never mixed into the first."""
+    if attempts(Path(folder), key):
+        raise StageExistsError(
+            f"{folder} holds an earlier run of stage {stage!r}; pass --resume to finish it "
+            f"(or choose another storage or sweep name)"
+        )
+
+
 def run_trials(
     trainable,
     grid: dict[str, list],
@@ -171,11 +181,8 @@ def run_trials(
 
     ((key, trials),) = grid.items()
     path, name, root = Path(folder), Path(folder).name, Path(folder).parent
-    if not resume and attempts(path, key):
-        raise StageExistsError(
-            f"{path} holds an earlier run of stage {stage!r}; pass --resume to finish it "
-            f"(or choose another storage or sweep name)"
-        )
+    if not resume:
+        require_fresh(path, key, stage)
     todo = [o.config[key] for o in outcomes(path, key, trials) if o.error] if resume else trials
     errors: dict[str, str] = {}
     if todo:

@@ -101,11 +101,13 @@ def run_zero_shot(
     ``resume`` finishes an interrupted matrix (restores ``tune_zero_shot``)."""
     from ps_ray.pipeline.sweep import connect
     from ps_ray.pipeline.tracking import git_commit, source_tags
-    from ps_ray.pipeline.trials import run_trials
+    from ps_ray.pipeline.trials import require_fresh, run_trials
     from ps_ray.pipeline.tune_tracking import MLflowTuneCallback
 
     settings = dataclasses.replace(spec.zero_shot, **overrides)
     root = sweep_dir(spec)
+    if not resume:
+        require_fresh(layout(spec).tune_zero_shot, "pair", "zero_shot")
     trials = pairs(spec, list(settings.methods) or None, translate=True)
     if not trials:
         raise UserError(f"{root}: no stitchable pairs (train the sweep first: ps-ray sweep)")

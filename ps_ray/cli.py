@@ -33,7 +33,10 @@ def cmd_train(args: argparse.Namespace) -> int:
 
 
 def cmd_sweep(args: argparse.Namespace) -> int:
+    from ps_ray.pipeline.sweep import check_inputs
+
     spec = _load(args)
+    check_inputs(spec)  # the files it starts from, before any folder is made
     trials = spec.trials()
     print(f"sweep {spec.name!r}: {len(trials)} training trials")
     if args.check:
@@ -45,7 +48,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
         return 0
     from ps_ray.pipeline.sweep import run_sweep, sweep_dir
 
-    with folder_lock(sweep_dir(spec), "sweep"):
+    with _sweep_lock(spec):
         results = run_sweep(spec, resume=args.resume)
     errors = [r for r in results if r.error]
     print(
@@ -143,10 +146,11 @@ def cmd_few_shot(args: argparse.Namespace) -> int:
 def cmd_run(args: argparse.Namespace) -> int:
     from ps_ray.pipeline.cost import budget_note, project
     from ps_ray.pipeline.run import run_pipeline
-    from ps_ray.pipeline.sweep import sweep_dir
+    from ps_ray.pipeline.sweep import check_inputs, sweep_dir
     from ps_ray.pipeline.tracking import default_tracking_uri
 
     spec = _load(args)
+    check_inputs(spec)  # the files it starts from, before any folder is made
     started = time.time()
     print(f"sweep {spec.name!r}: stages {', '.join(spec.stages)}; results in {sweep_dir(spec)}")
     projection = project(spec)

@@ -30,6 +30,14 @@ def files(tmp_path_factory):
     for name, content in (("binary", bytes(range(256))), ("list", b"[1, 2]")):
         (root / f"{name}_run").mkdir()
         (root / f"{name}_run" / "spec.json").write_bytes(content)
+    for name, extra in (
+        ("no_anchors", "anchors: {file: /nonexistent/states.npz}\n"),
+        ("bad_start", f"train: {{init_policy: {root / 'garbage.safetensors'}}}\n"),
+    ):
+        (root / f"{name}.yaml").write_text(
+            f"name: {name}\nmethods: [ablation]\nrobots: [panda]\ntasks: [reach]\nseeds: [1]\n"
+            f"storage: {root / 'sweeps'}\n{extra}"
+        )
     (root / "sweep.yaml").write_text(
         f"name: never\nmethods: [ablation]\nrobots: [panda]\ntasks: [reach]\nseeds: [1]\n"
         f"storage: {root / 'sweeps'}\n"
@@ -67,6 +75,8 @@ CASES = [  # (arguments, with {f} the input folder and {out} a path that must no
     ("train --run-dir {f}/binary_run", "binary_run/spec.json: not a ps_ray run spec (not JSON text"),
     ("train --run-dir {f}/list_run", "list_run/spec.json: not a ps_ray run spec (a JSON list)"),
     ("report {f}/sweep.yaml", "sweeps/never: no trained sweep there; train it first"),
+    ("sweep {f}/no_anchors.yaml", "anchors.file: /nonexistent/states.npz: no such file"),
+    ("run {f}/bad_start.yaml", "garbage.safetensors: not a ps_ray policy file"),
     ("render --robot pandaa --png {out}/x.png", "unknown robot 'pandaa'; valid robots: panda, panda_l3"),
     ("render --png {f}/reach.safetensors/x.png", "reach.safetensors is a file, not a folder"),
     (

@@ -7,6 +7,7 @@ Where each goes: :class:`ps_ray.pipeline.layout.SweepLayout`.
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import tempfile
 from functools import partial
@@ -170,6 +171,22 @@ def sweep_trial(config: dict[str, Any]) -> None:
 
 
 # -- the driver ----------------------------------------------------------------------------------
+def check_inputs(spec: SweepSpec) -> None:
+    """The files a sweep starts from, read before Ray starts and anything is written: the anchor
+    file must exist, and every trial's ``init_policy`` must fit its method, sizes and env."""
+    from ps_ray.errors import UserError
+    from ps_ray.train import read_inputs
+
+    if spec.anchors.file and not Path(spec.anchors.file).is_file():
+        raise UserError(f"anchors.file: {spec.anchors.file}: no such file")
+    checked = set()
+    for trial in spec.trials():
+        what = (trial.init_policy, trial.method, trial.interface_dim, trial.hidden, spec_text(trial.robot))
+        if trial.init_policy is not None and (what, spec_text(trial.task)) not in checked:
+            read_inputs(dataclasses.replace(trial, anchors=None))
+            checked.add((what, spec_text(trial.task)))
+
+
 def require_same_sweep(spec: SweepSpec) -> None:
     """A folder that holds a sweep keeps it: a spec with other training settings is refused
     before anything is written, resumed or not, so two experiments never mix."""
@@ -204,6 +221,7 @@ def run_sweep(spec: SweepSpec, *, resume: bool = False, progress: bool = True):
     if not resume:  # refused before Ray starts and anything is written
         require_fresh(SweepLayout(root).tune_plain, "trial", "anchors_plain")
         require_fresh(SweepLayout(root).tune_train, "trial", "train")
+    check_inputs(spec)
     root.mkdir(parents=True, exist_ok=True)
     write_text(spec_file, yaml.safe_dump(spec.to_dict(), sort_keys=True))
     register()

@@ -28,7 +28,7 @@ class AnchorSpec:
 
     file: str | None = None  # anchor set (.npz) or task-state array; overrides rollouts
     source_tasks: tuple[str, ...] = ()  # tasks whose states are pooled (default: the sweep's tasks)
-    robot: str = "panda"
+    robot: str | Mapping = "panda"  # the robot of the rollouts (task states do not depend on it)
     episodes: int = 200
     steps: tuple[int, ...] = (5, 6, 7, 8, 9)
     seed: int = 0
@@ -37,6 +37,10 @@ class AnchorSpec:
     def __post_init__(self) -> None:
         check_types(self, "anchors")
         _unique("anchors", source_tasks=self.source_tasks, steps=self.steps)
+        try:
+            resolve_robot(self.robot)
+        except (ValueError, TypeError) as e:
+            raise SpecError(f"anchors.robot: {e}") from None
         if self.policy not in ANCHOR_POLICIES:
             raise SpecError(f"unknown anchors.policy {self.policy!r}; valid: {', '.join(ANCHOR_POLICIES)}")
         for task in self.source_tasks:

@@ -116,6 +116,16 @@ def test_a_pipeline_killed_at_three_moments_resumes_without_redoing_finished_wor
     for run in train_runs:  # a trial cut short resumed from its checkpoint: no step logged twice
         steps = [m.step for m in client.get_metric_history(run.info.run_id, "env_steps")]
         assert len(steps) == len(set(steps)) and run.data.metrics["env_steps"] >= 1500, run.info.run_name
+    # and the trials cut short by the kill were relaunched from their checkpoints, not from scratch
+    from ps_ray.pipeline.trials import attempts, checkpoint_dirs, read_rows
+
+    relaunched = [  # later attempts of trials whose earlier attempts left a verified checkpoint
+        later
+        for folders in attempts(root / "tune", "trial").values()
+        for i, later in enumerate(folders)
+        if i and latest_checkpoint(checkpoint_dirs(folders[:i])) is not None and read_rows(later)
+    ]
+    assert relaunched and all(read_rows(f)[0]["iteration"] > 1 for f in relaunched)
     # the report covers exactly the trials and stitched pairs an uninterrupted run would have
     from ps_ray.pipeline.zero_shot import pairs
 

@@ -57,9 +57,10 @@ def test_sweep_tracks_one_mlflow_run_per_trial_with_artifacts(tmp_path, cli, tin
     assert proc.returncode == 0, out[-3000:]
     found = runs(path)
     # the plain source policy of the anchor stage is tracked too
-    assert sorted(found) == ["ablation/panda/reach/1/i8", "plain/panda/reach/1/i8", "ps/panda/reach/1/i8"]
-    assert found["plain/panda/reach/1/i8"].data.tags["ps_ray.stage"] == "anchors_plain"
-    found.pop("plain/panda/reach/1/i8")
+    plain = "anchors_plain/plain/panda/reach/1/i8"
+    assert sorted(found) == ["ablation/panda/reach/1/i8", plain, "ps/panda/reach/1/i8"]
+    assert found[plain].data.tags["ps_ray.stage"] == "anchors_plain"
+    found.pop(plain)
     client = mlflow.MlflowClient(f"sqlite:///{sweep_dir(load_sweep(path)) / 'mlflow.db'}")
     for name, run in found.items():
         assert run.info.status == "FINISHED"
@@ -167,14 +168,17 @@ def test_a_sweep_with_other_training_settings_is_refused_before_anything_runs(tm
     from ps_ray.config import SpecError
     from ps_ray.pipeline.layout import SweepLayout
     from ps_ray.pipeline.run import run_pipeline
-    from ps_ray.pipeline.sweep import run_sweep
+    from ps_ray.pipeline.sweep import require_same_sweep, run_sweep
 
     trained = load_sweep(write_sweep(tmp_path, "same", {"env_steps": 400}))
     root = sweep_dir(trained)
     root.mkdir(parents=True)
     SweepLayout(root).spec_file.write_text(yaml.safe_dump(trained.to_dict()))
-    before = sorted(p.name for p in root.iterdir())
     other = load_sweep(write_sweep(tmp_path, "same", {"env_steps": 400, "hidden": 32}, seeds=(1, 3)))
+    require_same_sweep(other)  # only the spec of a start that failed early: the new one may start
+    SweepLayout(root).anchors.mkdir()
+    (SweepLayout(root).anchors / "anchors_3d_k8.npz").write_bytes(b"")  # work done under the spec
+    before = sorted(p.name for p in root.iterdir())
     refused = r"trained from a different sweep spec \(changed: seeds, train\); resume"
     with pytest.raises(SpecError, match=refused):
         if entry == "run":
@@ -217,7 +221,7 @@ def test_a_killed_worker_node_s_trial_resumes_from_its_checkpoint_on_another_nod
             for trial_dir in tune_dir.glob("*"):
                 rows = _rows(trial_dir)
                 on_worker = rows and rows[-1].get("node_id") == worker.node_id
-                if on_worker and list(trial_dir.glob("checkpoint_*/manifest.json")):
+                if on_worker and latest_checkpoint(list(trial_dir.glob("checkpoint_*"))) is not None:
                     killed.update(trial=trial_dir.name, env_steps=rows[-1]["env_steps"])
                     cluster.remove_node(worker, allow_graceful=False)
                     return

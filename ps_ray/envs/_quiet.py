@@ -10,8 +10,14 @@ import sys
 def import_pybullet() -> None:
     if "pybullet" in sys.modules:
         return
-    sys.stderr.flush()
-    saved, devnull = os.dup(2), os.open(os.devnull, os.O_WRONLY)
+    if sys.stderr is not None:
+        sys.stderr.flush()
+    try:
+        saved, devnull = os.dup(2), os.open(os.devnull, os.O_WRONLY)
+    except OSError:  # no stderr to mute (fd 2 closed)
+        import pybullet  # noqa: F401
+
+        return
     try:
         os.dup2(devnull, 2)
         import pybullet  # noqa: F401

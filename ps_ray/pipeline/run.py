@@ -1,6 +1,6 @@
 """`ps-ray run`: every stage of a sweep in order, skipping finished ones, resuming a killed one.
 
-Stages (``SweepSpec.stages``, run in the order of ``config.STAGES``):
+Stages (``SweepSpec.stages``, run in the order of ``sweep_spec.STAGES``):
   train      plain sources -> anchors -> the grid's trials (ps_ray.pipeline.sweep)
   zero_shot  every stitched pair evaluated (ps_ray.pipeline.zero_shot)
   few_shot   stitched starts fine-tuned beside from-scratch runs (ps_ray.pipeline.few_shot)

@@ -188,12 +188,21 @@ def check_inputs(spec: SweepSpec) -> None:
 
 
 def require_same_sweep(spec: SweepSpec) -> None:
-    """A folder that holds a sweep keeps it: a spec with other training settings is refused
-    before anything is written, resumed or not, so two experiments never mix."""
+    """A folder that holds a sweep's work keeps it: a spec with other training settings is refused
+    before anything is written, resumed or not, so two experiments never mix. A folder that holds
+    only the spec of a start that failed early (no trial, no anchor set) takes the new spec."""
     import yaml
 
-    spec_file = SweepLayout(sweep_dir(spec)).spec_file
-    if spec_file.exists():
+    from ps_ray.pipeline.trials import attempts
+
+    layout = SweepLayout(sweep_dir(spec))
+    spec_file = layout.spec_file
+    holds_work = (
+        attempts(layout.tune_train, "trial")
+        or attempts(layout.tune_plain, "trial")
+        or any(layout.anchors.glob("*.npz"))
+    )
+    if spec_file.exists() and holds_work:
         stored = SweepSpec.from_mapping(yaml.safe_load(spec_file.read_text()) or {}, where=str(spec_file))
         require_same(
             stored.training_identity(),
@@ -214,6 +223,7 @@ def run_sweep(spec: SweepSpec, *, resume: bool = False, progress: bool = True):
 
     from ps_ray.envs.registry import register
     from ps_ray.pipeline.trials import require_fresh
+    from ps_ray.pipeline.tune_tracking import default_key_fn
 
     root = sweep_dir(spec)
     spec_file = SweepLayout(root).spec_file
@@ -235,6 +245,8 @@ def run_sweep(spec: SweepSpec, *, resume: bool = False, progress: bool = True):
             [{"spec": s.to_dict(), "anchors": None} for s in sources],
             folder=SweepLayout(root).tune_plain,
             stage="anchors_plain",
+            # its own runs: the same plain spec may also be a trial of the grid
+            key_fn=lambda trial: "anchors_plain/" + default_key_fn(trial),
             **tune_args,
         )
         raise_on_errors(grid, "plain source policies")
@@ -307,6 +319,11 @@ def run_tune(
         artifacts_fn=_trial_artifacts,
         **({"key_fn": key_fn} if key_fn else {}),
         tags_fn=tags_fn,
+        # ps_ray's own iteration, restored with a checkpoint (Tune's restarts at 1 when a resumed
+        # stage relaunches a trial): a retried or relaunched trial re-reports the steps between
+        # its checkpoint and the kill, and the run keeps their first record
+        step_key="iteration",
+        once_per_step=True,
     )
     return run_trials(
         sweep_trial,

@@ -103,6 +103,7 @@ class MLflowTuneCallback(Callback):
         artifacts_fn: Callable[[Trial], list[Path]] | None = None,
         step_key: str = "training_iteration",
         flush_secs: float = 60.0,
+        once_per_step: bool = False,
     ) -> None:
         if flush_every < 1:
             raise ValueError(f"flush_every must be >= 1, got {flush_every}")
@@ -119,6 +120,7 @@ class MLflowTuneCallback(Callback):
         self.flush_secs = flush_secs
         self.artifacts_fn = artifacts_fn
         self.step_key = step_key
+        self.once_per_step = once_per_step
         self._trackers: dict[str, TrialTracker] = {}
         self._results: dict[str, int] = {}
         self._last_flush: dict[str, float] = {}
@@ -150,7 +152,7 @@ class MLflowTuneCallback(Callback):
                 params=self.params_fn(trial),
                 tags=tags,
                 client=self._client,
-                once_per_step=True,  # a trial retried or relaunched re-reports logged steps
+                once_per_step=self.once_per_step,
             )
             self._results[key] = 0
             self._last_flush[key] = time.monotonic()

@@ -179,12 +179,13 @@ def check_inputs(spec: SweepSpec) -> None:
 
     if spec.anchors.file and not Path(spec.anchors.file).is_file():
         raise UserError(f"anchors.file: {spec.anchors.file}: no such file")
-    checked = set()
-    for trial in spec.trials():
-        what = (trial.init_policy, trial.method, trial.interface_dim, trial.hidden, spec_text(trial.robot))
-        if trial.init_policy is not None and (what, spec_text(trial.task)) not in checked:
-            read_inputs(dataclasses.replace(trial, anchors=None))
-            checked.add((what, spec_text(trial.task)))
+    starts = {  # one check per distinct (policy file, what it must fit)
+        (t.init_policy, t.method, t.interface_dim, t.hidden, spec_text(t.robot), spec_text(t.task)): t
+        for t in spec.trials()
+        if t.init_policy is not None
+    }
+    for trial in starts.values():
+        read_inputs(dataclasses.replace(trial, anchors=None))
 
 
 def require_same_sweep(spec: SweepSpec) -> None:

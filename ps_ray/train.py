@@ -40,7 +40,7 @@ from ps_ray.run_layout import (
     SPEC_FILE,
 )
 
-PROGRESS_FILE = "progress.json"  # early-stop streak, so a resumed run stops where it would have
+PROGRESS_FILE = "progress.json"  # early-stop streak and best-so-far: a resumed run goes on as it would have
 METRIC_FIELDS = [
     "iteration",
     "env_steps",
@@ -49,6 +49,7 @@ METRIC_FIELDS = [
     "train_touching",
     "eval_success",
     "eval_touching",
+    "best_eval_success",
     "wall_s",
 ]
 
@@ -127,6 +128,7 @@ class TrainingRun:
         )
         self.start, self.start_steps = time.time(), 0
         self.streak = 0  # evaluations in a row at or above spec.target_success
+        self.best: float | None = None  # the best greedy success so far (kept across resumes)
         if spec.init_policy is not None:
             self.algo.load_policy_weights(spec.init_policy)
 
@@ -148,8 +150,12 @@ class TrainingRun:
         ours = result.get("ps_ray", {})
         row = {k: ours.get(k) for k in METRIC_FIELDS if k in ours}
         row.update(iteration=result["training_iteration"], wall_s=round(time.time() - self.start, 1))
-        if row.get("eval_success") is not None and self.spec.target_success is not None:
-            self.streak = self.streak + 1 if row["eval_success"] >= self.spec.target_success else 0
+        if row.get("eval_success") is not None:
+            self.best = max(self.best if self.best is not None else -1.0, row["eval_success"])
+            if self.spec.target_success is not None:
+                self.streak = self.streak + 1 if row["eval_success"] >= self.spec.target_success else 0
+        if self.best is not None:
+            row["best_eval_success"] = self.best
         return row
 
     def save(self, directory: Path) -> None:
@@ -162,7 +168,7 @@ class TrainingRun:
             json.dumps(dataclasses.asdict(self.signature), indent=2)
         )
         (Path(directory) / SPEC_FILE).write_text(json.dumps(self.spec.to_dict(), indent=2))
-        (Path(directory) / PROGRESS_FILE).write_text(json.dumps({"streak": self.streak}))
+        (Path(directory) / PROGRESS_FILE).write_text(json.dumps({"streak": self.streak, "best": self.best}))
         checkpoint.seal(directory)
 
     def restore(self, directory: Path) -> None:
@@ -172,7 +178,9 @@ class TrainingRun:
         self.start_steps = self.env_steps
         progress = Path(directory) / PROGRESS_FILE
         if progress.is_file():
-            self.streak = int(json.loads(progress.read_text()).get("streak", 0))
+            state = json.loads(progress.read_text())
+            self.streak = int(state.get("streak", 0))
+            self.best = None if state.get("best") is None else float(state["best"])
 
     def final_eval(self) -> dict[str, float]:
         return self.algo.evaluate_greedy(self.spec.eval_episodes * 2)
@@ -320,7 +328,9 @@ def _train(spec: TrainSpec, run_dir: Path, given, progress: bool) -> dict[str, A
             print(f"[{spec.label()}] resumed at {run.env_steps} env steps", flush=True)
     _metrics_up_to(run_dir, run.env_steps)
     row: dict[str, Any] = {}
-    best = _best_so_far(run_dir)
+    best = _best_so_far(run_dir)  # the best policy file may be newer than the checkpoint
+    if best >= 0:
+        run.best = max(best, run.best if run.best is not None else best)
     with open(run_dir / METRICS_FILE, "a", newline="") as f:
         writer = csv.DictWriter(f, METRIC_FIELDS)
         if f.tell() == 0:

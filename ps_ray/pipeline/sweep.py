@@ -22,7 +22,15 @@ from ps_ray.pipeline.layout import SweepLayout
 from ps_ray.run_layout import POLICY_FILE, SIGNATURE_FILE, SPEC_FILE
 from ps_ray.sweep_spec import SweepSpec
 
-METRIC_KEYS = ("env_steps", "updates", "train_success", "train_touching", "eval_success", "eval_touching")
+METRIC_KEYS = (
+    "env_steps",
+    "updates",
+    "train_success",
+    "train_touching",
+    "eval_success",
+    "eval_touching",
+    "best_eval_success",
+)
 
 
 def layout(spec: SweepSpec) -> SweepLayout:

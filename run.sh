@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Set-up and entry points for a fresh machine; each command installs what it needs first.
 #   ./run.sh smoke   the whole smoke pipeline on 2 CPUs (train, zero-shot, few-shot, report; MLflow)
-#   ./run.sh test    the test suite (slow learning checks included; add -m "not slow" to skip)
+#   ./run.sh test    the test suite (slow learning checks included; add -m "not slow" to skip),
+#                    in two pytest-xdist workers, a test file each at a time (-n 0: one process)
 #                    it also installs Debian's chromium (headless screenshot of the report)
 #   ./run.sh lint    ruff: lint and format check (configured in pyproject.toml)
 #   ./run.sh setup   only create .venv and install ps_ray
@@ -49,7 +50,9 @@ case "$cmd" in
   test)
     setup
     browser
-    "$VENV/bin/python" -m pytest -q --durations=15 "$@"
+    # Two workers keep both cores busy: much of a test is process start-up, I/O and waiting for
+    # a subprocess, and one file's module-scoped fixtures stay in one worker (--dist loadfile).
+    "$VENV/bin/python" -m pytest -q -n 2 --dist loadfile --durations=15 "$@"
     ;;
   *)
     echo "usage: ./run.sh smoke|test|lint|setup [args]" >&2

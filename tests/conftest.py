@@ -165,3 +165,12 @@ def visible_text():
     """The text of a page (file or URL) in headless Chromium once its scripts ran: what a person
     reads."""
     return _visible_text
+
+
+# The heaviest modules first: under `pytest -n 2` the longest one starts at once instead of last.
+HEAVY_FIRST = ("test_pipeline.py", "test_sweep.py", "test_train.py", "test_checkpoint.py", "test_rllib.py")
+
+
+def pytest_collection_modifyitems(items):
+    rank = {name: i for i, name in enumerate(HEAVY_FIRST)}
+    items.sort(key=lambda item: rank.get(item.path.name, len(rank)))

@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import base64
+import contextlib
 import dataclasses
 import hashlib
 import os
@@ -23,9 +24,10 @@ import pandas as pd
 import PIL.Image
 import pytest
 
-from ps_ray.analysis.browser import find_chromium, screenshot
+from ps_ray.analysis.browser import find_chromium
 from ps_ray.checkpoint import latest as latest_checkpoint
 from ps_ray.pipeline.cost import workload
+from ps_ray.pipeline.layout import SweepLayout
 from ps_ray.pipeline.run import stage_state
 from ps_ray.sweep_spec import load_sweep
 
@@ -35,25 +37,57 @@ FIGURES = {"training_curves", "heatmap_seeds_i16", "heatmap_robots_i16", "zero_s
 }
 
 
+def _two_checkpoints(root: Path) -> bool:
+    """Tune's checkpoint rotation is under way in a trial folder: the new checkpoint is there and
+    the old one not yet deleted (about 12 ms per rotation at smoke sizes)."""
+    for trial in (root / "tune").glob("*/"):
+        with contextlib.suppress(FileNotFoundError):
+            if sum(e.name.startswith("checkpoint_") for e in os.scandir(trial)) >= 2:
+                return True
+    return False
+
+
 # Moments at which the fixture SIGKILLs `ps-ray run` (driver and the Ray processes it started):
-# (stage under way, the sign that it is, seconds to wait after the sign).
+# (name, the sign that the moment has come, seconds to wait after the sign, seconds between looks).
 KILLS = (
-    # a checkpoint with every file there (Tune copies one file by file, its manifest may come first)
-    ("train", lambda root: latest_checkpoint(list(root.glob("tune/*/checkpoint_*"))) is not None, 0.0),
-    ("zero_shot", lambda root: (root / "stages" / "zero_shot.started.json").exists(), 8.0),
-    ("report", lambda root: (root / "stages" / "report.started.json").exists(), 1.0),
+    # during training, once a checkpoint has every file (Tune copies one file by file)
+    ("train", lambda root: latest_checkpoint(list(root.glob("tune/*/checkpoint_*"))) is not None, 0.0, 0.2),
+    ("checkpoint rotation", _two_checkpoints, 0.0, 0.001),
+    ("zero_shot", lambda root: (root / "stages" / "zero_shot.started.json").exists(), 8.0, 0.2),
+    ("few_shot", lambda root: any(SweepLayout(root).tune_few_shot.glob("*/result.json")), 1.0, 0.2),
+    ("report", lambda root: (root / "stages" / "report.started.json").exists(), 1.0, 0.2),
 )
+
+
+def _kill_at(run: subprocess.Popen, root: Path, moment: str, sign, delay: float, look: float) -> None:
+    """Wait for ``sign``, then freeze the run's process group (SIGSTOP), confirm the moment still
+    holds, and SIGKILL it; a moment that passed while freezing (a rotation can) is waited for again."""
+    deadline = time.time() + 1200
+    while True:
+        assert run.poll() is None, f"the run ended before its {moment} kill"
+        assert time.time() < deadline, f"the {moment} moment did not come in time"
+        if sign(root):
+            time.sleep(delay)
+            os.killpg(run.pid, signal.SIGSTOP)
+            time.sleep(0.1)  # anything the stop caught mid-step would have shown by now
+            if run.poll() is None and sign(root):
+                break
+            os.killpg(run.pid, signal.SIGCONT)
+        time.sleep(look)
+    os.killpg(run.pid, signal.SIGKILL)
+    run.wait()
+    assert sign(root), f"the {moment} moment passed before the kill"
 
 
 @pytest.fixture(scope="module")
 def smoke(tmp_path_factory, cli, planted):
-    """The smoke pipeline, SIGKILLed during training, during zero-shot and during the report,
-    rerun after each kill, and finished by a last run after hostile pickles were planted wherever
-    Tune, RLlib or ps_ray might look. Returns (spec, root, the output of every run in order)."""
+    """The smoke pipeline, SIGKILLed at each of KILLS' moments, rerun after each kill, and finished
+    by a last run after hostile pickles were planted wherever Tune, RLlib or ps_ray might look.
+    Returns (spec, root, the output of every run in order)."""
     storage = tmp_path_factory.mktemp("pipeline") / "sweeps"
     root = storage / "smoke"
     outs = []
-    for number, (stage, under_way, delay) in enumerate(KILLS):
+    for number, (moment, sign, delay, look) in enumerate(KILLS):
         log = storage.parent / f"run_{number}.log"
         with log.open("w") as sink:  # a file, not a pipe nobody reads while waiting (it would fill)
             run = subprocess.Popen(
@@ -62,17 +96,10 @@ def smoke(tmp_path_factory, cli, planted):
                 stderr=subprocess.STDOUT,
                 start_new_session=True,
             )
-            deadline = time.time() + 1200
-            while not under_way(root):
-                assert run.poll() is None, (
-                    f"run {number} ended before its {stage} kill: {log.read_text()[-3000:]}"
-                )
-                assert time.time() < deadline, f"the {stage} stage did not get under way in time"
-                time.sleep(0.2)
-            time.sleep(delay)
-            assert run.poll() is None, f"the {stage} stage finished before it could be killed"
-            os.killpg(run.pid, signal.SIGKILL)
-            run.wait()
+            try:
+                _kill_at(run, root, moment, sign, delay, look)
+            except AssertionError as e:
+                raise AssertionError(f"run {number}: {e}: {log.read_text()[-3000:]}") from None
         outs.append(log.read_text())
     for place in [
         root,
@@ -99,26 +126,40 @@ def _runs(root: Path, stage: str):
     ]
 
 
-def test_a_pipeline_killed_at_three_moments_resumes_without_redoing_finished_work(smoke):
-    spec, root, (killed_in_train, killed_in_zero_shot, killed_in_report, last) = smoke
-    assert "[1/4] train: starting" in killed_in_train
-    assert (
-        "[1/4] train: resuming" in killed_in_zero_shot and "[2/4] zero_shot: starting" in killed_in_zero_shot
-    )
-    assert "[1/4] train: done earlier, skipped (16 training trials)" in killed_in_report
-    assert "[2/4] zero_shot: resuming" in killed_in_report and "[3/4] few_shot: starting" in killed_in_report
+def test_a_pipeline_killed_at_five_moments_resumes_without_redoing_finished_work(smoke):
+    spec, root, (in_train, in_rotation, in_zero_shot, in_few_shot, in_report, last) = smoke
+    assert "[1/4] train: starting" in in_train and "[1/4] train: resuming" in in_rotation
+    assert "[1/4] train: resuming" in in_zero_shot and "[2/4] zero_shot: starting" in in_zero_shot
+    assert "[1/4] train: done earlier, skipped (16 training trials)" in in_few_shot
+    assert "[2/4] zero_shot: resuming" in in_few_shot and "[3/4] few_shot: starting" in in_few_shot
+    assert "[3/4] few_shot: resuming" in in_report and "[4/4] report: starting" in in_report
     assert "[3/4] few_shot: done earlier, skipped" in last
     assert "[4/4] report: resuming" in last and "[4/4] report: done" in last
     assert f"report: {root / 'report' / 'index.html'}" in last
+    from ps_ray.pipeline.trials import FINISHED, attempts, checkpoint_dirs, merged_rows, read_rows
+
+    layout = SweepLayout(root)  # every trial of every stage finished exactly once
+    for folder, key, count in [
+        (layout.tune_train, "trial", 16),
+        (layout.tune_zero_shot, "pair", 16),
+        (layout.tune_few_shot, "trial", 4),
+    ]:
+        found = attempts(folder, key)
+        assert len(found) == count, folder
+        for tries in found.values():
+            assert sum(bool(read_rows(t)) and bool(read_rows(t)[-1].get(FINISHED)) for t in tries) == 1
+    for tries in attempts(layout.tune_train, "trial").values():  # best-so-far never fell
+        best = [r["best_eval_success"] for r in merged_rows(tries) if "best_eval_success" in r]
+        assert best and best == sorted(best), best
     train_runs = _runs(root, "train")
     assert len(train_runs) == 16  # one MLflow run per trial, none duplicated
     client = mlflow.MlflowClient(f"sqlite:///{root / 'mlflow.db'}")
     for run in train_runs:  # a trial cut short resumed from its checkpoint: no step logged twice
         steps = [m.step for m in client.get_metric_history(run.info.run_id, "env_steps")]
         assert len(steps) == len(set(steps)) and run.data.metrics["env_steps"] >= 1500, run.info.run_name
-    # and the trials cut short by the kill were relaunched from their checkpoints, not from scratch
-    from ps_ray.pipeline.trials import attempts, checkpoint_dirs, read_rows
-
+        best = sorted(client.get_metric_history(run.info.run_id, "best_eval_success"), key=lambda m: m.step)
+        assert best and [m.value for m in best] == sorted(m.value for m in best), run.info.run_name
+    # and the trials cut short by the kills were relaunched from their checkpoints, not from scratch
     relaunched = [  # later attempts of trials whose earlier attempts left a verified checkpoint
         later
         for folders in attempts(root / "tune", "trial").values()
@@ -130,10 +171,11 @@ def test_a_pipeline_killed_at_three_moments_resumes_without_redoing_finished_wor
     from ps_ray.pipeline.zero_shot import pairs
 
     tables = root / "report" / "tables"
-    assert set(pd.read_csv(tables / "training_sources.csv")["run"]) == {t.label() for t in spec.trials()}
-    expected = {(p["method"], p["label"]) for p in pairs(spec)}
+    sources = pd.read_csv(tables / "training_sources.csv")["run"]
+    assert sorted(sources) == sorted(t.label() for t in spec.trials())  # each once
+    expected = {(p["method"], p["label"]) for p in pairs(spec)}  # a row per pair, over its seeds
     zero_shot = pd.read_csv(tables / "zero_shot.csv")
-    assert set(zip(zero_shot["method"], zero_shot["label"])) == expected
+    assert sorted(zip(zero_shot["method"], zero_shot["label"])) == sorted(expected)
     assert (zero_shot["seeds"] == len(spec.seeds)).all()
     assert len(_runs(root, "zero_shot")) == 16
     assert len(_runs(root, "few_shot")) == 4  # one stitched pair per method + their scratch runs
@@ -242,16 +284,40 @@ def _digests(folder: Path) -> dict[str, str]:
     }
 
 
-def test_report_command_is_idempotent(cli, smoke):
+@pytest.fixture(scope="module")
+def rebuilt(smoke, cli, planted, tmp_path_factory):
+    """The smoke report rebuilt twice over the planted pickles: by ``build_report`` in a process
+    that then says whether Ray was imported, and by ``ps-ray report --screenshot``. Returns (what
+    the first process printed last, the report's file digests after each build, the screenshot)."""
+    spec, root, _ = smoke
+    code = (
+        "import sys, dataclasses; from ps_ray.sweep_spec import load_sweep; "
+        "from ps_ray.analysis.report import build_report; "
+        f"spec = dataclasses.replace(load_sweep({str(SMOKE)!r}), storage={spec.storage!r}); "
+        "build_report(spec, progress=False); print('ray' in sys.modules)"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr[-3000:]
+    first = _digests(root / "report")
+    shot = tmp_path_factory.mktemp("screenshot") / "report.png"
+    proc = cli("report", str(root), "--screenshot", str(shot))
+    out, _ = proc.communicate(timeout=600)
+    assert proc.returncode == 0, out[-3000:]
+    assert f"screenshot: {shot}" in out
+    assert not planted.marker.exists(), "a planted pickle was loaded"
+    return done.stdout.split()[-1], (first, _digests(root / "report")), shot
+
+
+def test_building_and_logging_a_report_never_loads_ray(rebuilt):
+    ray_imported, _, _ = rebuilt
+    assert ray_imported == "False"
+
+
+def test_report_command_is_idempotent(smoke, rebuilt):
     _, root, _ = smoke
-    outputs = []
-    for _ in range(2):
-        proc = cli("report", str(root))
-        out, _ = proc.communicate(timeout=300)
-        assert proc.returncode == 0, out[-3000:]
-        outputs.append(_digests(root / "report"))
-    assert outputs[0] == outputs[1]
-    assert {"index.html", "interfaces.safetensors", "tables/zero_shot.csv"} <= set(outputs[0])
+    _, (first, second), _ = rebuilt
+    assert first == second
+    assert {"index.html", "interfaces.safetensors", "tables/zero_shot.csv"} <= set(first)
     assert len(_runs(root, "report")) == 1  # the same MLflow run, rebuilt
     client = mlflow.MlflowClient(f"sqlite:///{root / 'mlflow.db'}")
     logged = {a.path for a in client.list_artifacts(_runs(root, "report")[0].info.run_id)}
@@ -268,13 +334,10 @@ def test_report_of_a_folder_that_is_not_a_sweep_fails_with_one_line(cli, tmp_pat
     )
 
 
-def test_report_opens_in_headless_chromium(cli, smoke, tmp_path, visible_text):
+def test_report_opens_in_headless_chromium(smoke, rebuilt, visible_text):
     _, root, _ = smoke
+    _, _, shot = rebuilt
     assert find_chromium(), "Chromium is needed for this check (./run.sh test installs it)"
-    shot = tmp_path / "report.png"
-    proc = cli("report", str(root), "--no-mlflow", "--screenshot", str(shot))
-    out, _ = proc.communicate(timeout=300)
-    assert proc.returncode == 0, out[-3000:]
     pixels = matplotlib.image.imread(shot)[..., :3]
     assert pixels.shape[1] == 1280
     ink = (pixels < 0.9).any(-1).mean()
@@ -289,26 +352,13 @@ def test_report_opens_in_headless_chromium(cli, smoke, tmp_path, visible_text):
     assert text.index("near zero by design") < text.index("Headline per method")
 
 
-def test_building_and_logging_a_report_never_loads_ray(smoke):
-    spec, _, _ = smoke
-    code = (
-        "import sys, dataclasses; from ps_ray.sweep_spec import load_sweep; "
-        "from ps_ray.analysis.report import build_report; "
-        f"spec = dataclasses.replace(load_sweep({str(SMOKE)!r}), storage={spec.storage!r}); "
-        "build_report(spec, progress=False); print('ray' in sys.modules)"
-    )
-    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=600)
-    assert done.returncode == 0, done.stderr[-3000:]
-    assert done.stdout.split()[-1] == "False"
-
-
 def _free_port() -> int:
     with socket.socket() as sock:
         sock.bind(("127.0.0.1", 0))
         return sock.getsockname()[1]
 
 
-def test_mlflow_ui_lists_the_runs_and_the_report_artifact(smoke, tmp_path, visible_text):
+def test_mlflow_ui_lists_the_runs_and_the_report_artifact(smoke, visible_text):
     """`mlflow ui` as the README says to open it, read in headless Chromium."""
     _, root, _ = smoke
     assert find_chromium(), "Chromium is needed for this check (./run.sh test installs it)"
@@ -346,10 +396,6 @@ def test_mlflow_ui_lists_the_runs_and_the_report_artifact(smoke, tmp_path, visib
         assert f"{len(runs)} matching runs" in listing
         for stage in ("report", "zero_shot/ps/", "few_shot/", "scratch/ps/"):
             assert stage in listing, stage
-        shot = screenshot(
-            f"{base}/#/experiments/{experiment}/runs", tmp_path / "mlflow.png", height=900, wait_ms=20_000
-        )
-        assert (matplotlib.image.imread(shot)[..., :3] < 0.5).any(-1).mean() > 0.01  # drawn, not blank
         report_run = next(r for r in runs if r.data.tags.get("ps_ray.stage") == "report")
         artifacts = visible_text(f"{base}/#/experiments/{experiment}/runs/{report_run.info.run_id}/artifacts")
         for name in ("index.html", "figures", "tables", "runs.json"):
@@ -376,7 +422,8 @@ def test_report_of_a_renamed_sweep_folder_fails_with_one_line(cli, tmp_path):
 def test_no_entry_point_runs_the_pickles_planted_in_the_sweep_folder(smoke, cli, planted, tmp_path):
     """The smoke folder still holds the fixture's hostile pickles (in the sweep folder, every Tune
     folder, trial folder and checkpoint, and the anchors): every command that reads it succeeds
-    and none loads them. (`run` and `sweep --resume` are checked by the fixture and test_sweep.)"""
+    and none loads them. (`run` and `sweep --resume` are checked by the fixture and test_sweep,
+    `report` by the rebuilt fixture.)"""
     from ps_ray.names import spec_text
     from ps_ray.zoo import ModuleZoo
 
@@ -390,7 +437,6 @@ def test_no_entry_point_runs_the_pickles_planted_in_the_sweep_folder(smoke, cli,
     commands = [
         ("zero-shot", str(SMOKE), "--storage", storage, "--resume"),
         ("few-shot", str(SMOKE), "--storage", storage, "--resume"),
-        ("report", str(root), "--no-mlflow"),
         (
             "stitch",
             "--sweep",

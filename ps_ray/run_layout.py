@@ -9,3 +9,16 @@ POLICY_FILE = "policy.safetensors"  # the latest policy (also inside every check
 SIGNATURE_FILE = "signature.json"  # the policy's interface signature, inside every checkpoint
 BEST_POLICY_FILE = "best_policy.safetensors"  # the best greedy evaluation so far
 METRICS_FILE = "metrics.csv"  # one row per training step
+
+# The columns of metrics.csv, one row per training step (also the keys of a sweep trial's results)
+METRIC_FIELDS = (
+    "iteration",
+    "env_steps",
+    "updates",
+    "train_success",
+    "train_touching",
+    "eval_success",
+    "eval_touching",
+    "best_eval_success",  # the best greedy success so far, kept across resumes
+    "wall_s",
+)

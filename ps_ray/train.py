@@ -34,6 +34,7 @@ from ps_ray.run_layout import (
     ANCHORS_FILE,
     BEST_POLICY_FILE,
     CHECKPOINT_DIR,
+    METRIC_FIELDS,
     METRICS_FILE,
     POLICY_FILE,
     SIGNATURE_FILE,
@@ -41,17 +42,6 @@ from ps_ray.run_layout import (
 )
 
 PROGRESS_FILE = "progress.json"  # early-stop streak and best-so-far: a resumed run goes on as it would have
-METRIC_FIELDS = [
-    "iteration",
-    "env_steps",
-    "updates",
-    "train_success",
-    "train_touching",
-    "eval_success",
-    "eval_touching",
-    "best_eval_success",
-    "wall_s",
-]
 
 
 def make_env(spec: TrainSpec):

@@ -37,46 +37,51 @@ FIGURES = {"training_curves", "heatmap_seeds_i16", "heatmap_robots_i16", "zero_s
 }
 
 
-def _two_checkpoints(root: Path) -> bool:
-    """Tune's checkpoint rotation is under way in a trial folder: the new checkpoint is there and
-    the old one not yet deleted (about 12 ms per rotation at smoke sizes)."""
+def _two_checkpoints(root: Path, since: float) -> bool:
+    """Tune's checkpoint rotation is under way in a trial folder of this run (started after
+    ``since``): the new checkpoint is there and the old one not yet deleted (about 12 ms per
+    rotation at smoke sizes). A folder left so by an earlier run's kill does not count."""
     for trial in (root / "tune").glob("*/"):
         with contextlib.suppress(FileNotFoundError):
+            if (trial / "params.json").stat().st_mtime < since:
+                continue
             if sum(e.name.startswith("checkpoint_") for e in os.scandir(trial)) >= 2:
                 return True
     return False
 
 
 # Moments at which the fixture SIGKILLs `ps-ray run` (driver and the Ray processes it started):
-# (name, the sign that the moment has come, seconds to wait after the sign, seconds between looks).
+# (name, the sign that the moment has come (the sweep folder, when this run started), seconds to
+# wait after the sign, seconds between looks).
 KILLS = (
     # during training, once a checkpoint has every file (Tune copies one file by file)
-    ("train", lambda root: latest_checkpoint(list(root.glob("tune/*/checkpoint_*"))) is not None, 0.0, 0.2),
+    ("train", lambda root, _: latest_checkpoint(list(root.glob("tune/*/checkpoint_*"))) is not None, 0, 0.2),
     ("checkpoint rotation", _two_checkpoints, 0.0, 0.001),
-    ("zero_shot", lambda root: (root / "stages" / "zero_shot.started.json").exists(), 8.0, 0.2),
-    ("few_shot", lambda root: any(SweepLayout(root).tune_few_shot.glob("*/result.json")), 1.0, 0.2),
-    ("report", lambda root: (root / "stages" / "report.started.json").exists(), 1.0, 0.2),
+    ("zero_shot", lambda root, _: (root / "stages" / "zero_shot.started.json").exists(), 8.0, 0.2),
+    ("few_shot", lambda root, _: any(SweepLayout(root).tune_few_shot.glob("*/result.json")), 1.0, 0.2),
+    ("report", lambda root, _: (root / "stages" / "report.started.json").exists(), 1.0, 0.2),
 )
 
 
 def _kill_at(run: subprocess.Popen, root: Path, moment: str, sign, delay: float, look: float) -> None:
     """Wait for ``sign``, then freeze the run's process group (SIGSTOP), confirm the moment still
     holds, and SIGKILL it; a moment that passed while freezing (a rotation can) is waited for again."""
-    deadline = time.time() + 1200
+    since = time.time() - 1.0  # the run was started just before (file times are coarse)
+    deadline = since + 1200
     while True:
         assert run.poll() is None, f"the run ended before its {moment} kill"
         assert time.time() < deadline, f"the {moment} moment did not come in time"
-        if sign(root):
+        if sign(root, since):
             time.sleep(delay)
             os.killpg(run.pid, signal.SIGSTOP)
             time.sleep(0.1)  # anything the stop caught mid-step would have shown by now
-            if run.poll() is None and sign(root):
+            if run.poll() is None and sign(root, since):
                 break
             os.killpg(run.pid, signal.SIGCONT)
         time.sleep(look)
     os.killpg(run.pid, signal.SIGKILL)
     run.wait()
-    assert sign(root), f"the {moment} moment passed before the kill"
+    assert sign(root, since), f"the {moment} moment passed before the kill"
 
 
 @pytest.fixture(scope="module")
@@ -285,39 +290,39 @@ def _digests(folder: Path) -> dict[str, str]:
 
 
 @pytest.fixture(scope="module")
-def rebuilt(smoke, cli, planted, tmp_path_factory):
-    """The smoke report rebuilt twice over the planted pickles: by ``build_report`` in a process
-    that then says whether Ray was imported, and by ``ps-ray report --screenshot``. Returns (what
-    the first process printed last, the report's file digests after each build, the screenshot)."""
-    spec, root, _ = smoke
-    code = (
-        "import sys, dataclasses; from ps_ray.sweep_spec import load_sweep; "
-        "from ps_ray.analysis.report import build_report; "
-        f"spec = dataclasses.replace(load_sweep({str(SMOKE)!r}), storage={spec.storage!r}); "
-        "build_report(spec, progress=False); print('ray' in sys.modules)"
-    )
-    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=600)
-    assert done.returncode == 0, done.stderr[-3000:]
-    first = _digests(root / "report")
+def rebuilt(smoke, planted, tmp_path_factory):
+    """`ps-ray report --screenshot` over the finished smoke folder (planted pickles included), run
+    with ``python -X importtime``, which lists every module the command imported. Returns (those
+    modules, the report's file digests before and after, the screenshot)."""
+    _, root, _ = smoke
+    before = _digests(root / "report")
     shot = tmp_path_factory.mktemp("screenshot") / "report.png"
-    proc = cli("report", str(root), "--screenshot", str(shot))
-    out, _ = proc.communicate(timeout=600)
-    assert proc.returncode == 0, out[-3000:]
-    assert f"screenshot: {shot}" in out
+    command = ["-m", "ps_ray.cli", "report", str(root), "--screenshot", str(shot)]
+    done = subprocess.run(
+        [sys.executable, "-X", "importtime", *command],
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+    assert done.returncode == 0, done.stdout[-3000:]
+    assert f"screenshot: {shot}" in done.stdout
     assert not planted.marker.exists(), "a planted pickle was loaded"
-    return done.stdout.split()[-1], (first, _digests(root / "report")), shot
+    timings = [line for line in done.stderr.splitlines() if line.startswith("import time:")]
+    imported = {line.rsplit("|", 1)[-1].strip() for line in timings}
+    assert "ps_ray.analysis.report" in imported and "mlflow" in imported
+    return imported, (before, _digests(root / "report")), shot
 
 
 def test_building_and_logging_a_report_never_loads_ray(rebuilt):
-    ray_imported, _, _ = rebuilt
-    assert ray_imported == "False"
+    imported, _, _ = rebuilt
+    assert not [m for m in imported if m == "ray" or m.startswith("ray.")]
 
 
 def test_report_command_is_idempotent(smoke, rebuilt):
     _, root, _ = smoke
-    _, (first, second), _ = rebuilt
-    assert first == second
-    assert {"index.html", "interfaces.safetensors", "tables/zero_shot.csv"} <= set(first)
+    _, (built_by_run, rebuilt_by_report), _ = rebuilt
+    assert built_by_run == rebuilt_by_report  # the same bytes, file by file
+    assert {"index.html", "interfaces.safetensors", "tables/zero_shot.csv"} <= set(built_by_run)
     assert len(_runs(root, "report")) == 1  # the same MLflow run, rebuilt
     client = mlflow.MlflowClient(f"sqlite:///{root / 'mlflow.db'}")
     logged = {a.path for a in client.list_artifacts(_runs(root, "report")[0].info.run_id)}

@@ -19,18 +19,11 @@ from ps_ray.config import TrainSpec, require_same
 from ps_ray.names import parse_spec_text, spec_text
 from ps_ray.nets.modular import uses_anchors
 from ps_ray.pipeline.layout import SweepLayout
-from ps_ray.run_layout import POLICY_FILE, SIGNATURE_FILE, SPEC_FILE
+from ps_ray.run_layout import METRIC_FIELDS, POLICY_FILE, SIGNATURE_FILE, SPEC_FILE
 from ps_ray.sweep_spec import SweepSpec
 
-METRIC_KEYS = (
-    "env_steps",
-    "updates",
-    "train_success",
-    "train_touching",
-    "eval_success",
-    "eval_touching",
-    "best_eval_success",
-)
+# What each training result sends to MLflow: the metrics.csv columns but the step and the clock.
+METRIC_KEYS = tuple(k for k in METRIC_FIELDS if k not in ("iteration", "wall_s"))
 
 
 def layout(spec: SweepSpec) -> SweepLayout:

@@ -162,8 +162,6 @@ def test_a_pipeline_killed_at_five_moments_resumes_without_redoing_finished_work
     for run in train_runs:  # a trial cut short resumed from its checkpoint: no step logged twice
         steps = [m.step for m in client.get_metric_history(run.info.run_id, "env_steps")]
         assert len(steps) == len(set(steps)) and run.data.metrics["env_steps"] >= 1500, run.info.run_name
-        best = sorted(client.get_metric_history(run.info.run_id, "best_eval_success"), key=lambda m: m.step)
-        assert best and [m.value for m in best] == sorted(m.value for m in best), run.info.run_name
     # and the trials cut short by the kills were relaunched from their checkpoints, not from scratch
     relaunched = [  # later attempts of trials whose earlier attempts left a verified checkpoint
         later

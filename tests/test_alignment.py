@@ -298,12 +298,12 @@ def test_norm_penalty_acts_only_on_the_embedding_length():
         assert x.shape[0] == 12
         return torch.cat([z, z_anchors])
 
-    (grad_penalty,) = torch.autograd.grad(projection.norm_penalty(encoder, torch.randn(4, 15)), z)
+    (grad_penalty,) = torch.autograd.grad(projection.penalty(encoder, torch.randn(4, 15)), z)
     cosine = torch.nn.functional.cosine_similarity(grad_penalty, z, dim=-1)
     assert torch.allclose(cosine, torch.ones(4), atol=1e-5)  # radial, shrinking |z| = 5·sqrt(6) > 1
 
     # zero without norm_reg; a variant without the penalty adds nothing to the SAC loss
-    assert RelativeProjection(anchors).norm_penalty(encoder, torch.randn(4, 15)).item() == 0.0
+    assert RelativeProjection(anchors).penalty(encoder, torch.randn(4, 15)).item() == 0.0
 
 
 def test_norm_penalty_holds_the_embedding_length_in_training():

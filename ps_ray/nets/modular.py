@@ -71,6 +71,7 @@ METHODS: dict[str, MethodSpec] = {
         _ps("ps_scaled", scale=4.0),
         _ps("ps_normreg", norm_reg=1.0),
         _ps("ps_normreg_ln", norm_reg=1.0, norm="layer"),
+        _ps("ps_ref", norm_reg=1.0, norm="layer", ref_weight=1.0),
         MethodSpec("ablation", None, modular=True, interface_dim=None, dropout=0.0),
         MethodSpec("devin", None, modular=True, interface_dim=16, dropout=0.25),
         MethodSpec("devin_large", None, modular=True, interface_dim=None, dropout=0.25),
@@ -150,11 +151,12 @@ class TaskModule(nn.Module):
     def update_norm(self, task_in: Tensor, robot_in: Tensor) -> None:
         self.norm.update(task_in if self.spec.modular else torch.cat([task_in, robot_in], -1))
 
-    def norm_penalty(self, task_in: Tensor) -> Tensor:
-        """The relative projection's embedding-norm penalty (zero for other methods)."""
+    def penalty(self, task_in: Tensor) -> Tensor:
+        """The relative projection's penalties (RelativeSpec.norm_reg, ref_weight; zero for other
+        methods)."""
         if self.relative is None:
             return task_in.new_zeros(())
-        return self.relative.norm_penalty(self.encode, task_in)
+        return self.relative.penalty(self.encode, task_in)
 
 
 def _relative_projection(

@@ -17,6 +17,7 @@ from torch import Tensor, nn
 REL_NORMS = ("none", "layer")
 CENTERINGS = ("none", "mean", "standard")
 SCALE_EPS = 1e-6
+REF_STD_FLOOR = 1e-2  # task inputs are metres, radians and their rates: 1 cm is "no spread"
 
 
 @dataclass(frozen=True)
@@ -40,6 +41,12 @@ class RelativeSpec:
       z and every optimiser step lengthens z; the direction's effective learning rate falls as
       1/|z| (measured: |z| grows 54x in 16k env steps of PS on reach). The penalty's gradient is
       radial, so it holds |z| near 1 without changing what the interface computes.
+    - ``ref_weight``: weight of a penalty mean(1 - cos) between the interface and a fixed
+      reference interface of the *input*: Gaussian-kernel similarities of the anchor-standardised
+      task input to the anchors (:func:`input_reference`), post-processed like the interface. The
+      reference is a function of the anchors only, so every source that shares the anchor set is
+      pulled to the same interface, whatever its robot, seed or training data; it is applied on
+      the batch's states and on the anchors, which span the tasks the anchors were drawn from.
     """
 
     center: str = "none"
@@ -47,6 +54,7 @@ class RelativeSpec:
     scale: float = 1.0
     anchor_grad: bool = True
     norm_reg: float = 0.0
+    ref_weight: float = 0.0
 
     def __post_init__(self) -> None:
         if self.center not in CENTERINGS:
@@ -57,9 +65,22 @@ class RelativeSpec:
             raise ValueError(f"relative scale must be positive, got {self.scale!r}")
         if not self.norm_reg >= 0:
             raise ValueError(f"norm_reg must be >= 0, got {self.norm_reg!r}")
+        if not self.ref_weight >= 0:
+            raise ValueError(f"ref_weight must be >= 0, got {self.ref_weight!r}")
 
 
 PAPER = RelativeSpec()  # the authors' projection: cosine only, gradients through the anchors
+
+
+def input_reference(x: Tensor, anchors: Tensor) -> Tensor:
+    """The reference interface of raw task inputs x (B x task_dim) against K anchors: Gaussian
+    kernel similarities exp(-d^2 / 2 s^2) in the space standardised by the anchors' per-dimension
+    mean and std (std floored at REF_STD_FLOOR), with s^2 the median squared distance between
+    anchors. A fixed function of the anchors: no parameters, no data statistics."""
+    mean, std = anchors.mean(0), anchors.std(0, unbiased=False).clamp_min(REF_STD_FLOOR)
+    a, x = (anchors - mean) / std, (x - mean) / std
+    bandwidth = torch.cdist(a, a).pow(2).median().clamp_min(SCALE_EPS)
+    return torch.exp(-torch.cdist(x, a).pow(2) / (2 * bandwidth))
 
 
 class AnchorReference(NamedTuple):
@@ -118,7 +139,9 @@ class RelativeProjection(nn.Module):
             z = z - ref.mean
         if ref.std is not None:
             z = z / ref.std
-        rel = F.normalize(z, dim=-1) @ ref.directions.T
+        return self._post(F.normalize(z, dim=-1) @ ref.directions.T)
+
+    def _post(self, rel: Tensor) -> Tensor:
         if self.spec.norm == "layer":
             rel = F.layer_norm(rel, rel.shape[-1:])
         return rel * self.spec.scale if self.spec.scale != 1.0 else rel
@@ -138,14 +161,25 @@ class RelativeProjection(nn.Module):
                 z_a = encoder(anchors)
         return self.project(z_x, self.reference(z_a)).reshape(*lead, self.num_anchors)
 
-    def norm_penalty(self, encoder: Callable[[Tensor], Tensor], x: Tensor) -> Tensor:
-        """``norm_reg`` x mean(log(|z|)^2) over the embeddings of ``x`` and of the anchors (a scalar;
-        zero when ``norm_reg`` is 0)."""
-        if not self.spec.norm_reg:
-            return x.new_zeros(())
-        flat = torch.cat([x.reshape(-1, x.shape[-1]), self.anchors.to(x.dtype)], 0)
-        lengths = encoder(flat).norm(dim=-1).clamp_min(1e-12)
-        return self.spec.norm_reg * lengths.log().pow(2).mean()
+    def penalty(self, encoder: Callable[[Tensor], Tensor], x: Tensor) -> Tensor:
+        """The spec's penalties on the states ``x`` and the anchors (a scalar; zero when neither
+        ``norm_reg`` nor ``ref_weight`` is set): ``norm_reg`` x mean(log(|z|)^2) over their
+        embeddings, plus ``ref_weight`` x mean(1 - cos) between their interface and the input
+        reference."""
+        spec, total = self.spec, x.new_zeros(())
+        if not (spec.norm_reg or spec.ref_weight):
+            return total
+        anchors = self.anchors.to(x.dtype)
+        flat = torch.cat([x.reshape(-1, x.shape[-1]), anchors], 0)
+        z = encoder(flat)
+        if spec.norm_reg:
+            total = total + spec.norm_reg * z.norm(dim=-1).clamp_min(1e-12).log().pow(2).mean()
+        if spec.ref_weight:
+            z_anchors = z[-anchors.shape[0] :]
+            ref = self.reference(z_anchors if spec.anchor_grad else z_anchors.detach())
+            target = self._post(input_reference(flat, anchors))
+            total = total + spec.ref_weight * (1 - F.cosine_similarity(self.project(z, ref), target, -1)).mean()
+        return total
 
     def extra_repr(self) -> str:
         return f"anchors={tuple(self.anchors.shape)}, {self.spec}"

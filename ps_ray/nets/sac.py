@@ -131,9 +131,9 @@ def sac_forward(nets: SACNets, batch: dict[str, Tensor]) -> dict[str, Tensor]:
     out["q_policy"] = torch.min(nets.critic(task, robot, action), nets.critic_twin(task, robot, action))
     for p in critic_params:
         p.requires_grad_(True)
-    # Each trained net's own penalty, on its own parameters (RelativeSpec.norm_reg).
+    # Each trained net's own penalties, on its own parameters (RelativeSpec.norm_reg, ref_weight).
     trained = (nets.actor, nets.critic, nets.critic_twin)
-    out["norm_penalty"] = sum(net.task.norm_penalty(task) for net in trained)
+    out["penalty"] = sum(net.task.penalty(task) for net in trained)
     return out
 
 
@@ -153,7 +153,7 @@ def sac_losses(
         actor = actor + hp.action_l2 * fwd["action"].pow(2).mean()
     target_entropy = -float(action_dim) if hp.target_entropy is None else hp.target_entropy
     alpha_loss = -(log_alpha * (fwd["logp"].detach() + target_entropy)).mean()
-    total = critic + actor + alpha_loss + fwd.get("norm_penalty", 0.0)
+    total = critic + actor + alpha_loss + fwd.get("penalty", 0.0)
     return {
         "total": total,
         "critic": critic,

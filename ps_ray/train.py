@@ -144,9 +144,15 @@ class TrainingRun:
             self.best = max(self.best if self.best is not None else -1.0, row["eval_success"])
             if self.spec.target_success is not None:
                 self.streak = self.streak + 1 if row["eval_success"] >= self.spec.target_success else 0
-        if self.best is not None:
-            row["best_eval_success"] = self.best
-        return row
+        return {**row, **self.best_field()}
+
+    def position(self) -> dict[str, Any]:
+        """Where the run stands without a step: iteration, env steps and the best so far."""
+        return {"iteration": self.algo.iteration, "env_steps": self.env_steps, **self.best_field()}
+
+    def best_field(self) -> dict[str, float]:
+        """``best_eval_success`` once there has been an evaluation (before it, nothing)."""
+        return {} if self.best is None else {"best_eval_success": self.best}
 
     def save(self, directory: Path) -> None:
         """RLlib checkpoint + replay buffer + policy.safetensors into `directory`."""
@@ -317,27 +323,27 @@ def _train(spec: TrainSpec, run_dir: Path, given, progress: bool) -> dict[str, A
         if progress:
             print(f"[{spec.label()}] resumed at {run.env_steps} env steps", flush=True)
     _metrics_up_to(run_dir, run.env_steps)
-    row: dict[str, Any] = {}
-    best = _best_so_far(run_dir)  # the best policy file may be newer than the checkpoint
-    if best >= 0:
-        run.best = max(best, run.best if run.best is not None else best)
+    row: dict[str, Any] = run.position()
+    best_file = _best_so_far(run_dir)  # the best policy file may be newer than the checkpoint
+    if best_file >= 0:
+        run.best = max(best_file, run.best if run.best is not None else best_file)
     with open(run_dir / METRICS_FILE, "a", newline="") as f:
         writer = csv.DictWriter(f, METRIC_FIELDS)
         if f.tell() == 0:
             writer.writeheader()
         while not run.done:
+            best_before = run.best
             row = run.step()
             writer.writerow(row)
             if row["iteration"] % spec.checkpoint_every == 0:
                 f.flush()
                 _save_atomically(run, run_dir)
             if row.get("eval_success") is not None:
-                if row["eval_success"] > best:  # keep the best greedy policy seen so far
-                    best = row["eval_success"]
+                if best_before is None or row["eval_success"] > best_before:  # a new best greedy policy
                     run.algo.export_policy(
                         run_dir / BEST_POLICY_FILE,
                         run.signature,
-                        extra={"eval_success": repr(best), "env_steps": str(row["env_steps"])},
+                        extra={"eval_success": repr(run.best), "env_steps": str(row["env_steps"])},
                     )
                 if progress:
                     print(run.progress_line(row), flush=True)
@@ -346,7 +352,7 @@ def _train(spec: TrainSpec, run_dir: Path, given, progress: bool) -> dict[str, A
     row = {
         **row,
         **{f"final_{k}": v for k, v in final.items()},
-        "best_eval_success": best,
+        **run.best_field(),
         "converged": run.converged,
     }
     write_text(run_dir / "result.json", json.dumps(row, indent=2))

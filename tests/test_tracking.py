@@ -335,3 +335,25 @@ def test_tune_callback_one_run_per_trial_across_restore_and_rerun(store, tmp_pat
         "ps/panda/reach/2": failed.info.run_id,
     }
     assert len(store["client"].get_metric_history(ok.info.run_id, "score")) == 6
+
+
+def test_a_checkpoint_flushes_the_trials_metrics(store):
+    """A driver killed after a checkpoint must not lose the results before it: the resumed trial
+    re-reports only the steps after the checkpoint. So a checkpoint writes what is buffered, even
+    when neither flush_every nor flush_secs is due."""
+    from ray.tune.experiment import Trial
+
+    exp = new_experiment(store, "checkpoint-flush")
+    callback = MLflowTuneCallback(
+        store["uri"], exp, metric_keys=["score"], flush_every=1000, flush_secs=1e9, step_key="iteration"
+    )
+    trial = Trial(
+        "__fake", config={"spec": {"method": "ps", "robot": "panda", "task": "reach", "seed": 9}}, stub=True
+    )
+    for i in (1, 2, 3):
+        callback.on_trial_result(0, [trial], trial, {"iteration": i, "score": float(i)})
+    run_id = callback.run_id(trial)
+    assert store["client"].get_metric_history(run_id, "score") == []  # buffered, not due
+    callback.on_checkpoint(0, [trial], trial, checkpoint=None)
+    history = store["client"].get_metric_history(run_id, "score")
+    assert [(m.step, m.value) for m in history] == [(1, 1.0), (2, 2.0), (3, 3.0)]

@@ -178,7 +178,8 @@ class RelativeProjection(nn.Module):
             z_anchors = z[-anchors.shape[0] :]
             ref = self.reference(z_anchors if spec.anchor_grad else z_anchors.detach())
             target = self._post(input_reference(flat, anchors))
-            total = total + spec.ref_weight * (1 - F.cosine_similarity(self.project(z, ref), target, -1)).mean()
+            distance = 1 - F.cosine_similarity(self.project(z, ref), target, dim=-1)
+            total = total + spec.ref_weight * distance.mean()
         return total
 
     def extra_repr(self) -> str:

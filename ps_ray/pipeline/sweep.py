@@ -153,7 +153,7 @@ def sweep_trial(config: dict[str, Any]) -> None:
     elif (earlier := earlier_checkpoint(config, "trial")) is not None:
         run.restore(earlier)
     node_id = ray.get_runtime_context().get_node_id()
-    row: dict[str, Any] = {"iteration": run.algo.iteration, "env_steps": run.env_steps}
+    row: dict[str, Any] = run.position()  # the last result of a run restored already done
     while True:
         if not run.done:
             row = {**run.step(), "node_id": node_id}

@@ -81,9 +81,10 @@ class MLflowTuneCallback(Callback):
     Each result contributes the whitelisted ``metric_keys`` (nested ``a/b`` keys are looked up in
     the nested result dict, logged under the same name) at step ``result[step_key]`` (default
     ``training_iteration``; e.g. ``num_env_steps_sampled_lifetime`` for env-step curves). A
-    trial's metrics are written every ``flush_every`` results or ``flush_secs`` seconds, and on
-    completion/error/recovery/experiment end. Trackers are keyed by ``key_fn(trial)`` and find
-    their run by tag, so a trial restored after a driver restart continues the SAME run.
+    trial's metrics are written every ``flush_every`` results or ``flush_secs`` seconds, after
+    each checkpoint, and on completion/error/recovery/experiment end. Trackers are keyed by
+    ``key_fn(trial)`` and find their run by tag, so a trial restored after a driver restart
+    continues the SAME run.
     Errors while writing metrics, artifacts or status are logged as warnings, never raised into
     Tune: a sweep does not die for its bookkeeping (unflushed metrics are retried at the next
     flush). Finding or creating a trial's run does raise (e.g. its key's run has other params).
@@ -180,6 +181,13 @@ class MLflowTuneCallback(Callback):
         due = time.monotonic() - self._last_flush[key] >= self.flush_secs
         if self._results[key] % self.flush_every == 0 or due:
             self._flush(tracker)
+
+    def on_checkpoint(self, iteration: int, trials: list[Trial], trial: Trial, **info: Any) -> None:
+        """What a checkpoint holds is in the store: a driver killed after it loses no metric that
+        the resumed trial does not report again (it re-reports only the steps after it)."""
+        key = self.key_fn(trial)
+        if key in self._trackers:
+            self._flush(self._trackers[key])
 
     def on_trial_recover(self, iteration: int, trials: list[Trial], trial: Trial, **info: Any) -> None:
         key = self.key_fn(trial)

@@ -7,6 +7,7 @@ import base64
 import contextlib
 import dataclasses
 import hashlib
+import json
 import os
 import re
 import signal
@@ -26,9 +27,11 @@ import pytest
 
 from ps_ray.analysis.browser import find_chromium
 from ps_ray.checkpoint import latest as latest_checkpoint
+from ps_ray.names import trial_key
 from ps_ray.pipeline.cost import workload
 from ps_ray.pipeline.layout import SweepLayout
 from ps_ray.pipeline.run import stage_state
+from ps_ray.pipeline.tracking import TRIAL_KEY_TAG
 from ps_ray.sweep_spec import load_sweep
 
 SMOKE = Path(__file__).resolve().parents[1] / "sweeps" / "smoke.yaml"
@@ -153,15 +156,19 @@ def test_a_pipeline_killed_at_five_moments_resumes_without_redoing_finished_work
         assert len(found) == count, folder
         for tries in found.values():
             assert sum(bool(read_rows(t)) and bool(read_rows(t)[-1].get(FINISHED)) for t in tries) == 1
-    for tries in attempts(layout.tune_train, "trial").values():  # best-so-far never fell
+    final_best = {}  # trial key -> its best greedy success at the end
+    for trial, tries in attempts(layout.tune_train, "trial").items():  # best-so-far never fell
         best = [r["best_eval_success"] for r in merged_rows(tries) if "best_eval_success" in r]
         assert best and best == sorted(best), best
+        final_best[trial_key(json.loads(trial)["spec"])] = best[-1]
     train_runs = _runs(root, "train")
     assert len(train_runs) == 16  # one MLflow run per trial, none duplicated
     client = mlflow.MlflowClient(f"sqlite:///{root / 'mlflow.db'}")
     for run in train_runs:  # a trial cut short resumed from its checkpoint: no step logged twice
         steps = [m.step for m in client.get_metric_history(run.info.run_id, "env_steps")]
         assert len(steps) == len(set(steps)) and run.data.metrics["env_steps"] >= 1500, run.info.run_name
+        # MLflow ends on the trial's best-so-far, also for a trial restored from its final checkpoint
+        assert run.data.metrics.get("best_eval_success") == final_best[run.data.tags[TRIAL_KEY_TAG]]
     # and the trials cut short by the kills were relaunched from their checkpoints, not from scratch
     relaunched = [  # later attempts of trials whose earlier attempts left a verified checkpoint
         later

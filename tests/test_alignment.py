@@ -225,6 +225,25 @@ def test_ps_is_the_papers_projection_and_variants_differ_only_in_settings():
     assert variants and all(METHODS[m].relative != RelativeSpec() for m in variants)
 
 
+def test_ps_ref_actor_has_a_relative_actor_cut_and_raw_latent_critic_cuts():
+    """ps_ref_actor is ps_ref_light at the actor's cut only: its critics are the ablation's, so
+    they carry no projection and no penalty, and their latent is the raw task-module output."""
+    nets, _ = _nets("ps_ref_actor")
+    ablation, _ = _nets("ablation")
+    task = 2 * torch.randn(64, 15) + 1
+    assert nets.actor.task.relative.spec == METHODS["ps_ref_light"].relative
+    assert float(nets.actor.task.penalty(task)) > 0
+    for name in NET_NAMES[1:]:
+        critic = getattr(nets, name)
+        assert critic.task.relative is None and float(critic.task.penalty(task)) == 0.0, name
+        # same seed, same parameters as the ablation's critic: the same raw latent
+        torch.testing.assert_close(critic.task(task), getattr(ablation, name).task(task))
+    with torch.no_grad():
+        rel = nets.actor.interface(task, None)
+        assert rel.shape == (64, 8)
+        torch.testing.assert_close(rel.mean(-1), torch.zeros(64), atol=1e-5, rtol=0)  # LayerNorm
+
+
 def test_centring_spreads_the_similarities_and_layer_norm_standardises_them():
     """At initialisation a ReLU encoder puts every embedding in one cone: the paper's cosines
     cluster well above 0. Centring by the anchors spreads them around 0; LayerNorm gives each

@@ -42,10 +42,16 @@ class MethodSpec:
     modular: bool  # False for plain: the bottom half sees the whole state
     interface_dim: int | None  # fixed bottleneck width, or None = the caller's interface_dim
     dropout: float  # dropout on the latent, applied at the robot module's input
+    # False: only the actor's cut is relative; the critics' is the ablation's raw latent
+    relative_critics: bool = True
 
     def __post_init__(self) -> None:
         if self.relative is not None and not self.modular:
             raise ValueError(f"method {self.name!r}: a relative interface needs a modular network")
+
+    def relative_for(self, critic: bool) -> RelativeSpec | None:
+        """The projection at an actor's or a critic's cut (None: the raw latent)."""
+        return None if critic and not self.relative_critics else self.relative
 
     def latent_dim(self, interface_dim: int, hidden: int) -> int:
         """Width at the cut: fixed (devin), the caller's interface_dim, or ``hidden`` for plain."""
@@ -54,8 +60,9 @@ class MethodSpec:
         return self.interface_dim if self.interface_dim is not None else interface_dim
 
 
-def _ps(name: str, **relative) -> MethodSpec:
-    return MethodSpec(name, RelativeSpec(**relative), modular=True, interface_dim=None, dropout=0.0)
+def _ps(name: str, relative_critics: bool = True, **relative) -> MethodSpec:
+    spec = RelativeSpec(**relative)
+    return MethodSpec(name, spec, True, None, 0.0, relative_critics=relative_critics)
 
 
 # ps is the paper's method, unchanged; ps_* are the variants measured in docs/alignment.md.
@@ -73,6 +80,7 @@ METHODS: dict[str, MethodSpec] = {
         _ps("ps_normreg_ln", norm_reg=1.0, norm="layer"),
         _ps("ps_ref", norm_reg=1.0, norm="layer", ref_weight=1.0),
         _ps("ps_ref_light", norm_reg=1.0, norm="layer", ref_weight=0.1),
+        _ps("ps_ref_actor", relative_critics=False, norm_reg=1.0, norm="layer", ref_weight=0.1),
         MethodSpec("ablation", None, modular=True, interface_dim=None, dropout=0.0),
         MethodSpec("devin", None, modular=True, interface_dim=16, dropout=0.25),
         MethodSpec("devin_large", None, modular=True, interface_dim=None, dropout=0.25),
@@ -111,8 +119,7 @@ class TaskModule(nn.Module):
         latent_dim: int,
         hidden: int = HIDDEN,
         *,
-        anchors: Tensor | None = None,
-        anchor_grad: bool | None = None,
+        relative: RelativeProjection | None = None,
         sees_action: bool = False,
     ) -> None:
         super().__init__()
@@ -126,7 +133,7 @@ class TaskModule(nn.Module):
             self.norm = RunningNorm(dims.task_dim + dims.robot_dim)
             in_dim = dims.task_dim + dims.robot_dim + (dims.action_dim if sees_action else 0)
             self.body = mlp(in_dim, [hidden], latent_dim, out_act=True)
-        self.relative = _relative_projection(spec, dims, latent_dim, anchors, anchor_grad)
+        self.relative = relative
 
     @property
     def anchors(self) -> Tensor | None:
@@ -161,10 +168,15 @@ class TaskModule(nn.Module):
 
 
 def _relative_projection(
-    spec: MethodSpec, dims: NetDims, latent_dim: int, anchors: Tensor | None, anchor_grad: bool | None
+    spec: MethodSpec,
+    relative: RelativeSpec | None,
+    dims: NetDims,
+    latent_dim: int,
+    anchors: Tensor | None,
+    anchor_grad: bool | None,
 ) -> RelativeProjection | None:
-    if spec.relative is None:
-        return None  # anchors, if given, mean nothing to a non-relative method
+    if relative is None:
+        return None  # anchors, if given, mean nothing to a raw-latent cut
     expected = (latent_dim, dims.task_dim)
     if anchors is None:
         hint = "(K = interface dim, task_dim)"
@@ -174,9 +186,8 @@ def _relative_projection(
             f"method {spec.name!r}: anchors have shape {tuple(anchors.shape)}, expected {expected} "
             f"(K = interface dim {latent_dim}, task_dim {dims.task_dim})"
         )
-    relative = (
-        spec.relative if anchor_grad is None else dataclasses.replace(spec.relative, anchor_grad=anchor_grad)
-    )
+    if anchor_grad is not None:
+        relative = dataclasses.replace(relative, anchor_grad=anchor_grad)
     return RelativeProjection(anchors, relative)
 
 
@@ -320,15 +331,9 @@ def _build(
     spec = method_spec(method)
     critic = net_type is Critic
     latent_dim = spec.latent_dim(interface_dim, hidden)
-    task = TaskModule(
-        spec,
-        dims,
-        latent_dim,
-        hidden,
-        anchors=anchors,
-        anchor_grad=anchor_grad,
-        sees_action=critic and not spec.modular,
-    )
+    relative = _relative_projection(spec, spec.relative_for(critic), dims, latent_dim, anchors, anchor_grad)
+    sees_action = critic and not spec.modular
+    task = TaskModule(spec, dims, latent_dim, hidden, relative=relative, sees_action=sees_action)
     robot_type = CriticRobotModule if critic else ActorRobotModule
     return net_type(task, robot_type(spec, dims, latent_dim, hidden))
 

@@ -71,7 +71,8 @@ def _train_parser(sub) -> None:
 
 def _bench_parser(sub) -> None:
     p = sub.add_parser("bench", help="print speed figures")
-    p.add_argument("what", choices=["env", "her", "train", "learn", "tracking", "evaluate", "rates", "state"])
+    benchmarks = ["env", "her", "train", "update", "learn", "tracking", "evaluate", "rates", "state"]
+    p.add_argument("what", choices=benchmarks)
     p.add_argument("options", nargs=argparse.REMAINDER, help="passed to the benchmark (see --help)")
 
 

@@ -327,6 +327,42 @@ def test_norm_penalty_acts_only_on_the_embedding_length():
     assert RelativeProjection(anchors).penalty(encoder, torch.randn(4, 15)).item() == 0.0
 
 
+@pytest.mark.parametrize("anchor_grad", [True, False])
+def test_one_encoder_pass_gives_the_interface_and_the_penalties(anchor_grad):
+    """The training step takes a net's interface and its penalties from one pass of the encoder
+    over the states and the anchors (``penalized``): the same values and gradients as the
+    interface (``forward``) beside the penalties as RelativeSpec defines them."""
+    torch.manual_seed(0)
+    encoder = torch.nn.Sequential(torch.nn.Linear(15, 32), torch.nn.ReLU(), torch.nn.Linear(32, 8)).double()
+    spec = RelativeSpec(norm="layer", norm_reg=1.0, ref_weight=0.1, anchor_grad=anchor_grad)
+    anchors, x = torch.randn(8, 15, dtype=torch.float64), torch.randn(2, 16, 15, dtype=torch.float64)
+    projection = RelativeProjection(anchors, spec).double()  # float64: sums in another order agree
+    weights = torch.randn(2, 16, 8, dtype=torch.float64)  # a loss that reads every entry of the interface
+
+    def gradients(loss):
+        return torch.autograd.grad(loss, list(encoder.parameters()))
+
+    interface, penalty = projection.penalized(encoder, x)
+    one_pass = gradients((weights * interface).sum() + penalty)
+
+    anchors = projection.anchors  # as the projection holds them
+    inputs = torch.cat([x.reshape(-1, 15), anchors])
+    z = encoder(inputs)
+    z_anchors = z[-8:] if anchor_grad else z[-8:].detach()
+    relative = projection.project(z, projection.reference(z_anchors))
+    target = torch.nn.functional.layer_norm(input_reference(inputs, anchors), (8,))
+    reference_term = (1 - torch.cosine_similarity(relative, target)).mean()
+    defined = z.norm(dim=-1).log().pow(2).mean() + 0.1 * reference_term
+    apart = projection(encoder, x)
+    two_passes = gradients((weights * apart).sum() + defined)
+
+    torch.testing.assert_close(interface, apart)
+    torch.testing.assert_close(penalty, defined)
+    assert float(penalty) > 0
+    for a, b in zip(one_pass, two_passes):
+        torch.testing.assert_close(a, b)
+
+
 def test_norm_penalty_holds_the_embedding_length_in_training():
     """Embeddings made 10x too long, then 300 gradient steps on the SAC losses: with ``ps_normreg``
     the penalty brings |z| back near 1; with ``ps`` the loss, blind to |z|, leaves it long."""

@@ -91,6 +91,7 @@ CASES = [  # (arguments, with {f} the input folder and {out} a path that must no
     ),
     ("bench env --steps 0", "argument --steps: expected a positive integer, got 0"),
     ("bench her --repeats -3", "argument --repeats: expected a positive integer, got -3"),
+    ("bench update --methods ps nope", "unknown method 'nope'; expected one of ['ablation', 'devin'"),
 ]
 
 

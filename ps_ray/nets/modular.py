@@ -159,12 +159,18 @@ class TaskModule(nn.Module):
     def update_norm(self, task_in: Tensor, robot_in: Tensor) -> None:
         self.norm.update(task_in if self.spec.modular else torch.cat([task_in, robot_in], -1))
 
-    def penalty(self, task_in: Tensor) -> Tensor:
-        """The relative projection's penalties (RelativeSpec.norm_reg, ref_weight; zero for other
-        methods)."""
+    def penalized(
+        self, task_in: Tensor, robot_in: Tensor | None = None, action: Tensor | None = None
+    ) -> tuple[Tensor, Tensor]:
+        """The latent and the relative projection's penalties (RelativeSpec.norm_reg, ref_weight;
+        zero for other methods), from one pass of the encoder."""
         if self.relative is None:
-            return task_in.new_zeros(())
-        return self.relative.penalty(self.encode, task_in)
+            return self(task_in, robot_in, action), task_in.new_zeros(())
+        return self.relative.penalized(self.encode, task_in)
+
+    def penalty(self, task_in: Tensor) -> Tensor:
+        """The relative projection's penalties alone (see :meth:`penalized`)."""
+        return self.penalized(task_in)[1]
 
 
 def _relative_projection(
@@ -287,6 +293,11 @@ class Actor(_Modular):
         """The latent at the cut (the relative vector for PS)."""
         return self.task(task_in, robot_in)
 
+    def penalized(self, task_in: Tensor, robot_in: Tensor) -> tuple[tuple[Tensor, Tensor], Tensor]:
+        """``forward`` and the task module's penalties, from one pass of the task module."""
+        latent, penalty = self.task.penalized(task_in, robot_in)
+        return self.robot(self.to_robot(latent), robot_in), penalty
+
 
 class Critic(_Modular):
     robot_type = CriticRobotModule
@@ -296,6 +307,11 @@ class Critic(_Modular):
 
     def interface(self, task_in: Tensor, robot_in: Tensor, action: Tensor) -> Tensor:
         return self.task(task_in, robot_in, action)
+
+    def penalized(self, task_in: Tensor, robot_in: Tensor, action: Tensor) -> tuple[Tensor, Tensor]:
+        """``forward`` and the task module's penalties, from one pass of the task module."""
+        latent, penalty = self.task.penalized(task_in, robot_in, action)
+        return self.robot(self.to_robot(latent), robot_in, action), penalty
 
 
 def _check_compatible(task: TaskModule, robot: _RobotModule) -> None:

@@ -119,6 +119,11 @@ class RelativeProjection(nn.Module):
         return self.anchors.shape[0]
 
     @property
+    def penalizes(self) -> bool:
+        """Whether the spec adds penalties to the training loss (norm_reg or ref_weight)."""
+        return bool(self.spec.norm_reg or self.spec.ref_weight)
+
+    @property
     def anchor_grad(self) -> bool:
         return self.spec.anchor_grad
 
@@ -146,12 +151,16 @@ class RelativeProjection(nn.Module):
             rel = F.layer_norm(rel, rel.shape[-1:])
         return rel * self.spec.scale if self.spec.scale != 1.0 else rel
 
-    def forward(self, encoder: Callable[[Tensor], Tensor], x: Tensor) -> Tensor:
+    def _flatten(self, x: Tensor) -> tuple[Tensor, Tensor]:
+        """x (..., task_dim) as rows (N x task_dim), and the anchors in its dtype."""
         if x.shape[-1] != self.anchors.shape[-1]:
             in_dim, anchor_dim = x.shape[-1], self.anchors.shape[-1]
             raise ValueError(f"input last dim {in_dim} does not match anchor dim {anchor_dim}")
-        lead, flat = x.shape[:-1], x.reshape(-1, x.shape[-1])
-        anchors = self.anchors.to(flat.dtype)
+        flat = x.reshape(-1, x.shape[-1])
+        return flat, self.anchors.to(flat.dtype)
+
+    def forward(self, encoder: Callable[[Tensor], Tensor], x: Tensor) -> Tensor:
+        flat, anchors = self._flatten(x)
         if self.spec.anchor_grad:
             embedded = encoder(torch.cat([flat, anchors], 0))
             z_x, z_a = embedded[: flat.shape[0]], embedded[flat.shape[0] :]
@@ -159,27 +168,39 @@ class RelativeProjection(nn.Module):
             z_x = encoder(flat)
             with torch.no_grad():
                 z_a = encoder(anchors)
-        return self.project(z_x, self.reference(z_a)).reshape(*lead, self.num_anchors)
+        return self.project(z_x, self.reference(z_a)).reshape(*x.shape[:-1], self.num_anchors)
+
+    def penalized(self, encoder: Callable[[Tensor], Tensor], x: Tensor) -> tuple[Tensor, Tensor]:
+        """``forward(encoder, x)`` and ``penalty(encoder, x)`` from one pass of the encoder over the
+        states and the anchors: the training step's path, which needs both."""
+        if not self.penalizes:
+            return self(encoder, x), x.new_zeros(())
+        flat, anchors = self._flatten(x)
+        inputs = torch.cat([flat, anchors], 0)
+        z = encoder(inputs)
+        z_anchors = z[flat.shape[0] :]
+        ref = self.reference(z_anchors if self.spec.anchor_grad else z_anchors.detach())
+        relative = self.project(z, ref)
+        interface = relative[: flat.shape[0]].reshape(*x.shape[:-1], self.num_anchors)
+        return interface, self._penalty(z, relative, inputs, anchors)
 
     def penalty(self, encoder: Callable[[Tensor], Tensor], x: Tensor) -> Tensor:
         """The spec's penalties on the states ``x`` and the anchors (a scalar; zero when neither
         ``norm_reg`` nor ``ref_weight`` is set): ``norm_reg`` x mean(log(|z|)^2) over their
         embeddings, plus ``ref_weight`` x mean(1 - cos) between their interface and the input
         reference."""
-        spec, total = self.spec, x.new_zeros(())
-        if not (spec.norm_reg or spec.ref_weight):
-            return total
-        anchors = self.anchors.to(x.dtype)
-        flat = torch.cat([x.reshape(-1, x.shape[-1]), anchors], 0)
-        z = encoder(flat)
-        if spec.norm_reg:
-            total = total + spec.norm_reg * z.norm(dim=-1).clamp_min(1e-12).log().pow(2).mean()
-        if spec.ref_weight:
-            z_anchors = z[-anchors.shape[0] :]
-            ref = self.reference(z_anchors if spec.anchor_grad else z_anchors.detach())
-            target = self._post(input_reference(flat, anchors))
-            distance = 1 - F.cosine_similarity(self.project(z, ref), target, dim=-1)
-            total = total + spec.ref_weight * distance.mean()
+        return self.penalized(encoder, x)[1] if self.penalizes else x.new_zeros(())
+
+    def _penalty(self, z: Tensor, relative: Tensor, inputs: Tensor, anchors: Tensor) -> Tensor:
+        """The penalties from the embeddings ``z`` and relative vectors of ``inputs`` (the states,
+        then the anchors)."""
+        total = z.new_zeros(())
+        if self.spec.norm_reg:
+            total = total + self.spec.norm_reg * z.norm(dim=-1).clamp_min(1e-12).log().pow(2).mean()
+        if self.spec.ref_weight:
+            target = self._post(input_reference(inputs, anchors))
+            distance = 1 - F.cosine_similarity(relative, target, dim=-1)
+            total = total + self.spec.ref_weight * distance.mean()
         return total
 
     def extra_repr(self) -> str:

@@ -112,17 +112,19 @@ def sac_forward(nets: SACNets, batch: dict[str, Tensor]) -> dict[str, Tensor]:
         batch["next_task_in"],
         batch["next_robot_in"],
     )
-    out = {
-        "q": nets.critic(task, robot, batch["actions"]),
-        "q_twin": nets.critic_twin(task, robot, batch["actions"]),
-    }
+    # Each trained net's own penalties (RelativeSpec.norm_reg, ref_weight) come from its pass over
+    # the batch's task states, on its own parameters.
+    out: dict[str, Tensor] = {}
+    out["q"], critic_penalty = nets.critic.penalized(task, robot, batch["actions"])
+    out["q_twin"], twin_penalty = nets.critic_twin.penalized(task, robot, batch["actions"])
     with torch.no_grad():
         next_action, out["logp_next"] = squashed_sample(*nets.actor(next_task, next_robot))
         out["q_target_next"] = torch.min(
             nets.target_critic(next_task, next_robot, next_action),
             nets.target_critic_twin(next_task, next_robot, next_action),
         )
-    action, out["logp"] = squashed_sample(*nets.actor(task, robot))
+    policy, actor_penalty = nets.actor.penalized(task, robot)
+    action, out["logp"] = squashed_sample(*policy)
     out["action"] = action
     # The actor's gradient must pass through the critics without updating them.
     critic_params = [p for c in (nets.critic, nets.critic_twin) for p in c.parameters()]
@@ -131,9 +133,7 @@ def sac_forward(nets: SACNets, batch: dict[str, Tensor]) -> dict[str, Tensor]:
     out["q_policy"] = torch.min(nets.critic(task, robot, action), nets.critic_twin(task, robot, action))
     for p in critic_params:
         p.requires_grad_(True)
-    # Each trained net's own penalties, on its own parameters (RelativeSpec.norm_reg, ref_weight).
-    trained = (nets.actor, nets.critic, nets.critic_twin)
-    out["penalty"] = sum(net.task.penalty(task) for net in trained)
+    out["penalty"] = critic_penalty + twin_penalty + actor_penalty
     return out
 
 

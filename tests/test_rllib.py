@@ -167,6 +167,33 @@ def test_training_episodes_get_fresh_goals_and_evaluations_fixed_ones(ray_local)
         algo.stop()
 
 
+def _run_state(spec: TrainSpec, iterations: int) -> tuple[dict[str, torch.Tensor], np.ndarray]:
+    algo = algo_config(spec).build_algo()
+    try:
+        for _ in range(iterations):
+            algo.train()
+        return algo.learner_state(), algo.replay._actions[: algo.replay.num_episodes].copy()
+    finally:
+        algo.stop()
+
+
+def test_a_seed_repeats_its_run_bit_for_bit(ray_local):
+    """Warm-up random actions, exploration, replay sampling and updates all follow the seed: two
+    runs of one spec end with equal weights, and another seed with other ones."""
+    spec = TrainSpec(method="ablation", **{**SMALL, "learning_starts": 100})
+    first, first_actions = _run_state(spec, 3)
+    again, again_actions = _run_state(spec, 3)
+    other, other_actions = _run_state(
+        TrainSpec(method="ablation", seed=spec.seed + 1, **{**SMALL, "learning_starts": 100}), 3
+    )
+    assert len(first_actions) == 12  # 2 warm-up episodes of random actions, then policy episodes
+    np.testing.assert_array_equal(first_actions, again_actions)
+    for key, value in first.items():
+        assert torch.equal(value, again[key]), key
+    assert not np.array_equal(first_actions, other_actions)
+    assert any(not torch.equal(value, other[key]) for key, value in first.items())
+
+
 def test_a_run_can_start_from_given_weights(ray_local, tmp_path):
     """Few-shot fine-tuning starts from the stitched weights, not a fresh initialisation."""
     from ps_ray.nets.modular import NetDims

@@ -17,8 +17,11 @@ NO_METRICS_REDUCE: dict[str, Any] = {"_no_metrics_reduce": True}
 
 def set_runner_seed(runner, seed: int) -> None:
     """SingleAgentEnvRunner re-seeds its envs from the private ``_seed`` on every
-    ``sample(num_episodes=...)`` call; without this each call would replay the same goals."""
+    ``sample(num_episodes=...)`` call; without this each call would replay the same goals.
+    Its ``random_actions`` come from ``env.action_space.sample()``, which nothing seeds (gymnasium
+    draws OS entropy): seeding it here makes the warm-up episodes, and so a run, repeatable."""
     runner._seed = seed
+    runner.env.action_space.seed(seed)
 
 
 def set_training_iteration(algo, iteration: int) -> None:

@@ -211,6 +211,18 @@ def test_bootstrap_resamples_seeds_not_cells():
     assert stats.iqm(np.array([0, 0.5, 0.5, 0.5, 0.5, 0.5, 0.5, 1.0])) == pytest.approx(0.5)
 
 
+def test_ratio_of_paired_means_keeps_each_seeds_pair_together():
+    base = np.array([3100.0, 4100.0, 6100.0, 4100.0, 5100.0, 3100.0])
+    point, lo, hi = stats.ratio_of_means(1.5 * base, base)
+    assert point == lo == hi == pytest.approx(1.5)  # every resample of paired seeds gives 1.5
+    shuffled = np.roll(1.5 * base, 1)  # the same values, paired with other seeds
+    point, lo, hi = stats.ratio_of_means(shuffled, base)
+    assert point == pytest.approx(1.5) and lo < 1.5 < hi
+    assert np.isnan(stats.ratio_of_means([2.0], [1.0])[1])
+    with pytest.raises(ValueError, match="paired"):
+        stats.ratio_of_means([1.0, 2.0], [1.0])
+
+
 def test_one_seed_has_no_interval():
     e = stats.estimate([0.2, 0.4, 0.6], [101, 101, 101])
     assert np.isnan(e.mean_lo) and e.text() == "0.40 [n/a]"

@@ -92,6 +92,8 @@ CASES = [  # (arguments, with {f} the input folder and {out} a path that must no
     ("bench env --steps 0", "argument --steps: expected a positive integer, got 0"),
     ("bench her --repeats -3", "argument --repeats: expected a positive integer, got -3"),
     ("bench update --methods ps nope", "unknown method 'nope'; expected one of ['ablation', 'devin'"),
+    ("bench learn --methods ablation nope --out {out}/b", "unknown method 'nope'; valid methods: ps, ps_ln"),
+    ("bench learn --methods ps_ref_actor --out {out}/b", "--baseline 'ablation' is not among --methods"),
 ]
 
 

@@ -80,3 +80,26 @@ def estimates(table: pd.DataFrame, value: str, by: str = "method", seed_col: str
         for key, part in table.groupby(by, sort=False)
     ]
     return pd.DataFrame(rows).set_index(by) if rows else pd.DataFrame()
+
+
+def ratio_of_means(numerator, denominator, *, seed: int = 0) -> tuple[float, float, float]:
+    """mean(numerator) / mean(denominator) of paired per-seed values (e.g. env steps to a target
+    of a method and of its baseline on the same seeds), with a 95% CI from a bootstrap that draws
+    seeds, keeping each seed's pair together. Fewer than two seeds: no interval (NaN)."""
+    num, den = np.asarray(numerator, float), np.asarray(denominator, float)
+    if num.shape != den.shape or num.ndim != 1 or len(num) == 0:
+        raise ValueError(f"need paired values, got shapes {num.shape} and {den.shape}")
+    point = float(num.mean() / den.mean())
+    if len(num) < 2 or (np.ptp(num) == 0 and np.ptp(den) == 0):
+        return (point, *((float("nan"),) * 2 if len(num) < 2 else (point, point)))
+    drawn = stats.bootstrap(
+        (num, den),
+        lambda n, d, axis=-1: n.mean(axis) / d.mean(axis),
+        paired=True,
+        vectorized=True,
+        n_resamples=RESAMPLES,
+        confidence_level=CONFIDENCE,
+        method="percentile",
+        rng=np.random.default_rng(seed),
+    )
+    return (point, *map(float, drawn.confidence_interval))

@@ -4,7 +4,9 @@ Each (method, seed) is a real `ps-ray train` run (its own run directory, resumab
 once the target is met in two evaluations in a row, or at the budget cap. The table reads their
 metrics.csv files, so an interrupted benchmark re-run only finishes what is missing.
 Steps to target is the first evaluation at or above it; a run that never gets there counts as
-the cap (a lower bound, marked with '>').
+the cap (a lower bound, marked with '>'). Means carry 95% CIs over seeds, and each method's mean
+is divided by the baseline's (the ablation by default) on the same seeds, with a paired bootstrap
+CI (ps_ray/analysis/stats.py). Runs are deterministic per seed: a re-run repeats its figures.
 """
 
 from __future__ import annotations
@@ -16,6 +18,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from ps_ray.analysis.stats import estimate, ratio_of_means
 from ps_ray.cli_parsers import Parser, positive_int
 from ps_ray.config import TrainSpec
 from ps_ray.train import train
@@ -26,8 +29,8 @@ def steps_to(curve: pd.DataFrame, target: float) -> int | None:
     return int(reached.iloc[0]) if len(reached) else None
 
 
-def run_one(args: argparse.Namespace, method: str, seed: int) -> dict:
-    spec = TrainSpec(
+def train_spec(args: argparse.Namespace, method: str, seed: int) -> TrainSpec:
+    return TrainSpec(
         robot=args.robot,
         task=args.task,
         method=method,
@@ -37,6 +40,10 @@ def run_one(args: argparse.Namespace, method: str, seed: int) -> dict:
         eval_episodes=args.eval_episodes,
         target_success=args.target,
     )
+
+
+def run_one(args: argparse.Namespace, spec: TrainSpec) -> dict:
+    method, seed = spec.method, spec.seed
     run_dir = Path(args.out) / spec.slug()
     result_file = run_dir / "result.json"
     result = (
@@ -70,12 +77,16 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--target", type=float, default=0.9, help="greedy success target")
     parser.add_argument("--eval-episodes", type=positive_int, default=20)
     parser.add_argument("--interface-dim", type=positive_int, default=128)
+    parser.add_argument("--baseline", default="ablation", help="method the others are divided by")
     parser.add_argument("--out", default="runs/bench_learn")
     args = parser.parse_args(argv)
     for name in ("env_steps", "eval_episodes", "interface_dim"):
         if getattr(args, name) <= 0:
             parser.error(f"--{name.replace('_', '-')} must be positive, got {getattr(args, name)}")
-    rows = [run_one(args, m, s) for m in args.methods for s in args.seeds]
+    if args.baseline not in args.methods:
+        parser.error(f"--baseline {args.baseline!r} is not among --methods {args.methods}")
+    specs = [train_spec(args, m, s) for m in args.methods for s in args.seeds]  # bad input: before any run
+    rows = [run_one(args, spec) for spec in specs]
     df = pd.DataFrame(rows)
     print(
         f"\n{args.robot} {args.task}, interface {args.interface_dim}: env steps to greedy success "
@@ -84,17 +95,28 @@ def main(argv: list[str] | None = None) -> None:
         f"target counts as the cap)"
     )
     print(
-        f"{'method':<14}{'mean steps':>11}{'min':>7}{'max':>7}{'reached':>9}{'best eval':>10}"
-        f"{'final':>7}{'wall s':>8}"
+        f"{'method':<14}{'mean steps [95% CI]':>24}{'x ' + args.baseline + ' [95% CI]':>24}"
+        f"{'min':>7}{'max':>7}{'reached':>9}{'best eval':>10}{'final':>7}{'wall s':>8}"
     )
+    steps_of = {
+        m: g.set_index("seed")["steps"].fillna(args.env_steps) for m, g in df.groupby("method", sort=False)
+    }
     for method, g in df.groupby("method", sort=False):
-        steps = g["steps"].fillna(args.env_steps).to_numpy(float)
-        censored = g["steps"].isna().any()
+        steps = steps_of[method]
+        mean = estimate(steps.to_numpy(), steps.index.to_numpy())
+        ratio = ratio_of_means(steps.to_numpy(), steps_of[args.baseline].loc[steps.index].to_numpy())
+        censored = ">" if g["steps"].isna().any() else ""
         print(
-            f"{method:<14}{('>' if censored else '') + f'{steps.mean():.0f}':>11}"
-            f"{steps.min():>7.0f}{steps.max():>7.0f}{g['steps'].notna().sum():>6}/{len(g):<2}"
-            f"{g['best'].mean():>10.2f}{g['final'].mean():>7.2f}{np.mean(g['wall_s']):>8.0f}"
+            f"{method:<14}{censored + _ci(mean.mean, mean.mean_lo, mean.mean_hi, '.0f'):>24}"
+            f"{censored + _ci(*ratio, '.2f'):>24}{steps.min():>7.0f}{steps.max():>7.0f}"
+            f"{g['steps'].notna().sum():>6}/{len(g):<2}{g['best'].mean():>10.2f}{g['final'].mean():>7.2f}"
+            f"{np.mean(g['wall_s']):>8.0f}"
         )
+
+
+def _ci(point: float, lo: float, hi: float, fmt: str) -> str:
+    interval = "n/a" if np.isnan(lo) else f"{lo:{fmt}}, {hi:{fmt}}"
+    return f"{point:{fmt}} [{interval}]"
 
 
 if __name__ == "__main__":

@@ -81,6 +81,7 @@ METHODS: dict[str, MethodSpec] = {
         _ps("ps_ref", norm_reg=1.0, norm="layer", ref_weight=1.0),
         _ps("ps_ref_light", norm_reg=1.0, norm="layer", ref_weight=0.1),
         _ps("ps_ref_actor", relative_critics=False, norm_reg=1.0, norm="layer", ref_weight=0.1),
+        _ps("ps_ref_actor_weak", relative_critics=False, norm_reg=1.0, norm="layer", ref_weight=0.03),
         MethodSpec("ablation", None, modular=True, interface_dim=None, dropout=0.0),
         MethodSpec("devin", None, modular=True, interface_dim=16, dropout=0.25),
         MethodSpec("devin_large", None, modular=True, interface_dim=None, dropout=0.25),

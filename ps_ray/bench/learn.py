@@ -106,8 +106,10 @@ def main(argv: list[str] | None = None) -> None:
         f"cap {args.env_steps}; mean over seeds {args.seeds} (a run that never reached the "
         f"target counts as the cap)"
     )
+    ratio_label = f"x {args.baseline} [95% CI]"
+    name_w, ratio_w = max(14, *(len(m) + 1 for m in args.methods)), max(24, len(ratio_label) + 2)
     print(
-        f"{'method':<14}{'mean steps [95% CI]':>24}{'x ' + args.baseline + ' [95% CI]':>24}"
+        f"{'method':<{name_w}}{'mean steps [95% CI]':>24}{ratio_label:>{ratio_w}}"
         f"{'min':>7}{'max':>7}{'reached':>9}{'best eval':>10}{'final':>7}{'wall s':>8}"
     )
     steps_of = {
@@ -119,8 +121,8 @@ def main(argv: list[str] | None = None) -> None:
         ratio = ratio_of_means(steps.to_numpy(), steps_of[args.baseline].loc[steps.index].to_numpy())
         censored = ">" if g["steps"].isna().any() else ""
         print(
-            f"{method:<14}{censored + _ci(mean.mean, mean.mean_lo, mean.mean_hi, '.0f'):>24}"
-            f"{censored + _ci(*ratio, '.2f'):>24}{steps.min():>7.0f}{steps.max():>7.0f}"
+            f"{method:<{name_w}}{censored + _ci(mean.mean, mean.mean_lo, mean.mean_hi, '.0f'):>24}"
+            f"{censored + _ci(*ratio, '.2f'):>{ratio_w}}{steps.min():>7.0f}{steps.max():>7.0f}"
             f"{g['steps'].notna().sum():>6}/{len(g):<2}{g['best'].mean():>10.2f}{g['final'].mean():>7.2f}"
             f"{np.mean(g['wall_s']):>8.0f}"
         )

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 import torch
@@ -183,9 +185,7 @@ def test_a_seed_repeats_its_run_bit_for_bit(ray_local):
     spec = TrainSpec(method="ablation", **{**SMALL, "learning_starts": 100})
     first, first_actions = _run_state(spec, 3)
     again, again_actions = _run_state(spec, 3)
-    other, other_actions = _run_state(
-        TrainSpec(method="ablation", seed=spec.seed + 1, **{**SMALL, "learning_starts": 100}), 3
-    )
+    other, other_actions = _run_state(dataclasses.replace(spec, seed=spec.seed + 1), 3)
     assert len(first_actions) == 12  # 2 warm-up episodes of random actions, then policy episodes
     np.testing.assert_array_equal(first_actions, again_actions)
     for key, value in first.items():

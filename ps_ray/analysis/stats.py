@@ -90,8 +90,10 @@ def ratio_of_means(numerator, denominator, *, seed: int = 0) -> tuple[float, flo
     if num.shape != den.shape or num.ndim != 1 or len(num) == 0:
         raise ValueError(f"need paired values, got shapes {num.shape} and {den.shape}")
     point = float(num.mean() / den.mean())
-    if len(num) < 2 or (np.ptp(num) == 0 and np.ptp(den) == 0):
-        return (point, *((float("nan"),) * 2 if len(num) < 2 else (point, point)))
+    if len(num) < 2:
+        return point, float("nan"), float("nan")
+    if np.ptp(num) == 0 and np.ptp(den) == 0:  # every resample gives the point
+        return point, point, point
     drawn = stats.bootstrap(
         (num, den),
         lambda n, d, axis=-1: n.mean(axis) / d.mean(axis),

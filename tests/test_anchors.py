@@ -60,6 +60,22 @@ def test_one_anchor_per_blob_nearest_member_to_its_centroid():
         assert i == nearest
 
 
+def test_anchors_do_not_depend_on_the_thread_count():
+    """Reach's task states (200 goals, each recorded at 5 steps) under k-means on 1 and 2 OpenMP
+    threads gave anchors 0.03 apart, so a seed's anchors depended on the machine and on what ran
+    before in the process. Selection pins one thread: the caller's thread limits change nothing."""
+    from threadpoolctl import threadpool_limits
+
+    from ps_ray.envs.core import RobotTaskEnv
+
+    states = collect_task_states(lambda: RobotTaskEnv(robot="panda", task="reach"), episodes=200, seed=0)
+    picked = []
+    for threads in (1, 2):
+        with threadpool_limits(limits=threads):
+            picked.append(select_anchors(states, 128, seed=0))
+    np.testing.assert_array_equal(picked[0], picked[1])
+
+
 def test_matches_the_authors_rule_and_is_deterministic():
     rng = np.random.default_rng(1)
     x = rng.normal(size=(200, 15)).astype(np.float32)

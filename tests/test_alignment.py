@@ -299,6 +299,8 @@ def test_relative_spec_rejects_bad_settings():
         RelativeSpec(scale=0)
     with pytest.raises(ValueError, match="ref_weight must be >= 0, got -1"):
         RelativeSpec(ref_weight=-1)
+    with pytest.raises(ValueError, match="ref_bandwidth must be positive, got 0"):
+        RelativeSpec(ref_bandwidth=0)
 
 
 @pytest.mark.parametrize("method", sorted(m for m in METHODS if uses_anchors(m)))
@@ -420,6 +422,8 @@ def test_the_input_reference_depends_on_the_anchors_only():
     )
     scale, shift = torch.tensor([0.1, 2.0, 5.0, 1.0, 30.0]).double(), torch.randn(5, generator=g).double()
     torch.testing.assert_close(input_reference(x * scale + shift, anchors * scale + shift), ref)
+    # a kernel of a quarter the squared width is the same kernel to the fourth power: sharper
+    torch.testing.assert_close(input_reference(x, anchors, bandwidth=0.25), ref**4)
     # a dimension with no spread among the anchors does not blow up the distances
     flat = anchors.clone()
     flat[:, 0] = 0.5

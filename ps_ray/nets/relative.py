@@ -47,6 +47,9 @@ class RelativeSpec:
       reference is a function of the anchors only, so every source that shares the anchor set is
       pulled to the same interface, whatever its robot, seed or training data; it is applied on
       the batch's states and on the anchors, which span the tasks the anchors were drawn from.
+    - ``ref_bandwidth``: the reference kernel's squared width as a multiple of the anchors' median
+      squared distance. Below 1 the reference changes faster with the task input, so the pulled
+      interface resolves nearby goals more finely (docs/alignment.md, session 13).
     """
 
     center: str = "none"
@@ -55,6 +58,7 @@ class RelativeSpec:
     anchor_grad: bool = True
     norm_reg: float = 0.0
     ref_weight: float = 0.0
+    ref_bandwidth: float = 1.0
 
     def __post_init__(self) -> None:
         if self.center not in CENTERINGS:
@@ -67,20 +71,22 @@ class RelativeSpec:
             raise ValueError(f"norm_reg must be >= 0, got {self.norm_reg!r}")
         if not self.ref_weight >= 0:
             raise ValueError(f"ref_weight must be >= 0, got {self.ref_weight!r}")
+        if not self.ref_bandwidth > 0:
+            raise ValueError(f"ref_bandwidth must be positive, got {self.ref_bandwidth!r}")
 
 
 PAPER = RelativeSpec()  # the authors' projection: cosine only, gradients through the anchors
 
 
-def input_reference(x: Tensor, anchors: Tensor) -> Tensor:
+def input_reference(x: Tensor, anchors: Tensor, bandwidth: float = 1.0) -> Tensor:
     """The reference interface of raw task inputs x (B x task_dim) against K anchors: Gaussian
     kernel similarities exp(-d^2 / 2 s^2) in the space standardised by the anchors' per-dimension
-    mean and std (std floored at REF_STD_FLOOR), with s^2 the median squared distance between
-    anchors. A fixed function of the anchors: no parameters, no data statistics."""
+    mean and std (std floored at REF_STD_FLOOR), with s^2 = ``bandwidth`` x the median squared
+    distance between anchors. A fixed function of the anchors: no parameters, no data statistics."""
     mean, std = anchors.mean(0), anchors.std(0, unbiased=False).clamp_min(REF_STD_FLOOR)
     a, x = (anchors - mean) / std, (x - mean) / std
-    bandwidth = torch.cdist(a, a).pow(2).median().clamp_min(SCALE_EPS)
-    return torch.exp(-torch.cdist(x, a).pow(2) / (2 * bandwidth))
+    width = bandwidth * torch.cdist(a, a).pow(2).median().clamp_min(SCALE_EPS)
+    return torch.exp(-torch.cdist(x, a).pow(2) / (2 * width))
 
 
 class AnchorReference(NamedTuple):
@@ -198,7 +204,7 @@ class RelativeProjection(nn.Module):
         if self.spec.norm_reg:
             total = total + self.spec.norm_reg * z.norm(dim=-1).clamp_min(1e-12).log().pow(2).mean()
         if self.spec.ref_weight:
-            target = self._post(input_reference(inputs, anchors))
+            target = self._post(input_reference(inputs, anchors, self.spec.ref_bandwidth))
             distance = 1 - F.cosine_similarity(relative, target, dim=-1)
             total = total + self.spec.ref_weight * distance.mean()
         return total

@@ -29,7 +29,7 @@ from ps_ray.atomic import atomic_file, atomic_path, fsync_dir, write_text
 from ps_ray.config import POINT_TASK, TrainSpec, require_same
 from ps_ray.errors import UserError
 from ps_ray.lock import folder_lock
-from ps_ray.nets.modular import uses_anchors
+from ps_ray.nets.modular import method_spec, uses_anchors
 from ps_ray.run_layout import (
     ANCHORS_FILE,
     BEST_POLICY_FILE,
@@ -119,6 +119,8 @@ class TrainingRun:
         self.start, self.start_steps = time.time(), 0
         self.streak = 0  # evaluations in a row at or above spec.target_success
         self.best: float | None = None  # the best greedy success so far (kept across resumes)
+        self.consolidation = method_spec(spec.method).consolidate
+        self.consolidated: dict[str, float] = {}  # figures of the consolidation after the last step
         if spec.init_policy is not None:
             self.algo.load_policy_weights(spec.init_policy)
 
@@ -136,6 +138,7 @@ class TrainingRun:
         return self.converged or self.env_steps >= self.spec.env_steps
 
     def step(self) -> dict[str, Any]:
+        self.consolidated = {}
         result = self.algo.train()
         ours = result.get("ps_ray", {})
         row = {k: ours.get(k) for k in METRIC_FIELDS if k in ours}
@@ -145,6 +148,13 @@ class TrainingRun:
             if self.spec.target_success is not None:
                 self.streak = self.streak + 1 if row["eval_success"] >= self.spec.target_success else 0
         return {**row, **self.best_field()}
+
+    def finish(self) -> dict[str, float]:
+        """Once done: the method's consolidation (MethodSpec.consolidate), run once per finished
+        run (a resumed finished run keeps it); its figures, prefixed ``consolidation_``."""
+        if self.done and self.consolidation is not None and not self.consolidated:
+            self.consolidated = self.algo.consolidate_actor(self.consolidation)
+        return {f"consolidation_{k}": v for k, v in self.consolidated.items()}
 
     def position(self) -> dict[str, Any]:
         """Where the run stands without a step: iteration, env steps and the best so far."""
@@ -164,7 +174,8 @@ class TrainingRun:
             json.dumps(dataclasses.asdict(self.signature), indent=2)
         )
         (Path(directory) / SPEC_FILE).write_text(json.dumps(self.spec.to_dict(), indent=2))
-        (Path(directory) / PROGRESS_FILE).write_text(json.dumps({"streak": self.streak, "best": self.best}))
+        progress = {"streak": self.streak, "best": self.best, "consolidated": self.consolidated}
+        (Path(directory) / PROGRESS_FILE).write_text(json.dumps(progress))
         checkpoint.seal(directory)
 
     def restore(self, directory: Path) -> None:
@@ -177,6 +188,7 @@ class TrainingRun:
             state = json.loads(progress.read_text())
             self.streak = int(state.get("streak", 0))
             self.best = None if state.get("best") is None else float(state["best"])
+            self.consolidated = {k: float(v) for k, v in (state.get("consolidated") or {}).items()}
 
     def final_eval(self) -> dict[str, float]:
         return self.algo.evaluate_greedy(self.spec.eval_episodes * 2)
@@ -347,10 +359,12 @@ def _train(spec: TrainSpec, run_dir: Path, given, progress: bool) -> dict[str, A
                     )
                 if progress:
                     print(run.progress_line(row), flush=True)
+    consolidation = run.finish()
     _save_atomically(run, run_dir)
     final = run.final_eval()
     row = {
         **row,
+        **consolidation,
         **{f"final_{k}": v for k, v in final.items()},
         **run.best_field(),
         "converged": run.converged,

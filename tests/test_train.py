@@ -164,3 +164,27 @@ def test_resume_drops_rows_after_the_checkpoint_and_a_row_a_kill_cut_short(tmp_p
     with open(path, "a", newline="") as f:  # the resumed run appends cleanly
         f.write(row(200) + "\n")
     assert pd.read_csv(path)["env_steps"].tolist() == [100, 200]
+
+
+def test_a_consolidating_method_aligns_once_when_training_ends_and_keeps_it_on_resume(tmp_path, train_cmd):
+    """The consolidation runs after the last training step, on the run's replay: its gap to the
+    input reference shrinks, and the checkpoint, the policy file and the result hold it. Running
+    the finished run again consolidates nothing twice."""
+    from ps_ray.nets.modular import METHODS
+
+    method = next(name for name, spec in METHODS.items() if spec.consolidate is not None)
+    run_dir = tmp_path / "run"
+    cmd = [*train_cmd(run_dir, 600), "--method", method, "--quiet"]
+    first = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
+    assert first.returncode == 0, first.stdout[-2000:] + first.stderr[-2000:]
+    result = json.loads((run_dir / "result.json").read_text())
+    assert result["consolidation_gap_after"] < 0.5 * result["consolidation_gap_before"]
+    progress = json.loads((run_dir / "checkpoint" / "progress.json").read_text())
+    assert progress["consolidated"]["gap_after"] == result["consolidation_gap_after"]
+    policy = (run_dir / "policy.safetensors").read_bytes()
+
+    again = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
+    assert again.returncode == 0, again.stdout[-2000:] + again.stderr[-2000:]
+    assert (run_dir / "policy.safetensors").read_bytes() == policy
+    resumed = json.loads((run_dir / "result.json").read_text())
+    assert resumed["consolidation_gap_after"] == result["consolidation_gap_after"]

@@ -26,6 +26,7 @@ from torch import Tensor, nn
 
 from ps_ray.defaults import HIDDEN, INTERFACE_DIM
 from ps_ray.errors import UserError
+from ps_ray.nets.consolidate import ConsolidateSpec
 from ps_ray.nets.mlp import mlp
 from ps_ray.nets.normalize import RunningNorm
 from ps_ray.nets.relative import RelativeProjection, RelativeSpec
@@ -44,10 +45,14 @@ class MethodSpec:
     dropout: float  # dropout on the latent, applied at the robot module's input
     # False: only the actor's cut is relative; the critics' is the ablation's raw latent
     relative_critics: bool = True
+    # after training, align the actor's interface to the input reference (ps_ray.nets.consolidate)
+    consolidate: ConsolidateSpec | None = None
 
     def __post_init__(self) -> None:
         if self.relative is not None and not self.modular:
             raise ValueError(f"method {self.name!r}: a relative interface needs a modular network")
+        if self.consolidate is not None and self.relative is None:
+            raise ValueError(f"method {self.name!r}: consolidation needs a relative interface")
 
     def relative_for(self, critic: bool) -> RelativeSpec | None:
         """The projection at an actor's or a critic's cut (None: the raw latent)."""
@@ -60,9 +65,11 @@ class MethodSpec:
         return self.interface_dim if self.interface_dim is not None else interface_dim
 
 
-def _ps(name: str, relative_critics: bool = True, **relative) -> MethodSpec:
+def _ps(
+    name: str, relative_critics: bool = True, consolidate: ConsolidateSpec | None = None, **relative
+) -> MethodSpec:
     spec = RelativeSpec(**relative)
-    return MethodSpec(name, spec, True, None, 0.0, relative_critics=relative_critics)
+    return MethodSpec(name, spec, True, None, 0.0, relative_critics, consolidate)
 
 
 # ps is the paper's method, unchanged; ps_* are the variants measured in docs/alignment.md.
@@ -89,6 +96,14 @@ METHODS: dict[str, MethodSpec] = {
             norm="layer",
             ref_weight=0.03,
             ref_bandwidth=0.25,
+        ),
+        _ps(
+            "ps_ref_actor_weak_consolidated",
+            relative_critics=False,
+            consolidate=ConsolidateSpec(),
+            norm_reg=1.0,
+            norm="layer",
+            ref_weight=0.03,
         ),
         MethodSpec("ablation", None, modular=True, interface_dim=None, dropout=0.0),
         MethodSpec("devin", None, modular=True, interface_dim=16, dropout=0.25),

@@ -205,10 +205,20 @@ class RelativeProjection(nn.Module):
         if self.spec.norm_reg:
             total = total + self.spec.norm_reg * z.norm(dim=-1).clamp_min(1e-12).log().pow(2).mean()
         if self.spec.ref_weight:
-            target = self._post(input_reference(inputs, anchors, self.spec.ref_bandwidth))
-            distance = 1 - F.cosine_similarity(relative, target, dim=-1)
-            total = total + self.spec.ref_weight * distance.mean()
+            total = total + self.spec.ref_weight * self._reference_gap(relative, inputs, anchors)
         return total
+
+    def reference_gap(self, encoder: Callable[[Tensor], Tensor], x: Tensor) -> Tensor:
+        """mean(1 - cos) between the interface and the input reference (:func:`input_reference`,
+        at the spec's ``ref_bandwidth``) over the states ``x`` and the anchors: the distance that
+        ``ref_weight`` penalises, unweighted (also the pull of :mod:`ps_ray.nets.consolidate`)."""
+        flat, anchors = self._flatten(x)
+        inputs = torch.cat([flat, anchors], 0)
+        return self._reference_gap(self(encoder, inputs), inputs, anchors)
+
+    def _reference_gap(self, relative: Tensor, inputs: Tensor, anchors: Tensor) -> Tensor:
+        target = self._post(input_reference(inputs, anchors, self.spec.ref_bandwidth))
+        return (1 - F.cosine_similarity(relative, target, dim=-1)).mean()
 
     def extra_repr(self) -> str:
         return f"anchors={tuple(self.anchors.shape)}, {self.spec}"

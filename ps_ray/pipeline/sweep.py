@@ -158,6 +158,7 @@ def sweep_trial(config: dict[str, Any]) -> None:
         if not run.done:
             row = {**run.step(), "node_id": node_id}
         if run.done or row["iteration"] % spec.checkpoint_every == 0:
+            row.update(run.finish())  # after the last step: the method's consolidation, if any
             with tempfile.TemporaryDirectory() as directory:
                 run.save(Path(directory))
                 if run.done:

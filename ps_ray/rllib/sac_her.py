@@ -32,6 +32,7 @@ from ps_ray.config import TrainSpec
 from ps_ray.envs.goals import ROBOT_KEY, task_input
 from ps_ray.errors import UserError
 from ps_ray.her import HindsightReplay
+from ps_ray.nets.consolidate import ConsolidateSpec, consolidate
 from ps_ray.nets.modular import update_normalizers
 from ps_ray.nets.obs import dims_from_spaces
 from ps_ray.rllib.episodes import episode_stats, episodes_to_arrays, train_batch
@@ -147,6 +148,23 @@ class ModularSAC(SAC):
         self.env_runner_group.sync_weights(
             from_worker_or_learner_group=self.learner_group, inference_only=True
         )
+
+    def consolidate_actor(self, spec: ConsolidateSpec) -> dict[str, float]:
+        """The method's consolidation (:mod:`ps_ray.nets.consolidate`) of the learner's actor on
+        HER replay states (goals relabelled as in training); the env runners get the result."""
+        batch = train_batch(self.replay.sample_many(spec.updates, spec.batch_size))
+        task_in, robot_in = batch["task_in"], batch["robot_in"]
+        stats = (
+            self.learner_group.foreach_learner(
+                lambda learner: consolidate(learner.module[DEFAULT_MODULE_ID].actor, task_in, robot_in, spec)
+            )
+            .result_or_errors[0]
+            .get()
+        )
+        self.env_runner_group.sync_weights(
+            from_worker_or_learner_group=self.learner_group, inference_only=True
+        )
+        return stats
 
     def export_policy(self, path, signature, extra: dict[str, str] | None = None) -> None:
         save_policy(path, nets_from_state(self.learner_state(), signature), signature, extra)

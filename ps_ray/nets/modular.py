@@ -97,13 +97,15 @@ METHODS: dict[str, MethodSpec] = {
             ref_weight=0.03,
             ref_bandwidth=0.25,
         ),
+        # the weak pull on an interface x 0.25, consolidated after training (ps_ray/nets/consolidate.py)
         _ps(
-            "ps_ref_actor_weak_consolidated",
+            "ps_consolidated",
             relative_critics=False,
             consolidate=ConsolidateSpec(),
             norm_reg=1.0,
             norm="layer",
             ref_weight=0.03,
+            scale=0.25,
         ),
         MethodSpec("ablation", None, modular=True, interface_dim=None, dropout=0.0),
         MethodSpec("devin", None, modular=True, interface_dim=16, dropout=0.25),

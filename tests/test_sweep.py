@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import time
@@ -51,14 +52,16 @@ def history(path: Path, run, key: str) -> list[tuple[int, float]]:
 
 
 def test_sweep_tracks_one_mlflow_run_per_trial_with_artifacts(tmp_path, cli, tiny_train):
-    path = write_sweep(tmp_path, "track", tiny_train, methods=("ps", "ablation"), seeds=(1,))
+    methods = ("ps", "ps_consolidated", "ablation")
+    path = write_sweep(tmp_path, "track", tiny_train, methods=methods, seeds=(1,))
     proc = cli("sweep", str(path))
     out, _ = proc.communicate(timeout=600)
     assert proc.returncode == 0, out[-3000:]
     found = runs(path)
     # the plain source policy of the anchor stage is tracked too
     plain = "anchors_plain/plain/panda/reach/1/i8"
-    assert sorted(found) == ["ablation/panda/reach/1/i8", plain, "ps/panda/reach/1/i8"]
+    consolidated = "ps_consolidated/panda/reach/1/i8"
+    assert sorted(found) == ["ablation/panda/reach/1/i8", plain, "ps/panda/reach/1/i8", consolidated]
     assert found[plain].data.tags["ps_ray.stage"] == "anchors_plain"
     found.pop(plain)
     client = mlflow.MlflowClient(f"sqlite:///{sweep_dir(load_sweep(path)) / 'mlflow.db'}")
@@ -72,6 +75,11 @@ def test_sweep_tracks_one_mlflow_run_per_trial_with_artifacts(tmp_path, cli, tin
         assert {"policy.safetensors", "signature.json", "spec.json"} <= artifacts
     ps_artifacts = {a.path for a in client.list_artifacts(found["ps/panda/reach/1/i8"].info.run_id)}
     assert any(a.startswith("anchors_3d") for a in ps_artifacts)
+    # a consolidating method's trial consolidates once it is done, before its last checkpoint
+    trial = next((sweep_dir(load_sweep(path)) / "tune").glob("*method_ps_consolidated*"))
+    last = latest_checkpoint(sorted(trial.glob("checkpoint_*")))
+    progress = json.loads((last / "progress.json").read_text())
+    assert progress["consolidated"]["gap_after"] < 0.5 * progress["consolidated"]["gap_before"]
 
 
 def test_resume_after_sigkill_reruns_only_missing_trials_and_never_unpickles(

@@ -41,7 +41,8 @@ from ps_ray.run_layout import (
     SPEC_FILE,
 )
 
-PROGRESS_FILE = "progress.json"  # early-stop streak and best-so-far: a resumed run goes on as it would have
+# early-stop streak, best so far and consolidation figures: a resumed run goes on as it would have
+PROGRESS_FILE = "progress.json"
 
 
 def make_env(spec: TrainSpec):
@@ -349,7 +350,8 @@ def _train(spec: TrainSpec, run_dir: Path, given, progress: bool) -> dict[str, A
             writer.writerow(row)
             if row["iteration"] % spec.checkpoint_every == 0:
                 f.flush()
-                _save_atomically(run, run_dir)
+                if not run.done:  # a done run is saved once below, after its consolidation
+                    _save_atomically(run, run_dir)
             if row.get("eval_success") is not None:
                 if best_before is None or row["eval_success"] > best_before:  # a new best greedy policy
                     run.algo.export_policy(

@@ -10,6 +10,7 @@ import torch
 
 from ps_ray.anchors import anchor_hash
 from ps_ray.config import TrainSpec
+from ps_ray.nets.modular import METHODS
 from ps_ray.nets.sac import NET_NAMES
 from ps_ray.rllib.algo import algo_config
 from ps_ray.rllib.episodes import train_batch
@@ -251,3 +252,25 @@ def test_every_train_setting_is_documented_in_the_help(cli):
         assert f.metadata["help"], f.name
         flag = f"--{f.name.replace('_', '-')}"
         assert flag in out and f"(default {getattr(TrainSpec(), f.name)})" in " ".join(out.split()), flag
+
+
+def test_a_consolidated_actor_reaches_the_env_runners_that_act_and_evaluate(ray_local):
+    """Consolidation changes the learner's actor outside an RLlib update; the env runner that
+    collects episodes and runs the final evaluation must act with it, not with the actor before."""
+    spec = TrainSpec(method="ps_consolidated", anchors=None, **SMALL)
+    anchors = np.random.default_rng(0).uniform(-0.5, 0.5, (16, 2)).astype(np.float32)
+    algo = algo_config(spec, anchors).build_algo()
+    try:
+        for _ in range(3):
+            algo.train()
+        runner = algo.env_runner_group.local_env_runner
+        before = {k: v.clone() for k, v in runner.module.actor.state_dict().items()}
+        stats = algo.consolidate_actor(METHODS["ps_consolidated"].consolidate)
+        assert stats["gap_after"] < stats["gap_before"]
+        learner_actor = _learner_module(algo).actor.state_dict()
+        acting = runner.module.actor.state_dict()
+        assert any(not torch.equal(before[k], acting[k]) for k in acting)
+        for key, value in learner_actor.items():
+            assert torch.equal(acting[key], value), key
+    finally:
+        algo.stop()

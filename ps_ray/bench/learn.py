@@ -64,7 +64,7 @@ def run_one(args: argparse.Namespace, spec: TrainSpec) -> dict:
     curve = pd.read_csv(run_dir / "metrics.csv").dropna(subset=["eval_success"])
     reached = steps_to(curve, args.target)
     print(
-        f"  {method:<14} seed {seed}: steps to {args.target:.2f} "
+        f"  {method:<16} seed {seed}: steps to {args.target:.2f} "
         f"{reached if reached is not None else '> ' + str(args.env_steps)}, "
         f"best eval {curve['eval_success'].max():.2f}, wall {result.get('wall_s', 0):.0f} s",
         flush=True,

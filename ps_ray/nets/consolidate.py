@@ -4,9 +4,11 @@ A pull toward the input reference during training aligns sources but slows their
 robot module must learn to read an interface that is being moved under it. Consolidation moves the
 interface after the source has learned instead. The actor is distilled into itself on replay
 states: it keeps the actions of its frozen pre-consolidation copy (squared error of the squashed
-mean, plus ``log_std_weight`` x that of the log-std) while ``pull`` x the interface's gap to the
-input reference (:meth:`RelativeProjection.reference_gap`) draws every source toward the same
-function of the anchors. Supervised updates on states already collected: no env steps, no critic.
+mean summed over action dims, plus ``log_std_weight`` x the mean squared error of the log-std),
+while ``pull`` x the interface's gap to the input reference
+(:meth:`RelativeProjection.reference_gap`) draws every source toward the same function of the
+anchors. Supervised updates on states already collected: no env steps, no critic. The norm
+penalty of training (``norm_reg``) is not applied.
 """
 
 from __future__ import annotations
@@ -24,6 +26,9 @@ if TYPE_CHECKING:
 
 @dataclass(frozen=True)
 class ConsolidateSpec:
+    """A method's consolidation: ``updates`` Adam steps (``lr``) on minibatches of ``batch_size``,
+    the interface's reference gap weighted by ``pull``, the log-std error by ``log_std_weight``."""
+
     updates: int = 2000
     pull: float = 1.0
     lr: float = 3e-4
@@ -33,7 +38,7 @@ class ConsolidateSpec:
     def __post_init__(self) -> None:
         for name in ("updates", "batch_size"):
             value = getattr(self, name)
-            if not isinstance(value, int) or value < 1:
+            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
                 raise ValueError(f"consolidation {name} must be a positive integer, got {value!r}")
         for name in ("pull", "lr"):
             if not getattr(self, name) > 0:

@@ -24,6 +24,13 @@ def set_runner_seed(runner, seed: int) -> None:
     runner.env.action_space.seed(seed)
 
 
+def mark_weights_changed(learner: Learner) -> None:
+    """A change to the learner's weights outside ``Learner.update`` (consolidation): an env runner
+    loads synced weights only when their ``_weights_seq_no`` is newer than its own (or 0), and only
+    ``update`` advances it, so without this the next sync would be skipped."""
+    learner._weights_seq_no += 1
+
+
 def set_training_iteration(algo, iteration: int) -> None:
     """Trainable's iteration counter, restored from ps_ray's own checkpoint state."""
     algo._iteration = iteration

@@ -38,7 +38,12 @@ from ps_ray.nets.obs import dims_from_spaces
 from ps_ray.rllib.episodes import episode_stats, episodes_to_arrays, train_batch
 from ps_ray.rllib.learner import ModularSACLearner
 from ps_ray.rllib.module import ModularSACModule
-from ps_ray.rllib.private import NO_METRICS_REDUCE, set_runner_seed, set_training_iteration
+from ps_ray.rllib.private import (
+    NO_METRICS_REDUCE,
+    mark_weights_changed,
+    set_runner_seed,
+    set_training_iteration,
+)
 from ps_ray.weights import load_nets_state, nets_from_state, nets_state, save_policy
 
 LEARNER_FILE = "learner.safetensors"
@@ -154,13 +159,13 @@ class ModularSAC(SAC):
         HER replay states (goals relabelled as in training); the env runners get the result."""
         batch = train_batch(self.replay.sample_many(spec.updates, spec.batch_size))
         task_in, robot_in = batch["task_in"], batch["robot_in"]
-        stats = (
-            self.learner_group.foreach_learner(
-                lambda learner: consolidate(learner.module[DEFAULT_MODULE_ID].actor, task_in, robot_in, spec)
-            )
-            .result_or_errors[0]
-            .get()
-        )
+
+        def on_learner(learner):
+            stats = consolidate(learner.module[DEFAULT_MODULE_ID].actor, task_in, robot_in, spec)
+            mark_weights_changed(learner)
+            return stats
+
+        stats = self.learner_group.foreach_learner(on_learner).result_or_errors[0].get()
         self.env_runner_group.sync_weights(
             from_worker_or_learner_group=self.learner_group, inference_only=True
         )

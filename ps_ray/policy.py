@@ -33,7 +33,7 @@ class _GreedyNet(nn.Module):
             mean, _ = self.actor(task_in, robot_in)
         else:
             task = self.actor.task
-            latent = task.relative.project(task.encode(task_in), self.reference)
+            latent = task.projection.project(task.encode(task_in), self.reference)
             mean, _ = self.actor.robot(self.actor.to_robot(latent), robot_in)
         return torch.tanh(mean)
 
@@ -58,8 +58,8 @@ class GreedyPolicy:
         self.dims: NetDims = actor.dims
         reference = None
         with torch.no_grad():
-            if fast and actor.task.relative is not None:
-                relative = actor.task.relative
+            if fast and actor.task.projection is not None:
+                relative = actor.task.projection
                 reference = relative.reference(actor.task.encode(relative.anchors))
             self.net: nn.Module = _GreedyNet(actor, reference).eval()
             if fast:

@@ -175,6 +175,8 @@ def stitch_policies(
     if sig_t.translation or sig_r.translation:
         raise UserError("cannot stitch a policy that is itself a translated stitch; use its sources")
     signature = check_stitchable(sig_t, sig_r, target)
+    for source, nets in ((task_from, nets_t), (robot_from, nets_r)):
+        _check_consolidated(source, nets)
     if translation is not None:
         check_kind(translation)
         if fit_states is None:
@@ -207,6 +209,19 @@ def stitch_policies(
     if rebuilt != signature:  # the anchors the nets carry are the ones the signature names
         raise ValueError(f"stitched nets do not match their signature: {rebuilt.mismatches(signature)}")
     return nets, signature
+
+
+def _check_consolidated(source: PolicySource, nets: SACNets) -> None:
+    """A deferred relative projection (MethodSpec.defer_relative) is off until consolidation: such a
+    policy's cut is still its raw latent, which no other source's robot module reads."""
+    task = nets.actor.task
+    if task.relative is not None and task.projection is None:
+        name = "a source" if isinstance(source, tuple) else getattr(source, "path", source)
+        raise UserError(
+            f"cannot stitch {name}: method {task.spec.name!r} switches to its relative interface "
+            f"when its run finishes, and this policy is from before (stitch the finished run's "
+            f"policy.safetensors, not best_policy.safetensors or an earlier checkpoint)"
+        )
 
 
 @torch.no_grad()

@@ -254,10 +254,12 @@ def test_every_train_setting_is_documented_in_the_help(cli):
         assert flag in out and f"(default {getattr(TrainSpec(), f.name)})" in " ".join(out.split()), flag
 
 
-def test_a_consolidated_actor_reaches_the_env_runners_that_act_and_evaluate(ray_local):
+@pytest.mark.parametrize("method", ["ps_consolidated", "ps_distilled"])
+def test_a_consolidated_actor_reaches_the_env_runners_that_act_and_evaluate(ray_local, method):
     """Consolidation changes the learner's actor outside an RLlib update; the env runner that
-    collects episodes and runs the final evaluation must act with it, not with the actor before."""
-    spec = TrainSpec(method="ps_consolidated", anchors=None, **SMALL)
+    collects episodes and runs the final evaluation must act with it, not with the actor before
+    (for ps_distilled: with its relative projection switched on)."""
+    spec = TrainSpec(method=method, anchors=None, **SMALL)
     anchors = np.random.default_rng(0).uniform(-0.5, 0.5, (16, 2)).astype(np.float32)
     algo = algo_config(spec, anchors).build_algo()
     try:
@@ -265,8 +267,9 @@ def test_a_consolidated_actor_reaches_the_env_runners_that_act_and_evaluate(ray_
             algo.train()
         runner = algo.env_runner_group.local_env_runner
         before = {k: v.clone() for k, v in runner.module.actor.state_dict().items()}
-        stats = algo.consolidate_actor(METHODS["ps_consolidated"].consolidate)
+        stats = algo.consolidate_actor(METHODS[method].consolidate)
         assert stats["gap_after"] < stats["gap_before"]
+        assert runner.module.actor.task.projection is not None
         learner_actor = _learner_module(algo).actor.state_dict()
         acting = runner.module.actor.state_dict()
         assert any(not torch.equal(before[k], acting[k]) for k in acting)
@@ -274,3 +277,25 @@ def test_a_consolidated_actor_reaches_the_env_runners_that_act_and_evaluate(ray_
             assert torch.equal(acting[key], value), key
     finally:
         algo.stop()
+
+
+def test_a_deferred_relative_method_trains_as_the_ablation_bit_for_bit(ray_local):
+    """ps_distilled's projection is off until consolidation: its training is the ablation's, so its
+    learning speed is the ablation's by construction. Same seed, same updates: equal weights."""
+    anchors = np.random.default_rng(0).uniform(-0.5, 0.5, (16, 2)).astype(np.float32)
+    states = {}
+    for method, given in (("ablation", None), ("ps_distilled", anchors)):
+        algo = algo_config(TrainSpec(method=method, anchors=None, **SMALL), given).build_algo()
+        try:
+            for _ in range(3):
+                algo.train()
+            states[method] = {k: v.clone() for k, v in _learner_module(algo).state_dict().items()}
+        finally:
+            algo.stop()
+    deferred = {k for k in states["ps_distilled"] if ".relative." in k or k.endswith("relative_on")}
+    assert deferred == {"actor.task.relative.anchors", "actor.task.relative_on"}
+    assert not states["ps_distilled"]["actor.task.relative_on"]
+    shared = {k: v for k, v in states["ps_distilled"].items() if k not in deferred}
+    assert shared.keys() == states["ablation"].keys()
+    for key, value in shared.items():
+        assert torch.equal(value, states["ablation"][key]), key

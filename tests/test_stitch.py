@@ -22,6 +22,7 @@ from ps_ray import cli
 from ps_ray.checkpoint import STATE_FILE, seal
 from ps_ray.envs import make
 from ps_ray.envs.core import effective_gripper
+from ps_ray.errors import UserError
 from ps_ray.nets.modular import METHODS, NetDims, update_normalizers, uses_anchors
 from ps_ray.nets.obs import dims_from_spaces
 from ps_ray.nets.sac import NET_NAMES, SACNets, build_sac_nets
@@ -69,8 +70,10 @@ def make_nets(
     hidden: int = 16,
     anchors: np.ndarray | None = ANCHORS,
     seed: int = 0,
+    finished: bool = True,
 ) -> tuple[SACNets, Signature]:
-    """Random nets with non-trivial normaliser statistics and targets that differ from the critics."""
+    """Random nets with non-trivial normaliser statistics and targets that differ from the critics;
+    ``finished``: a deferred relative projection (ps_distilled) is switched on, as at a run's end."""
     torch.manual_seed(seed)
     nets = build_sac_nets(
         method,
@@ -88,6 +91,8 @@ def make_nets(
     with torch.no_grad():
         for p in [*nets.target_critic.parameters(), *nets.target_critic_twin.parameters()]:
             p.add_(0.05 * torch.randn(p.shape, generator=g))
+    if finished and METHODS[method].defer_relative:
+        nets.actor.task.switch_relative_on()
     return nets, signature_of(nets, method, interface_dim, hidden)
 
 
@@ -284,6 +289,25 @@ def test_self_stitch_is_identity(method):
         assert all(torch.equal(mine[k], theirs[k]) for k in mine)
     expected, got = outputs(nets, PUSH), outputs(stitched, PUSH)
     assert all(torch.equal(expected[k], got[k]) for k in expected)
+
+
+def test_a_deferred_relative_policy_is_stitched_only_once_switched_on(tmp_path):
+    """ps_distilled trains on the raw latent and switches to the relative interface when its run
+    finishes: the switch travels in the policy file, and a policy from before it is refused."""
+    early, sig = make_nets("ps_distilled", seed=1, finished=False)
+    done, _ = make_nets("ps_distilled", seed=2)
+    path_early = save_policy(tmp_path / "early.safetensors", early, sig)
+    path_done = save_policy(tmp_path / "done.safetensors", done, sig)
+    assert load_policy(path_done)[0].actor.task.projection is not None
+    assert load_policy(path_early)[0].actor.task.projection is None
+    for pair in ((path_early, path_done), (path_done, path_early)):
+        with pytest.raises(UserError, match=r"cannot stitch .*early.safetensors: method 'ps_distilled'"):
+            stitch_policies(*pair)
+    nets, _ = stitch_policies(path_done, path_done)
+    x = inputs(PUSH)[:2]
+    with torch.no_grad():  # the stitched actor's cut is the relative interface
+        assert torch.equal(nets.actor.interface(*x), done.actor.interface(*x))
+        assert not torch.equal(done.actor.interface(*x), done.actor.task.encode(x[0]))
 
 
 def test_stitch_takes_task_modules_from_one_robot_modules_from_the_other(tmp_path):

@@ -9,6 +9,11 @@ while ``pull`` x the interface's gap to the input reference
 (:meth:`RelativeProjection.reference_gap`) draws every source toward the same function of the
 anchors. Supervised updates on states already collected: no env steps, no critic. The norm
 penalty of training (``norm_reg``) is not applied.
+
+A method with a deferred projection (``MethodSpec.defer_relative``) trains on the raw latent, as
+the ablation does; consolidation first switches its projection on, so the teacher is the trained
+raw-latent actor and the robot module learns to read the relative interface from it (distillation
+into a new interface rather than into itself).
 """
 
 from __future__ import annotations
@@ -62,6 +67,8 @@ def consolidate(actor: Actor, task_in: Tensor, robot_in: Tensor, spec: Consolida
     if len(task_in) != spec.rows or len(robot_in) != spec.rows:
         raise ValueError(f"consolidation needs {spec.rows} states, got {len(task_in)} and {len(robot_in)}")
     teacher = copy.deepcopy(actor).requires_grad_(False)
+    if actor.task.projection is None:
+        actor.task.switch_relative_on()
     probe = task_in[: spec.batch_size]
     with torch.no_grad():
         gap_before = relative.reference_gap(actor.task.encode, probe).item()

@@ -47,12 +47,20 @@ class MethodSpec:
     relative_critics: bool = True
     # after training, align the actor's interface to the input reference (ps_ray.nets.consolidate)
     consolidate: ConsolidateSpec | None = None
+    # True: the actor trains on the raw latent (the ablation's network, step for step) and its
+    # relative projection is switched on by consolidation, which distils the actor into it
+    defer_relative: bool = False
 
     def __post_init__(self) -> None:
         if self.relative is not None and not self.modular:
             raise ValueError(f"method {self.name!r}: a relative interface needs a modular network")
         if self.consolidate is not None and self.relative is None:
             raise ValueError(f"method {self.name!r}: consolidation needs a relative interface")
+        if self.defer_relative and (self.consolidate is None or self.relative_critics):
+            raise ValueError(
+                f"method {self.name!r}: a deferred relative interface needs consolidation "
+                f"(which switches it on) and raw-latent critics (relative_critics=False)"
+            )
 
     def relative_for(self, critic: bool) -> RelativeSpec | None:
         """The projection at an actor's or a critic's cut (None: the raw latent)."""
@@ -66,10 +74,14 @@ class MethodSpec:
 
 
 def _ps(
-    name: str, relative_critics: bool = True, consolidate: ConsolidateSpec | None = None, **relative
+    name: str,
+    relative_critics: bool = True,
+    consolidate: ConsolidateSpec | None = None,
+    defer_relative: bool = False,
+    **relative,
 ) -> MethodSpec:
     spec = RelativeSpec(**relative)
-    return MethodSpec(name, spec, True, None, 0.0, relative_critics, consolidate)
+    return MethodSpec(name, spec, True, None, 0.0, relative_critics, consolidate, defer_relative)
 
 
 # ps is the paper's method, unchanged; ps_* are the variants measured in docs/alignment.md.
@@ -105,6 +117,16 @@ METHODS: dict[str, MethodSpec] = {
             norm_reg=1.0,
             norm="layer",
             ref_weight=0.03,
+            scale=0.25,
+        ),
+        # trains as the ablation; at the end its actor is distilled into the relative interface
+        # (x 0.25, LayerNorm) with the pull (ps_ray/nets/consolidate.py, docs/alignment.md)
+        _ps(
+            "ps_distilled",
+            relative_critics=False,
+            consolidate=ConsolidateSpec(updates=4000),  # a new interface to learn: twice the updates
+            defer_relative=True,
+            norm="layer",
             scale=0.25,
         ),
         MethodSpec("ablation", None, modular=True, interface_dim=None, dropout=0.0),
@@ -160,10 +182,27 @@ class TaskModule(nn.Module):
             in_dim = dims.task_dim + dims.robot_dim + (dims.action_dim if sees_action else 0)
             self.body = mlp(in_dim, [hidden], latent_dim, out_act=True)
         self.relative = relative
+        if relative is not None and spec.defer_relative:
+            # off while training: the raw latent is the interface until consolidation switches it
+            self.register_buffer("relative_on", torch.tensor(False))
 
     @property
     def anchors(self) -> Tensor | None:
         return None if self.relative is None else self.relative.anchors
+
+    @property
+    def projection(self) -> RelativeProjection | None:
+        """The relative projection in use at the cut: None for a raw latent, which is also a
+        deferred projection's (MethodSpec.defer_relative) until :meth:`switch_relative_on`."""
+        if self.relative is None or not bool(getattr(self, "relative_on", True)):
+            return None
+        return self.relative
+
+    def switch_relative_on(self) -> None:
+        """Make a deferred relative projection the interface (consolidation does, then distils)."""
+        if not hasattr(self, "relative_on"):
+            raise ValueError(f"method {self.spec.name!r} has no deferred relative projection")
+        self.relative_on.fill_(True)
 
     def encode(self, task_in: Tensor) -> Tensor:
         """Normalised input -> raw latent (modular methods; also embeds the PS anchors)."""
@@ -173,7 +212,8 @@ class TaskModule(nn.Module):
         self, task_in: Tensor, robot_in: Tensor | None = None, action: Tensor | None = None
     ) -> Tensor:
         if self.spec.modular:
-            return self.encode(task_in) if self.relative is None else self.relative(self.encode, task_in)
+            projection = self.projection
+            return self.encode(task_in) if projection is None else projection(self.encode, task_in)
         if robot_in is None or (self.sees_action and action is None):
             needs = "robot_in and action" if self.sees_action else "robot_in"
             raise ValueError(f"the plain bottom half needs {needs}")
@@ -190,9 +230,10 @@ class TaskModule(nn.Module):
     ) -> tuple[Tensor, Tensor]:
         """The latent and the relative projection's penalties (RelativeSpec.norm_reg, ref_weight;
         zero for other methods), from one pass of the encoder."""
-        if self.relative is None:
+        projection = self.projection
+        if projection is None:
             return self(task_in, robot_in, action), task_in.new_zeros(())
-        return self.relative.penalized(self.encode, task_in)
+        return projection.penalized(self.encode, task_in)
 
     def penalty(self, task_in: Tensor) -> Tensor:
         """The relative projection's penalties alone (see :meth:`penalized`)."""

@@ -22,19 +22,24 @@ from ps_ray.nets.relative import AnchorReference
 
 class _GreedyNet(nn.Module):
     """tanh(mean) of an actor; with ``reference`` the relative projection's anchor side is given
-    (computed once) instead of re-embedded at every forward."""
+    (computed once) instead of re-embedded at every forward. Whether a deferred projection is on
+    is settled here, once, so that a trace holds no branch on a tensor."""
 
     def __init__(self, actor: Actor, reference: AnchorReference | None) -> None:
         super().__init__()
         self.actor, self.reference = actor, reference
+        self.projection_off = actor.task.relative is not None and actor.task.projection is None
 
     def forward(self, task_in: torch.Tensor, robot_in: torch.Tensor) -> torch.Tensor:
-        if self.reference is None:
-            mean, _ = self.actor(task_in, robot_in)
+        task = self.actor.task
+        if self.reference is not None:
+            latent = task.relative.project(task.encode(task_in), self.reference)
+        elif self.projection_off:
+            latent = task.encode(task_in)
         else:
-            task = self.actor.task
-            latent = task.projection.project(task.encode(task_in), self.reference)
-            mean, _ = self.actor.robot(self.actor.to_robot(latent), robot_in)
+            mean, _ = self.actor(task_in, robot_in)
+            return torch.tanh(mean)
+        mean, _ = self.actor.robot(self.actor.to_robot(latent), robot_in)
         return torch.tanh(mean)
 
 

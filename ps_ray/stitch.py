@@ -6,7 +6,8 @@ nets are stitched (actor, both critics and both target critics), so a stitched p
 few-shot training; zero-shot evaluation uses the actor alone (:mod:`ps_ray.evaluate`).
 
 What must agree (:func:`check_stitchable`): method, latent width at the cut (the interface dim;
-devin's is fixed at 16, plain's is ``hidden``), hidden width and anchor set (PS). Dims: the task
+devin's is fixed at 16, plain's is ``hidden``), hidden width and anchor set (PS); a deferred
+relative projection (ps_distilled) must be switched on in both. Dims: the task
 module brings the task-input width, the robot module the robot-state and action widths, so a push
 task module (7-D actions) can meet a pick robot module (8-D). Plain is one MLP cut in the middle:
 its bottom half also sees the robot state (and, in a critic, the action), so both halves must
@@ -96,6 +97,12 @@ def stitch_problems(sig_task: Signature, sig_robot: Signature, target: EnvSpec |
                 a, b = getattr(sig_task, dim), getattr(sig_robot, dim)
                 if a != b:
                     problems.append(f"{dim.replace('_', ' ')} (plain needs equal dims): {pair(a, b)}")
+    for role, sig in (("task module", sig_task), ("robot module", sig_robot)):
+        if sig.projection_off:
+            problems.append(
+                f"the {role}'s policy is from before its method {sig.method!r} switched to the "
+                f"relative interface (at its run's end): stitch a finished run's policy.safetensors"
+            )
     if sig_task.hidden != sig_robot.hidden:
         problems.append(f"hidden: {pair(sig_task.hidden, sig_robot.hidden)}")
     if sig_task.anchor_hash != sig_robot.anchor_hash:
@@ -175,8 +182,6 @@ def stitch_policies(
     if sig_t.translation or sig_r.translation:
         raise UserError("cannot stitch a policy that is itself a translated stitch; use its sources")
     signature = check_stitchable(sig_t, sig_r, target)
-    for source, nets in ((task_from, nets_t), (robot_from, nets_r)):
-        _check_consolidated(source, nets)
     if translation is not None:
         check_kind(translation)
         if fit_states is None:
@@ -209,19 +214,6 @@ def stitch_policies(
     if rebuilt != signature:  # the anchors the nets carry are the ones the signature names
         raise ValueError(f"stitched nets do not match their signature: {rebuilt.mismatches(signature)}")
     return nets, signature
-
-
-def _check_consolidated(source: PolicySource, nets: SACNets) -> None:
-    """A deferred relative projection (MethodSpec.defer_relative) is off until consolidation: such a
-    policy's cut is still its raw latent, which no other source's robot module reads."""
-    task = nets.actor.task
-    if task.relative is not None and task.projection is None:
-        name = "a source" if isinstance(source, tuple) else getattr(source, "path", source)
-        raise UserError(
-            f"cannot stitch {name}: method {task.spec.name!r} switches to its relative interface "
-            f"when its run finishes, and this policy is from before (stitch the finished run's "
-            f"policy.safetensors, not best_policy.safetensors or an earlier checkpoint)"
-        )
 
 
 @torch.no_grad()

@@ -82,7 +82,7 @@ def prepare_anchors(spec: TrainSpec, run_dir: Path, given=None):
     return anchor_set
 
 
-def _check_run_dir(spec: TrainSpec, run_dir: Path, write: bool = True) -> None:
+def _check_run_dir(spec: TrainSpec, run_dir: Path) -> None:
     """A run directory belongs to one policy; only the budget and reporting settings may change."""
     spec_file = run_dir / SPEC_FILE
     if spec_file.exists():
@@ -96,8 +96,6 @@ def _check_run_dir(spec: TrainSpec, run_dir: Path, write: bool = True) -> None:
         require_same(
             stored, spec.identity(), f"{run_dir} holds a run of another spec", "use another --run-dir"
         )
-    if write:
-        write_text(spec_file, json.dumps(spec.to_dict(), indent=2))
 
 
 class TrainingRun:
@@ -170,10 +168,8 @@ class TrainingRun:
         import dataclasses
 
         self.algo.save_checkpoint(str(directory))
-        self.algo.export_policy(Path(directory) / POLICY_FILE, self.signature)
-        (Path(directory) / SIGNATURE_FILE).write_text(
-            json.dumps(dataclasses.asdict(self.signature), indent=2)
-        )
+        signature = self.algo.export_policy(Path(directory) / POLICY_FILE, self.signature)
+        (Path(directory) / SIGNATURE_FILE).write_text(json.dumps(dataclasses.asdict(signature), indent=2))
         (Path(directory) / SPEC_FILE).write_text(json.dumps(self.spec.to_dict(), indent=2))
         progress = {"streak": self.streak, "best": self.best, "consolidated": self.consolidated}
         (Path(directory) / PROGRESS_FILE).write_text(json.dumps(progress))
@@ -190,6 +186,12 @@ class TrainingRun:
             self.streak = int(state.get("streak", 0))
             self.best = None if state.get("best") is None else float(state["best"])
             self.consolidated = {k: float(v) for k, v in (state.get("consolidated") or {}).items()}
+        if self.consolidated and not self.done and method_spec(self.spec.method).defer_relative:
+            raise UserError(
+                f"{directory}: this {self.spec.method} run finished at {self.env_steps} env steps "
+                f"and switched its actor to the relative interface, so more training "
+                f"(env_steps {self.spec.env_steps}) would not be its method's; start a new run"
+            )
 
     def final_eval(self) -> dict[str, float]:
         return self.algo.evaluate_greedy(self.spec.eval_episodes * 2)
@@ -282,7 +284,7 @@ def train(spec: TrainSpec, run_dir: str | Path, *, progress: bool = True) -> dic
     """Train (or resume) until spec.env_steps; returns the last metrics row with final_* figures.
     One process at a time per run folder (:mod:`ps_ray.lock`)."""
     run_dir = Path(run_dir).resolve()  # RLlib's checkpoint writer needs absolute paths
-    _check_run_dir(spec, run_dir, write=False)
+    _check_run_dir(spec, run_dir)
     given = read_inputs(spec)  # a bad --init-policy or --anchors fails before the folder is made
     with folder_lock(run_dir, "run"):
         return _train(spec, run_dir, given, progress)
@@ -332,9 +334,10 @@ def _train(spec: TrainSpec, run_dir: Path, given, progress: bool) -> dict[str, A
     _check_run_dir(spec, run_dir)
     resume_from = _latest_checkpoint(run_dir)
     if resume_from is not None:
-        run.restore(resume_from)
+        run.restore(resume_from)  # may refuse the new budget: spec.json is written after it
         if progress:
             print(f"[{spec.label()}] resumed at {run.env_steps} env steps", flush=True)
+    write_text(run_dir / SPEC_FILE, json.dumps(spec.to_dict(), indent=2))
     _metrics_up_to(run_dir, run.env_steps)
     row: dict[str, Any] = run.position()
     best_file = _best_so_far(run_dir)  # the best policy file may be newer than the checkpoint

@@ -41,6 +41,9 @@ class Signature:
     robot_dim: int
     action_dim: int
     translation: str = ""  # a stitched policy's fitted latent translation ("" none, or its kind)
+    # a deferred relative projection (MethodSpec.defer_relative) still off: the cut is the raw
+    # latent until the run finishes, so no other source's robot module reads it
+    projection_off: bool = False
 
     @property
     def dims(self) -> NetDims:
@@ -65,6 +68,7 @@ def signature_of(
             f"signature says {translation or 'none'!r}"
         )
     return Signature(
+        projection_off=projection_off(nets),
         method=method,
         interface_dim=interface_dim,
         hidden=hidden,
@@ -76,6 +80,12 @@ def signature_of(
         action_dim=dims.action_dim,
         translation=translation,
     )
+
+
+def projection_off(nets: nn.Module) -> bool:
+    """Whether the actor's relative projection is deferred and not yet switched on."""
+    task = nets.actor.task
+    return task.relative is not None and task.projection is None
 
 
 def nets_state(nets: nn.Module) -> dict[str, torch.Tensor]:
@@ -136,6 +146,8 @@ def signature_problem(signature: Signature) -> str | None:
         return f"anchor_hash must be a string, got {signature.anchor_hash!r}"
     if signature.translation not in ("", *TRANSLATIONS):
         return f"unknown translation {signature.translation!r}; valid: none, {', '.join(TRANSLATIONS)}"
+    if not isinstance(signature.projection_off, bool):
+        return f"projection_off must be true or false, got {signature.projection_off!r}"
     return None
 
 
@@ -218,4 +230,7 @@ def load_policy(path: str | Path) -> tuple[SACNets, Signature]:
             state = {k: f.get_tensor(k) for k in f.keys()}
     except (SafetensorError, OSError, ValueError) as e:
         raise UserError(f"{path}: unreadable tensors ({e})") from None
-    return nets_from_state(state, signature, str(path)), signature
+    nets = nets_from_state(state, signature, str(path))
+    if projection_off(nets) != signature.projection_off:
+        raise UserError(f"{path}: the relative projection's switch disagrees with the signature")
+    return nets, signature

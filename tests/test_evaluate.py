@@ -119,10 +119,16 @@ def test_every_policy_sees_the_same_episodes_and_num_envs_changes_nothing():
         ("plain", None),
         ("ps_center_ln", "affine"),
         ("ablation", "orthogonal"),
+        ("ps_distilled", None),  # its projection still off, as while training
+        ("ps_distilled", "switched"),
     ],
 )
+@pytest.mark.filterwarnings("error::torch.jit.TracerWarning")
 def test_fast_actions_match_the_actor(method, translation):
     nets = nets_for(method)
+    if translation == "switched":
+        nets.actor.task.switch_relative_on()
+        translation = None
     if translation:  # a translated stitch of the policy with another seed of it
         from ps_ray.stitch import stitch_policies
         from ps_ray.weights import signature_of

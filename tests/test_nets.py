@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import ast
 import copy
+import dataclasses
 from pathlib import Path
 
 import pytest
@@ -44,13 +45,22 @@ def inputs(dims: NetDims, batch: int = BATCH, seed: int = 1) -> tuple[torch.Tens
     return task, robot, action
 
 
+# every method, and ps_distilled also as it is after its run (its deferred projection switched on)
+SWITCHED = ":on"
+VARIANTS = [*sorted(METHODS), "ps_distilled" + SWITCHED]
+
+
 def build(
     kind: str, method: str, dims: NetDims = PUSH, interface_dim: int = 128, seed: int = 0, **kw
 ) -> Actor | Critic:
     torch.manual_seed(seed)
+    method, switched = method.removesuffix(SWITCHED), method.endswith(SWITCHED)
     builder = build_actor if kind == "actor" else build_critic
     anchors = anchors_for(dims, interface_dim) if METHODS[method].relative else None
-    return builder(method, dims, interface_dim=interface_dim, anchors=anchors, **kw)
+    net = builder(method, dims, interface_dim=interface_dim, anchors=anchors, **kw)
+    if switched and kind == "actor":
+        net.task.switch_relative_on()
+    return net
 
 
 def run(net: Actor | Critic, task, robot, action):
@@ -173,7 +183,7 @@ def test_anchor_grad_does_not_change_values() -> None:
 
 
 @pytest.mark.parametrize("kind", ["actor", "critic"])
-@pytest.mark.parametrize("method", sorted(METHODS))
+@pytest.mark.parametrize("method", VARIANTS)
 def test_gradients_reach_every_parameter(method: str, kind: str) -> None:
     net = build(kind, method)
     net.train()
@@ -192,7 +202,7 @@ def test_gradients_reach_every_parameter(method: str, kind: str) -> None:
 
 @pytest.mark.parametrize("dims", [PUSH, REACH], ids=["push", "reach"])
 @pytest.mark.parametrize("interface_dim", [3, 16, 128])
-@pytest.mark.parametrize("method", sorted(METHODS))
+@pytest.mark.parametrize("method", VARIANTS)
 def test_interface_dims_build_and_run(method: str, interface_dim: int, dims: NetDims) -> None:
     actor = build("actor", method, dims, interface_dim)
     critic = build("critic", method, dims, interface_dim)
@@ -200,10 +210,19 @@ def test_interface_dims_build_and_run(method: str, interface_dim: int, dims: Net
     expected_width = {"devin": 16, "plain": 256}.get(method, interface_dim)
     assert actor.latent_dim == critic.latent_dim == expected_width
     assert actor.interface(task, robot).shape == (BATCH, expected_width)
+    if method.endswith(SWITCHED):  # the relative interface, not the raw latent it replaced
+        assert not torch.equal(actor.interface(task, robot), actor.task.encode(task))
     assert critic.interface(task, robot, action).shape == (BATCH, expected_width)
     mean, log_std = actor(task, robot)
     assert mean.shape == log_std.shape == (BATCH, dims.action_dim)
     assert critic(task, robot, action).shape == (BATCH,)
+
+
+def test_switching_on_a_projection_needs_a_deferred_one() -> None:
+    with pytest.raises(ValueError, match="method 'ps' has no deferred relative projection"):
+        build("actor", "ps").task.switch_relative_on()
+    with pytest.raises(ValueError, match="deferred relative interface needs consolidation"):
+        dataclasses.replace(METHODS["ps_consolidated"], name="x", consolidate=None, defer_relative=True)
 
 
 def test_ps_interface_is_cosine_vector() -> None:

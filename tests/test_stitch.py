@@ -294,14 +294,18 @@ def test_self_stitch_is_identity(method):
 def test_a_deferred_relative_policy_is_stitched_only_once_switched_on(tmp_path):
     """ps_distilled trains on the raw latent and switches to the relative interface when its run
     finishes: the switch travels in the policy file, and a policy from before it is refused."""
-    early, sig = make_nets("ps_distilled", seed=1, finished=False)
-    done, _ = make_nets("ps_distilled", seed=2)
-    path_early = save_policy(tmp_path / "early.safetensors", early, sig)
-    path_done = save_policy(tmp_path / "done.safetensors", done, sig)
+    early, sig_early = make_nets("ps_distilled", seed=1, finished=False)
+    done, sig_done = make_nets("ps_distilled", seed=2)
+    assert (sig_early.projection_off, sig_done.projection_off) == (True, False)
+    path_early = save_policy(tmp_path / "early.safetensors", early, sig_early)
+    path_done = save_policy(tmp_path / "done.safetensors", done, sig_done)
     assert load_policy(path_done)[0].actor.task.projection is not None
     assert load_policy(path_early)[0].actor.task.projection is None
+    lying = save_policy(tmp_path / "lying.safetensors", early, sig_done)  # the switch is in both
+    with pytest.raises(UserError, match="lying.safetensors: the relative projection's switch disagrees"):
+        load_policy(lying)
     for pair in ((path_early, path_done), (path_done, path_early)):
-        with pytest.raises(UserError, match=r"cannot stitch .*early.safetensors: method 'ps_distilled'"):
+        with pytest.raises(UserError, match=r"the (task|robot) module.s policy is from before"):
             stitch_policies(*pair)
     nets, _ = stitch_policies(path_done, path_done)
     x = inputs(PUSH)[:2]

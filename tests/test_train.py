@@ -168,13 +168,14 @@ def test_resume_drops_rows_after_the_checkpoint_and_a_row_a_kill_cut_short(tmp_p
     assert pd.read_csv(path)["env_steps"].tolist() == [100, 200]
 
 
-def test_a_consolidating_method_aligns_once_when_training_ends_and_keeps_it_on_resume(tmp_path, train_cmd):
+@pytest.mark.parametrize("method", ["ps_consolidated", "ps_distilled"])
+def test_a_consolidating_method_aligns_once_when_training_ends_and_keeps_it_on_resume(
+    tmp_path, train_cmd, method
+):
     """The consolidation runs after the last training step, on the run's replay: its gap to the
     input reference shrinks, and the checkpoint, the policy file and the result hold it. Running
-    the finished run again consolidates nothing twice."""
-    from ps_ray.nets.modular import METHODS
-
-    method = next(name for name, spec in METHODS.items() if spec.consolidate is not None)
+    the finished run again consolidates nothing twice. ps_distilled's policy file carries its
+    projection switched on."""
     run_dir = tmp_path / "run"
     cmd = [*train_cmd(run_dir, 600), "--method", method, "--quiet"]
     first = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
@@ -184,6 +185,7 @@ def test_a_consolidating_method_aligns_once_when_training_ends_and_keeps_it_on_r
     progress = json.loads((run_dir / "checkpoint" / "progress.json").read_text())
     assert progress["consolidated"]["gap_after"] == result["consolidation_gap_after"]
     policy = load_file(run_dir / "policy.safetensors")
+    assert policy.get("actor.task.relative_on", torch.tensor(True)).item()
 
     again = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
     assert again.returncode == 0, again.stdout[-2000:] + again.stderr[-2000:]
@@ -194,3 +196,17 @@ def test_a_consolidating_method_aligns_once_when_training_ends_and_keeps_it_on_r
     assert resumed["consolidation_gap_after"] == result["consolidation_gap_after"]
     # both final evaluations ran the consolidated actor (the resume loads it from the checkpoint)
     assert resumed["final_return"] == result["final_return"]
+
+    spec_before = (run_dir / "spec.json").read_text()
+    raised = subprocess.run(
+        [*train_cmd(run_dir, 800), "--method", method, "--quiet"], capture_output=True, text=True, timeout=600
+    )
+    extended = json.loads((run_dir / "result.json").read_text())
+    if method == "ps_distilled":  # its actor is no longer the network its training trained
+        assert raised.returncode == 2, raised.stdout[-2000:] + raised.stderr[-2000:]
+        assert "switched its actor to the relative interface" in raised.stderr.strip().splitlines()[-1]
+        assert (run_dir / "spec.json").read_text() == spec_before and extended == resumed
+    else:  # a raised budget trains on and consolidates again at its new end
+        assert raised.returncode == 0, raised.stdout[-2000:] + raised.stderr[-2000:]
+        assert extended["env_steps"] > result["env_steps"]
+        assert extended["consolidation_gap_before"] != result["consolidation_gap_before"]

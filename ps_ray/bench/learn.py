@@ -4,9 +4,12 @@ Each (method, seed) is a real `ps-ray train` run (its own run directory, resumab
 once the target is met in two evaluations in a row, or at the budget cap. The table reads their
 metrics.csv files, so an interrupted benchmark re-run only finishes what is missing.
 Steps to target is the first evaluation at or above it; a run that never gets there counts as
-the cap (a lower bound, marked with '>'). Means carry 95% CIs over seeds, and each method's mean
-is divided by the baseline's (the ablation by default) on the same seeds, with a paired bootstrap
-CI (ps_ray/analysis/stats.py). Runs are deterministic per seed: a re-run repeats its figures.
+the cap (a lower bound, marked with '>'). ``final`` is the greedy success of the policy the run
+leaves (after consolidation, for methods that consolidate), and ``final ok`` counts the runs where
+it is at or above the target: a consolidated policy must keep what training reached. Means
+carry 95% CIs over seeds, and each method's mean is divided by the baseline's (the ablation by
+default) on the same seeds, with a paired bootstrap CI (ps_ray/analysis/stats.py). Runs are
+deterministic per seed: a re-run repeats its figures.
 """
 
 from __future__ import annotations
@@ -110,7 +113,7 @@ def main(argv: list[str] | None = None) -> None:
     name_w, ratio_w = max(14, *(len(m) + 1 for m in args.methods)), max(24, len(ratio_label) + 2)
     print(
         f"{'method':<{name_w}}{'mean steps [95% CI]':>24}{ratio_label:>{ratio_w}}"
-        f"{'min':>7}{'max':>7}{'reached':>9}{'best eval':>10}{'final':>7}{'wall s':>8}"
+        f"{'min':>7}{'max':>7}{'reached':>9}{'best eval':>10}{'final':>7}{'final ok':>10}{'wall s':>8}"
     )
     steps_of = {
         m: g.set_index("seed")["steps"].fillna(args.env_steps) for m, g in df.groupby("method", sort=False)
@@ -124,7 +127,7 @@ def main(argv: list[str] | None = None) -> None:
             f"{method:<{name_w}}{censored + _ci(mean.mean, mean.mean_lo, mean.mean_hi, '.0f'):>24}"
             f"{censored + _ci(*ratio, '.2f'):>{ratio_w}}{steps.min():>7.0f}{steps.max():>7.0f}"
             f"{g['steps'].notna().sum():>6}/{len(g):<2}{g['best'].mean():>10.2f}{g['final'].mean():>7.2f}"
-            f"{np.mean(g['wall_s']):>8.0f}"
+            f"{(g['final'] >= args.target).sum():>7}/{len(g):<2}{np.mean(g['wall_s']):>8.0f}"
         )
 
 

@@ -44,7 +44,14 @@ from ps_ray.rllib.private import (
     set_runner_seed,
     set_training_iteration,
 )
-from ps_ray.weights import load_nets_state, nets_from_state, nets_state, save_policy
+from ps_ray.weights import (
+    Signature,
+    load_nets_state,
+    nets_from_state,
+    nets_state,
+    projection_off,
+    save_policy,
+)
 
 LEARNER_FILE = "learner.safetensors"
 EVAL_SEED_OFFSET = 500_000
@@ -171,8 +178,13 @@ class ModularSAC(SAC):
         )
         return stats
 
-    def export_policy(self, path, signature, extra: dict[str, str] | None = None) -> None:
-        save_policy(path, nets_from_state(self.learner_state(), signature), signature, extra)
+    def export_policy(self, path, signature, extra: dict[str, str] | None = None) -> Signature:
+        """Write the learner's nets as a policy file; returns its signature, which records whether
+        a deferred relative projection is still off (``Signature.projection_off``)."""
+        nets = nets_from_state(self.learner_state(), signature)
+        signature = dataclasses.replace(signature, projection_off=projection_off(nets))
+        save_policy(path, nets, signature, extra)
+        return signature
 
     def evaluate_greedy(self, episodes: int) -> dict[str, float]:
         return episode_stats(self._collect(explore=False, random=False, n=episodes))

@@ -15,6 +15,7 @@ import yaml
 from ps_ray.checkpoint import latest as latest_checkpoint
 from ps_ray.pipeline.sweep import sweep_dir
 from ps_ray.sweep_spec import load_sweep
+from ps_ray.weights import load_policy
 
 
 def write_sweep(
@@ -52,7 +53,7 @@ def history(path: Path, run, key: str) -> list[tuple[int, float]]:
 
 
 def test_sweep_tracks_one_mlflow_run_per_trial_with_artifacts(tmp_path, cli, tiny_train):
-    methods = ("ps", "ps_consolidated", "ablation")
+    methods = ("ps", "ps_distilled", "ablation")
     path = write_sweep(tmp_path, "track", tiny_train, methods=methods, seeds=(1,))
     proc = cli("sweep", str(path))
     out, _ = proc.communicate(timeout=600)
@@ -60,7 +61,7 @@ def test_sweep_tracks_one_mlflow_run_per_trial_with_artifacts(tmp_path, cli, tin
     found = runs(path)
     # the plain source policy of the anchor stage is tracked too
     plain = "anchors_plain/plain/panda/reach/1/i8"
-    consolidated = "ps_consolidated/panda/reach/1/i8"
+    consolidated = "ps_distilled/panda/reach/1/i8"
     assert sorted(found) == ["ablation/panda/reach/1/i8", plain, "ps/panda/reach/1/i8", consolidated]
     assert found[plain].data.tags["ps_ray.stage"] == "anchors_plain"
     found.pop(plain)
@@ -75,11 +76,14 @@ def test_sweep_tracks_one_mlflow_run_per_trial_with_artifacts(tmp_path, cli, tin
         assert {"policy.safetensors", "signature.json", "spec.json"} <= artifacts
     ps_artifacts = {a.path for a in client.list_artifacts(found["ps/panda/reach/1/i8"].info.run_id)}
     assert any(a.startswith("anchors_3d") for a in ps_artifacts)
-    # a consolidating method's trial consolidates once it is done, before its last checkpoint
-    trial = next((sweep_dir(load_sweep(path)) / "tune").glob("*method_ps_consolidated*"))
+    # a consolidating method's trial consolidates once it is done, before its last checkpoint;
+    # ps_distilled's policy there has its relative projection switched on, and says so
+    trial = next((sweep_dir(load_sweep(path)) / "tune").glob("*method_ps_distilled*"))
     last = latest_checkpoint(sorted(trial.glob("checkpoint_*")))
     progress = json.loads((last / "progress.json").read_text())
     assert progress["consolidated"]["gap_after"] < 0.5 * progress["consolidated"]["gap_before"]
+    assert json.loads((last / "signature.json").read_text())["projection_off"] is False
+    assert load_policy(last / "policy.safetensors")[0].actor.task.projection is not None
 
 
 def test_resume_after_sigkill_reruns_only_missing_trials_and_never_unpickles(

@@ -86,7 +86,7 @@ def main(argv: list[str] | None = None) -> None:
     parser = Parser(prog="ps-ray bench learn", description=__doc__)
     parser.add_argument("--robot", default="panda")
     parser.add_argument("--task", default="reach")
-    parser.add_argument("--methods", nargs="+", default=["ps", "ps_consolidated", "ablation", "plain"])
+    parser.add_argument("--methods", nargs="+", default=["ps", "ps_distilled", "ablation", "plain"])
     parser.add_argument("--seeds", nargs="+", type=int, default=[101, 102, 103])
     parser.add_argument("--env-steps", type=positive_int, default=20_000, help="budget cap per run")
     parser.add_argument("--target", type=float, default=0.9, help="greedy success target")

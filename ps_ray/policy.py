@@ -28,7 +28,7 @@ class _GreedyNet(nn.Module):
     def __init__(self, actor: Actor, reference: AnchorReference | None) -> None:
         super().__init__()
         self.actor, self.reference = actor, reference
-        self.projection_off = actor.task.relative is not None and actor.task.projection is None
+        self.projection_off = actor.task.projection_off
 
     def forward(self, task_in: torch.Tensor, robot_in: torch.Tensor) -> torch.Tensor:
         task = self.actor.task

@@ -68,7 +68,7 @@ def signature_of(
             f"signature says {translation or 'none'!r}"
         )
     return Signature(
-        projection_off=projection_off(nets),
+        projection_off=nets.actor.task.projection_off,
         method=method,
         interface_dim=interface_dim,
         hidden=hidden,
@@ -80,12 +80,6 @@ def signature_of(
         action_dim=dims.action_dim,
         translation=translation,
     )
-
-
-def projection_off(nets: nn.Module) -> bool:
-    """Whether the actor's relative projection is deferred and not yet switched on."""
-    task = nets.actor.task
-    return task.relative is not None and task.projection is None
 
 
 def nets_state(nets: nn.Module) -> dict[str, torch.Tensor]:
@@ -231,6 +225,6 @@ def load_policy(path: str | Path) -> tuple[SACNets, Signature]:
     except (SafetensorError, OSError, ValueError) as e:
         raise UserError(f"{path}: unreadable tensors ({e})") from None
     nets = nets_from_state(state, signature, str(path))
-    if projection_off(nets) != signature.projection_off:
+    if nets.actor.task.projection_off != signature.projection_off:
         raise UserError(f"{path}: the relative projection's switch disagrees with the signature")
     return nets, signature

@@ -198,6 +198,11 @@ class TaskModule(nn.Module):
             return None
         return self.relative
 
+    @property
+    def projection_off(self) -> bool:
+        """Whether a deferred relative projection is not yet switched on (the cut is raw)."""
+        return self.relative is not None and self.projection is None
+
     def switch_relative_on(self) -> None:
         """Make a deferred relative projection the interface (consolidation does, then distils)."""
         if not hasattr(self, "relative_on"):

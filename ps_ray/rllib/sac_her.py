@@ -49,7 +49,6 @@ from ps_ray.weights import (
     load_nets_state,
     nets_from_state,
     nets_state,
-    projection_off,
     save_policy,
 )
 
@@ -182,7 +181,7 @@ class ModularSAC(SAC):
         """Write the learner's nets as a policy file; returns its signature, which records whether
         a deferred relative projection is still off (``Signature.projection_off``)."""
         nets = nets_from_state(self.learner_state(), signature)
-        signature = dataclasses.replace(signature, projection_off=projection_off(nets))
+        signature = dataclasses.replace(signature, projection_off=nets.actor.task.projection_off)
         save_policy(path, nets, signature, extra)
         return signature
 

@@ -17,6 +17,7 @@ no object, so its touching and contact are 0.
 
 from __future__ import annotations
 
+import hashlib
 import math
 import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
@@ -187,7 +188,8 @@ def evaluate(
     """Zero-shot evaluation of a deterministic policy (see the module docstring).
 
     Returns success/touching/contact mean, std and per-repeat values, ``initially_successful``
-    per repeat, ``records`` (one :class:`EpisodeRecord` dict per episode), ``episodes_per_s`` and
+    per repeat, ``records`` (one :class:`EpisodeRecord` dict per episode), ``episodes_digest``
+    (:func:`episodes_digest`), ``episodes_per_s`` and
     ``env_steps_per_s`` of the rollout loop (env construction excluded) and ``wall_s`` (all of it).
     ``fast``: see :class:`BatchedGreedy`.
     """
@@ -230,7 +232,15 @@ def evaluate(
         "env_steps_per_s": len(records) * steps / loop_s,
         "wall_s": time.perf_counter() - started,
         "records": [asdict(r) for r in records],
+        "episodes_digest": episodes_digest(records),
     }
+
+
+def episodes_digest(records: Sequence[EpisodeRecord]) -> str:
+    """A short hash of the episodes as they were reset (seed, goal, start): two evaluations with
+    equal digests scored their policies on the same episodes."""
+    text = repr([(r.seed, r.goal, r.start) for r in records])
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
 def _progress(

@@ -11,6 +11,9 @@ from typing import Any
 from ps_ray.defaults import INTERFACE_DIM
 from ps_ray.errors import UserError
 
+# The unstitched controls and the oracle scored beside every stitched pair (ps_ray.stitch.controls)
+CONTROL_ROLES = ("robot_source", "task_source", "oracle")
+
 
 def as_mapping(value: str | Mapping) -> dict:
     """A robot or task as a mapping: a name ``n`` becomes ``{"name": n}``."""

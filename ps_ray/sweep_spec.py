@@ -66,6 +66,9 @@ def _positive(where: str, **values: int | None) -> None:
             raise SpecError(f"{where}.{key} must be positive, got {value}")
 
 
+PAIRINGS = ("same_seed", "cross_seed", "both")
+
+
 @dataclass(frozen=True)
 class ZeroShotSpec:
     """The zero-shot stage: every stitched pair evaluated on fixed seeds (episodes x repeats)."""
@@ -78,11 +81,16 @@ class ZeroShotSpec:
     # shown as rows "ablation+affine" (ps_ray.nets.translation)
     translate: Mapping[str, tuple[str, ...]] = dataclasses.field(default_factory=dict)
     fit_states_per_quadrant: int = 128  # reset task states per goal quadrant and source task
+    # which modules meet: of one training seed, of two seeds (seed i's task modules with seed
+    # i+1's robot modules, cyclically: separate training runs), or both
+    pairs: str = "same_seed"
 
     def __post_init__(self) -> None:
         from ps_ray.nets.translation import TRANSLATIONS
 
         check_types(self, "zero_shot")
+        if self.pairs not in PAIRINGS:
+            raise SpecError(f"unknown zero_shot.pairs {self.pairs!r}; valid: {', '.join(PAIRINGS)}")
         _unique("zero_shot", methods=self.methods)
         _positive(
             "zero_shot",

@@ -1,4 +1,4 @@
-"""Alignment beyond the paper: latent translation, retrieval scores, collapse flag, bootstrap CIs,
+"""Alignment beyond the paper: latent translation, retrieval scores, collapse flag
 and the relative-projection variants."""
 
 from __future__ import annotations
@@ -9,7 +9,6 @@ import numpy as np
 import pytest
 import torch
 
-from ps_ray.analysis import stats
 from ps_ray.analysis.alignment import chance_mrr, collapsed, retrieval, spread
 from ps_ray.nets.modular import METHODS, NetDims, build_actor, update_normalizers, uses_anchors
 from ps_ray.nets.relative import RelativeProjection, RelativeSpec, input_reference
@@ -181,56 +180,6 @@ def test_a_collapsed_interface_is_flagged_and_cannot_score_retrieval():
     assert collapsed(nearly)
 
 
-# -- bootstrap confidence intervals ---------------------------------------------------------------
-def _cells(seeds: int, pairs: int = 6, seed: int = 0):
-    g = np.random.default_rng(seed)
-    seed_effect = g.normal(0, 0.1, seeds)
-    values = np.clip(0.4 + seed_effect[:, None] + g.normal(0, 0.1, (seeds, pairs)), 0, 1)
-    return values.ravel(), np.repeat(np.arange(seeds), pairs)
-
-
-def test_bootstrap_ci_covers_the_mean_and_narrows_with_more_seeds():
-    widths = []
-    for n in (3, 10, 40):
-        values, seeds = _cells(n)
-        e = stats.estimate(values, seeds)
-        assert e.mean == pytest.approx(values.mean())
-        assert e.mean_lo <= e.mean <= e.mean_hi and e.iqm_lo <= e.iqm <= e.iqm_hi
-        assert (e.cells, e.seeds) == (len(values), n)
-        widths.append(e.mean_hi - e.mean_lo)
-    assert widths[0] > widths[1] > widths[2]
-
-
-def test_bootstrap_resamples_seeds_not_cells():
-    """Cells of one seed move together: the CI must be as wide as the spread of seed means
-    implies, far wider than treating the 40 cells as independent would give."""
-    values = np.repeat([0.1, 0.5, 0.9, 0.3], 10)
-    seeds = np.repeat(np.arange(4), 10)
-    e = stats.estimate(values, seeds)
-    assert e.mean_hi - e.mean_lo > 0.3
-    assert stats.iqm(np.array([0, 0.5, 0.5, 0.5, 0.5, 0.5, 0.5, 1.0])) == pytest.approx(0.5)
-
-
-def test_ratio_of_paired_means_keeps_each_seeds_pair_together():
-    base = np.array([3100.0, 4100.0, 6100.0, 4100.0, 5100.0, 3100.0])
-    point, lo, hi = stats.ratio_of_means(1.5 * base, base)
-    assert point == lo == hi == pytest.approx(1.5)  # every resample of paired seeds gives 1.5
-    shuffled = np.roll(1.5 * base, 1)  # the same values, paired with other seeds
-    point, lo, hi = stats.ratio_of_means(shuffled, base)
-    assert point == pytest.approx(1.5) and lo < 1.5 < hi
-    assert np.isnan(stats.ratio_of_means([2.0], [1.0])[1])
-    with pytest.raises(ValueError, match="paired"):
-        stats.ratio_of_means([1.0, 2.0], [1.0])
-
-
-def test_one_seed_has_no_interval():
-    e = stats.estimate([0.2, 0.4, 0.6], [101, 101, 101])
-    assert np.isnan(e.mean_lo) and e.text() == "0.40 [n/a]"
-    with pytest.raises(ValueError, match="one seed per value"):
-        stats.estimate([0.1, 0.2], [1])
-
-
-# -- the relative-projection variants ------------------------------------------------------------
 def test_ps_is_the_papers_projection_and_variants_differ_only_in_settings():
     assert METHODS["ps"].relative == RelativeSpec()
     variants = [m for m, spec in METHODS.items() if spec.relative is not None and m != "ps"]

@@ -35,7 +35,7 @@ def test_train_spec_defaults_are_valid_and_label_names_the_trial():
             {"method": "psx"},
             f"unknown method 'psx'; valid methods: {', '.join(METHODS)}",
         ),
-        ({"robot": "pandaa"}, "unknown robot 'pandaa'; valid robots: panda, panda_l3, panda_l5"),
+        ({"robot": "pandaa"}, "unknown robot 'pandaa'; valid robots: panda, panda_l3, panda_l5, panda_far"),
         ({"task": "pushh"}, "unknown task 'pushh'"),
         (
             {"robot": {"base": "panda", "locked_joints": [9]}},
@@ -231,7 +231,9 @@ def test_cli_rejects_bad_train_input(tmp_path):
         timeout=120,
     )
     assert proc.returncode == 2
-    assert proc.stderr.strip().endswith("unknown robot 'pandaa'; valid robots: panda, panda_l3, panda_l5")
+    assert proc.stderr.strip().endswith(
+        "unknown robot 'pandaa'; valid robots: panda, panda_l3, panda_l5, panda_far"
+    )
     assert not (tmp_path / "run").exists()
 
 

@@ -52,15 +52,24 @@ def test_zero_shot_matrix_of_a_sweep(trained_matrix):
 
     table = run_zero_shot(spec, episodes=4, repeats=2, progress=False)
     assert len(table) == 4 and set(table["method"]) == {"ablation"}
-    assert table["success_mean"].between(0, 1).all()
     assert (sweep_dir(spec) / "zero_shot.csv").exists()
     assert summary(table).loc["ablation", "pairs"] == 4
+    # every pair carries its controls: the robot source as it is, the task source on the target
+    # robot and the oracle trained on the target pair (all four pairs of the grid were trained)
+    for _, row in table.iterrows():
+        robot_key, task_key = row["robot_from"].split("/"), row["task_from"].split("/")
+        assert row["robot_source"] == row["robot_from"] and row["task_source"] == row["task_from"]
+        assert row["oracle"] == "/".join([robot_key[0], robot_key[1], task_key[2], *robot_key[3:]])
+        best = max(row["robot_source_success"], row["task_source_success"])
+        assert row["best_unstitched"] == best
+        assert row["transfer_gain"] == pytest.approx(row["success_mean"] - best)
 
     client = mlflow.MlflowClient(f"sqlite:///{sweep_dir(spec) / 'mlflow.db'}")
     experiment = client.get_experiment_by_name("matrix")
     found_runs = client.search_runs([experiment.experiment_id])
     stages = [r.data.tags["ps_ray.stage"] for r in found_runs]
-    assert stages.count("zero_shot") == 4 and stages.count("train") == 4
+    # 4 stitched pairs and 12 distinct unstitched evaluations (3 controls each, none shared here)
+    assert stages.count("zero_shot") == 16 and stages.count("train") == 4
     # each stitched pair's run links to the training runs of its two sources
     train_runs = {
         r.data.tags["ps_ray.trial_key"]: r.info.run_id
@@ -69,6 +78,10 @@ def test_zero_shot_matrix_of_a_sweep(trained_matrix):
     }
     for run in (r for r in found_runs if r.data.tags["ps_ray.stage"] == "zero_shot"):
         tags = run.data.tags
+        if "control" in tags["ps_ray.trial_key"]:  # a control's run links its one source
+            assert tags["ps_ray.task_module"] == tags["ps_ray.robot_module"]
+            assert tags["ps_ray.task_module_run"] == train_runs[tags["ps_ray.task_module"]]
+            continue
         assert tags["ps_ray.task_module_run"] == train_runs[tags["ps_ray.task_module"]]
         assert tags["ps_ray.robot_module_run"] == train_runs[tags["ps_ray.robot_module"]]
         assert tags["ps_ray.task_module"] != tags["ps_ray.robot_module"]

@@ -40,8 +40,9 @@ def probe_states(task: str | Mapping, per_group: int = 250, seed: int = 0) -> Pr
     """Task inputs at reset of the real env, ``per_group`` per goal quadrant.
 
     Reach (any goal region): goals drawn in each of the four quadrant discs (the paper's four
-    directions). Other tasks: resets of the task itself, labelled by the goal's quadrant, until
-    every quadrant has ``per_group`` states."""
+    directions), whatever the task's own goal region is, so a reach half is probed outside its
+    half too. Other tasks: resets of the task itself, labelled by the quadrant of the point to
+    reach (for markers: the named marker), until every quadrant has ``per_group`` states."""
     from ps_ray.envs import make
     from ps_ray.envs.goals import task_input
     from ps_ray.envs.tasks import resolve_task
@@ -62,7 +63,7 @@ def probe_states(task: str | Mapping, per_group: int = 250, seed: int = 0) -> Pr
             if min(counts.values()) >= per_group:
                 break
             obs, _ = env.reset(seed=seed + i)
-            quadrant = goal_quadrant(obs["desired_goal"])
+            quadrant = goal_quadrant(env.task.target_position)  # where the goal is in the world
             if counts[quadrant] < per_group:
                 counts[quadrant] += 1
                 states.append(task_input(obs))

@@ -33,9 +33,11 @@ class Report:
     metrics: dict[str, float] = field(default_factory=dict)
     headline: dict[str, pd.DataFrame] = field(default_factory=dict)  # per-method figures for the top
 
-    def section(self, title: str, intro: str = "") -> Section:
-        self.sections.append(Section(title, intro))
-        return self.sections[-1]
+    def section(self, title: str, intro: str = "", first: bool = False) -> Section:
+        """A new section at the end of the page (``first``: at the top)."""
+        section = Section(title, intro)
+        self.sections.insert(0 if first else len(self.sections), section)
+        return section
 
     def figure(self, section: Section, name: str, draw: Callable[[Path], Path]) -> None:
         section.items.append(("figure", draw(self.root / "figures" / f"{name}.png")))

@@ -164,3 +164,43 @@ def zero_shot_bars(table: pd.DataFrame, path: Path) -> Path:
     axes[0].legend(fontsize=8)
     fig.tight_layout()
     return _save(fig, path)
+
+
+def transfer_gain_bars(table: pd.DataFrame, path: Path) -> Path:
+    """The report's main figure: per stitched combination (rows) and method (bars), the transfer
+    gain, stitched success minus the better unstitched source on the same episodes (mean over
+    seeds, error bar: the seeds' range); one panel per pairing (same seed, across seeds)."""
+    from ps_ray.analysis.tables import method_order
+
+    pairings = list(dict.fromkeys(table["pairing"]))
+    labels = list(dict.fromkeys(table["label"]))
+    methods = method_order(table["method"])
+    fig, axes = plt.subplots(
+        1,
+        len(pairings),
+        figsize=(6 * len(pairings) + 3, 0.3 * len(labels) * len(methods) + 1.5),
+        sharey=True,
+        squeeze=False,
+    )
+    height = 0.8 / len(methods)
+    for ax, pairing in zip(axes[0], pairings):
+        for index, method in enumerate(methods):
+            part = table[(table["method"] == method) & (table["pairing"] == pairing)]
+            gain = part.groupby("label")["transfer_gain"].agg(["mean", "min", "max"]).reindex(labels)
+            ax.barh(
+                np.arange(len(labels)) + index * height,
+                gain["mean"],
+                height,
+                xerr=[gain["mean"] - gain["min"], gain["max"] - gain["mean"]],
+                label=method,
+                capsize=2,
+            )
+        ax.axvline(0.0, color="black", linewidth=0.8)
+        ax.set_yticks(np.arange(len(labels)) + 0.4 - height / 2, labels, fontsize=7)
+        ax.set_xlim(-1.05, 1.05)
+        ax.set_xlabel("transfer gain: stitched - best unstitched source")
+        ax.set_title(pairing.replace("_", " "), fontsize=9)
+        ax.invert_yaxis()
+    axes[0][0].legend(fontsize=8)
+    fig.tight_layout()
+    return _save(fig, path)

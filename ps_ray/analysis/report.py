@@ -19,7 +19,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from ps_ray.analysis import clips, latent, plots, results, tables
+from ps_ray.analysis import clips, latent, plots, results, tables, transfer
 from ps_ray.analysis.page import Report, Section, render_html
 from ps_ray.analysis.report_run import REPORT_RUN, log_report
 from ps_ray.analysis.summary import cost_section, summary_section
@@ -277,7 +277,7 @@ def _zero_shot(report: Report, root: Path, target: float, say) -> None:
     report.table(
         section,
         "zero_shot_summary",
-        "Per method over (pair, seed) cells: mean and IQM with bootstrap 95% CIs resampling seeds",
+        "Per method over (pair, seed) cells: mean with a t interval over per-seed means (95%), and the IQM",
         tables.estimates_text(numbers),
         numbers=numbers,
     )
@@ -289,7 +289,38 @@ def _zero_shot(report: Report, root: Path, target: float, say) -> None:
                     name = metric if stat == "mean" else f"{metric}_{stat}"
                     report.metrics[f"zero_shot.{method}.{name}"] = float(row[f"{metric}_{stat}"])
     report.figure(section, "zero_shot", lambda p: plots.zero_shot_bars(tables.pool_seeds(table), p))
+    if transfer.has_controls(table):
+        _transfer(report, table)
     say(f"report: zero-shot table of {len(table)} stitched pairs")
+
+
+def _transfer(report: Report, table: pd.DataFrame) -> None:
+    """Stitching against its controls: the transfer table and the transfer-gain figure, first."""
+    numbers = transfer.transfer_numbers(table)
+    section = report.section(
+        "Transfer: stitching against its controls",
+        "Each stitched pair (task module of (X, Ra), robot module of (Y, Rb), run on (X, Rb)) beside "
+        "its robot source run unstitched on (X, Rb), its task source run on robot Rb, and the "
+        "oracle trained on (X, Rb), all on the pair's evaluation episodes. Transfer gain: stitched "
+        "success minus the better unstitched source, averaged per seed; mean with a t interval over "
+        "seeds (df = n - 1) and an exact sign-flip p-value. Same-seed pairs join modules of one "
+        "training seed, cross-seed pairs modules of two.",
+        first=True,
+    )
+    report.table(
+        section,
+        "transfer",
+        "Stitched success, its controls and the transfer gain, per method and pairing",
+        transfer.transfer_text(numbers),
+        numbers=numbers,
+    )
+    report.figure(section, "transfer_gain", lambda p: plots.transfer_gain_bars(table, p))
+    report.headline["transfer"] = numbers
+    for _, row in numbers.iterrows():
+        prefix = f"transfer.{row['method']}.{row['pairing']}"
+        for column in ("success_mean", *transfer.CONTROL_COLUMNS, "gain_diff", "gain_p"):
+            if row[column] == row[column]:
+                report.metrics[f"{prefix}.{column}"] = float(row[column])
 
 
 def _has_object(tasks: pd.Series) -> bool:

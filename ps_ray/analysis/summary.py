@@ -66,6 +66,15 @@ def summary_section(report: Report, spec: SweepSpec, target: float) -> None:
                     r["touching_mean_lo"], r["touching_mean_hi"]
                 )
             row["cells"] = str(int(r["success_cells"]))
+        tr = h.get("transfer")
+        if tr is not None:
+            for _, r in tr[tr["method"] == method].iterrows():
+                if r["gain_diff"] == r["gain_diff"]:
+                    row[f"transfer gain, {r['pairing'].replace('_', ' ')}"] = (
+                        f"{r['gain_diff']:+.2f} "
+                        + tables.ci(r["gain_lo"], r["gain_hi"])
+                        + f", p {r['gain_p']:.2g}"
+                    )
         al = h.get("alignment")
         if al is not None:
             part = al[(al["method"] == method) & (al["comparison"] == "robots")]
@@ -109,7 +118,8 @@ def summary_section(report: Report, spec: SweepSpec, target: float) -> None:
     section = Section(
         "Summary",
         budget + "Zero-shot: stitched pairs in their target env, no "
-        "training; CIs resample seeds (fewer than two seeds: n/a). MRR: retrieval of "
+        "training; 95% t intervals over per-seed means (fewer than two seeds: n/a). Transfer gain: "
+        "stitched success minus the better unstitched source on the same episodes. MRR: retrieval of "
         "the same probe state across networks (1 = perfect; chance with "
         f"{probes} probes: {chance_mrr(probes):.3f}; a collapsed interface cannot score).",
     )

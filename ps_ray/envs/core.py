@@ -82,7 +82,7 @@ class RobotTaskEnv(gym.Env[Obs, np.ndarray]):
         self.observation_space = spaces.Dict(
             {
                 "robot_state": _box(ROBOT_STATE_DIM),
-                "task_state": _box(self.task.state_dim),
+                "task_state": _box(self.task_spec.input_dim - GOAL_DIM),
                 "achieved_goal": _box(GOAL_DIM),
                 "desired_goal": _box(GOAL_DIM),
             }

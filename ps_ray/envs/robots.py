@@ -7,6 +7,7 @@ plus a finger-width delta (x 0.2 m) when the gripper is enabled.
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 
@@ -41,11 +42,17 @@ class RobotSpec:
         at its neutral angle; the action keeps its size and the locked elements are ignored.
     gripper: True = 8-D action with a real finger width; False = fingers closed, width reported as
         0, 7-D action; None = the task's default (pick tasks: True, reach/push: False).
+    mount: where the arm stands, as the yaw in degrees of its base about the workspace centre: 0 is
+        the paper's place (0.6 m behind the table centre, facing +x), 90 the side of the table
+        (at -y, facing +y), 180 the far end. The same joint angles then put the end effector
+        elsewhere in the world, so a policy of one mount misses its goals on another
+        (docs/transfer.md).
     """
 
     base: str = "panda"
     locked_joints: tuple[int, ...] = ()
     gripper: bool | None = None
+    mount: float = 0.0
 
     def __post_init__(self) -> None:
         if self.base not in BASES:
@@ -64,12 +71,27 @@ class RobotSpec:
             )
         if self.gripper not in (None, True, False):
             raise UserError(f"bad gripper {self.gripper!r}; valid grippers: None, True, False")
+        if (
+            isinstance(self.mount, bool)
+            or not isinstance(self.mount, (int, float))
+            or not -360 <= self.mount <= 360
+        ):
+            raise UserError(f"bad mount {self.mount!r}; valid mounts: a yaw in degrees, -360..360")
+        object.__setattr__(self, "mount", float(self.mount))
+
+    def base_pose(self) -> tuple[tuple[float, float, float], tuple[float, float, float, float]]:
+        """Position and orientation (quaternion) of the arm's base for its mount."""
+        yaw = math.radians(self.mount)
+        x, y, z = BASE_POSITION
+        position = (x * math.cos(yaw) - y * math.sin(yaw), x * math.sin(yaw) + y * math.cos(yaw), z)
+        return position, (0.0, 0.0, math.sin(yaw / 2), math.cos(yaw / 2))
 
 
 ROBOTS: dict[str, RobotSpec] = {
     "panda": RobotSpec(),  # R1
     "panda_l3": RobotSpec(locked_joints=(2,)),  # R2: 3rd joint locked
     "panda_l5": RobotSpec(locked_joints=(4,)),  # R3: 5th joint locked
+    "panda_far": RobotSpec(mount=180.0),  # R1 at the far end of the table, facing it (transfer study)
 }
 _SPEC_KEYS = ("name", *(f.name for f in dataclasses.fields(RobotSpec)))
 
@@ -105,7 +127,7 @@ class Panda:
         self.sim, self.spec, self.gripper = sim, spec, gripper
         self.action_dim = action_dim(gripper)
         urdf = locked_panda_urdf({j: float(NEUTRAL[j]) for j in spec.locked_joints})
-        self.body = sim.load_urdf(urdf, BASE_POSITION)
+        self.body = sim.load_urdf(urdf, *spec.base_pose())
         cid = sim.client
         for finger in FINGER_JOINTS:
             p.changeDynamics(

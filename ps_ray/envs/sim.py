@@ -82,9 +82,17 @@ class Sim:
     def add_box(self, half_extents: Vec, position: Vec, **kwargs) -> int:
         return self.add_shape(p.GEOM_BOX, half_extents, position, **kwargs)
 
-    def load_urdf(self, path: str, position: Vec = (0.0, 0.0, 0.0)) -> int:
+    def load_urdf(
+        self, path: str, position: Vec = (0.0, 0.0, 0.0), orientation: Vec = (0.0, 0.0, 0.0, 1.0)
+    ) -> int:
         """Load a fixed-base URDF (once per env: PyBullet does not free a removed URDF's memory)."""
-        return p.loadURDF(path, basePosition=list(position), useFixedBase=True, physicsClientId=self.client)
+        return p.loadURDF(
+            path,
+            basePosition=list(position),
+            baseOrientation=list(orientation),
+            useFixedBase=True,
+            physicsClientId=self.client,
+        )
 
     def remove(self, body: int) -> None:
         p.removeBody(body, physicsClientId=self.client)

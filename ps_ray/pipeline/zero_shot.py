@@ -16,7 +16,7 @@ import pandas as pd
 
 from ps_ray.atomic import atomic_path
 from ps_ray.errors import UserError
-from ps_ray.names import short_name
+from ps_ray.names import CONTROL_ROLES, short_name
 from ps_ray.pipeline.sweep import layout, raise_on_errors, sweep_dir
 from ps_ray.sweep_spec import SweepSpec
 
@@ -30,25 +30,45 @@ RESULT_KEYS = (
 )
 
 
-def pairs(spec: SweepSpec, methods: list[str] | None = None, translate: bool = False) -> list[dict[str, Any]]:
-    """One trial config per stitched pair of the sweep's trained policies; with ``translate``,
-    also one per latent translation that ``spec.zero_shot.translate`` names for the method
-    (its method shown as ``<method>+<translation>``)."""
-    from ps_ray.stitch import combos
+def _seed_pairs(seeds: tuple[int, ...], pairing: str) -> list[tuple[str, int, int]]:
+    """(pairing, task module's seed, robot module's seed): same seed, and/or each seed's task
+    modules with the next seed's robot modules (cyclically: every seed once on each side)."""
+    out = []
+    if pairing in ("same_seed", "both"):
+        out += [("same_seed", s, s) for s in seeds]
+    if pairing in ("cross_seed", "both") and len(seeds) > 1:
+        out += [("cross_seed", s, seeds[(i + 1) % len(seeds)]) for i, s in enumerate(seeds)]
+    return out
+
+
+def pairs(
+    spec: SweepSpec, methods: list[str] | None = None, translate: bool = False, pairing: str = "same_seed"
+) -> list[dict[str, Any]]:
+    """One trial config per stitched pair of the sweep's trained policies (``pairing``: see
+    :func:`_seed_pairs`), with the zoo keys and files of its controls (:func:`ps_ray.stitch.controls`);
+    with ``translate``, also one per latent translation that ``spec.zero_shot.translate`` names for
+    the method (its method shown as ``<method>+<translation>``)."""
+    from ps_ray.stitch import combos, controls
     from ps_ray.zoo import ModuleZoo
 
     zoo = ModuleZoo.from_sweep(sweep_dir(spec))
     out = []
     for method in methods or spec.methods:
         kinds = ("", *spec.zero_shot.translations(method)) if translate else ("",)
-        for seed in spec.seeds:
-            for combo in combos(zoo, method, seed):
+        for kind_of_pair, seed, robot_seed in _seed_pairs(spec.seeds, pairing):
+            for combo in combos(zoo, method, seed, robot_seed=robot_seed):
+                seeds = str(seed) if kind_of_pair == "same_seed" else f"{seed}x{robot_seed}"
                 for kind in kinds:
+                    name = f"{method}+{kind}" if kind else method
                     out.append(
                         {
-                            "method": f"{method}+{kind}" if kind else method,
+                            "role": "stitched",
+                            "key": f"zero_shot/{name}/{combo.label}/{seeds}",
+                            "method": name,
                             "translation": kind,
+                            "pairing": kind_of_pair,
                             "seed": seed,
+                            "robot_seed": robot_seed,
                             "label": combo.label,
                             "task_from": str(combo.task_from.key),
                             "robot_from": str(combo.robot_from.key),
@@ -57,40 +77,78 @@ def pairs(spec: SweepSpec, methods: list[str] | None = None, translate: bool = F
                             "fit_tasks": [combo.task_from.spec["task"], combo.robot_from.spec["task"]],
                             "robot": combo.robot,
                             "task": combo.task,
+                            "controls": {
+                                role: {"source": str(entry.key), "path": str(entry.path)}
+                                for role, entry in controls(zoo, combo).items()
+                            },
                         }
                     )
     return out
 
 
+def control_runs(stitched: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """One trial config per distinct unstitched evaluation the pairs' controls need: a source
+    policy as it is, on a pair's target env. Pairs that share a control share its run."""
+    runs: dict[str, dict[str, Any]] = {}
+    for pair in stitched:
+        for control in pair["controls"].values():
+            name = control_name(control["source"], pair["robot"], pair["task"])
+            runs.setdefault(
+                name,
+                {
+                    "role": "control",
+                    "key": f"zero_shot/control/{name}",
+                    "method": control["source"].split("/")[0],
+                    "label": name,
+                    "source": control["source"],
+                    "path": control["path"],
+                    "robot": pair["robot"],
+                    "task": pair["task"],
+                },
+            )
+    return list(runs.values())
+
+
+def control_name(source: str, robot, task) -> str:
+    """``<source key> on <task>-<robot>``: one unstitched evaluation."""
+    return f"{source} on {short_name(task)}-{short_name(robot)}"
+
+
 def fit_states(tasks: list, per_quadrant: int, seed: int) -> np.ndarray:
-    """Task inputs for fitting a latent translation: env resets of every given task (the target
-    task and the robot source's task, so both task modules see familiar states), per goal
-    quadrant. Resets only: no env steps are taken."""
+    """Task inputs for fitting a latent translation: the probe states of every given task (the
+    target task and the robot source's task), ``per_quadrant`` per goal quadrant
+    (:func:`ps_ray.analysis.latent.probe_states`: for reach, goals from the four quadrant discs
+    rather than the task's own goal region; for other tasks, the task's own resets). Resets only:
+    no env steps are taken."""
     from ps_ray.analysis.latent import probe_states
 
     return np.concatenate([probe_states(task, per_quadrant, seed).states for task in tasks])
 
 
 def zero_shot_trial(config: dict[str, Any]) -> None:
-    """Tune function trainable: stitch one pair (translated, if the pair says so) and evaluate it."""
+    """Tune function trainable: stitch one pair (translated, if the pair says so) and evaluate it,
+    or evaluate one unstitched control, on the stage's fixed episodes."""
     from ray import tune
 
     from ps_ray.evaluate import evaluate
     from ps_ray.pipeline.trials import FINISHED
-    from ps_ray.stitch import stitch_policies
+    from ps_ray.stitch import load_source, stitch_policies
 
     pair, settings = config["pair"], config["eval"]
-    translation = pair.get("translation") or None
-    states = (
-        fit_states(pair["fit_tasks"], config["fit_states_per_quadrant"], settings["seed"])
-        if translation
-        else None
-    )
-    stitched = stitch_policies(
-        pair["task_from_path"], pair["robot_from_path"], translation=translation, fit_states=states
-    )
-    result = evaluate(stitched, pair["robot"], pair["task"], **settings)
-    tune.report({**{k: result[k] for k in RESULT_KEYS}, FINISHED: True})
+    if pair["role"] == "control":
+        policy = load_source(pair["path"])
+    else:
+        translation = pair.get("translation") or None
+        states = (
+            fit_states(pair["fit_tasks"], config["fit_states_per_quadrant"], settings["seed"])
+            if translation
+            else None
+        )
+        policy = stitch_policies(
+            pair["task_from_path"], pair["robot_from_path"], translation=translation, fit_states=states
+        )
+    result = evaluate(policy, pair["robot"], pair["task"], **settings)
+    tune.report({**{k: result[k] for k in (*RESULT_KEYS, "episodes_digest")}, FINISHED: True})
 
 
 def run_zero_shot(
@@ -100,7 +158,7 @@ def run_zero_shot(
 
     ``resume`` finishes an interrupted matrix (restores ``tune_zero_shot``)."""
     from ps_ray.pipeline.sweep import connect
-    from ps_ray.pipeline.tracking import git_commit, source_tags
+    from ps_ray.pipeline.tracking import git_commit
     from ps_ray.pipeline.trials import require_fresh, run_trials
     from ps_ray.pipeline.tune_tracking import MLflowTuneCallback
 
@@ -108,34 +166,21 @@ def run_zero_shot(
     root = sweep_dir(spec)
     if not resume:
         require_fresh(layout(spec).tune_zero_shot, "pair", "zero_shot")
-    trials = pairs(spec, list(settings.methods) or None, translate=True)
-    if not trials:
+    stitched = pairs(spec, list(settings.methods) or None, translate=True, pairing=settings.pairs)
+    trials = stitched + control_runs(stitched)
+    if not stitched:
         raise UserError(f"{root}: no stitchable pairs (train the sweep first: ps-ray sweep)")
     tracking_uri, experiment_id = connect(spec)
     callback = MLflowTuneCallback(
         tracking_uri,
         experiment_id,
         metric_keys=RESULT_KEYS,
-        key_fn=lambda trial: (
-            f"zero_shot/{trial.config['pair']['method']}/"
-            f"{trial.config['pair']['label']}/{trial.config['pair']['seed']}"
-        ),
+        key_fn=lambda trial: trial.config["pair"]["key"],
         params_fn=lambda trial: (
-            {
-                k: short_name(v)
-                for k, v in trial.config["pair"].items()
-                if not k.endswith("_path") and k != "fit_tasks"
-            }
-            | {"episodes": settings.episodes, "repeats": settings.repeats}
+            _shown(trial.config["pair"]) | {"episodes": settings.episodes, "repeats": settings.repeats}
         ),
         tags={"ps_ray.sweep": spec.name, "ps_ray.stage": "zero_shot", "git_commit": git_commit() or ""},
-        tags_fn=lambda trial, client: source_tags(
-            client,
-            experiment_id,
-            trial.config["pair"]["task_from"],
-            trial.config["pair"]["robot_from"],
-            trial.config["pair"]["task_from_path"],
-        ),
+        tags_fn=lambda trial, client: _tags(client, experiment_id, trial.config["pair"]),
     )
     results = run_trials(
         zero_shot_trial,
@@ -153,20 +198,60 @@ def run_zero_shot(
         },
     )
     raise_on_errors(results, "zero-shot trials")
-    rows = [
-        {
-            **{
-                k: short_name(v)
-                for k, v in r.config["pair"].items()
-                if not k.endswith("_path") and k != "fit_tasks"
-            },
-            **{k: r.metrics.get(k) for k in RESULT_KEYS},
-        }
-        for r in results
-    ]
-    table = pd.DataFrame(rows).sort_values(["method", "seed", "label"]).reset_index(drop=True)
+    table = with_controls(
+        [
+            (r.config["pair"], {k: r.metrics.get(k) for k in (*RESULT_KEYS, "episodes_digest")})
+            for r in results
+        ]
+    )
     write_atomic_csv(table, layout(spec).zero_shot_table)
     return table
+
+
+def _shown(pair: dict[str, Any]) -> dict[str, Any]:
+    """A trial config's fields for a table row or MLflow params (no paths, no nested controls)."""
+    return {k: short_name(v) for k, v in pair.items() if not k.endswith("path") and k not in HIDDEN}
+
+
+HIDDEN = ("fit_tasks", "controls", "key")
+
+
+def _tags(client, experiment_id: str, pair: dict[str, Any]) -> dict:
+    """A stitched pair's run links its two sources; a control's run links its one source."""
+    from ps_ray.pipeline.tracking import source_tags
+
+    if pair["role"] == "control":
+        return source_tags(client, experiment_id, pair["source"], pair["source"], pair["path"])
+    return source_tags(client, experiment_id, pair["task_from"], pair["robot_from"], pair["task_from_path"])
+
+
+def with_controls(results: list[tuple[dict[str, Any], dict[str, Any]]]) -> pd.DataFrame:
+    """The stitched pairs' rows from (trial config, metrics), each with its controls' success on
+    the same episodes: ``<role>`` (the control's source key), ``<role>_success`` (NaN where the
+    role does not apply), ``best_unstitched`` (the better of the two unstitched sources) and
+    ``transfer_gain`` (stitched success minus it). A control scored on other episodes than its pair
+    is a bug (ValueError)."""
+    control = {pair["label"]: m for pair, m in results if pair["role"] == "control"}
+    out = []
+    for pair, metrics in results:
+        if pair["role"] != "stitched":
+            continue
+        row = {**_shown(pair), **metrics}
+        for role in CONTROL_ROLES:
+            source = pair["controls"].get(role, {}).get("source")
+            row[role] = source or ""
+            row[f"{role}_success"] = np.nan
+            if source:
+                found = control[control_name(source, pair["robot"], pair["task"])]
+                if found["episodes_digest"] != metrics["episodes_digest"]:
+                    raise ValueError(f"{pair['key']}: its {role} control ran on other episodes")
+                row[f"{role}_success"] = found["success_mean"]
+        unstitched = [row[f"{role}_success"] for role in ("robot_source", "task_source")]
+        row["best_unstitched"] = max((v for v in unstitched if v == v), default=np.nan)
+        row["transfer_gain"] = row["success_mean"] - row["best_unstitched"]
+        out.append(row)
+    table = pd.DataFrame(out).drop(columns=["role"])
+    return table.sort_values(["method", "pairing", "seed", "label"]).reset_index(drop=True)
 
 
 def summary(table: pd.DataFrame) -> pd.DataFrame:

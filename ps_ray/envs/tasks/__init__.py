@@ -16,6 +16,7 @@ from ps_ray.errors import UserError, choice_error
 
 from ..goals import GOAL_DIM
 from .base import Task, TaskOptions
+from .markers import Markers
 from .pick import Pick
 from .push import Push
 from .reach import GOAL_REGIONS, Reach
@@ -30,12 +31,12 @@ class TaskSpec:
     @property
     def input_dim(self) -> int:
         """Width of the task module's input (``task_state`` then ``desired_goal``)."""
-        return self.family.state_dim + GOAL_DIM
+        return self.family.state_width(self.options) + GOAL_DIM
 
     @property
     def has_object(self) -> bool:
         """Whether the task moves an object (so touching it means something)."""
-        return self.family.state_dim > 0
+        return self.family.has_object
 
 
 _SLIPPERY_RGBA = (0.75, 0.85, 0.95, 1.0)  # recoloured table; the object carries the low friction
@@ -47,6 +48,9 @@ TASKS: dict[str, tuple[type[Task], dict[str, Any]]] = {
     "push_rocks": (Push, {"rocks": True, "table_length": 1.1, "table_x_offset": -0.3}),  # Pu3
     "pick_cube": (Pick, {}),  # Pi1
     "pick_stick": (Pick, {"object_half_extents": (0.15, 0.02, 0.02)}),  # Pi2: 0.30 m bar along x
+    # The transfer family (docs/transfer.md): one scene of two markers, the task names the marker.
+    "reach_red": (Markers, {"target": 0}),
+    "reach_blue": (Markers, {"target": 1}),
 }
 
 
@@ -73,6 +77,7 @@ def resolve_task(task: str | Mapping | TaskSpec, **options: Any) -> TaskSpec:
 __all__ = [
     "GOAL_REGIONS",
     "TASKS",
+    "Markers",
     "Pick",
     "Push",
     "Reach",

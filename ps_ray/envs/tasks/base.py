@@ -38,7 +38,13 @@ class Task(ABC):
 
     Options: ClassVar[type[TaskOptions]] = TaskOptions
     state_dim: ClassVar[int] = 0
+    has_object: ClassVar[bool] = False  # whether the task moves an object (touching means something)
     default_gripper: ClassVar[bool] = False
+
+    @classmethod
+    def state_width(cls, options: TaskOptions) -> int:
+        """Width of ``task_state`` for these options (a family may size it from its options)."""
+        return cls.state_dim
 
     def __init__(self, sim: Sim, options: TaskOptions) -> None:
         self.sim, self.options = sim, options
@@ -62,9 +68,14 @@ class Task(ABC):
         """The goal marker (visual only): a 2 cm sphere."""
         return p.GEOM_SPHERE, (0.02,)
 
+    @property
+    def target_position(self) -> np.ndarray:
+        """The world point the achieved goal must reach (the goal, unless the family says otherwise)."""
+        return self.goal
+
     def reset(self, rng: np.random.Generator) -> None:
         self._reset(rng)
-        self.sim.move(self._marker, self.goal)
+        self.sim.move(self._marker, self.target_position)
 
     @abstractmethod
     def _reset(self, rng: np.random.Generator) -> None:

@@ -30,6 +30,7 @@ class ObjectTask(Task):
 
     Options = ObjectOptions
     state_dim = 12
+    has_object = True
     options: ObjectOptions
     target_shape: ClassVar[str] = "box"  # goal marker: "box" (object-sized) or "sphere"
 

@@ -1,0 +1,90 @@
+"""Stitching against its controls: per method and pairing, the stitched success beside the
+unstitched sources and the oracle on the same episodes, and the transfer gain (stitched minus the
+better unstitched source) as a paired comparison over seeds (docs/transfer.md)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+
+from ps_ray.analysis.stats import estimate, paired
+from ps_ray.analysis.tables import ci, method_order
+from ps_ray.names import CONTROL_ROLES
+
+CONTROL_COLUMNS = {
+    "robot_source_success": "robot source unstitched",
+    "task_source_success": "task source unstitched",
+    "oracle_success": "oracle (trained on the target)",
+}
+
+
+def has_controls(table: pd.DataFrame) -> bool:
+    """Whether a zero-shot table carries its controls (tables from before them do not)."""
+    return "transfer_gain" in table.columns
+
+
+def transfer_numbers(table: pd.DataFrame) -> pd.DataFrame:
+    """One row per (method, pairing): success means with t intervals over seeds for the stitched
+    policies and each control, and the paired transfer gain with its sign-flip p-value."""
+    rows = []
+    for (method, pairing), part in table.groupby(["method", "pairing"], sort=False):
+        seeds = part["seed"].to_numpy()
+        row = {"method": method, "pairing": pairing, "cells": len(part), "seeds": len(np.unique(seeds))}
+        for column in ("success_mean", *CONTROL_COLUMNS):
+            cells = part.dropna(subset=[column])
+            if cells.empty:
+                row[column], row[f"{column}_lo"], row[f"{column}_hi"] = np.nan, np.nan, np.nan
+                continue
+            e = estimate(cells[column].to_numpy(), cells["seed"].to_numpy())
+            row[column], row[f"{column}_lo"], row[f"{column}_hi"] = e.mean, e.mean_lo, e.mean_hi
+        cells = part.dropna(subset=["best_unstitched"])
+        gain = paired(cells["success_mean"], cells["best_unstitched"], cells["seed"]) if len(cells) else None
+        for field in ("diff", "lo", "hi", "p", "wins", "losses"):
+            row[f"gain_{field}"] = np.nan if gain is None else getattr(gain, field)
+        row["pairs_beating_both"] = int((cells["transfer_gain"] > 0).sum())
+        rows.append(row)
+    out = pd.DataFrame(rows)
+    if out.empty:
+        return out
+    order = {m: i for i, m in enumerate(method_order(out["method"]))}
+    return out.sort_values(["pairing", "method"], key=lambda s: s.map(order) if s.name == "method" else s)
+
+
+def transfer_text(numbers: pd.DataFrame) -> pd.DataFrame:
+    """The shown form: ``mean [95% CI]`` per column, the gain with its p-value and seed count."""
+    out = pd.DataFrame(index=pd.MultiIndex.from_frame(numbers[["method", "pairing"]]))
+    out["cells (pairs x seeds)"] = numbers["cells"].to_numpy()
+    out["seeds"] = numbers["seeds"].to_numpy()
+    for column, name in {"success_mean": "stitched", **CONTROL_COLUMNS}.items():
+        out[name] = [
+            "–" if np.isnan(r[column]) else f"{r[column]:.2f} {ci(r[f'{column}_lo'], r[f'{column}_hi'])}"
+            for _, r in numbers.iterrows()
+        ]
+    out["transfer gain (paired over seeds)"] = [
+        "–"
+        if np.isnan(r["gain_diff"])
+        else f"{r['gain_diff']:+.2f} {ci(r['gain_lo'], r['gain_hi'])}, p {r['gain_p']:.2g}, "
+        f"{int(r['gain_wins'])}/{int(r['seeds'])} seeds up"
+        for _, r in numbers.iterrows()
+    ]
+    out["pairs above both unstitched"] = [
+        f"{int(r['pairs_beating_both'])}/{int(r['cells'])}" for _, r in numbers.iterrows()
+    ]
+    return out
+
+
+def controls_met(numbers: pd.DataFrame, unstitched_max: float = 0.1, oracle_min: float = 0.9) -> pd.DataFrame:
+    """Whether the testbed needs transfer, per method and pairing: both unstitched controls at or
+    below ``unstitched_max`` and the oracle at or above ``oracle_min`` (means over cells)."""
+    return pd.DataFrame(
+        {
+            "method": numbers["method"],
+            "pairing": numbers["pairing"],
+            "unstitched fail": (numbers["robot_source_success"] <= unstitched_max)
+            & (numbers["task_source_success"].fillna(0) <= unstitched_max),
+            "oracle learns": numbers["oracle_success"] >= oracle_min,
+        }
+    )
+
+
+__all__ = ["CONTROL_ROLES", "controls_met", "has_controls", "transfer_numbers", "transfer_text"]

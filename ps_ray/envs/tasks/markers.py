@@ -1,0 +1,104 @@
+"""Markers: several coloured markers in the scene; the task names the one to reach.
+
+A task family that needs transfer (docs/transfer.md): two tasks of the family see the same kind of
+scene and differ only in which marker they mean, so a policy of one task run on the other reaches
+the wrong marker, and what to do lives in the task state's meaning, not in an input that any
+policy could read.
+
+Goals are expressed in the named marker's frame, so that the target point is never an input:
+
+- ``task_state``: every marker's position (3 per marker), in a fixed order of colours;
+- ``achieved_goal``: the end effector's position minus the named marker's;
+- ``desired_goal``: the offset from the named marker to reach: zero in every real episode.
+
+A hindsight goal relabelled from a later achieved goal is then "reach the named marker plus this
+offset", still said in the task's own terms, and ``compute_reward`` (the distance of the two goals)
+agrees with the env's reward for it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pybullet as p
+
+from ps_ray.errors import UserError
+
+from ..sim import Sim
+from .base import Task, TaskOptions
+
+MARKER_RADIUS = 0.02
+MARKER_COLOURS = (
+    (0.9, 0.1, 0.1, 1.0),  # red
+    (0.1, 0.2, 0.9, 1.0),  # blue
+    (0.1, 0.8, 0.1, 1.0),  # green
+    (0.9, 0.8, 0.1, 1.0),  # yellow
+)
+
+
+@dataclass(frozen=True)
+class MarkerOptions(TaskOptions):
+    markers: int = 2  # how many markers the scene holds (their positions are the task state)
+    target: int = 0  # the index of the marker to reach (0 red, 1 blue, 2 green, 3 yellow)
+    marker_low: tuple[float, float, float] = (-0.1, -0.1, 0.1)  # markers ~ U[low, high] ...
+    marker_high: tuple[float, float, float] = (0.1, 0.1, 0.2)
+    min_separation: float = 0.1  # ... at least this far apart (twice the success distance) ...
+    # ... and this far (horizontally) from the vertical line through the workspace centre, about
+    # which the mounts of ps_ray.envs.robots turn: another mount's mirror image misses by 2x this
+    min_radius: float = 0.03
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.markers, int) or not 1 <= self.markers <= len(MARKER_COLOURS):
+            raise UserError(f"bad markers {self.markers!r}; valid markers: 1..{len(MARKER_COLOURS)}")
+        if not isinstance(self.target, int) or not 0 <= self.target < self.markers:
+            raise UserError(f"bad target {self.target!r}; valid targets: 0..{self.markers - 1}")
+
+
+class Markers(Task):
+    """Reach the named marker; the other markers are the same kind of input with another meaning."""
+
+    Options = MarkerOptions
+    options: MarkerOptions
+
+    def __init__(self, sim: Sim, options: MarkerOptions) -> None:
+        self.positions = np.zeros((options.markers, 3))
+        super().__init__(sim, options)
+
+    @classmethod
+    def state_width(cls, options: TaskOptions) -> int:
+        return 3 * options.markers  # type: ignore[attr-defined]
+
+    def _build(self) -> None:
+        self._bodies = [
+            self.sim.add_shape(p.GEOM_SPHERE, (MARKER_RADIUS,), (0.0, 0.0, -1.0), rgba=rgba, ghost=True)
+            for rgba in MARKER_COLOURS[: self.options.markers]
+        ]
+
+    @property
+    def target_position(self) -> np.ndarray:
+        """Where the end effector must go: the named marker plus the desired offset."""
+        return self.positions[self.options.target] + self.goal
+
+    def _reset(self, rng: np.random.Generator) -> None:
+        o = self.options
+        placed: list[np.ndarray] = []
+        for _ in range(10_000):  # rejection sampling on the env's RNG: deterministic
+            if len(placed) == o.markers:
+                break
+            candidate = rng.uniform(o.marker_low, o.marker_high)
+            clear = all(np.linalg.norm(candidate - q) >= o.min_separation for q in placed)
+            if clear and np.hypot(*candidate[:2]) >= o.min_radius:
+                placed.append(candidate)
+        else:
+            raise UserError(
+                f"cannot place {o.markers} markers {o.min_separation} m apart and {o.min_radius} m off "
+                f"the centre within marker_low {o.marker_low} .. marker_high {o.marker_high}"
+            )
+        self.positions = np.asarray(placed)
+        for body, position in zip(self._bodies, self.positions):
+            self.sim.move(body, position)
+        self.goal = np.zeros(3)
+
+    def observe(self, ee_position: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return self.positions.reshape(-1), ee_position - self.positions[self.options.target]

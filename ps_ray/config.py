@@ -120,6 +120,11 @@ class TrainSpec:
     gamma: float = setting(0.98, "discount")
     tau: float = setting(0.005, "Polyak rate of the target critics")
     action_l2: float = setting(0.0, "weight of an L2 penalty on the actor's mean action")
+    critic_warmup_updates: int = setting(
+        0,
+        "first gradient updates in which only the critics learn (actor and temperature frozen), so a "
+        "stitched start's critics fit its actor before the actor follows them (few-shot)",
+    )
     random_episodes: int = setting(10, "warm-up episodes with uniform random actions")
     learning_starts: int = setting(1000, "transitions in the buffer before the first update")
     eval_every: int = setting(10, "training steps between greedy evaluations (0: never)")

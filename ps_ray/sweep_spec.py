@@ -130,9 +130,15 @@ class FewShotSpec:
     max_pairs: int | None = None  # per method; default: every stitched pair
     methods: tuple[str, ...] = ()  # default: the sweep's methods
     scratch: bool = True  # also train each target env from scratch
+    unstitched: bool = True  # also fine-tune each pair's robot source as it is (where widths fit)
+    # the first updates of a start from trained weights fit the critics alone (actor frozen): a
+    # stitched start's critics join halves of two networks and say nothing sound of its actor yet
+    critic_warmup_updates: int = 500
 
     def __post_init__(self) -> None:
         check_types(self, "few_shot")
+        if self.critic_warmup_updates < 0:
+            raise SpecError(f"few_shot.critic_warmup_updates must be >= 0, got {self.critic_warmup_updates}")
         _unique("few_shot", methods=self.methods)
         _positive("few_shot", env_steps=self.env_steps, max_pairs=self.max_pairs)
         if not 0 <= self.collect_steps < self.env_steps:

@@ -299,3 +299,40 @@ def test_a_deferred_relative_method_trains_as_the_ablation_bit_for_bit(ray_local
     assert shared.keys() == states["ablation"].keys()
     for key, value in shared.items():
         assert torch.equal(value, states["ablation"][key]), key
+
+
+def test_a_critic_warm_up_moves_the_critics_and_leaves_the_actor_and_temperature(ray_local):
+    """Few-shot's sound start: for ``critic_warmup_updates`` updates only the critics learn, then
+    the actor follows; the count survives a checkpoint (it is the critic optimiser's step)."""
+    spec = TrainSpec(method="ablation", anchors=None, critic_warmup_updates=10_000, **SMALL)
+    algo = algo_config(spec, None).build_algo()
+    try:
+        before = {k: v.clone() for k, v in algo.learner_state().items()}
+        for _ in range(3):
+            algo.train()
+        after = algo.learner_state()
+        assert algo.counters["updates"] > 0
+        moved = lambda prefix: any(  # noqa: E731  (weights; input statistics follow the data)
+            not torch.equal(after[k], before[k]) for k in before if k.startswith(prefix) and ".norm." not in k
+        )
+        assert moved("critic.") and moved("critic_twin.")
+        assert not moved("actor.") and _log_alpha(algo) == pytest.approx(np.log(SPEC_ALPHA))
+        done = _on_learner(algo, lambda learner: learner.updates_done("default_policy"))
+        assert done == algo.counters["updates"]
+    finally:
+        algo.stop()
+    plain = TrainSpec(method="ablation", anchors=None, **SMALL)
+    algo = algo_config(plain, None).build_algo()
+    try:
+        for _ in range(3):
+            algo.train()
+        assert _log_alpha(algo) != pytest.approx(np.log(SPEC_ALPHA))  # without it, alpha learns
+    finally:
+        algo.stop()
+
+
+SPEC_ALPHA = TrainSpec().initial_alpha
+
+
+def _log_alpha(algo) -> float:
+    return _on_learner(algo, lambda learner: float(learner.curr_log_alpha["default_policy"].detach()))

@@ -337,9 +337,9 @@ def _few_shot(report: Report, root: Path, say) -> None:
         return
     section = report.section(
         "Few-shot fine-tuning",
-        "Stitched policies fine-tuned in their "
-        "target env (after a collection phase without updates) beside the "
-        "same env trained from scratch: greedy success vs env steps.",
+        "Stitched policies fine-tuned in their target env (after a collection phase without updates, "
+        "then critic-only updates with the actor frozen) beside each pair's robot source fine-tuned "
+        "as it is (unstitched) and the same env trained from scratch: greedy success vs env steps.",
     )
     frame["target"] = frame["robot"] + " / " + frame["task"]
     frame["line"] = frame["kind"] + ": " + frame["method"]
@@ -349,6 +349,12 @@ def _few_shot(report: Report, root: Path, say) -> None:
     summary = final.groupby(["target", "line"])["success"].mean().unstack("line")
     report.table(
         section, "few_shot_final", "Final greedy success per target env", summary.round(3), numbers=summary
+    )
+    report.table(
+        section,
+        "few_shot_steps",
+        "Env steps to 0.8 greedy success per start: stitched, the robot source unstitched, scratch",
+        transfer.few_shot_steps(frame, 0.8),
     )
     say(f"report: few-shot curves of {frame['run'].nunique()} runs")
 

@@ -87,4 +87,52 @@ def controls_met(numbers: pd.DataFrame, unstitched_max: float = 0.1, oracle_min:
     )
 
 
-__all__ = ["CONTROL_ROLES", "controls_met", "has_controls", "transfer_numbers", "transfer_text"]
+def few_shot_steps(curves: pd.DataFrame, threshold: float = 0.8) -> pd.DataFrame:
+    """Env steps to ``threshold`` greedy success per start kind (stitched, unstitched, scratch) and
+    method: mean over runs (a run that never got there counts at its last step, so the mean is a
+    lower bound) with a t interval over seeds, runs that reached it, and each kind's paired
+    difference from scratch on the same target env and seed."""
+    from ps_ray.analysis.tables import steps_to_target
+
+    per_run = []
+    for (kind, _method), part in curves.groupby(["kind", "method"], sort=False):
+        steps = steps_to_target(part, threshold).merge(
+            part[["run", "robot", "task"]].drop_duplicates("run"), on="run"
+        )
+        steps["kind"] = kind
+        steps["censored"] = steps["steps"].isna()
+        steps["steps"] = steps["steps"].fillna(steps["last_step"])
+        per_run.append(steps)
+    if not per_run:
+        return pd.DataFrame()
+    runs = pd.concat(per_run, ignore_index=True)
+    cell = runs.groupby(["kind", "method", "robot", "task", "seed"], as_index=False)["steps"].mean()
+    rows = []
+    for (kind, method), part in cell.groupby(["kind", "method"], sort=False):
+        e = estimate(part["steps"].to_numpy(), part["seed"].to_numpy())
+        mine = runs[(runs["kind"] == kind) & (runs["method"] == method)]
+        row = {
+            "start": kind,
+            "method": method,
+            "runs": len(mine),
+            f"reached {threshold}": f"{int((~mine['censored']).sum())}/{len(mine)}",
+            f"env steps to {threshold} [95% CI]": e.text(digits=0),
+        }
+        scratch = cell[(cell["kind"] == "scratch") & (cell["method"] == method)]
+        both = part.merge(scratch, on=["robot", "task", "seed"], suffixes=("", "_scratch"))
+        if kind != "scratch" and len(both):
+            row["minus scratch (paired over seeds)"] = paired(
+                both["steps"], both["steps_scratch"], both["seed"]
+            ).text(digits=0)
+        rows.append(row)
+    return pd.DataFrame(rows).set_index(["start", "method"]).fillna("–")
+
+
+__all__ = [
+    "CONTROL_ROLES",
+    "controls_met",
+    "few_shot_steps",
+    "has_controls",
+    "transfer_numbers",
+    "transfer_text",
+]

@@ -21,7 +21,9 @@ from ps_ray.sweep_spec import FewShotSpec, SweepSpec
 
 
 def few_shot_trials(spec: SweepSpec, settings: FewShotSpec) -> list[dict[str, Any]]:
-    """Trial configs for `sweep_trial`: stitched starts, plus from-scratch baselines."""
+    """Trial configs for `sweep_trial`: stitched starts, each pair's robot source fine-tuned as it
+    is (unstitched), and from-scratch baselines. Starts from trained weights fit their critics
+    alone for ``critic_warmup_updates`` updates first."""
     from ps_ray.pipeline.zero_shot import pairs
     from ps_ray.stitch import stitch_policies
     from ps_ray.weights import save_policy
@@ -31,7 +33,7 @@ def few_shot_trials(spec: SweepSpec, settings: FewShotSpec) -> list[dict[str, An
         if settings.max_pairs is None or taken[pair["method"]] < settings.max_pairs:
             taken[pair["method"]] += 1
             selected.append(pair)
-    trials, targets = [], {}
+    trials, targets, seen = [], {}, set()
     for pair in selected:
         nets, signature = stitch_policies(pair["task_from_path"], pair["robot_from_path"])
         digest = hashlib.sha256(f"{pair['task_from']}|{pair['robot_from']}".encode()).hexdigest()
@@ -56,7 +58,8 @@ def few_shot_trials(spec: SweepSpec, settings: FewShotSpec) -> list[dict[str, An
                 "random_episodes": 0,
             }
         )
-        stitched = TrainSpec.from_mapping({**base.to_dict(), "init_policy": str(path)})
+        warm = {"critic_warmup_updates": settings.critic_warmup_updates}
+        stitched = TrainSpec.from_mapping({**base.to_dict(), **warm, "init_policy": str(path)})
         trials.append(
             {
                 "spec": stitched.to_dict(),
@@ -66,6 +69,21 @@ def few_shot_trials(spec: SweepSpec, settings: FewShotSpec) -> list[dict[str, An
                 "kind": "stitched",
             }
         )
+        own = pair["controls"].get("robot_source")
+        if settings.unstitched and own is not None:  # the robot source as it is, fine-tuned
+            unstitched = TrainSpec.from_mapping({**base.to_dict(), **warm, "init_policy": own["path"]})
+            key = f"unstitched/{own['source']}/{trial_key(base.to_dict())}"
+            if key not in seen:
+                seen.add(key)
+                trials.append(
+                    {
+                        "spec": unstitched.to_dict(),
+                        "anchors": None,
+                        "key": key,
+                        "label": key,
+                        "kind": "unstitched",
+                    }
+                )
         targets.setdefault(trial_key(base.to_dict()), base)
     if settings.scratch:  # PS from scratch uses the sweep's anchor set, as its stitched sources
         trials += [

@@ -43,6 +43,10 @@ class ModularSACLearner(SACTorchLearner):
         hp = SACHyper(gamma=config.gamma, clip_targets=config.clip_targets, action_l2=config.action_l2)
         action_dim = batch["actions"].shape[-1]
         losses = sac_losses(fwd_out, batch["rewards"], self.curr_log_alpha[module_id], hp, action_dim)
+        total = losses["total"]
+        if self.updates_done(module_id) < config.critic_warmup_updates:
+            # critics only: zero gradients leave a fresh Adam's actor and temperature exactly still
+            total = losses["critic"] + 0.0 * (losses["actor"] + losses["alpha"])
         # Tensors are logged as-is (window 1) and reduced once per training step.
         self.metrics.log_dict(
             {
@@ -56,7 +60,15 @@ class ModularSACLearner(SACTorchLearner):
             key=module_id,
             window=1,
         )
-        return losses["total"]
+        return total
+
+    def updates_done(self, module_id) -> int:
+        """Gradient updates applied so far: the critic optimiser's step count (restored with the
+        checkpoint, so a resumed run keeps counting)."""
+        optimizer = self.get_optimizer(module_id, "critic")
+        for slots in optimizer.state.values():
+            return int(slots["step"])
+        return 0
 
     def compute_gradients(self, loss_per_module, **kwargs):
         return gradients_in_one_backward(self, loss_per_module, **kwargs)

@@ -64,6 +64,7 @@ TRAIN_SETTINGS = (
     "random_episodes",
     "learning_starts",
     "action_l2",
+    "critic_warmup_updates",
     "eval_every",
     "eval_episodes",
 )

@@ -73,10 +73,11 @@ def default_target(task_spec: Mapping, robot_spec: Mapping) -> EnvSpec:
     return same_robot(robot_spec["robot"], robot_spec["task"], task), task
 
 
-def arm(robot: str | Mapping) -> tuple[str, tuple[int, ...]]:
-    """The arm a robot is: base model and locked joints (a gripper does not make another arm)."""
+def arm(robot: str | Mapping) -> tuple[str, tuple[int, ...], float]:
+    """The arm a robot is: base model, locked joints and mount (a gripper does not make another
+    arm; the same arm mounted elsewhere moves differently, so it does)."""
     spec = resolve_robot(robot)
-    return spec.base, spec.locked_joints
+    return spec.base, spec.locked_joints, spec.mount
 
 
 # -- checks ---------------------------------------------------------------------------------------

@@ -20,6 +20,7 @@ from pathlib import Path
 
 from ps_ray.config import SpecError, TrainSpec
 from ps_ray.envs import EPISODE_STEPS
+from ps_ray.names import CONTROL_ROLES
 from ps_ray.pipeline.layout import SweepLayout
 from ps_ray.sweep_spec import SweepSpec
 
@@ -101,19 +102,24 @@ def _train_load(stage: str, specs: list[TrainSpec]) -> StageLoad:
     return StageLoad(stage, list(specs), env, updates, evals)
 
 
-def stitch_pairs(spec: SweepSpec, method: str) -> list[tuple[TrainSpec, TrainSpec]]:
+def stitch_pairs(
+    spec: SweepSpec, method: str, pairing: str = "same_seed"
+) -> list[tuple[TrainSpec, TrainSpec]]:
     """(task source, robot source) pairs the stitching stages will build for one method, by the
-    rule of :func:`ps_ray.stitch.combos`: another task, another arm, the same seed and interface,
-    and for relative methods the same anchor set (the same task-input width)."""
+    rule of :func:`ps_ray.stitch.combos`: another task, another arm, the same interface, for
+    relative methods the same anchor set (the same task-input width), and the seeds that
+    ``pairing`` joins (:func:`ps_ray.pipeline.zero_shot.seed_pairs`)."""
     from ps_ray.pipeline.sweep import task_input_dim
+    from ps_ray.pipeline.zero_shot import seed_pairs
     from ps_ray.stitch import arm
 
     cells = [t for t in spec.trials() if t.method == method]
+    joined = {(task_seed, robot_seed) for _, task_seed, robot_seed in seed_pairs(spec.seeds, pairing)}
     return [
         (t, r)
         for t in cells
         for r in cells
-        if t.seed == r.seed
+        if (t.seed, r.seed) in joined
         and t.interface_dim == r.interface_dim
         and t.task != r.task
         and arm(t.robot) != arm(r.robot)
@@ -133,8 +139,14 @@ def workload(spec: SweepSpec) -> list[StageLoad]:
         loads.append(_train_load("train", spec.trials()))
     if "zero_shot" in spec.stages:
         methods = list(spec.zero_shot.methods) or list(spec.methods)
-        n = sum(len(stitch_pairs(spec, m)) * (1 + len(spec.zero_shot.translations(m))) for m in methods)
-        steps = n * spec.zero_shot.episodes * spec.zero_shot.repeats * EPISODE_STEPS
+        pairing = spec.zero_shot.pairs
+        n = sum(
+            len(stitch_pairs(spec, m, pairing)) * (1 + len(spec.zero_shot.translations(m))) for m in methods
+        )
+        # each trial evaluates its pair and up to three controls (ps_ray.stitch.controls)
+        steps = (
+            n * (1 + len(CONTROL_ROLES)) * spec.zero_shot.episodes * spec.zero_shot.repeats * EPISODE_STEPS
+        )
         loads.append(StageLoad("zero_shot", [None] * n, 0, 0, steps))
     if "few_shot" in spec.stages:
         few = spec.few_shot

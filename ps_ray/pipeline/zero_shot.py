@@ -28,9 +28,11 @@ RESULT_KEYS = (
     "contact_mean",
     "episodes_per_s",
 )
+# each control's success on the pair's episodes (ps_ray.stitch.controls), and the gain over them
+CONTROL_KEYS = (*(f"{role}_success" for role in CONTROL_ROLES), "best_unstitched", "transfer_gain")
 
 
-def _seed_pairs(seeds: tuple[int, ...], pairing: str) -> list[tuple[str, int, int]]:
+def seed_pairs(seeds: tuple[int, ...], pairing: str) -> list[tuple[str, int, int]]:
     """(pairing, task module's seed, robot module's seed): same seed, and/or each seed's task
     modules with the next seed's robot modules (cyclically: every seed once on each side)."""
     out = []
@@ -45,7 +47,7 @@ def pairs(
     spec: SweepSpec, methods: list[str] | None = None, translate: bool = False, pairing: str = "same_seed"
 ) -> list[dict[str, Any]]:
     """One trial config per stitched pair of the sweep's trained policies (``pairing``: see
-    :func:`_seed_pairs`), with the zoo keys and files of its controls (:func:`ps_ray.stitch.controls`);
+    :func:`seed_pairs`), with the zoo keys and files of its controls (:func:`ps_ray.stitch.controls`);
     with ``translate``, also one per latent translation that ``spec.zero_shot.translate`` names for
     the method (its method shown as ``<method>+<translation>``)."""
     from ps_ray.stitch import combos, controls
@@ -55,14 +57,13 @@ def pairs(
     out = []
     for method in methods or spec.methods:
         kinds = ("", *spec.zero_shot.translations(method)) if translate else ("",)
-        for kind_of_pair, seed, robot_seed in _seed_pairs(spec.seeds, pairing):
+        for kind_of_pair, seed, robot_seed in seed_pairs(spec.seeds, pairing):
             for combo in combos(zoo, method, seed, robot_seed=robot_seed):
                 seeds = str(seed) if kind_of_pair == "same_seed" else f"{seed}x{robot_seed}"
                 for kind in kinds:
                     name = f"{method}+{kind}" if kind else method
                     out.append(
                         {
-                            "role": "stitched",
                             "key": f"zero_shot/{name}/{combo.label}/{seeds}",
                             "method": name,
                             "translation": kind,
@@ -86,34 +87,6 @@ def pairs(
     return out
 
 
-def control_runs(stitched: list[dict[str, Any]]) -> list[dict[str, Any]]:
-    """One trial config per distinct unstitched evaluation the pairs' controls need: a source
-    policy as it is, on a pair's target env. Pairs that share a control share its run."""
-    runs: dict[str, dict[str, Any]] = {}
-    for pair in stitched:
-        for control in pair["controls"].values():
-            name = control_name(control["source"], pair["robot"], pair["task"])
-            runs.setdefault(
-                name,
-                {
-                    "role": "control",
-                    "key": f"zero_shot/control/{name}",
-                    "method": control["source"].split("/")[0],
-                    "label": name,
-                    "source": control["source"],
-                    "path": control["path"],
-                    "robot": pair["robot"],
-                    "task": pair["task"],
-                },
-            )
-    return list(runs.values())
-
-
-def control_name(source: str, robot, task) -> str:
-    """``<source key> on <task>-<robot>``: one unstitched evaluation."""
-    return f"{source} on {short_name(task)}-{short_name(robot)}"
-
-
 def fit_states(tasks: list, per_quadrant: int, seed: int) -> np.ndarray:
     """Task inputs for fitting a latent translation: the probe states of every given task (the
     target task and the robot source's task), ``per_quadrant`` per goal quadrant
@@ -126,8 +99,8 @@ def fit_states(tasks: list, per_quadrant: int, seed: int) -> np.ndarray:
 
 
 def zero_shot_trial(config: dict[str, Any]) -> None:
-    """Tune function trainable: stitch one pair (translated, if the pair says so) and evaluate it,
-    or evaluate one unstitched control, on the stage's fixed episodes."""
+    """Tune function trainable: stitch one pair (translated, if the pair says so), evaluate it,
+    then evaluate each of its controls as it is, all on the stage's fixed episodes."""
     from ray import tune
 
     from ps_ray.evaluate import evaluate
@@ -135,20 +108,31 @@ def zero_shot_trial(config: dict[str, Any]) -> None:
     from ps_ray.stitch import load_source, stitch_policies
 
     pair, settings = config["pair"], config["eval"]
-    if pair["role"] == "control":
-        policy = load_source(pair["path"])
-    else:
-        translation = pair.get("translation") or None
-        states = (
-            fit_states(pair["fit_tasks"], config["fit_states_per_quadrant"], settings["seed"])
-            if translation
-            else None
-        )
-        policy = stitch_policies(
-            pair["task_from_path"], pair["robot_from_path"], translation=translation, fit_states=states
-        )
-    result = evaluate(policy, pair["robot"], pair["task"], **settings)
-    tune.report({**{k: result[k] for k in (*RESULT_KEYS, "episodes_digest")}, FINISHED: True})
+    translation = pair.get("translation") or None
+    states = (
+        fit_states(pair["fit_tasks"], config["fit_states_per_quadrant"], settings["seed"])
+        if translation
+        else None
+    )
+    stitched = stitch_policies(
+        pair["task_from_path"], pair["robot_from_path"], translation=translation, fit_states=states
+    )
+    result = evaluate(stitched, pair["robot"], pair["task"], **settings)
+    metrics = {k: result[k] for k in RESULT_KEYS}
+    for role, control in pair["controls"].items():
+        unstitched = evaluate(load_source(control["path"]), pair["robot"], pair["task"], **settings)
+        if unstitched["episodes_digest"] != result["episodes_digest"]:  # a bug, never bad input
+            raise RuntimeError(f"{pair['key']}: its {role} control ran on other episodes")
+        metrics[f"{role}_success"] = unstitched["success_mean"]
+    tune.report({**metrics, **gain(metrics), FINISHED: True})
+
+
+def gain(metrics: dict[str, Any]) -> dict[str, float]:
+    """``best_unstitched`` (the better of the two unstitched controls that apply) and
+    ``transfer_gain`` (stitched success minus it); NaN when neither applies."""
+    unstitched = [metrics.get(f"{role}_success") for role in ("robot_source", "task_source")]
+    best = max((v for v in unstitched if v is not None and v == v), default=np.nan)
+    return {"best_unstitched": best, "transfer_gain": metrics["success_mean"] - best}
 
 
 def run_zero_shot(
@@ -166,15 +150,14 @@ def run_zero_shot(
     root = sweep_dir(spec)
     if not resume:
         require_fresh(layout(spec).tune_zero_shot, "pair", "zero_shot")
-    stitched = pairs(spec, list(settings.methods) or None, translate=True, pairing=settings.pairs)
-    trials = stitched + control_runs(stitched)
-    if not stitched:
+    trials = pairs(spec, list(settings.methods) or None, translate=True, pairing=settings.pairs)
+    if not trials:
         raise UserError(f"{root}: no stitchable pairs (train the sweep first: ps-ray sweep)")
     tracking_uri, experiment_id = connect(spec)
     callback = MLflowTuneCallback(
         tracking_uri,
         experiment_id,
-        metric_keys=RESULT_KEYS,
+        metric_keys=(*RESULT_KEYS, *CONTROL_KEYS),
         key_fn=lambda trial: trial.config["pair"]["key"],
         params_fn=lambda trial: (
             _shown(trial.config["pair"]) | {"episodes": settings.episodes, "repeats": settings.repeats}
@@ -198,12 +181,7 @@ def run_zero_shot(
         },
     )
     raise_on_errors(results, "zero-shot trials")
-    table = with_controls(
-        [
-            (r.config["pair"], {k: r.metrics.get(k) for k in (*RESULT_KEYS, "episodes_digest")})
-            for r in results
-        ]
-    )
+    table = table_of([(r.config["pair"], r.metrics) for r in results])
     write_atomic_csv(table, layout(spec).zero_shot_table)
     return table
 
@@ -217,40 +195,22 @@ HIDDEN = ("fit_tasks", "controls", "key")
 
 
 def _tags(client, experiment_id: str, pair: dict[str, Any]) -> dict:
-    """A stitched pair's run links its two sources; a control's run links its one source."""
     from ps_ray.pipeline.tracking import source_tags
 
-    if pair["role"] == "control":
-        return source_tags(client, experiment_id, pair["source"], pair["source"], pair["path"])
     return source_tags(client, experiment_id, pair["task_from"], pair["robot_from"], pair["task_from_path"])
 
 
-def with_controls(results: list[tuple[dict[str, Any], dict[str, Any]]]) -> pd.DataFrame:
-    """The stitched pairs' rows from (trial config, metrics), each with its controls' success on
-    the same episodes: ``<role>`` (the control's source key), ``<role>_success`` (NaN where the
-    role does not apply), ``best_unstitched`` (the better of the two unstitched sources) and
-    ``transfer_gain`` (stitched success minus it). A control scored on other episodes than its pair
-    is a bug (ValueError)."""
-    control = {pair["label"]: m for pair, m in results if pair["role"] == "control"}
-    out = []
+def table_of(results: list[tuple[dict[str, Any], dict[str, Any]]]) -> pd.DataFrame:
+    """One row per stitched pair from (trial config, metrics): the pair's fields, its success and
+    touching, each control's source key (``<role>``, empty where the role does not apply) and
+    success (``<role>_success``, NaN there), ``best_unstitched`` and ``transfer_gain``."""
+    rows = []
     for pair, metrics in results:
-        if pair["role"] != "stitched":
-            continue
-        row = {**_shown(pair), **metrics}
+        row = {**_shown(pair), **{k: metrics.get(k, np.nan) for k in (*RESULT_KEYS, *CONTROL_KEYS)}}
         for role in CONTROL_ROLES:
-            source = pair["controls"].get(role, {}).get("source")
-            row[role] = source or ""
-            row[f"{role}_success"] = np.nan
-            if source:
-                found = control[control_name(source, pair["robot"], pair["task"])]
-                if found["episodes_digest"] != metrics["episodes_digest"]:
-                    raise ValueError(f"{pair['key']}: its {role} control ran on other episodes")
-                row[f"{role}_success"] = found["success_mean"]
-        unstitched = [row[f"{role}_success"] for role in ("robot_source", "task_source")]
-        row["best_unstitched"] = max((v for v in unstitched if v == v), default=np.nan)
-        row["transfer_gain"] = row["success_mean"] - row["best_unstitched"]
-        out.append(row)
-    table = pd.DataFrame(out).drop(columns=["role"])
+            row[role] = pair["controls"].get(role, {}).get("source", "")
+        rows.append(row)
+    table = pd.DataFrame(rows)
     return table.sort_values(["method", "pairing", "seed", "label"]).reset_index(drop=True)
 
 

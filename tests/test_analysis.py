@@ -170,3 +170,35 @@ def test_steps_to_target_counts_unreached_runs_at_their_last_step():
     assert numbers.loc["ps", "reached"] == 2 and numbers.loc["ps", "steps_mean"] == (3000 + 5000 + 8000) / 3
     assert numbers.loc["ablation", "steps_mean"] == 2000 and numbers.loc["ablation", "reached"] == 3
     assert shown.loc["ps", "reached"] == "2/3" and shown.iloc[0, 1].startswith("≥ 5333")
+
+
+def test_transfer_table_pairs_each_stitched_cell_with_its_controls():
+    """Transfer gain per seed = mean over the seed's pairs of stitched - best unstitched; the
+    controls' columns are their own means; a role that does not apply stays out of the best."""
+    from ps_ray.analysis.transfer import controls_met, transfer_numbers, transfer_text
+    from ps_ray.pipeline.zero_shot import gain
+
+    rows = []
+    for seed, shift in ((1, 0.5), (2, 0.6), (3, 0.4)):
+        for label in ("a", "b"):
+            metrics = {
+                "success_mean": shift,
+                "robot_source_success": 0.05,
+                "task_source_success": np.nan if label == "b" else 0.1,
+                "oracle_success": 0.95,
+            }
+            rows.append(
+                {"method": "ablation", "pairing": "same_seed", "seed": seed, "label": label}
+                | metrics
+                | gain(metrics)
+            )
+    table = pd.DataFrame(rows)
+    assert table.loc[1, "best_unstitched"] == 0.05  # label b: only the robot source applies
+    numbers = transfer_numbers(table).iloc[0]
+    assert numbers["gain_diff"] == pytest.approx(np.mean([0.5, 0.6, 0.4]) - np.mean([0.1, 0.05]))
+    assert (numbers["gain_wins"], numbers["seeds"], numbers["cells"]) == (3, 3, 6)
+    assert numbers["pairs_beating_both"] == 6 and numbers["oracle_success"] == pytest.approx(0.95)
+    met = controls_met(transfer_numbers(table)).iloc[0]
+    assert met["unstitched fail"] and met["oracle learns"]
+    shown = transfer_text(transfer_numbers(table))
+    assert shown.iloc[0]["transfer gain (paired over seeds)"].endswith("p 0.25, 3/3 seeds up")

@@ -31,6 +31,7 @@ from ps_ray.pipeline.trials import FINISHED, PARAMS_FILE, RESULT_FILE
 from ps_ray.stitch import (
     check_stitchable,
     combos,
+    controls,
     default_target,
     env_dims,
     stitch_policies,
@@ -116,6 +117,7 @@ def write_trial(
     checkpoint: int = 2,
     trial: str | None = None,
     seed: int | None = None,
+    anchor_seed: int = 0,
 ) -> Path:
     """A trial as Tune and ps_ray leave it, with random nets: params.json naming the trial, a
     finished result row, and a sealed checkpoint (policy.safetensors, signature.json, spec.json,
@@ -126,7 +128,7 @@ def write_trial(
         trial_spec["method"],
         dims,
         interface_dim=k,
-        anchors=anchors_for(k, dims.task_dim),
+        anchors=anchors_for(k, dims.task_dim, anchor_seed),
         seed=next(SEEDS) if seed is None else seed,
     )
     name = trial or f"sweep_trial_{next(SEEDS):05d}"
@@ -458,6 +460,25 @@ def test_combos_is_the_valid_matrix(sweep):
     }
     assert {c.task_from.key.interface_dim for c in combos(zoo, "ps", 1, interface_dim=16)} <= {16}
     assert len(combos(zoo, "ablation", 1)) == 2
+
+
+def test_cross_seed_pairs_join_only_modules_whose_signatures_allow_it(tmp_path):
+    """Seed 1's task modules with seed 2's robot modules (one anchor set); seed 3 trained with
+    another anchor set, so no PS pair joins it. Each pair names its controls on its target."""
+    for seed, anchor_seed in ((1, 0), (2, 0), (3, 7)):
+        for robot in ("panda", "panda_far"):
+            for task in ("reach_red", "reach_blue"):
+                write_trial(tmp_path, "tune", spec("ps", robot, task, seed=seed), anchor_seed=anchor_seed)
+    zoo = ModuleZoo.from_sweep(tmp_path)
+    across = combos(zoo, "ps", 1, robot_seed=2)
+    assert len(across) == 4  # (X, Ra) x (Y != X, Rb != Ra)
+    assert {(c.task_from.key.seed, c.robot_from.key.seed) for c in across} == {(1, 2)}
+    assert combos(zoo, "ps", 1, robot_seed=3) == [] and len(combos(zoo, "ps", 3)) == 4
+    for combo in across:
+        found = controls(zoo, combo)
+        assert found["robot_source"] == combo.robot_from and found["task_source"] == combo.task_from
+        oracle = found["oracle"].key  # the target pair, trained with the robot module's seed
+        assert (oracle.robot, oracle.task, oracle.seed) == (combo.robot_from.key.robot, combo.task, 2)
 
 
 def test_combos_over_task_variants_given_as_mappings(tmp_path):

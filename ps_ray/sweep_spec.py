@@ -128,6 +128,7 @@ class FewShotSpec:
     env_steps: int = 20000
     collect_steps: int = 1000  # env steps before the first update (the paper: 10 epochs)
     max_pairs: int | None = None  # per method; default: every stitched pair
+    pairs_per_seed: int | None = None  # per method and seed (a paired comparison over seeds)
     methods: tuple[str, ...] = ()  # default: the sweep's methods
     scratch: bool = True  # also train each target env from scratch
     unstitched: bool = True  # also fine-tune each pair's robot source as it is (where widths fit)
@@ -140,7 +141,9 @@ class FewShotSpec:
         if self.critic_warmup_updates < 0:
             raise SpecError(f"few_shot.critic_warmup_updates must be >= 0, got {self.critic_warmup_updates}")
         _unique("few_shot", methods=self.methods)
-        _positive("few_shot", env_steps=self.env_steps, max_pairs=self.max_pairs)
+        _positive(
+            "few_shot", env_steps=self.env_steps, max_pairs=self.max_pairs, pairs_per_seed=self.pairs_per_seed
+        )
         if not 0 <= self.collect_steps < self.env_steps:
             raise SpecError(f"few_shot.collect_steps must be in [0, env_steps), got {self.collect_steps}")
 

@@ -89,6 +89,8 @@ CASES = [  # (arguments, with {f} the input folder and {out} a path that must no
         "--task reach --episodes 0 --save {f}/garbage.safetensors/s",
         "garbage.safetensors is a file, not a folder",
     ),
+    ('train --robot {{"name":"panda","mount":"left"}} --run-dir {out}', "bad mount 'left'; valid mounts"),
+    ('train --task {{"name":"reach_red","target":2}} --run-dir {out}', "bad target 2; valid targets: 0..1"),
     ("bench env --steps 0", "argument --steps: expected a positive integer, got 0"),
     ("bench her --repeats -3", "argument --repeats: expected a positive integer, got -3"),
     ("bench update --methods ps nope", "unknown method 'nope'; expected one of ['ablation', 'devin'"),

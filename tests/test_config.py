@@ -124,6 +124,14 @@ seeds: [1]
         (GOOD + "anchors: {epizodes: 3}\n", "anchors: unknown key 'epizodes'; valid keys: file"),
         (GOOD + "zero_shot: {episodes: 0}\n", "zero_shot.episodes must be positive, got 0"),
         (
+            GOOD + "zero_shot: {pairs: diagonal}\n",
+            "unknown zero_shot.pairs 'diagonal'; valid: same_seed, cross_seed, both",
+        ),
+        (
+            GOOD + "few_shot: {critic_warmup_updates: -1}\n",
+            "few_shot.critic_warmup_updates must be >= 0, got -1",
+        ),
+        (
             GOOD + "few_shot: {env_steps: 100, collect_steps: 200}\n",
             "few_shot.collect_steps must be in [0, env_steps), got 200",
         ),

@@ -28,11 +28,16 @@ def few_shot_trials(spec: SweepSpec, settings: FewShotSpec) -> list[dict[str, An
     from ps_ray.stitch import stitch_policies
     from ps_ray.weights import save_policy
 
-    selected, taken = [], Counter()
+    selected, taken, per_seed = [], Counter(), Counter()
     for pair in pairs(spec, list(settings.methods) or None):
-        if settings.max_pairs is None or taken[pair["method"]] < settings.max_pairs:
-            taken[pair["method"]] += 1
-            selected.append(pair)
+        seed_key = (pair["method"], pair["seed"])
+        if settings.max_pairs is not None and taken[pair["method"]] >= settings.max_pairs:
+            continue
+        if settings.pairs_per_seed is not None and per_seed[seed_key] >= settings.pairs_per_seed:
+            continue
+        taken[pair["method"]] += 1
+        per_seed[seed_key] += 1
+        selected.append(pair)
     trials, targets, seen = [], {}, set()
     for pair in selected:
         nets, signature = stitch_policies(pair["task_from_path"], pair["robot_from_path"])

@@ -124,9 +124,18 @@ def _trained_sweep(args: argparse.Namespace, stage: str, *flags: str):
 def cmd_zero_shot(args: argparse.Namespace) -> int:
     from ps_ray.pipeline.zero_shot import run_zero_shot, summary
 
-    with _trained_sweep(args, "zero_shot", "methods", "episodes", "repeats", "seed") as spec:
+    with _trained_sweep(args, "zero_shot", "methods", "episodes", "repeats", "seed", "pairs") as spec:
         table = run_zero_shot(spec, resume=args.resume)
-    columns = ["method", "label", "success_mean", "success_std", "touching_mean", "touching_std"]
+    columns = [
+        "method",
+        "pairing",
+        "seed",
+        "label",
+        "success_mean",
+        "best_unstitched",
+        "oracle_success",
+        "transfer_gain",
+    ]
     print(table[columns].to_string(index=False, float_format=lambda x: f"{x:.2f}"))
     print(summary(table).to_string(float_format=lambda x: f"{x:.2f}"))
     return 0
@@ -135,7 +144,7 @@ def cmd_zero_shot(args: argparse.Namespace) -> int:
 def cmd_few_shot(args: argparse.Namespace) -> int:
     from ps_ray.pipeline.few_shot import curves, run_few_shot
 
-    flags = ("env_steps", "collect_steps", "methods", "max_pairs")
+    flags = ("env_steps", "collect_steps", "methods", "max_pairs", "pairs_per_seed", "critic_warmup_updates")
     with _trained_sweep(args, "few_shot", *flags) as spec:
         results = run_few_shot(spec, resume=args.resume)
     for key, points in sorted(curves(results).items()):

@@ -104,6 +104,12 @@ def _zero_shot_parser(sub) -> None:
     p.add_argument("--episodes", type=int, default=None, help="default: the spec's (200)")
     p.add_argument("--repeats", type=int, default=None, help="default: the spec's (5)")
     p.add_argument("--seed", type=int, default=None, help="first evaluation seed")
+    p.add_argument(
+        "--pairs",
+        default=None,
+        choices=("same_seed", "cross_seed", "both"),
+        help="modules of one training seed, of two, or both (default: the spec's zero_shot.pairs)",
+    )
     p.add_argument("--resume", action="store_true", help="finish an interrupted matrix")
     p.add_argument("--storage", default=None, help="override the spec's storage directory")
 
@@ -121,6 +127,18 @@ def _few_shot_parser(sub) -> None:
     )
     p.add_argument("--methods", nargs="+", default=None)
     p.add_argument("--max-pairs", type=int, default=None, help="stitched pairs per method")
+    p.add_argument(
+        "--pairs-per-seed",
+        type=int,
+        default=None,
+        help="stitched pairs per method and seed (paired over seeds)",
+    )
+    p.add_argument(
+        "--critic-warmup-updates",
+        type=int,
+        default=None,
+        help="first updates of a trained start that fit its critics alone (actor frozen)",
+    )
     p.add_argument("--resume", action="store_true")
     p.add_argument("--storage", default=None)
 

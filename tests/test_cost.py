@@ -52,7 +52,8 @@ def test_the_workload_of_the_smoke_sweep_is_counted_from_its_spec():
     # each pair evaluated with its three controls (robot source, task source, oracle)
     assert loads["zero_shot"].eval_steps == 16 * 4 * 10 * 2 * 50 and loads["zero_shot"].updates == 0
     # max_pairs 1 per method, plus one from-scratch run per target
-    assert len(loads["few_shot"].trials) == 2 * 2 and loads["few_shot"].env_steps == 4 * 1000
+    # and one unstitched start (the pair's robot source as it is) per pair
+    assert len(loads["few_shot"].trials) == 2 * 3 and loads["few_shot"].env_steps == 6 * 1000
 
 
 def test_projection_is_the_rates_times_the_work():
@@ -97,7 +98,7 @@ def test_check_prints_the_projection_and_refuses_a_bad_core_count(tmp_path):
         timeout=120,
     )
     assert run.returncode == 0, run.stderr[-2000:]
-    assert "total: 38 trials, 31,000 training env steps" in run.stdout
+    assert "total: 40 trials, 33,000 training env steps" in run.stdout
     assert "on 16 cores" in run.stdout and "rates: conservative defaults" in run.stdout
     assert not list((tmp_path / "rates").iterdir())  # --check writes nothing
     bad = subprocess.run(

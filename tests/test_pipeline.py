@@ -35,9 +35,14 @@ from ps_ray.pipeline.tracking import TRIAL_KEY_TAG
 from ps_ray.sweep_spec import load_sweep
 
 SMOKE = Path(__file__).resolve().parents[1] / "sweeps" / "smoke.yaml"
-FIGURES = {"training_curves", "heatmap_seeds_i16", "heatmap_robots_i16", "zero_shot", "few_shot_curves"} | {
-    f"interface_{c}_i16_{m}" for c in ("seeds", "robots") for m in ("ps", "ablation")
-}
+FIGURES = {
+    "training_curves",
+    "heatmap_seeds_i16",
+    "heatmap_robots_i16",
+    "zero_shot",
+    "transfer_gain",
+    "few_shot_curves",
+} | {f"interface_{c}_i16_{m}" for c in ("seeds", "robots") for m in ("ps", "ablation")}
 
 
 def _two_checkpoints(root: Path, since: float) -> bool:
@@ -150,7 +155,7 @@ def test_a_pipeline_killed_at_five_moments_resumes_without_redoing_finished_work
     for folder, key, count in [
         (layout.tune_train, "trial", 16),
         (layout.tune_zero_shot, "pair", 16),
-        (layout.tune_few_shot, "trial", 4),
+        (layout.tune_few_shot, "trial", 6),
     ]:
         found = attempts(folder, key)
         assert len(found) == count, folder
@@ -188,7 +193,8 @@ def test_a_pipeline_killed_at_five_moments_resumes_without_redoing_finished_work
     assert sorted(zip(zero_shot["method"], zero_shot["label"])) == sorted(expected)
     assert (zero_shot["seeds"] == len(spec.seeds)).all()
     assert len(_runs(root, "zero_shot")) == 16
-    assert len(_runs(root, "few_shot")) == 4  # one stitched pair per method + their scratch runs
+    # one stitched pair per method, its robot source fine-tuned unstitched, and their scratch runs
+    assert len(_runs(root, "few_shot")) == 6
     assert len(pd.read_csv(root / "zero_shot.csv")) == 16
     assert all(stage_state(spec, s) == "done" for s in spec.stages)
     # the cost projection (`--check`) counted, from the spec alone, the trials each stage ran
@@ -197,7 +203,7 @@ def test_a_pipeline_killed_at_five_moments_resumes_without_redoing_finished_work
         "anchors_plain": len(_runs(root, "anchors_plain")),
         "train": 16,
         "zero_shot": 16,
-        "few_shot": 4,
+        "few_shot": 6,
     }
 
 
@@ -210,7 +216,7 @@ def test_the_terminal_gets_a_compact_view_and_the_log_keeps_tunes_tables(smoke):
     assert "\x1b[" not in out  # no TTY here: plain lines, no control codes
     assert "Trial status" not in out and "sweep_trial_" not in out
     assert any(line.startswith("  zero_shot: ") and " done, " in line for line in lines)
-    assert any(line.startswith("  few_shot: 4 done, 0 running, 0 failed, 0 pending") for line in lines)
+    assert any(line.startswith("  few_shot: 6 done, 0 running, 0 failed, 0 pending") for line in lines)
     assert "Trial status" in (root / "logs" / "tune_zero_shot.log").read_text()
     assert "Trial status" in (root / "few_shot" / "logs" / "tune_few_shot.log").read_text()
     assert any(line.startswith("sweep 'smoke': projected ") and "core-hours" in line for line in lines)

@@ -149,11 +149,20 @@ def workload(spec: SweepSpec) -> list[StageLoad]:
         )
         loads.append(StageLoad("zero_shot", [None] * n, 0, 0, steps))
     if "few_shot" in spec.stages:
+        from ps_ray.pipeline.sweep import task_input_dim
+
         few = spec.few_shot
         runs: list[TrainSpec] = []
         targets: dict[str, TrainSpec] = {}
+        unstitched: dict[str, TrainSpec] = {}
         for method in list(few.methods) or list(spec.methods):
-            for t, r in stitch_pairs(spec, method)[: few.max_pairs]:
+            chosen, per_seed = [], {}
+            for t, r in stitch_pairs(spec, method):
+                if few.pairs_per_seed is not None and per_seed.get(t.seed, 0) >= few.pairs_per_seed:
+                    continue
+                per_seed[t.seed] = per_seed.get(t.seed, 0) + 1
+                chosen.append((t, r))
+            for t, r in chosen[: few.max_pairs]:
                 run = TrainSpec.from_mapping(
                     {
                         **r.to_dict(),
@@ -163,7 +172,11 @@ def workload(spec: SweepSpec) -> list[StageLoad]:
                     }
                 )
                 runs.append(run)  # fine-tuning a stitched start
-                targets.setdefault(json.dumps(run.to_dict(), sort_keys=True, default=str), run)
+                key = json.dumps(run.to_dict(), sort_keys=True, default=str)
+                targets.setdefault(key, run)
+                if few.unstitched and task_input_dim(r.task) == task_input_dim(t.task):
+                    unstitched.setdefault(key + json.dumps(r.task, sort_keys=True, default=str), run)
+        runs += unstitched.values()  # each pair's robot source fine-tuned as it is
         if few.scratch:  # one from-scratch run per distinct target
             runs += targets.values()
         loads.append(_train_load("few_shot", runs))

@@ -1,8 +1,11 @@
 """`ps-ray zero-shot`: the stitching matrix of a sweep, evaluated as Tune trials, into MLflow.
 
-Every valid (task module, robot module) pair of each method and seed (see `stitch.combos`) is one
-trial: stitch, then evaluate on fixed seeds (episodes x repeats), so that every method is scored
-on identical episodes. The table goes to <sweep>/zero_shot.csv and to MLflow (stage zero_shot).
+Every valid (task module, robot module) pair of each method (see `stitch.combos`), of one seed or,
+with ``zero_shot.pairs``, across seeds, is one trial: stitch, evaluate on fixed seeds (episodes x
+repeats), then evaluate the pair's controls as they are on the same episodes (its robot source, its
+task source, the oracle: `stitch.controls`, docs/transfer.md), so that every method and control is
+scored on identical episodes. The table, one row per pair with its controls and transfer gain,
+goes to <sweep>/zero_shot.csv and to MLflow (stage zero_shot, one run per pair).
 """
 
 from __future__ import annotations
@@ -215,13 +218,17 @@ def table_of(results: list[tuple[dict[str, Any], dict[str, Any]]]) -> pd.DataFra
 
 
 def summary(table: pd.DataFrame) -> pd.DataFrame:
-    """Mean over pairs per method (and the number of pairs), for the note and the report."""
+    """Mean over pairs per method (and the number of pairs) of success, touching, the better
+    unstitched control, the oracle and the transfer gain, for the terminal and the note."""
     grouped = table.groupby("method")
     return pd.DataFrame(
         {
             "pairs": grouped.size(),
             "success": grouped["success_mean"].mean(),
             "touching": grouped["touching_mean"].mean(),
+            "best unstitched": grouped["best_unstitched"].mean(),
+            "oracle": grouped["oracle_success"].mean(),
+            "transfer gain": grouped["transfer_gain"].mean(),
         }
     )
 

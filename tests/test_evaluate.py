@@ -103,6 +103,8 @@ def test_every_policy_sees_the_same_episodes_and_num_envs_changes_nothing():
     assert [r["seed"] for r in ps["records"]] == [7, 8, 9, 10, 11, 12]
     other = evaluate(nets_for("ps"), "panda", "push", episodes=3, repeats=2, seed=8, num_envs=2)
     assert starts(other)[:5] != starts(ps)[:5] and starts(other)[0][2:] == starts(ps)[1][2:]
+    # the digest a stitched pair and its controls are checked by (ps_ray.pipeline.zero_shot)
+    assert ps["episodes_digest"] == plain["episodes_digest"] != other["episodes_digest"]
     one = evaluate(lean_if_goal_ahead, "panda", "push", episodes=5, repeats=1, seed=3, num_envs=1)
     four = evaluate(lean_if_goal_ahead, "panda", "push", episodes=5, repeats=1, seed=3, num_envs=4)
     assert one["records"] == four["records"]

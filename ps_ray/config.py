@@ -16,8 +16,8 @@ from ps_ray.defaults import HIDDEN, INTERFACE_DIM, MAX_WIDTH
 from ps_ray.envs.robots import resolve_robot
 from ps_ray.envs.tasks import resolve_task
 from ps_ray.errors import UserError
+from ps_ray.methods import PRESETS, method_key
 from ps_ray.names import canonical, trial_key
-from ps_ray.nets.modular import METHODS
 
 POINT_TASK = "point"  # the physics-free PointGoalEnv (robot is ignored), for fast checks
 
@@ -104,7 +104,9 @@ class TrainSpec:
 
     robot: str | Mapping = setting("panda", "built-in robot name or a JSON mapping")
     task: str | Mapping = setting("reach", "built-in task name or a JSON mapping")
-    method: str = setting("ps", "row of the method table: " + ", ".join(METHODS))
+    method: str = setting(
+        "ps", "a preset (" + ", ".join(PRESETS) + ") with +option=value overrides (docs/methods.md)"
+    )
     seed: int = setting(101, "seed of networks, env runner and replay sampling")
     interface_dim: int = setting(INTERFACE_DIM, "width of the task-robot interface (PS: number of anchors)")
     hidden: int = setting(HIDDEN, "hidden units per layer of every MLP")
@@ -137,8 +139,10 @@ class TrainSpec:
     def __post_init__(self) -> None:
         object.__setattr__(self, "robot", canonical(self.robot))
         object.__setattr__(self, "task", canonical(self.task))
-        if self.method not in METHODS:
-            raise SpecError(f"unknown method {self.method!r}; valid methods: {', '.join(METHODS)}")
+        try:
+            object.__setattr__(self, "method", method_key(self.method))
+        except UserError as e:
+            raise SpecError(str(e)) from None
         if self.task != POINT_TASK:
             try:
                 resolve_robot(self.robot)

@@ -38,7 +38,7 @@ from ps_ray.envs.robots import resolve_robot
 from ps_ray.envs.tasks import resolve_task
 from ps_ray.errors import UserError
 from ps_ray.names import short_name
-from ps_ray.nets.modular import NetDims, method_spec
+from ps_ray.nets.modular import NetDims
 from ps_ray.nets.sac import NET_NAMES, SACNets, build_sac_nets
 from ps_ray.nets.translation import LatentTranslation, check_kind
 from ps_ray.weights import Signature, load_policy, signature_of
@@ -86,10 +86,10 @@ def stitch_problems(sig_task: Signature, sig_robot: Signature, target: EnvSpec |
     stitched (into a policy for ``target``, if given); empty if they can."""
     problems = []
     pair = lambda a, b: f"task module {a!r} vs robot module {b!r}"  # noqa: E731
-    if sig_task.method != sig_robot.method:
+    if sig_task.settings != sig_robot.settings:
         problems.append(f"method: {pair(sig_task.method, sig_robot.method)}")
     else:
-        spec = method_spec(sig_task.method)
+        spec = sig_task.spec
         latents = [spec.latent_dim(s.interface_dim, s.hidden) for s in (sig_task, sig_robot)]
         if spec.modular and latents[0] != latents[1]:  # plain's latent is `hidden`, checked below
             problems.append(f"interface dim: {pair(*latents)}")

@@ -14,11 +14,23 @@ from ps_ray.config import SpecError, TrainSpec, check_keys, check_types
 from ps_ray.defaults import INTERFACE_DIM
 from ps_ray.envs.robots import resolve_robot
 from ps_ray.envs.tasks import resolve_task
+from ps_ray.errors import UserError
+from ps_ray.methods import method_key
 from ps_ray.names import canonical
 
 ANCHOR_POLICIES = ("plain", "random")
 # Pipeline stages in order; "train" covers plain sources, anchors and the grid (ps_ray.pipeline.sweep).
 STAGES = ("train", "zero_shot", "few_shot", "report")
+
+
+def _method_keys(where: str, methods: Any) -> Any:
+    """Each method (a preset, preset+options or a {preset: ...} mapping) as its canonical key."""
+    if not isinstance(methods, (list, tuple)):
+        return methods  # check_types names the problem
+    try:
+        return tuple(method_key(m) for m in methods)
+    except UserError as e:
+        raise SpecError(f"{where}: {e}") from None
 
 
 @dataclass(frozen=True)
@@ -88,6 +100,10 @@ class ZeroShotSpec:
     def __post_init__(self) -> None:
         from ps_ray.nets.translation import TRANSLATIONS
 
+        object.__setattr__(self, "methods", _method_keys("zero_shot.methods", self.methods))
+        if isinstance(self.translate, Mapping):
+            keys = _method_keys("zero_shot.translate", tuple(self.translate))
+            object.__setattr__(self, "translate", dict(zip(keys, self.translate.values(), strict=True)))
         check_types(self, "zero_shot")
         if self.pairs not in PAIRINGS:
             raise SpecError(f"unknown zero_shot.pairs {self.pairs!r}; valid: {', '.join(PAIRINGS)}")
@@ -137,6 +153,7 @@ class FewShotSpec:
     critic_warmup_updates: int = 500
 
     def __post_init__(self) -> None:
+        object.__setattr__(self, "methods", _method_keys("few_shot.methods", self.methods))
         check_types(self, "few_shot")
         if self.critic_warmup_updates < 0:
             raise SpecError(f"few_shot.critic_warmup_updates must be >= 0, got {self.critic_warmup_updates}")
@@ -201,6 +218,7 @@ class SweepSpec:
                 raise SpecError(f"unknown stage {stage!r}; valid stages: {', '.join(STAGES)}")
         for key in ("robots", "tasks"):
             object.__setattr__(self, key, tuple(canonical(v) for v in getattr(self, key)))
+        object.__setattr__(self, "methods", _method_keys("methods", self.methods))
         for key in ("methods", "robots", "tasks", "seeds", "interface_dims", "stages"):
             if not getattr(self, key) and key != "stages":
                 raise SpecError(f"{key} must be a non-empty list")

@@ -29,7 +29,7 @@ from ps_ray.atomic import atomic_file, atomic_path, fsync_dir, write_text
 from ps_ray.config import POINT_TASK, TrainSpec, require_same
 from ps_ray.errors import UserError
 from ps_ray.lock import folder_lock
-from ps_ray.nets.modular import method_spec, uses_anchors
+from ps_ray.methods import method_spec, spec_json, uses_anchors
 from ps_ray.run_layout import (
     ANCHORS_FILE,
     BEST_POLICY_FILE,
@@ -110,6 +110,7 @@ class TrainingRun:
         self.algo = algo_config(spec, None if anchor_set is None else anchor_set.anchors).build_algo()
         self.signature = Signature(
             method=spec.method,
+            settings=spec_json(method_spec(spec.method)),
             interface_dim=spec.interface_dim,
             hidden=spec.hidden,
             anchor_hash="" if anchor_set is None else anchor_set.hash,

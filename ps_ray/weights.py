@@ -22,6 +22,7 @@ from ps_ray.anchors import AnchorSet, anchor_hash
 from ps_ray.atomic import atomic_path
 from ps_ray.defaults import MAX_WIDTH
 from ps_ray.errors import UserError
+from ps_ray.methods import MethodSpec, method_spec, spec_from_dict, spec_json
 from ps_ray.nets.modular import NetDims
 from ps_ray.nets.sac import NET_NAMES, SACNets, build_sac_nets
 
@@ -33,7 +34,7 @@ ANCHORS_KEY = "actor.task.relative.anchors"
 class Signature:
     """What must agree for two modules to be stitched."""
 
-    method: str
+    method: str  # the method's key (ps_ray.methods)
     interface_dim: int
     hidden: int
     anchor_hash: str  # "" for methods without anchors
@@ -44,10 +45,18 @@ class Signature:
     # a deferred relative projection (MethodSpec.defer_relative) still off: the cut is the raw
     # latent until the run finishes, so no other source's robot module reads it
     projection_off: bool = False
+    # the resolved method, every setting (JSON): the nets are built from it, not from the menu,
+    # so a file keeps its meaning whatever the presets become. "" in files written before it
+    # existed (they name a preset or an old row, resolved when read: :func:`read_signature`)
+    settings: str = ""
 
     @property
     def dims(self) -> NetDims:
         return NetDims(self.task_dim, self.robot_dim, self.action_dim)
+
+    @property
+    def spec(self) -> MethodSpec:
+        return spec_from_dict(json.loads(self.settings)) if self.settings else method_spec(self.method)
 
     def mismatches(self, other: Signature, fields: tuple[str, ...] | None = None) -> list[str]:
         names = fields or tuple(f.name for f in dataclasses.fields(self))
@@ -67,9 +76,13 @@ def signature_of(
             f"nets {'lack' if translation else 'carry'} a latent translation, "
             f"signature says {translation or 'none'!r}"
         )
+    spec = nets.actor.spec
+    if method_spec(method).name != spec.name:
+        raise ValueError(f"nets built as {spec.name!r}, signature says {method!r}")
     return Signature(
         projection_off=nets.actor.task.projection_off,
-        method=method,
+        settings=spec_json(spec),
+        method=spec.name,
         interface_dim=interface_dim,
         hidden=hidden,
         anchor_hash=""
@@ -122,16 +135,24 @@ def read_signature(path: str | Path) -> tuple[Signature, dict[str, str]]:
     problem = signature_problem(signature)
     if problem:
         raise UserError(f"{path}: bad policy signature: {problem}")
+    if not signature.settings:  # written before the resolved method was stored: resolve its name
+        spec = method_spec(signature.method)
+        signature = dataclasses.replace(signature, method=spec.name, settings=spec_json(spec))
     return signature, metadata
 
 
 def signature_problem(signature: Signature) -> str | None:
     """What makes a signature unusable (wrong types, absurd sizes, unknown names), or None."""
-    from ps_ray.nets.modular import METHODS
     from ps_ray.nets.translation import TRANSLATIONS
 
-    if signature.method not in METHODS:
-        return f"unknown method {signature.method!r}; valid methods: {', '.join(METHODS)}"
+    if not isinstance(signature.method, str) or not isinstance(signature.settings, str):
+        return f"method and settings must be strings, got {signature.method!r} and {signature.settings!r}"
+    try:
+        spec = signature.spec
+    except (UserError, ValueError, json.JSONDecodeError) as e:
+        return str(e)
+    if signature.settings and spec.name != signature.method:
+        return f"method {signature.method!r} disagrees with its settings (named {spec.name!r})"
     for name in ("interface_dim", "hidden", "task_dim", "robot_dim", "action_dim"):
         value = getattr(signature, name)
         if isinstance(value, bool) or not isinstance(value, int) or not 0 < value <= MAX_WIDTH:
@@ -170,7 +191,7 @@ def nets_from_state(state: dict[str, torch.Tensor], signature: Signature, source
 def _build(signature: Signature, anchors: torch.Tensor | None, source: str) -> SACNets:
     try:
         nets = build_sac_nets(
-            signature.method,
+            signature.spec,
             signature.dims,
             interface_dim=signature.interface_dim,
             hidden=signature.hidden,

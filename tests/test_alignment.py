@@ -10,12 +10,14 @@ import pytest
 import torch
 
 from ps_ray.analysis.alignment import chance_mrr, collapsed, retrieval, spread
-from ps_ray.nets.modular import METHODS, NetDims, build_actor, update_normalizers, uses_anchors
-from ps_ray.nets.relative import RelativeProjection, RelativeSpec, input_reference
+from ps_ray.methods import PRESETS, RelativeSpec, method_spec, uses_anchors
+from ps_ray.nets.modular import NetDims, build_actor, update_normalizers
+from ps_ray.nets.relative import RelativeProjection, input_reference
 from ps_ray.nets.sac import NET_NAMES, build_sac_nets
 from ps_ray.nets.translation import fit_translation
 from ps_ray.stitch import stitch_policies
 from ps_ray.weights import load_policy, save_policy, signature_of
+from tests.code_paths import CODE_PATHS
 
 RNG = np.random.default_rng(0)
 PUSH = NetDims(15, 8, 7)
@@ -86,7 +88,7 @@ def _rotated(nets, q: torch.Tensor):
     return other
 
 
-@pytest.mark.parametrize("method", ["ablation", "devin", "ps", "ps_mean_ln"])
+@pytest.mark.parametrize("method", ["ablation", "devin", "ps", "ps+center=mean+norm=layer"])
 def test_translated_stitch_undoes_a_rotated_task_module(method, tmp_path):
     """Stitching A's task module onto B's robot module, where B is A behind a rotation of the
     latent: without translation the raw-latent methods break, with it every method gives A's
@@ -181,18 +183,18 @@ def test_a_collapsed_interface_is_flagged_and_cannot_score_retrieval():
 
 
 def test_ps_is_the_papers_projection_and_variants_differ_only_in_settings():
-    assert METHODS["ps"].relative == RelativeSpec()
-    variants = [m for m, spec in METHODS.items() if spec.relative is not None and m != "ps"]
-    assert variants and all(METHODS[m].relative != RelativeSpec() for m in variants)
+    assert PRESETS["ps"].relative == RelativeSpec()
+    variants = [m for m in CODE_PATHS if uses_anchors(m) and m != "ps"]
+    assert variants and all(method_spec(m).relative != RelativeSpec() for m in variants)
 
 
 def test_ps_ref_actor_has_a_relative_actor_cut_and_raw_latent_critic_cuts():
-    """ps_ref_actor is ps_ref_light at the actor's cut only: its critics are the ablation's, so
+    """relative_critics=false puts the projection at the actor's cut only: its critics are the ablation's, so
     they carry no projection and no penalty, and their latent is the raw task-module output."""
-    nets, _ = _nets("ps_ref_actor")
+    nets, _ = _nets("ps+norm=layer+norm_reg=1+ref_weight=0.1+relative_critics=false")
     ablation, _ = _nets("ablation")
     task = 2 * torch.randn(64, 15) + 1
-    assert nets.actor.task.relative.spec == METHODS["ps_ref_light"].relative
+    assert nets.actor.task.relative.spec == method_spec("ps+norm=layer+norm_reg=1+ref_weight=0.1").relative
     assert float(nets.actor.task.penalty(task)) > 0
     for name in NET_NAMES[1:]:
         critic = getattr(nets, name)
@@ -252,11 +254,11 @@ def test_relative_spec_rejects_bad_settings():
         RelativeSpec(ref_bandwidth=0)
 
 
-@pytest.mark.parametrize("method", sorted(m for m in METHODS if uses_anchors(m)))
+@pytest.mark.parametrize("method", [m for m in CODE_PATHS if uses_anchors(m)])
 def test_every_relative_variant_survives_a_policy_file_round_trip(method, tmp_path):
     nets, sig = _nets(method)
     loaded, loaded_sig = load_policy(save_policy(tmp_path / "p.safetensors", nets, sig))
-    assert loaded_sig == sig and loaded.actor.task.relative.spec == METHODS[method].relative
+    assert loaded_sig == sig and loaded.actor.task.relative.spec == method_spec(method).relative
     task, robot, action = torch.randn(16, 15), torch.randn(16, 8), torch.rand(16, 7) * 2 - 1
     with torch.no_grad():
         for name in NET_NAMES[1:]:
@@ -327,12 +329,12 @@ def test_one_encoder_pass_gives_the_interface_and_the_penalties(anchor_grad):
 
 
 def test_norm_penalty_holds_the_embedding_length_in_training():
-    """Embeddings made 10x too long, then 300 gradient steps on the SAC losses: with ``ps_normreg``
+    """Embeddings made 10x too long, then 300 gradient steps on the SAC losses: with ``norm_reg=1``
     the penalty brings |z| back near 1; with ``ps`` the loss, blind to |z|, leaves it long."""
     from ps_ray.nets.sac import SACHyper, sac_forward, sac_losses
 
     lengths = {}
-    for method in ("ps", "ps_normreg"):
+    for method in ("ps", "ps+norm_reg=1"):
         nets, _ = _nets(method)
         with torch.no_grad():
             for name in NET_NAMES[:3]:
@@ -355,7 +357,7 @@ def test_norm_penalty_holds_the_embedding_length_in_training():
             optimiser.step()
         with torch.no_grad():
             lengths[method] = nets.actor.task.encode(torch.randn(256, 15)).norm(dim=-1).mean().item()
-    assert 0.8 < lengths["ps_normreg"] < 1.25, lengths
+    assert 0.8 < lengths["ps+norm_reg=1"] < 1.25, lengths
     assert lengths["ps"] > 5, lengths
 
 
@@ -383,13 +385,14 @@ def test_the_reference_penalty_aligns_independent_task_modules():
     """Two task modules from different initialisations, trained on the penalties alone (the SAC
     losses left out), end with nearly the same interface on unseen states: cosine distance below
     0.01 and every probe retrieved; the interface keeps its spread. Without the reference term
-    (ps_normreg_ln) they stay as far apart as their random initialisations."""
+    (ps+norm=layer+norm_reg=1) they stay as far apart as their random initialisations."""
     reach = NetDims(3, 8, 7)
     g = torch.Generator().manual_seed(0)
     box = lambda n: torch.rand(n, 3, generator=g) * torch.tensor([0.6, 0.6, 0.3])  # noqa: E731
     anchors, probes = box(32), box(200)
     interfaces = {}
-    for method in ("ps_ref", "ps_normreg_ln"):
+    pulled, free = "ps+norm=layer+norm_reg=1+ref_weight=1", "ps+norm=layer+norm_reg=1"
+    for method in (pulled, free):
         pair = []
         for seed in (1, 2):
             torch.manual_seed(seed)
@@ -406,9 +409,9 @@ def test_the_reference_penalty_aligns_independent_task_modules():
         interfaces[method] = pair
     distance = {m: (1 - torch.cosine_similarity(a, b, -1)).mean().item() for m, (a, b) in interfaces.items()}
     mrr = {m: retrieval(a.numpy(), b.numpy())["mrr"] for m, (a, b) in interfaces.items()}
-    assert distance["ps_ref"] < 0.01 and mrr["ps_ref"] > 0.9, (distance, mrr)
-    assert distance["ps_normreg_ln"] > 5 * distance["ps_ref"] and mrr["ps_normreg_ln"] < mrr["ps_ref"], (
+    assert distance[pulled] < 0.01 and mrr[pulled] > 0.9, (distance, mrr)
+    assert distance[free] > 5 * distance[pulled] and mrr[free] < mrr[pulled], (
         distance,
         mrr,
     )
-    assert not collapsed(interfaces["ps_ref"][0].numpy())
+    assert not collapsed(interfaces[pulled][0].numpy())

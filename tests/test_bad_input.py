@@ -93,8 +93,16 @@ CASES = [  # (arguments, with {f} the input folder and {out} a path that must no
     ('train --task {{"name":"reach_red","target":2}} --run-dir {out}', "bad target 2; valid targets: 0..1"),
     ("bench env --steps 0", "argument --steps: expected a positive integer, got 0"),
     ("bench her --repeats -3", "argument --repeats: expected a positive integer, got -3"),
-    ("bench update --methods ps nope", "unknown method 'nope'; expected one of ['ablation', 'devin'"),
-    ("bench learn --methods ablation nope --out {out}/b", "unknown method 'nope'; valid methods: ps, ps_ln"),
+    ("bench update --methods ps nope", "unknown method 'nope'; valid presets: ps, ps_distilled, ablation"),
+    (
+        "bench learn --methods ablation nope --out {out}/b",
+        "unknown method 'nope'; valid presets: ps, ps_distilled",
+    ),
+    ("train --method ps+norm=batch --run-dir {out}", "method 'ps+norm=batch': unknown relative norm 'batch'"),
+    (
+        "train --method ps+nrom=layer --run-dir {out}",
+        "method 'ps': unknown option 'nrom'; valid: relative, center",
+    ),
     ("bench learn --methods ps_ref_actor --out {out}/b", "--baseline 'ablation' is not among --methods"),
 ]
 

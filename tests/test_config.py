@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from ps_ray.config import SpecError, TrainSpec
-from ps_ray.nets.modular import METHODS
+from ps_ray.methods import PRESETS
 from ps_ray.sweep_spec import SweepSpec, load_sweep
 
 SWEEPS = Path(__file__).resolve().parents[1] / "sweeps"
@@ -33,7 +33,7 @@ def test_train_spec_defaults_are_valid_and_label_names_the_trial():
     [
         (
             {"method": "psx"},
-            f"unknown method 'psx'; valid methods: {', '.join(METHODS)}",
+            f"unknown method 'psx'; valid presets: {', '.join(PRESETS)} (+option=value)",
         ),
         ({"robot": "pandaa"}, "unknown robot 'pandaa'; valid robots: panda, panda_l3, panda_l5, panda_far"),
         ({"task": "pushh"}, "unknown task 'pushh'"),

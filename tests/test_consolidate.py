@@ -9,13 +9,19 @@ import numpy as np
 import pytest
 import torch
 
-from ps_ray.nets.consolidate import ConsolidateSpec, consolidate
-from ps_ray.nets.modular import METHODS, MethodSpec, NetDims, update_normalizers
-from ps_ray.nets.relative import RelativeSpec
+from ps_ray.errors import UserError
+from ps_ray.methods import PRESETS, ConsolidateSpec, RelativeSpec, method_spec
+from ps_ray.nets.consolidate import consolidate
+from ps_ray.nets.modular import NetDims, update_normalizers
 from ps_ray.nets.sac import build_sac_nets
+from tests.code_paths import PS_CONSOLIDATED
 
 DIMS = NetDims(task_dim=3, robot_dim=8, action_dim=7)
-CONSOLIDATED = sorted(name for name, spec in METHODS.items() if spec.consolidate is not None)
+# the preset that consolidates, and the variant whose projection is on while it trains
+CONSOLIDATED = [
+    *(name for name, spec in PRESETS.items() if spec.consolidate is not None),
+    PS_CONSOLIDATED,
+]
 
 
 def _nets(method: str, seed: int = 0):
@@ -34,7 +40,7 @@ def _states(spec: ConsolidateSpec, seed: int = 1) -> tuple[torch.Tensor, torch.T
 def test_the_shipped_rows_consolidate_after_training_with_an_actor_only_relative_cut():
     assert CONSOLIDATED, "no method row consolidates"
     for name in CONSOLIDATED:
-        spec = METHODS[name]
+        spec = method_spec(name)
         assert spec.relative is not None and not spec.relative_critics, name
 
 
@@ -64,8 +70,9 @@ def test_consolidation_draws_the_interface_to_the_reference_and_keeps_the_action
 
 def test_without_the_action_term_the_pull_alone_would_change_the_policy():
     """What keeps the actions is the distillation: the same pull with a frozen robot module and
-    no action term moves them (the control for the test above)."""
-    method = CONSOLIDATED[0]
+    no action term moves them (the control for the test above). A projection switched on while
+    training (the old row ps_consolidated), so that the pull moves the interface the actor reads."""
+    method = PS_CONSOLIDATED
     nets = _nets(method)
     spec = ConsolidateSpec(updates=300, batch_size=64)
     task, robot = _states(spec)
@@ -93,8 +100,8 @@ def test_consolidation_refuses_bad_settings_and_a_raw_latent():
         ConsolidateSpec(updates=0)
     with pytest.raises(ValueError, match="pull must be positive, got -1"):
         ConsolidateSpec(pull=-1)
-    with pytest.raises(ValueError, match="method 'x': consolidation needs a relative interface"):
-        MethodSpec("x", None, True, None, 0.0, consolidate=ConsolidateSpec())
+    with pytest.raises(UserError, match=r"'ablation\+consolidate=true': consolidation needs"):
+        method_spec("ablation+consolidate=true")
     ablation = build_sac_nets("ablation", DIMS, interface_dim=16, hidden=32)
     spec = ConsolidateSpec(updates=2, batch_size=4)
     with pytest.raises(ValueError, match="'ablation' has no relative interface"):

@@ -10,7 +10,8 @@ import torch
 
 from ps_ray.envs import make
 from ps_ray.evaluate import EpisodeRecord, evaluate, summarize
-from ps_ray.nets.modular import NetDims, uses_anchors
+from ps_ray.methods import uses_anchors
+from ps_ray.nets.modular import NetDims
 from ps_ray.nets.obs import split_obs
 from ps_ray.nets.sac import build_sac_nets
 from ps_ray.policy import GreedyPolicy
@@ -114,12 +115,12 @@ def test_every_policy_sees_the_same_episodes_and_num_envs_changes_nothing():
     "method, translation",
     [
         ("ps", None),
-        ("ps_center_ln", None),
-        ("ps_mean_ln", None),
+        ("ps+center=standard+norm=layer", None),
+        ("ps+center=mean+norm=layer", None),
         ("ablation", None),
         ("devin", None),
         ("plain", None),
-        ("ps_center_ln", "affine"),
+        ("ps+center=standard+norm=layer", "affine"),
         ("ablation", "orthogonal"),
         ("ps_distilled", None),  # its projection still off, as while training
         ("ps_distilled", "switched"),

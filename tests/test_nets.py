@@ -11,13 +11,12 @@ import pytest
 import torch
 from torch import nn
 
+from ps_ray.methods import RelativeSpec, method_spec
 from ps_ray.nets import (
-    METHODS,
     Actor,
     Critic,
     NetDims,
     RelativeProjection,
-    RelativeSpec,
     RunningNorm,
     build_actor,
     build_critic,
@@ -25,6 +24,7 @@ from ps_ray.nets import (
     mlp,
     update_normalizers,
 )
+from tests.code_paths import CODE_PATHS
 
 torch.set_num_threads(1)
 
@@ -47,7 +47,7 @@ def inputs(dims: NetDims, batch: int = BATCH, seed: int = 1) -> tuple[torch.Tens
 
 # every method, and ps_distilled also as it is after its run (its deferred projection switched on)
 SWITCHED = ":on"
-VARIANTS = [*sorted(METHODS), "ps_distilled" + SWITCHED]
+VARIANTS = [*CODE_PATHS, "ps_distilled" + SWITCHED]
 
 
 def build(
@@ -56,7 +56,7 @@ def build(
     torch.manual_seed(seed)
     method, switched = method.removesuffix(SWITCHED), method.endswith(SWITCHED)
     builder = build_actor if kind == "actor" else build_critic
-    anchors = anchors_for(dims, interface_dim) if METHODS[method].relative else None
+    anchors = anchors_for(dims, interface_dim) if method_spec(method).relative else None
     net = builder(method, dims, interface_dim=interface_dim, anchors=anchors, **kw)
     if switched and kind == "actor":
         net.task.switch_relative_on()
@@ -222,7 +222,7 @@ def test_switching_on_a_projection_needs_a_deferred_one() -> None:
     with pytest.raises(ValueError, match="method 'ps' has no deferred relative projection"):
         build("actor", "ps").task.switch_relative_on()
     with pytest.raises(ValueError, match="deferred relative interface needs consolidation"):
-        dataclasses.replace(METHODS["ps_consolidated"], name="x", consolidate=None, defer_relative=True)
+        dataclasses.replace(method_spec("ps_distilled"), consolidate=None)
 
 
 def test_ps_interface_is_cosine_vector() -> None:
@@ -314,7 +314,7 @@ def expected_counts(method: str, dims: NetDims, d: int = 128, h: int = 256) -> d
 
 
 @pytest.mark.parametrize("dims", [PUSH, REACH], ids=["push", "reach"])
-@pytest.mark.parametrize("method", sorted(METHODS))
+@pytest.mark.parametrize("method", CODE_PATHS)
 def test_parameter_counts(method: str, dims: NetDims) -> None:
     actor, critic = build("actor", method, dims), build("critic", method, dims)
     got = {

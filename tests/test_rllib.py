@@ -10,11 +10,12 @@ import torch
 
 from ps_ray.anchors import anchor_hash
 from ps_ray.config import TrainSpec
-from ps_ray.nets.modular import METHODS
+from ps_ray.methods import method_spec
 from ps_ray.nets.sac import NET_NAMES
 from ps_ray.rllib.algo import algo_config
 from ps_ray.rllib.episodes import train_batch
 from ps_ray.weights import Signature, load_policy, read_signature
+from tests.code_paths import PS_CONSOLIDATED
 
 SMALL = dict(
     task="point",
@@ -51,7 +52,7 @@ def _learner_module(algo):
 TARGETS = ("target_critic", "target_critic_twin")
 
 
-@pytest.fixture(scope="module", params=["ps", "ps_center_ln"])
+@pytest.fixture(scope="module", params=["ps", "ps+center=standard+norm=layer"])
 def trained(ray_local, tmp_path_factory, request):
     spec = TrainSpec(method=request.param, anchors=None, **SMALL)
     anchors = np.random.default_rng(0).uniform(-0.5, 0.5, (16, 2)).astype(np.float32)
@@ -254,7 +255,13 @@ def test_every_train_setting_is_documented_in_the_help(cli):
         assert flag in out and f"(default {getattr(TrainSpec(), f.name)})" in " ".join(out.split()), flag
 
 
-@pytest.mark.parametrize("method", ["ps_consolidated", "ps_distilled"])
+@pytest.mark.parametrize(
+    "method",
+    [
+        PS_CONSOLIDATED,
+        "ps_distilled",
+    ],
+)
 def test_a_consolidated_actor_reaches_the_env_runners_that_act_and_evaluate(ray_local, method):
     """Consolidation changes the learner's actor outside an RLlib update; the env runner that
     collects episodes and runs the final evaluation must act with it, not with the actor before
@@ -267,7 +274,7 @@ def test_a_consolidated_actor_reaches_the_env_runners_that_act_and_evaluate(ray_
             algo.train()
         runner = algo.env_runner_group.local_env_runner
         before = {k: v.clone() for k, v in runner.module.actor.state_dict().items()}
-        stats = algo.consolidate_actor(METHODS[method].consolidate)
+        stats = algo.consolidate_actor(method_spec(method).consolidate)
         assert stats["gap_after"] < stats["gap_before"]
         assert runner.module.actor.task.projection is not None
         learner_actor = _learner_module(algo).actor.state_dict()

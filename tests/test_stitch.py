@@ -23,7 +23,8 @@ from ps_ray.checkpoint import STATE_FILE, seal
 from ps_ray.envs import make
 from ps_ray.envs.core import effective_gripper
 from ps_ray.errors import UserError
-from ps_ray.nets.modular import METHODS, NetDims, update_normalizers, uses_anchors
+from ps_ray.methods import method_spec, uses_anchors
+from ps_ray.nets.modular import NetDims, update_normalizers
 from ps_ray.nets.obs import dims_from_spaces
 from ps_ray.nets.sac import NET_NAMES, SACNets, build_sac_nets
 from ps_ray.paper import PANDA_L3_GRIPPER, PAPER_COMBOS
@@ -38,6 +39,7 @@ from ps_ray.stitch import (
 )
 from ps_ray.weights import Signature, load_policy, nets_state, save_policy, signature_of
 from ps_ray.zoo import ModuleZoo, read_entry
+from tests.code_paths import CODE_PATHS
 
 torch.set_num_threads(1)
 
@@ -92,7 +94,7 @@ def make_nets(
     with torch.no_grad():
         for p in [*nets.target_critic.parameters(), *nets.target_critic_twin.parameters()]:
             p.add_(0.05 * torch.randn(p.shape, generator=g))
-    if finished and METHODS[method].defer_relative:
+    if finished and method_spec(method).defer_relative:
         nets.actor.task.switch_relative_on()
     return nets, signature_of(nets, method, interface_dim, hidden)
 
@@ -280,7 +282,7 @@ def test_zoo_from_a_real_tiny_sweep(tmp_path, ray_local, tiny_train):
 
 
 # -- stitching ------------------------------------------------------------------------------------
-@pytest.mark.parametrize("method", sorted(METHODS))
+@pytest.mark.parametrize("method", CODE_PATHS)
 def test_self_stitch_is_identity(method):
     nets, signature = make_nets(method)
     stitched, stitched_sig = stitch_policies((nets, signature), (nets, signature))
@@ -655,7 +657,9 @@ def test_cli_bad_input_one_line_exit_2_nothing_written(sweep, tmp_path, capsys, 
         ("hidden", "64", "hidden must be an integer in 1..8192, got '64'"),
         ("interface_dim", -3, "interface_dim must be an integer in 1..8192, got -3"),
         ("hidden", 10**9, "hidden must be an integer in 1..8192, got 1000000000"),
-        ("method", "psx", "unknown method 'psx'; valid methods: ps"),
+        ("method", "psx", "method 'psx' disagrees with its settings (named 'ps')"),
+        ("settings", "{}", "malformed method record ('relative')"),
+        ("settings", 7, "method and settings must be strings, got 'ps' and 7"),
         ("translation", "warp", "unknown translation 'warp'; valid: none, orthogonal, affine"),
     ],
 )

@@ -15,6 +15,7 @@ import torch
 from safetensors.torch import load_file
 
 from ps_ray.weights import load_policy, read_signature
+from tests.code_paths import PS_CONSOLIDATED
 
 
 def test_a_killed_run_refuses_a_second_writer_while_alive_and_resumes_from_its_checkpoint(
@@ -168,7 +169,13 @@ def test_resume_drops_rows_after_the_checkpoint_and_a_row_a_kill_cut_short(tmp_p
     assert pd.read_csv(path)["env_steps"].tolist() == [100, 200]
 
 
-@pytest.mark.parametrize("method", ["ps_consolidated", "ps_distilled"])
+@pytest.mark.parametrize(
+    "method",
+    [
+        PS_CONSOLIDATED,
+        "ps_distilled",
+    ],
+)
 def test_a_consolidating_method_aligns_once_when_training_ends_and_keeps_it_on_resume(
     tmp_path, train_cmd, method
 ):

@@ -85,11 +85,10 @@ def interface_of(policy_path: str | Path, states: np.ndarray) -> np.ndarray:
     """The actor task module's interface on ``states`` (N, K) for a modular policy file."""
     import torch
 
-    from ps_ray.nets.modular import method_spec
     from ps_ray.weights import load_policy
 
     nets, signature = load_policy(policy_path)
-    if not method_spec(signature.method).modular:
+    if not signature.spec.modular:
         raise UserError(f"{policy_path}: method {signature.method!r} has no task-only interface")
     with torch.no_grad():
         return nets.actor.interface(torch.as_tensor(states), None).numpy()
@@ -110,7 +109,7 @@ class Dump:
 
 def dump_interfaces(entries: Iterable, probes_for: Callable[[str | Mapping], Probes]) -> list[Dump]:
     """Dumps of every modular zoo entry; ``probes_for(task)`` gives the probe states of a task."""
-    from ps_ray.nets.modular import method_spec
+    from ps_ray.methods import method_spec
 
     dumps = []
     for entry in entries:

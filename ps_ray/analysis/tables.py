@@ -6,10 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
+from ps_ray.methods import table_order
 from ps_ray.names import short_name
-from ps_ray.nets.modular import METHODS
-
-METHOD_ORDER = tuple(METHODS)  # the method table's order: ps, its variants, then the baselines
 
 
 def pm(mean: float, std: float, digits: int = 2) -> str:
@@ -22,21 +20,15 @@ def ci(lo: float, hi: float, digits: int = 2) -> str:
     return "[n/a]" if np.isnan(lo) else f"[{lo:.{digits}f}, {hi:.{digits}f}]"
 
 
-def _method_key(method: str) -> tuple[int, str]:
-    """The method table's order; a translated stitch ("ablation+affine") right after its method."""
-    base, _, translation = method.partition("+")
-    return (METHOD_ORDER.index(base) if base in METHOD_ORDER else len(METHOD_ORDER), translation)
-
-
 def method_order(methods) -> list[str]:
     """Distinct methods, PS first, then the baselines in the paper's order."""
-    return sorted(set(methods), key=_method_key)
+    return sorted(set(methods), key=table_order)
 
 
 def latent_table(distances: pd.DataFrame, comparison: str, interface_dim: int) -> pd.DataFrame:
     """One of the paper's appendix tables: rows = methods, columns = cosine and L2 distance."""
     part = distances[(distances["comparison"] == comparison) & (distances["interface_dim"] == interface_dim)]
-    part = part.sort_values("method", key=lambda s: s.map(_method_key))
+    part = part.sort_values("method", key=lambda s: s.map(table_order))
     return pd.DataFrame(
         {
             "pairs": part["pairs"].to_numpy(),
@@ -106,7 +98,7 @@ def training_table(final: pd.DataFrame) -> pd.DataFrame:
             "final success": grouped.agg(lambda s: pm(float(s.mean()), float(s.std(ddof=0)))),
         }
     )
-    return out.sort_index(level=0, key=lambda s: s.map(_method_key) if s.name == "method" else s)
+    return out.sort_index(level=0, key=lambda s: s.map(table_order) if s.name == "method" else s)
 
 
 def zero_shot_estimates(table: pd.DataFrame) -> pd.DataFrame:

@@ -23,7 +23,7 @@ from ps_ray.cli_parsers import Parser, positive_int
 from ps_ray.defaults import HIDDEN, INTERFACE_DIM
 from ps_ray.envs import make, task_input
 from ps_ray.evaluate import evaluate
-from ps_ray.nets.modular import uses_anchors
+from ps_ray.methods import uses_anchors
 from ps_ray.nets.obs import dims_from_spaces
 from ps_ray.nets.sac import build_sac_nets
 

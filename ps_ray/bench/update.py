@@ -15,7 +15,8 @@ import torch
 
 from ps_ray.cli_parsers import Parser, positive_int
 from ps_ray.config import TrainSpec
-from ps_ray.nets.modular import NetDims, method_spec, uses_anchors
+from ps_ray.methods import method_spec, uses_anchors
+from ps_ray.nets.modular import NetDims
 from ps_ray.nets.obs import dims_from_spaces
 from ps_ray.nets.sac import SACHyper, build_sac_nets, sac_forward, sac_losses
 from ps_ray.train import make_env
@@ -52,7 +53,7 @@ class UpdateLoop:
 def main(argv: list[str] | None = None) -> None:
     parser = Parser(prog="ps-ray bench update", description=__doc__)
     parser.add_argument("--task", default="reach")
-    parser.add_argument("--methods", nargs="+", default=["ps", "ps_ref_light", "ps_ref_actor", "plain"])
+    parser.add_argument("--methods", nargs="+", default=["ps", "ps_distilled", "ablation", "plain"])
     parser.add_argument("--updates", type=positive_int, default=30, help="updates per method per round")
     parser.add_argument("--rounds", type=positive_int, default=7)
     parser.add_argument("--batch-size", type=positive_int, default=256)

@@ -1,26 +1,23 @@
 """Plain-torch networks for Policy Stitching (no Ray imports here)."""
 
+from ps_ray.methods import MethodSpec, RelativeSpec, method_spec
 from ps_ray.nets.mlp import mlp
 from ps_ray.nets.modular import (
-    METHODS,
     Actor,
     ActorRobotModule,
     Critic,
     CriticRobotModule,
-    MethodSpec,
     NetDims,
     TaskModule,
     build_actor,
     build_critic,
     count_parameters,
-    method_spec,
     update_normalizers,
 )
 from ps_ray.nets.normalize import RunningNorm
-from ps_ray.nets.relative import RelativeProjection, RelativeSpec
+from ps_ray.nets.relative import RelativeProjection
 
 __all__ = [
-    "METHODS",
     "Actor",
     "ActorRobotModule",
     "Critic",

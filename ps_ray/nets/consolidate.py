@@ -19,42 +19,15 @@ into a new interface rather than into itself).
 from __future__ import annotations
 
 import copy
-from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import torch
 from torch import Tensor
 
+from ps_ray.methods import ConsolidateSpec
+
 if TYPE_CHECKING:
     from ps_ray.nets.modular import Actor
-
-
-@dataclass(frozen=True)
-class ConsolidateSpec:
-    """A method's consolidation: ``updates`` Adam steps (``lr``) on minibatches of ``batch_size``,
-    the interface's reference gap weighted by ``pull``, the log-std error by ``log_std_weight``."""
-
-    updates: int = 2000
-    pull: float = 1.0
-    lr: float = 3e-4
-    batch_size: int = 256
-    log_std_weight: float = 0.1
-
-    def __post_init__(self) -> None:
-        for name in ("updates", "batch_size"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-                raise ValueError(f"consolidation {name} must be a positive integer, got {value!r}")
-        for name in ("pull", "lr"):
-            if not getattr(self, name) > 0:
-                raise ValueError(f"consolidation {name} must be positive, got {getattr(self, name)!r}")
-        if not self.log_std_weight >= 0:
-            raise ValueError(f"consolidation log_std_weight must be >= 0, got {self.log_std_weight!r}")
-
-    @property
-    def rows(self) -> int:
-        """States one consolidation reads: ``updates`` minibatches of ``batch_size``."""
-        return self.updates * self.batch_size
 
 
 def consolidate(actor: Actor, task_in: Tensor, robot_in: Tensor, spec: ConsolidateSpec) -> dict[str, float]:

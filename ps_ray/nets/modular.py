@@ -1,6 +1,6 @@
 """Modular SAC networks: task module g (task input -> latent) + robot module f (latent + robot -> out).
 
-Every method is a row of :data:`METHODS`; one :class:`TaskModule` and one robot-module trunk are
+Every method is a :class:`ps_ray.methods.MethodSpec`; one :class:`TaskModule` and one robot-module trunk are
 configured from a :class:`MethodSpec` and :class:`NetDims`. Architecture (hidden = 256, latent D):
 
 - modular task module:  RunningNorm(task) -> mlp(task, [h, h], D) [-> cosine vs K = D anchors (PS)]
@@ -26,115 +26,12 @@ from torch import Tensor, nn
 
 from ps_ray.defaults import HIDDEN, INTERFACE_DIM
 from ps_ray.errors import UserError
-from ps_ray.nets.consolidate import ConsolidateSpec
+from ps_ray.methods import MethodSpec, RelativeSpec, method_spec
 from ps_ray.nets.mlp import mlp
 from ps_ray.nets.normalize import RunningNorm
-from ps_ray.nets.relative import RelativeProjection, RelativeSpec
+from ps_ray.nets.relative import RelativeProjection
 
 LOG_STD_MIN, LOG_STD_MAX = -9.0, 2.0
-
-
-@dataclass(frozen=True)
-class MethodSpec:
-    """One row per method; a baseline is a row of settings, not a class."""
-
-    name: str
-    relative: RelativeSpec | None  # projection onto anchors (PS and its variants), None: raw latent
-    modular: bool  # False for plain: the bottom half sees the whole state
-    interface_dim: int | None  # fixed bottleneck width, or None = the caller's interface_dim
-    dropout: float  # dropout on the latent, applied at the robot module's input
-    # False: only the actor's cut is relative; the critics' is the ablation's raw latent
-    relative_critics: bool = True
-    # after training, align the actor's interface to the input reference (ps_ray.nets.consolidate)
-    consolidate: ConsolidateSpec | None = None
-    # True: the actor trains on the raw latent (the ablation's network, step for step) and its
-    # relative projection is switched on by consolidation, which distils the actor into it
-    defer_relative: bool = False
-
-    def __post_init__(self) -> None:
-        if self.relative is not None and not self.modular:
-            raise ValueError(f"method {self.name!r}: a relative interface needs a modular network")
-        if self.consolidate is not None and self.relative is None:
-            raise ValueError(f"method {self.name!r}: consolidation needs a relative interface")
-        if self.defer_relative and (self.consolidate is None or self.relative_critics):
-            raise ValueError(
-                f"method {self.name!r}: a deferred relative interface needs consolidation "
-                f"(which switches it on) and raw-latent critics (relative_critics=False)"
-            )
-
-    def relative_for(self, critic: bool) -> RelativeSpec | None:
-        """The projection at an actor's or a critic's cut (None: the raw latent)."""
-        return None if critic and not self.relative_critics else self.relative
-
-    def latent_dim(self, interface_dim: int, hidden: int) -> int:
-        """Width at the cut: fixed (devin), the caller's interface_dim, or ``hidden`` for plain."""
-        if not self.modular:
-            return hidden
-        return self.interface_dim if self.interface_dim is not None else interface_dim
-
-
-def _ps(
-    name: str,
-    relative_critics: bool = True,
-    consolidate: ConsolidateSpec | None = None,
-    defer_relative: bool = False,
-    **relative,
-) -> MethodSpec:
-    spec = RelativeSpec(**relative)
-    return MethodSpec(name, spec, True, None, 0.0, relative_critics, consolidate, defer_relative)
-
-
-# ps is the paper's method, unchanged; ps_* are the variants measured in docs/alignment.md.
-METHODS: dict[str, MethodSpec] = {
-    spec.name: spec
-    for spec in (
-        _ps("ps"),
-        _ps("ps_ln", norm="layer"),
-        _ps("ps_center", center="standard"),
-        _ps("ps_center_ln", center="standard", norm="layer"),
-        _ps("ps_mean_ln", center="mean", norm="layer"),
-        _ps("ps_nograd", anchor_grad=False),
-        _ps("ps_scaled", scale=4.0),
-        _ps("ps_normreg", norm_reg=1.0),
-        _ps("ps_normreg_ln", norm_reg=1.0, norm="layer"),
-        _ps("ps_ref", norm_reg=1.0, norm="layer", ref_weight=1.0),
-        _ps("ps_ref_light", norm_reg=1.0, norm="layer", ref_weight=0.1),
-        _ps("ps_ref_actor", relative_critics=False, norm_reg=1.0, norm="layer", ref_weight=0.1),
-        _ps("ps_ref_actor_weak", relative_critics=False, norm_reg=1.0, norm="layer", ref_weight=0.03),
-        _ps(
-            "ps_ref_actor_sharp",
-            relative_critics=False,
-            norm_reg=1.0,
-            norm="layer",
-            ref_weight=0.03,
-            ref_bandwidth=0.25,
-        ),
-        # the weak pull on an interface x 0.25, consolidated after training (ps_ray/nets/consolidate.py)
-        _ps(
-            "ps_consolidated",
-            relative_critics=False,
-            consolidate=ConsolidateSpec(),
-            norm_reg=1.0,
-            norm="layer",
-            ref_weight=0.03,
-            scale=0.25,
-        ),
-        # trains as the ablation; at the end its actor is distilled into the relative interface
-        # (x 0.25, LayerNorm) with the pull (ps_ray/nets/consolidate.py, docs/alignment.md)
-        _ps(
-            "ps_distilled",
-            relative_critics=False,
-            consolidate=ConsolidateSpec(updates=4000),  # a new interface to learn: twice the updates
-            defer_relative=True,
-            norm="layer",
-            scale=0.25,
-        ),
-        MethodSpec("ablation", None, modular=True, interface_dim=None, dropout=0.0),
-        MethodSpec("devin", None, modular=True, interface_dim=16, dropout=0.25),
-        MethodSpec("devin_large", None, modular=True, interface_dim=None, dropout=0.25),
-        MethodSpec("plain", None, modular=False, interface_dim=None, dropout=0.0),
-    )
-}
 
 
 @dataclass(frozen=True)
@@ -142,18 +39,6 @@ class NetDims:
     task_dim: int  # task state (+ desired goal)
     robot_dim: int  # joint angles + finger width
     action_dim: int
-
-
-def method_spec(method: str) -> MethodSpec:
-    try:
-        return METHODS[method]
-    except KeyError:
-        raise UserError(f"unknown method {method!r}; expected one of {sorted(METHODS)}") from None
-
-
-def uses_anchors(method: str) -> bool:
-    """Whether a method's interface is relative to an anchor set (PS and its variants)."""
-    return method_spec(method).relative is not None
 
 
 class TaskModule(nn.Module):
@@ -407,7 +292,7 @@ Net = TypeVar("Net", Actor, Critic)
 
 def _build(
     net_type: type[Net],
-    method: str,
+    method: str | MethodSpec,
     dims: NetDims,
     *,
     interface_dim: int = INTERFACE_DIM,
@@ -415,7 +300,7 @@ def _build(
     anchors: Tensor | None = None,
     anchor_grad: bool | None = None,
 ) -> Net:
-    """The one builder: an Actor or a Critic of `method` from its MethodSpec row."""
+    """The one builder: an Actor or a Critic of ``method`` (a key or resolved settings)."""
     spec = method_spec(method)
     critic = net_type is Critic
     latent_dim = spec.latent_dim(interface_dim, hidden)
@@ -426,12 +311,12 @@ def _build(
     return net_type(task, robot_type(spec, dims, latent_dim, hidden))
 
 
-def build_actor(method: str, dims: NetDims, **options) -> Actor:
+def build_actor(method: str | MethodSpec, dims: NetDims, **options) -> Actor:
     """Options: interface_dim (128), hidden (256), anchors (PS), anchor_grad (None: the method's)."""
     return _build(Actor, method, dims, **options)
 
 
-def build_critic(method: str, dims: NetDims, **options) -> Critic:
+def build_critic(method: str | MethodSpec, dims: NetDims, **options) -> Critic:
     """Options as for :func:`build_actor`."""
     return _build(Critic, method, dims, **options)
 

@@ -1,79 +1,22 @@
 """Relative representation: cosine similarity of an embedding to embedded anchors (Moschella et al.).
 
-The paper's projection and the variants measured against it (docs/alignment.md) are settings of
-one :class:`RelativeSpec`, a field of a method's row in :data:`ps_ray.nets.modular.METHODS`.
+The paper's projection and its variants (docs/methods.md) are settings of one
+:class:`ps_ray.methods.RelativeSpec`, a field of a method's :class:`ps_ray.methods.MethodSpec`.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
 from typing import NamedTuple
 
 import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-REL_NORMS = ("none", "layer")
-CENTERINGS = ("none", "mean", "standard")
+from ps_ray.methods import RelativeSpec
+
 SCALE_EPS = 1e-6
 REF_STD_FLOOR = 1e-2  # task inputs are metres, radians and their rates: 1 cm is "no spread"
-
-
-@dataclass(frozen=True)
-class RelativeSpec:
-    """How the interface is computed from the embeddings of a batch and of the anchors.
-
-    - ``center``: before the cosine, subtract the anchor embeddings' mean from both embeddings
-      (``"mean"``), or also divide by their per-dimension std (``"standard"``, R3L, Ricciardi et
-      al. 2025). Removes the common direction every ReLU embedding shares, so the cosines spread
-      over [-1, 1] instead of clustering near 1. ``"mean"`` keeps the relative vector invariant to
-      rotations, scalings *and* translations of the embedding space; ``"standard"`` gives up the
-      rotation invariance (per-dimension scaling changes angles).
-    - ``norm``: ``"layer"`` applies a parameter-free LayerNorm over the K similarities of each
-      state (relreps' default output norm). Parameter-free, so it is a fixed function of the
-      similarity vector and two aligned vectors stay aligned after it.
-    - ``scale``: a fixed multiplier on the result (an inverse temperature).
-    - ``anchor_grad``: gradients flow through the anchor embeddings (the authors' way) or the
-      anchors are embedded under ``torch.no_grad()`` (relreps' way). Values are equal either way.
-    - ``norm_reg``: weight of a penalty mean(log(|z|)^2) over the embeddings of a batch and the
-      anchors. The cosine makes the interface blind to |z|, so the loss gradient is orthogonal to
-      z and every optimiser step lengthens z; the direction's effective learning rate falls as
-      1/|z| (measured: |z| grows 54x in 16k env steps of PS on reach). The penalty's gradient is
-      radial, so it holds |z| near 1 without changing what the interface computes.
-    - ``ref_weight``: weight of a penalty mean(1 - cos) between the interface and a fixed
-      reference interface of the *input*: Gaussian-kernel similarities of the anchor-standardised
-      task input to the anchors (:func:`input_reference`), post-processed like the interface. The
-      reference is a function of the anchors only, so every source that shares the anchor set is
-      pulled to the same interface, whatever its robot, seed or training data; it is applied on
-      the batch's states and on the anchors, which span the tasks the anchors were drawn from.
-    - ``ref_bandwidth``: the reference kernel's squared width as a multiple of the anchors' median
-      squared distance. Below 1 the reference changes faster with the task input, so the pulled
-      interface resolves nearby goals more finely, and sources align more loosely (measured at
-      0.25: faster learning, twice the cosine distance across robots; docs/alignment.md).
-    """
-
-    center: str = "none"
-    norm: str = "none"
-    scale: float = 1.0
-    anchor_grad: bool = True
-    norm_reg: float = 0.0
-    ref_weight: float = 0.0
-    ref_bandwidth: float = 1.0
-
-    def __post_init__(self) -> None:
-        if self.center not in CENTERINGS:
-            raise ValueError(f"unknown centring {self.center!r}; expected one of {list(CENTERINGS)}")
-        if self.norm not in REL_NORMS:
-            raise ValueError(f"unknown relative norm {self.norm!r}; expected one of {list(REL_NORMS)}")
-        if not self.scale > 0:
-            raise ValueError(f"relative scale must be positive, got {self.scale!r}")
-        if not self.norm_reg >= 0:
-            raise ValueError(f"norm_reg must be >= 0, got {self.norm_reg!r}")
-        if not self.ref_weight >= 0:
-            raise ValueError(f"ref_weight must be >= 0, got {self.ref_weight!r}")
-        if not self.ref_bandwidth > 0:
-            raise ValueError(f"ref_bandwidth must be positive, got {self.ref_bandwidth!r}")
 
 
 PAPER = RelativeSpec()  # the authors' projection: cosine only, gradients through the anchors

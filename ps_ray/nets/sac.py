@@ -21,6 +21,7 @@ import torch
 from torch import Tensor, nn
 
 from ps_ray.defaults import HIDDEN, INTERFACE_DIM
+from ps_ray.methods import MethodSpec
 from ps_ray.nets.modular import Actor, Critic, NetDims, build_actor, build_critic
 
 LOG_2 = math.log(2.0)
@@ -78,7 +79,7 @@ def polyak(nets: nn.Module, tau: float) -> None:
 
 
 def build_sac_nets(
-    method: str,
+    method: str | MethodSpec,
     dims: NetDims,
     *,
     interface_dim: int = INTERFACE_DIM,

@@ -16,8 +16,8 @@ from typing import Any
 
 from ps_ray.atomic import write_text
 from ps_ray.config import TrainSpec, require_same
+from ps_ray.methods import uses_anchors
 from ps_ray.names import parse_spec_text, spec_text
-from ps_ray.nets.modular import uses_anchors
 from ps_ray.pipeline.layout import SweepLayout
 from ps_ray.run_layout import METRIC_FIELDS, POLICY_FILE, SIGNATURE_FILE, SPEC_FILE
 from ps_ray.sweep_spec import SweepSpec

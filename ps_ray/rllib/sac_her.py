@@ -32,7 +32,8 @@ from ps_ray.config import TrainSpec
 from ps_ray.envs.goals import ROBOT_KEY, task_input
 from ps_ray.errors import UserError
 from ps_ray.her import HindsightReplay
-from ps_ray.nets.consolidate import ConsolidateSpec, consolidate
+from ps_ray.methods import ConsolidateSpec
+from ps_ray.nets.consolidate import consolidate
 from ps_ray.nets.modular import update_normalizers
 from ps_ray.nets.obs import dims_from_spaces
 from ps_ray.rllib.episodes import episode_stats, episodes_to_arrays, train_batch

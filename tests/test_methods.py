@@ -1,0 +1,161 @@
+"""The method menu: presets plus options, canonical keys, and policy files that keep their meaning."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import pytest
+import torch
+from safetensors.torch import load_file
+
+from ps_ray.config import SpecError
+from ps_ray.errors import UserError
+from ps_ray.methods import LEGACY, PRESETS, MethodSpec, method_key, method_spec
+from ps_ray.nets.modular import NetDims
+from ps_ray.nets.sac import build_sac_nets
+from ps_ray.stitch import stitch_policies
+from ps_ray.sweep_spec import SweepSpec
+from ps_ray.weights import load_policy, read_signature, save_policy, signature_of
+
+torch.set_num_threads(1)
+OLD = Path(__file__).parent / "data" / "policies_v1"  # written by the code before the menu
+OLD_ROWS = sorted(p.name.removesuffix("_0.safetensors") for p in OLD.glob("*_0.safetensors"))
+
+
+def test_the_menu_is_short_and_every_old_row_is_a_preset_with_options():
+    assert len(PRESETS) <= 8
+    assert len(OLD_ROWS) == 20 and set(OLD_ROWS) == set(PRESETS) | set(LEGACY)
+    for name, key in LEGACY.items():
+        preset, *options = method_key(key).split("+")
+        assert preset in PRESETS and options, name
+        assert method_spec(name) == method_spec(key)  # the old name is only another spelling
+
+
+def test_a_key_is_canonical_however_the_options_are_written():
+    key = "ps+norm=layer+scale=0.25"
+    assert method_key("ps+scale=0.25+norm=layer") == key
+    assert method_key({"preset": "ps", "scale": 0.25, "norm": "layer"}) == key
+    assert method_key("ps+scale=0.25+norm=layer+center=none") == key  # a preset's own value is not shown
+    spec = method_spec(key)
+    assert spec.name == key and spec.relative.norm == "layer" and spec.relative.scale == 0.25
+    assert (
+        method_key("ablation+norm=layer") == "ablation+norm=layer+relative=true"
+    )  # a setting switches it on
+    assert method_spec("ps+relative=false") == dataclasses.replace(
+        PRESETS["ablation"], name="ps+relative=false"
+    )
+
+
+@pytest.mark.parametrize(
+    "method, message",
+    [
+        ("psx", "unknown method 'psx'; valid presets: ps, ps_distilled, ablation, devin, devin_large, plain"),
+        ("ps+nrom=layer", "method 'ps+nrom=layer': unknown option 'nrom'; valid: relative, center, norm"),
+        ("ps+scale=big", "method option scale: expected float, got 'big'"),
+        ("ps+scale", "method 'ps+scale': option 'scale' is not option=value"),
+        ("ps+norm=batch", "method 'ps+norm=batch': unknown relative norm 'batch'"),
+        ("plain+relative=true", "method 'plain+relative=true': a relative interface needs a modular network"),
+        ("ps+relative=false+norm=layer", "relative=false contradicts norm"),
+        ({"norm": "layer"}, "a mapping needs a preset (ps, ps_distilled"),
+    ],
+)
+def test_a_bad_method_is_one_line_naming_it(method, message):
+    with pytest.raises(UserError) as info:
+        method_spec(method)
+    assert message in str(info.value) and "\n" not in str(info.value)
+
+
+def test_a_sweep_names_variants_by_their_settings_and_refuses_one_twice():
+    spec = SweepSpec.from_mapping(
+        {
+            "name": "v",
+            "methods": ["ps", {"preset": "ps", "norm": "layer"}, "ps_ref_light"],
+            "robots": ["panda"],
+            "tasks": ["reach"],
+            "seeds": [1],
+            "zero_shot": {"translate": {"ps+norm=layer": ["affine"]}},
+        }
+    )
+    assert spec.methods == ("ps", "ps+norm=layer", "ps+norm=layer+norm_reg=1+ref_weight=0.1")
+    assert [t.method for t in spec.trials()] == list(spec.methods)
+    with pytest.raises(SpecError, match="methods: duplicate entries"):
+        SweepSpec.from_mapping(
+            {
+                "name": "v",
+                "methods": ["ps_ln", "ps+norm=layer"],
+                "robots": ["panda"],
+                "tasks": ["reach"],
+                "seeds": [1],
+            }
+        )
+    with pytest.raises(SpecError, match="methods: method 'ps\\+norm=batch': unknown relative norm"):
+        SweepSpec.from_mapping(
+            {"name": "v", "methods": ["ps+norm=batch"], "robots": ["panda"], "tasks": ["reach"], "seeds": [1]}
+        )
+
+
+# -- files written before the menu -----------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def expected() -> dict[str, torch.Tensor]:
+    return load_file(str(OLD / "expected.safetensors"))
+
+
+@pytest.mark.parametrize("row", OLD_ROWS)
+def test_an_old_policy_file_loads_stitches_and_acts_as_it_did(row, expected):
+    task_in, robot_in, action = expected["task_in"], expected["robot_in"], expected["action"]
+    for seed in (0, 1):
+        nets, signature = load_policy(OLD / f"{row}_{seed}.safetensors")
+        assert signature.method == method_key(row) and signature.spec == method_spec(row)
+        with torch.no_grad():
+            mean, log_std = nets.eval().actor(task_in, robot_in)
+            q = nets.critic(task_in, robot_in, action)
+        torch.testing.assert_close(mean, expected[f"{row}_{seed}.mean"], rtol=1e-5, atol=1e-6)
+        torch.testing.assert_close(log_std, expected[f"{row}_{seed}.log_std"], rtol=1e-5, atol=1e-6)
+        torch.testing.assert_close(q, expected[f"{row}_{seed}.q"], rtol=1e-5, atol=1e-6)
+    stitched, _ = stitch_policies(OLD / f"{row}_0.safetensors", OLD / f"{row}_1.safetensors")
+    with torch.no_grad():
+        mean = stitched.eval().actor(task_in, robot_in)[0]
+        q = stitched.critic(task_in, robot_in, action)
+    torch.testing.assert_close(mean, expected[f"{row}_stitched.mean"], rtol=1e-5, atol=1e-6)
+    torch.testing.assert_close(q, expected[f"{row}_stitched.q"], rtol=1e-5, atol=1e-6)
+
+
+def test_a_policy_file_keeps_its_settings_whatever_the_menu_becomes(tmp_path, monkeypatch, expected):
+    """A file stores the resolved method: redefining the preset it names changes nothing it does."""
+    torch.manual_seed(0)
+    nets = build_sac_nets(
+        "ps", NetDims(6, 8, 7), interface_dim=8, hidden=16, anchors=torch.randn(8, 6).numpy()
+    )
+    path = save_policy(tmp_path / "p.safetensors", nets, signature_of(nets, "ps", 8, 16))
+    task_in, robot_in = expected["task_in"], expected["robot_in"]
+    with torch.no_grad():
+        before = nets.actor(task_in, robot_in)[0]
+    changed = dataclasses.replace(
+        PRESETS["ps"], relative=dataclasses.replace(PRESETS["ps"].relative, scale=4.0)
+    )
+    monkeypatch.setitem(PRESETS, "ps", changed)
+    assert method_spec("ps").relative.scale == 4.0  # the menu moved
+    loaded, signature = load_policy(path)
+    assert isinstance(signature.spec, MethodSpec) and signature.spec.relative.scale == 1.0
+    with torch.no_grad():
+        torch.testing.assert_close(loaded.actor(task_in, robot_in)[0], before, rtol=1e-5, atol=1e-6)
+
+
+def test_a_policy_file_whose_settings_disagree_with_its_name_is_refused(tmp_path):
+    import json
+
+    from safetensors import safe_open
+    from safetensors.torch import save_file
+
+    src = OLD / "ps_0.safetensors"
+    signature, metadata = read_signature(src)
+    with safe_open(str(src), framework="pt") as f:
+        state = {k: f.get_tensor(k) for k in f.keys()}
+    record = json.loads(metadata["signature"])
+    record["settings"] = signature.settings.replace('"scale": 1.0', '"scale": -1.0')
+    save_file(
+        state, str(tmp_path / "bad.safetensors"), metadata={**metadata, "signature": json.dumps(record)}
+    )
+    with pytest.raises(UserError, match="bad policy signature: relative scale must be positive, got -1.0"):
+        load_policy(tmp_path / "bad.safetensors")

@@ -22,7 +22,7 @@ from pathlib import Path
 
 from ps_ray.atomic import fsync_file, write_text
 from ps_ray.errors import UserError
-from ps_ray.run_layout import POLICY_FILE
+from ps_ray.store.run_layout import POLICY_FILE
 
 MANIFEST = "manifest.json"
 FORMAT = "ps_ray-checkpoint-1"

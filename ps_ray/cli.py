@@ -17,8 +17,8 @@ from ps_ray.config import TrainSpec
 from ps_ray.errors import UserError
 from ps_ray.lock import folder_lock
 from ps_ray.names import parse_spec_text
-from ps_ray.pipeline.layout import SweepLayout
 from ps_ray.pipeline.sweep import StageError
+from ps_ray.store.layout import SweepLayout
 
 
 def cmd_train(args: argparse.Namespace) -> int:
@@ -40,7 +40,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     trials = spec.trials()
     print(f"sweep {spec.name!r}: {len(trials)} training trials")
     if args.check:
-        from ps_ray.pipeline.cost import describe, project
+        from ps_ray.analysis.cost import describe, project
 
         for trial in trials:
             print(f"  {trial.label()}  {trial.env_steps} env steps")
@@ -64,7 +64,7 @@ def _load(args: argparse.Namespace):
 
     path = Path(args.sweep)
     if path.is_dir():  # a sweep folder: its resolved spec, stored where the folder is
-        from ps_ray.pipeline.layout import SweepLayout
+        from ps_ray.store.layout import SweepLayout
 
         spec_file = SweepLayout(path).spec_file
         if not spec_file.exists():
@@ -104,8 +104,8 @@ def _trained_sweep(args: argparse.Namespace, stage: str, *flags: str):
     """The sweep spec with a stage's flags applied and checked (as if written in the YAML), held
     under the sweep's lock. An untrained sweep is refused in one line and no folder is made; a
     sweep another driver holds is refused as locked, even while its training is still starting."""
-    from ps_ray.pipeline.layout import SweepLayout
     from ps_ray.pipeline.sweep import sweep_dir
+    from ps_ray.store.layout import SweepLayout
 
     spec = _load(args)
     settings = dataclasses.replace(getattr(spec, stage), **_given(args, *flags))
@@ -153,10 +153,10 @@ def cmd_few_shot(args: argparse.Namespace) -> int:
 
 
 def cmd_run(args: argparse.Namespace) -> int:
-    from ps_ray.pipeline.cost import budget_note, project
+    from ps_ray.analysis.cost import budget_note, project
     from ps_ray.pipeline.run import run_pipeline
     from ps_ray.pipeline.sweep import check_inputs, sweep_dir
-    from ps_ray.pipeline.tracking import default_tracking_uri
+    from ps_ray.tracking import default_tracking_uri
 
     spec = _load(args)
     check_inputs(spec)  # the files it starts from, before any folder is made

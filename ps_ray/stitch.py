@@ -34,7 +34,7 @@ import torch
 from torch import nn
 
 from ps_ray.envs.core import effective_gripper, env_widths
-from ps_ray.envs.robots import resolve_robot
+from ps_ray.envs.robots import arm
 from ps_ray.envs.tasks import resolve_task
 from ps_ray.errors import UserError
 from ps_ray.names import short_name
@@ -71,13 +71,6 @@ def default_target(task_spec: Mapping, robot_spec: Mapping) -> EnvSpec:
     """(robot, task) of the target env from the two sources' training specs."""
     task = task_spec["task"]
     return same_robot(robot_spec["robot"], robot_spec["task"], task), task
-
-
-def arm(robot: str | Mapping) -> tuple[str, tuple[int, ...], float]:
-    """The arm a robot is: base model, locked joints and mount (a gripper does not make another
-    arm; the same arm mounted elsewhere moves differently, so it does)."""
-    spec = resolve_robot(robot)
-    return spec.base, spec.locked_joints, spec.mount
 
 
 # -- checks ---------------------------------------------------------------------------------------

@@ -9,8 +9,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from ps_ray.errors import UserError
-from ps_ray.run_layout import POLICY_FILE, SPEC_FILE
 from ps_ray.stitch import EnvSpec, default_target
+from ps_ray.store.run_layout import POLICY_FILE, SPEC_FILE
 from ps_ray.zoo import ModuleZoo
 
 

@@ -15,8 +15,8 @@ from ps_ray.defaults import INTERFACE_DIM
 from ps_ray.envs.robots import resolve_robot
 from ps_ray.envs.tasks import resolve_task
 from ps_ray.errors import UserError
-from ps_ray.methods import method_key
-from ps_ray.names import canonical
+from ps_ray.methods import method_key, uses_anchors
+from ps_ray.names import TRANSLATIONS, canonical, parse_spec_text, spec_text
 
 ANCHOR_POLICIES = ("plain", "random")
 # Pipeline stages in order; "train" covers plain sources, anchors and the grid (ps_ray.pipeline.sweep).
@@ -98,8 +98,6 @@ class ZeroShotSpec:
     pairs: str = "same_seed"
 
     def __post_init__(self) -> None:
-        from ps_ray.nets.translation import TRANSLATIONS
-
         object.__setattr__(self, "methods", _method_keys("zero_shot.methods", self.methods))
         if isinstance(self.translate, Mapping):
             keys = _method_keys("zero_shot.translate", tuple(self.translate))
@@ -330,3 +328,39 @@ def load_sweep(path: str | Path) -> SweepSpec:
     except SpecError as e:
         message = str(e)
         raise SpecError(message if message.startswith(str(path)) else f"{path}: {message}") from None
+
+
+# -- what the grid implies ---------------------------------------------------------------------------
+def seed_pairs(seeds: tuple[int, ...], pairing: str) -> list[tuple[str, int, int]]:
+    """(pairing, task module's seed, robot module's seed): same seed, and/or each seed's task
+    modules with the next seed's robot modules (cyclically: every seed once on each side)."""
+    out = []
+    if pairing in ("same_seed", "both"):
+        out += [("same_seed", s, s) for s in seeds]
+    if pairing in ("cross_seed", "both") and len(seeds) > 1:
+        out += [("cross_seed", s, seeds[(i + 1) % len(seeds)]) for i, s in enumerate(seeds)]
+    return out
+
+
+def anchor_sources(spec: SweepSpec) -> list[TrainSpec]:
+    """The plain trials whose greedy rollouts give the anchor states (policy: plain)."""
+    ps = [t for t in spec.trials() if uses_anchors(t.method)]
+    tasks = list(spec.anchors.source_tasks) or list(dict.fromkeys(spec_text(t.task) for t in ps))
+    return [
+        TrainSpec.from_mapping(
+            {
+                **t.to_dict(),
+                "method": "plain",
+                "robot": spec.anchors.robot,
+                "task": parse_spec_text(task),
+                "seed": spec.seeds[0],
+            }
+        )
+        for task in tasks
+        for t in ps[:1]
+    ]
+
+
+def task_input_dim(task) -> int:
+    """Width of ``task``'s task-module input: anchor sets are shared by tasks of one width."""
+    return resolve_task(task).input_dim

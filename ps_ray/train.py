@@ -30,7 +30,7 @@ from ps_ray.config import POINT_TASK, TrainSpec, require_same
 from ps_ray.errors import UserError
 from ps_ray.lock import folder_lock
 from ps_ray.methods import method_spec, spec_json, uses_anchors
-from ps_ray.run_layout import (
+from ps_ray.store.run_layout import (
     ANCHORS_FILE,
     BEST_POLICY_FILE,
     CHECKPOINT_DIR,

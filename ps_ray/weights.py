@@ -143,7 +143,7 @@ def read_signature(path: str | Path) -> tuple[Signature, dict[str, str]]:
 
 def signature_problem(signature: Signature) -> str | None:
     """What makes a signature unusable (wrong types, absurd sizes, unknown names), or None."""
-    from ps_ray.nets.translation import TRANSLATIONS
+    from ps_ray.names import TRANSLATIONS
 
     if not isinstance(signature.method, str) or not isinstance(signature.settings, str):
         return f"method and settings must be strings, got {signature.method!r} and {signature.settings!r}"

@@ -8,7 +8,7 @@ with ``/i<dim>`` appended off the default interface dim (``ps/panda/push/101/i16
 Sweep layout read (see :mod:`ps_ray.pipeline.sweep`): ``<sweep>/tune/<trial>/checkpoint_N/`` (stage
 "train") and ``<sweep>/tune_plain/<trial>/checkpoint_N/`` (stage "plain_source", the anchors' plain
 source policies), each with ``policy.safetensors`` and ``spec.json``. Of a trial's checkpoints
-over all its attempts (:mod:`ps_ray.pipeline.trials`), the furthest one whose manifest verifies is used.
+over all its attempts (:mod:`ps_ray.store.attempts`), the furthest one whose manifest verifies is used.
 When one key appears twice, a "train" entry beats a "plain_source" one, then the newest file wins.
 """
 
@@ -23,8 +23,8 @@ from typing import TYPE_CHECKING, Any
 
 from ps_ray.errors import UserError
 from ps_ray.names import short_name, trial_key
-from ps_ray.pipeline.layout import SweepLayout
-from ps_ray.run_layout import POLICY_FILE, SPEC_FILE
+from ps_ray.store.layout import SweepLayout
+from ps_ray.store.run_layout import POLICY_FILE, SPEC_FILE
 from ps_ray.weights import Signature, read_signature
 
 if TYPE_CHECKING:
@@ -105,10 +105,10 @@ def read_entry(policy_path: str | Path, stage: str = "run") -> ZooEntry:
 
 
 def _latest_checkpoints(stage_dir: Path) -> tuple[list[Path], list[str]]:
-    """The policy file of each trial's furthest checkpoint over its attempts (ps_ray.pipeline.trials)
+    """The policy file of each trial's furthest checkpoint over its attempts (ps_ray.store.attempts)
     whose manifest and policy file verify, and a problem line per trial that has none."""
     from ps_ray import checkpoint
-    from ps_ray.pipeline.trials import attempts, checkpoint_dirs
+    from ps_ray.store.attempts import attempts, checkpoint_dirs
 
     policies, problems = [], []
     for folders in attempts(stage_dir, "trial").values():

@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from ps_ray.pipeline.cost import DEFAULT_RATES, Rates, describe, load_rates, project, workload
+from ps_ray.analysis.cost import DEFAULT_RATES, Rates, describe, load_rates, project, workload
 from ps_ray.sweep_spec import SweepSpec, load_sweep
 
 SWEEPS = Path(__file__).resolve().parents[1] / "sweeps"

@@ -26,13 +26,13 @@ import PIL.Image
 import pytest
 
 from ps_ray.analysis.browser import find_chromium
+from ps_ray.analysis.cost import workload
 from ps_ray.checkpoint import latest as latest_checkpoint
 from ps_ray.names import trial_key
-from ps_ray.pipeline.cost import workload
-from ps_ray.pipeline.layout import SweepLayout
-from ps_ray.pipeline.run import stage_state
-from ps_ray.pipeline.tracking import TRIAL_KEY_TAG
+from ps_ray.store.layout import SweepLayout
+from ps_ray.store.stages import stage_state
 from ps_ray.sweep_spec import load_sweep
+from ps_ray.tracking import TRIAL_KEY_TAG
 
 SMOKE = Path(__file__).resolve().parents[1] / "sweeps" / "smoke.yaml"
 FIGURES = {
@@ -149,7 +149,7 @@ def test_a_pipeline_killed_at_five_moments_resumes_without_redoing_finished_work
     assert "[3/4] few_shot: done earlier, skipped" in last
     assert "[4/4] report: resuming" in last and "[4/4] report: done" in last
     assert f"report: {root / 'report' / 'index.html'}" in last
-    from ps_ray.pipeline.trials import FINISHED, attempts, checkpoint_dirs, merged_rows, read_rows
+    from ps_ray.store.attempts import FINISHED, attempts, checkpoint_dirs, merged_rows, read_rows
 
     layout = SweepLayout(root)  # every trial of every stage finished exactly once
     for folder, key, count in [
@@ -183,7 +183,7 @@ def test_a_pipeline_killed_at_five_moments_resumes_without_redoing_finished_work
     ]
     assert relaunched and all(read_rows(f)[0]["iteration"] > 1 for f in relaunched)
     # the report covers exactly the trials and stitched pairs an uninterrupted run would have
-    from ps_ray.pipeline.zero_shot import pairs
+    from ps_ray.pairs import pairs
 
     tables = root / "report" / "tables"
     sources = pd.read_csv(tables / "training_sources.csv")["run"]

@@ -28,7 +28,6 @@ from ps_ray.nets.modular import NetDims, update_normalizers
 from ps_ray.nets.obs import dims_from_spaces
 from ps_ray.nets.sac import NET_NAMES, SACNets, build_sac_nets
 from ps_ray.paper import PANDA_L3_GRIPPER, PAPER_COMBOS
-from ps_ray.pipeline.trials import FINISHED, PARAMS_FILE, RESULT_FILE
 from ps_ray.stitch import (
     check_stitchable,
     combos,
@@ -37,6 +36,7 @@ from ps_ray.stitch import (
     env_dims,
     stitch_policies,
 )
+from ps_ray.store.attempts import FINISHED, PARAMS_FILE, RESULT_FILE
 from ps_ray.weights import Signature, load_policy, nets_state, save_policy, signature_of
 from ps_ray.zoo import ModuleZoo, read_entry
 from tests.code_paths import CODE_PATHS

@@ -178,9 +178,9 @@ def test_trials_spread_over_two_nodes(tmp_path, tiny_train, two_node_cluster):
 @pytest.mark.parametrize("entry", ["sweep", "sweep --resume", "run"])
 def test_a_sweep_with_other_training_settings_is_refused_before_anything_runs(tmp_path, entry):
     from ps_ray.config import SpecError
-    from ps_ray.pipeline.layout import SweepLayout
     from ps_ray.pipeline.run import run_pipeline
     from ps_ray.pipeline.sweep import require_same_sweep, run_sweep
+    from ps_ray.store.layout import SweepLayout
 
     trained = load_sweep(write_sweep(tmp_path, "same", {"env_steps": 400}))
     root = sweep_dir(trained)
@@ -275,9 +275,9 @@ def test_a_stage_run_afresh_on_a_folder_with_earlier_attempts_is_refused_before_
     import json
 
     from ps_ray.pipeline.few_shot import run_few_shot
-    from ps_ray.pipeline.layout import SweepLayout
-    from ps_ray.pipeline.trials import PARAMS_FILE, StageExistsError
     from ps_ray.pipeline.zero_shot import run_zero_shot
+    from ps_ray.store.attempts import PARAMS_FILE, StageExistsError
+    from ps_ray.store.layout import SweepLayout
 
     spec = load_sweep(write_sweep(tmp_path, "again", {"env_steps": 400}))
     layout = SweepLayout(sweep_dir(spec))

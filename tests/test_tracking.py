@@ -1,4 +1,4 @@
-"""ps_ray.pipeline.tracking against a real sqlite MLflow store and a real (local) Tune."""
+"""ps_ray.tracking against a real sqlite MLflow store and a real (local) Tune."""
 
 from __future__ import annotations
 
@@ -12,19 +12,19 @@ import pytest
 from mlflow import MlflowClient
 from mlflow.entities import ViewType
 
-from ps_ray.pipeline.tracking import (
-    TRIAL_KEY_TAG,
-    TrialTracker,
-    default_tracking_uri,
-    ensure_experiment,
-    git_commit,
-)
 from ps_ray.pipeline.tune_tracking import (
     MLflowTuneCallback,
     default_key_fn,
     default_params_fn,
     lookup,
     spec_key,
+)
+from ps_ray.tracking import (
+    TRIAL_KEY_TAG,
+    TrialTracker,
+    default_tracking_uri,
+    ensure_experiment,
+    git_commit,
 )
 
 

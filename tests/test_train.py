@@ -150,7 +150,7 @@ def test_resume_after_a_kill_between_the_checkpoint_renames_keeps_rows_and_best(
 
 
 def test_resume_drops_rows_after_the_checkpoint_and_a_row_a_kill_cut_short(tmp_path):
-    from ps_ray.run_layout import METRIC_FIELDS, METRICS_FILE
+    from ps_ray.store.run_layout import METRIC_FIELDS, METRICS_FILE
     from ps_ray.train import _metrics_up_to
 
     def row(steps):

@@ -48,9 +48,9 @@ def stitched_clips(spec: SweepSpec, out_dir: Path, pairs_per_method: int = 2) ->
     """Rows of clips: per chosen pair (the first ``pairs_per_method`` that every method has, at the
     first seed), each method's stitched policy in the target env, then its two sources in their
     own envs. Returns (pair label, clips) rows; empty when the sweep has no stitchable pairs."""
-    from ps_ray.pipeline.sweep import sweep_dir
-    from ps_ray.pipeline.zero_shot import pairs
+    from ps_ray.pairs import pairs
     from ps_ray.stitch import stitch_policies
+    from ps_ray.store.layout import sweep_dir
     from ps_ray.zoo import ModuleZoo
 
     methods = list(spec.zero_shot.methods) or list(spec.methods)

@@ -70,7 +70,7 @@ img { max-width: 100%; display: block; margin: 1em 0; } .meta td { text-align: l
 
 def render_html(spec: SweepSpec, report: Report) -> str:
     """One page, figures embedded as data URIs, so the file opens anywhere without its folder."""
-    from ps_ray.pipeline.tracking import git_commit
+    from ps_ray.tracking import git_commit
 
     esc = html.escape
     meta = {

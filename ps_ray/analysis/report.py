@@ -26,13 +26,13 @@ from ps_ray.analysis.summary import cost_section, summary_section
 from ps_ray.atomic import fsync_dir, write_text
 from ps_ray.errors import UserError
 from ps_ray.names import short_name
-from ps_ray.pipeline.layout import SweepLayout
+from ps_ray.store.layout import SweepLayout
 from ps_ray.sweep_spec import SweepSpec
 
 
 def build_report(spec: SweepSpec, *, progress: bool = True, log_to_mlflow: bool = True) -> Path:
     """Rebuild ``<sweep>/report/`` from the stored results; returns the path of ``index.html``."""
-    from ps_ray.pipeline.sweep import sweep_dir
+    from ps_ray.store.layout import sweep_dir
 
     root = sweep_dir(spec)
     say = print if progress else (lambda *a, **k: None)

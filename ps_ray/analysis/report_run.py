@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from ps_ray.pipeline.layout import SweepLayout
+from ps_ray.store.layout import SweepLayout
 from ps_ray.sweep_spec import SweepSpec
 
 REPORT_RUN = "report"  # the MLflow run's trial key
@@ -15,8 +15,8 @@ REPORT_RUN = "report"  # the MLflow run's trial key
 def log_report(spec: SweepSpec, report_dir: Path, metrics: dict[str, float]) -> str:
     """One run per sweep (found again by its key), holding the report folder and headline
     numbers; a rebuild overwrites the same artifacts. Returns the run id."""
-    from ps_ray.pipeline.sweep import sweep_dir
-    from ps_ray.pipeline.tracking import (
+    from ps_ray.store.layout import sweep_dir
+    from ps_ray.tracking import (
         STAGE_TAG,
         TrialTracker,
         default_tracking_uri,
@@ -46,7 +46,7 @@ def log_report(spec: SweepSpec, report_dir: Path, metrics: dict[str, float]) -> 
 def _run_index(client, experiment_id: str, report_run: str) -> dict[str, dict[str, dict[str, str]]]:
     """Every run the report summarises, by stage and trial key: its run id, and for a stitched
     policy the runs of its two sources (``runs.json`` in the report run)."""
-    from ps_ray.pipeline.tracking import ROBOT_SOURCE_RUN_TAG, STAGE_TAG, TASK_SOURCE_RUN_TAG, TRIAL_KEY_TAG
+    from ps_ray.tracking import ROBOT_SOURCE_RUN_TAG, STAGE_TAG, TASK_SOURCE_RUN_TAG, TRIAL_KEY_TAG
 
     index: dict[str, dict[str, dict[str, str]]] = {}
     for run in client.search_runs([experiment_id], max_results=50_000):

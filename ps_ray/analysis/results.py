@@ -1,7 +1,7 @@
 """Stored results of a sweep, read back without Ray: Tune trial folders and the zero-shot table.
 
 A Tune trial folder holds ``params.json`` (the trial config) and ``result.json`` (one JSON result
-per line); a trial relaunched by a resume has several such folders (:mod:`ps_ray.pipeline.trials`).
+per line); a trial relaunched by a resume has several such folders (:mod:`ps_ray.store.attempts`).
 """
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ from pathlib import Path
 import pandas as pd
 
 from ps_ray.names import short_name, trial_key
-from ps_ray.pipeline.trials import PARAMS_FILE, attempts, merged_rows
+from ps_ray.store.attempts import PARAMS_FILE, attempts, merged_rows
 
 CURVE_COLUMNS = [
     "run",

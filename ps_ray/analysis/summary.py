@@ -16,8 +16,8 @@ from ps_ray.sweep_spec import SweepSpec
 
 def cost_section(report: Report, spec: SweepSpec, root: Path) -> None:
     """The cost `--check` projected beside what the stages used."""
-    from ps_ray.pipeline import cost
-    from ps_ray.pipeline.run import stage_wall_s
+    from ps_ray.analysis import cost
+    from ps_ray.store.stages import stage_wall_s
 
     projection = cost.project(spec)
     used = cost.spent(root)
@@ -110,7 +110,7 @@ def summary_section(report: Report, spec: SweepSpec, target: float) -> None:
         )
         + ". "
     )
-    from ps_ray.pipeline.cost import budget_note
+    from ps_ray.analysis.cost import budget_note
 
     note = budget_note(spec)
     budget += f"{note} " if note else ""

@@ -7,7 +7,7 @@ is not the whole fixed cost of a trial, because a Tune trial is a fresh worker p
 torch, Ray and RLlib first: the fixed cost is the wall time of a whole `ps-ray train` process with
 one training step. Two hidden sizes fit ``fixed + per_unit * batch * hidden**2``; ps
 over ablation gives the relative methods' factor. A greedy evaluation of the last policy gives
-seconds per evaluation step. The rates go to ``ps_ray.pipeline.cost.rates_path()``.
+seconds per evaluation step. The rates go to ``ps_ray.analysis.cost.rates_path()``.
 """
 
 from __future__ import annotations
@@ -23,11 +23,11 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from ps_ray.analysis.cost import DEFAULT_RATES, Rates, rates_path
 from ps_ray.atomic import write_text
 from ps_ray.cli_parsers import Parser, positive_int
 from ps_ray.config import TrainSpec
 from ps_ray.envs import EPISODE_STEPS
-from ps_ray.pipeline.cost import DEFAULT_RATES, Rates, rates_path
 
 
 def _slope(x: pd.Series, y: pd.Series) -> float:

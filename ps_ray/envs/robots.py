@@ -191,3 +191,10 @@ class Panda:
                 self.body, EE_LINK, computeForwardKinematics=True, physicsClientId=self.sim.client
             )[4]
         )
+
+
+def arm(robot: str | Mapping) -> tuple[str, tuple[int, ...], float]:
+    """The arm a robot is: base model, locked joints and mount (a gripper does not make another
+    arm; the same arm mounted elsewhere moves differently, so it does)."""
+    spec = resolve_robot(robot)
+    return spec.base, spec.locked_joints, spec.mount

@@ -20,8 +20,8 @@ import torch
 from torch import Tensor, nn
 
 from ps_ray.errors import UserError
+from ps_ray.names import TRANSLATIONS
 
-TRANSLATIONS = ("orthogonal", "affine")
 SCALE_EPS = 1e-8
 
 

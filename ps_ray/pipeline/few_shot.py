@@ -24,7 +24,7 @@ def few_shot_trials(spec: SweepSpec, settings: FewShotSpec) -> list[dict[str, An
     """Trial configs for `sweep_trial`: stitched starts, each pair's robot source fine-tuned as it
     is (unstitched), and from-scratch baselines. Starts from trained weights fit their critics
     alone for ``critic_warmup_updates`` updates first."""
-    from ps_ray.pipeline.zero_shot import pairs
+    from ps_ray.pairs import pairs
     from ps_ray.stitch import stitch_policies
     from ps_ray.weights import save_policy
 
@@ -107,7 +107,7 @@ def few_shot_trials(spec: SweepSpec, settings: FewShotSpec) -> list[dict[str, An
 def run_few_shot(spec: SweepSpec, *, resume: bool = False, progress: bool = True, **overrides: Any):
     """Settings from ``spec.few_shot`` (``overrides`` replace fields); returns the ResultGrid."""
     from ps_ray.pipeline.sweep import connect, run_tune
-    from ps_ray.pipeline.trials import require_fresh
+    from ps_ray.store.attempts import require_fresh
 
     settings = dataclasses.replace(spec.few_shot, **overrides)
     root = sweep_dir(spec)
@@ -132,7 +132,7 @@ def run_few_shot(spec: SweepSpec, *, resume: bool = False, progress: bool = True
 
 def _source_tags(trial: dict, client, experiment_id: str) -> dict[str, str]:
     """A fine-tuning run of a stitched start names its two sources (their runs) and anchor set."""
-    from ps_ray.pipeline.tracking import source_tags
+    from ps_ray.tracking import source_tags
     from ps_ray.weights import read_signature
 
     start = trial["spec"].get("init_policy")

@@ -14,62 +14,13 @@ resumed (Tune restores its experiment); one whose settings changed starts afresh
 
 from __future__ import annotations
 
-import hashlib
-import json
 import shutil
 import time
 from collections.abc import Callable
-from pathlib import Path
 
-from ps_ray.atomic import write_text
-from ps_ray.pipeline.layout import SweepLayout
-from ps_ray.pipeline.sweep import layout, raise_on_errors, require_same_sweep, sweep_dir
+from ps_ray.pipeline.sweep import layout, raise_on_errors, require_same_sweep
+from ps_ray.store.stages import finished_summary, mark_finished, mark_started, stage_state
 from ps_ray.sweep_spec import STAGES, SweepSpec
-
-# The settings each stage's outputs depend on, besides those of the earlier stages.
-STAGE_SETTINGS = {"train": None, "zero_shot": "zero_shot", "few_shot": "few_shot", "report": "report"}
-
-
-def fingerprint(spec: SweepSpec, stage: str) -> str:
-    """Hash of what ``stage``'s outputs depend on: training settings and every stage up to it."""
-    data = spec.to_dict()
-    parts = {"train": spec.training_identity()}
-    for name in STAGES[1 : STAGES.index(stage) + 1]:
-        if name in spec.stages:
-            parts[name] = data[STAGE_SETTINGS[name]]
-    text = json.dumps(parts, sort_keys=True)
-    return hashlib.sha256(text.encode()).hexdigest()[:16]
-
-
-def _marker(root: Path, stage: str, suffix: str = "") -> Path:
-    return SweepLayout(root).stages / f"{stage}{suffix}.json"
-
-
-def _write_json(path: Path, data: dict) -> None:
-    write_text(path, json.dumps(data, indent=1, sort_keys=True))
-
-
-def _read_fingerprint(path: Path) -> str | None:
-    try:
-        return json.loads(path.read_text()).get("fingerprint")
-    except (OSError, json.JSONDecodeError, AttributeError):
-        return None
-
-
-def stage_wall_s(spec: SweepSpec, stage: str) -> float | None:
-    """Wall seconds of a stage's last finished run, if the pipeline ran it."""
-    try:
-        return float(json.loads(_marker(sweep_dir(spec), stage).read_text())["wall_s"])
-    except (OSError, ValueError, KeyError, TypeError):
-        return None
-
-
-def stage_state(spec: SweepSpec, stage: str) -> str:
-    """'done' (skip), 'interrupted' (resume) or 'new' (start afresh)."""
-    root, wanted = sweep_dir(spec), fingerprint(spec, stage)
-    if _read_fingerprint(_marker(root, stage)) == wanted:
-        return "done"
-    return "interrupted" if _read_fingerprint(_marker(root, stage, ".started")) == wanted else "new"
 
 
 # -- the stages -------------------------------------------------------------------------------------
@@ -118,7 +69,6 @@ RUNNERS: dict[str, Callable[[SweepSpec, bool, bool], str]] = {
 
 def run_pipeline(spec: SweepSpec, *, progress: bool = True) -> dict[str, str]:
     """Run the spec's stages in order; returns a one-line summary per stage."""
-    root = sweep_dir(spec)
     require_same_sweep(spec)
     stages = [s for s in STAGES if s in spec.stages]
     summaries = {}
@@ -126,17 +76,14 @@ def run_pipeline(spec: SweepSpec, *, progress: bool = True) -> dict[str, str]:
         state = stage_state(spec, stage)
         head = f"[{index}/{len(stages)}] {stage}"
         if state == "done":
-            summaries[stage] = json.loads(_marker(root, stage).read_text())["summary"]
+            summaries[stage] = finished_summary(spec, stage)
             print(f"{head}: done earlier, skipped ({summaries[stage]})", flush=True)
             continue
         print(f"{head}: {'resuming' if state == 'interrupted' else 'starting'}", flush=True)
         started = time.time()
-        _write_json(_marker(root, stage, ".started"), {"fingerprint": fingerprint(spec, stage)})
+        mark_started(spec, stage)
         summaries[stage] = RUNNERS[stage](spec, state == "interrupted", progress)
         wall = time.time() - started
-        _write_json(
-            _marker(root, stage),
-            {"fingerprint": fingerprint(spec, stage), "summary": summaries[stage], "wall_s": round(wall, 1)},
-        )
+        mark_finished(spec, stage, summaries[stage], wall)
         print(f"{head}: done in {wall / 60:.1f} min ({summaries[stage]})", flush=True)
     return summaries

@@ -2,7 +2,7 @@
 
 Stage 1 trains the plain source policies of the anchors (anchors.policy: plain), stage 2 makes
 one anchor set per (task-input width, k) in the driver, stage 3 runs every trial of the grid.
-Where each goes: :class:`ps_ray.pipeline.layout.SweepLayout`.
+Where each goes: :class:`ps_ray.store.layout.SweepLayout`.
 """
 
 from __future__ import annotations
@@ -17,10 +17,10 @@ from typing import Any
 from ps_ray.atomic import write_text
 from ps_ray.config import TrainSpec, require_same
 from ps_ray.methods import uses_anchors
-from ps_ray.names import parse_spec_text, spec_text
-from ps_ray.pipeline.layout import SweepLayout
-from ps_ray.run_layout import METRIC_FIELDS, POLICY_FILE, SIGNATURE_FILE, SPEC_FILE
-from ps_ray.sweep_spec import SweepSpec
+from ps_ray.names import spec_text
+from ps_ray.store.layout import SweepLayout, sweep_dir
+from ps_ray.store.run_layout import METRIC_FIELDS, POLICY_FILE, SIGNATURE_FILE, SPEC_FILE
+from ps_ray.sweep_spec import SweepSpec, anchor_sources, task_input_dim
 
 # What each training result sends to MLflow: the metrics.csv columns but the step and the clock.
 METRIC_KEYS = tuple(k for k in METRIC_FIELDS if k not in ("iteration", "wall_s"))
@@ -30,18 +30,7 @@ def layout(spec: SweepSpec) -> SweepLayout:
     return SweepLayout.of(spec.storage, spec.name)
 
 
-def sweep_dir(spec: SweepSpec) -> Path:
-    return layout(spec).root
-
-
 # -- anchors -------------------------------------------------------------------------------------
-def task_input_dim(task) -> int:
-    """Width of ``task``'s task-module input: anchor sets are shared by tasks of one width."""
-    from ps_ray.envs.tasks import resolve_task
-
-    return resolve_task(task).input_dim
-
-
 def anchor_file(spec: SweepSpec, trial: TrainSpec) -> str | None:
     """The one place that decides where a PS trial of this sweep (train, few-shot scratch) gets
     its anchors: the sweep's anchor set for the trial's task-input width and K. None for methods
@@ -49,25 +38,6 @@ def anchor_file(spec: SweepSpec, trial: TrainSpec) -> str | None:
     if not uses_anchors(trial.method):
         return None
     return str(layout(spec).anchor_set(task_input_dim(trial.task), trial.interface_dim))
-
-
-def anchor_sources(spec: SweepSpec) -> list[TrainSpec]:
-    """The plain trials whose greedy rollouts give the anchor states (policy: plain)."""
-    ps = [t for t in spec.trials() if uses_anchors(t.method)]
-    tasks = list(spec.anchors.source_tasks) or list(dict.fromkeys(spec_text(t.task) for t in ps))
-    return [
-        TrainSpec.from_mapping(
-            {
-                **t.to_dict(),
-                "method": "plain",
-                "robot": spec.anchors.robot,
-                "task": parse_spec_text(task),
-                "seed": spec.seeds[0],
-            }
-        )
-        for task in tasks
-        for t in ps[:1]
-    ]
 
 
 def prepare_sweep_anchors(
@@ -133,7 +103,7 @@ def sweep_trial(config: dict[str, Any]) -> None:
     from ray import tune
 
     from ps_ray.anchor_file import load_anchor_set
-    from ps_ray.pipeline.trials import FINISHED, earlier_checkpoint
+    from ps_ray.store.attempts import FINISHED, earlier_checkpoint
     from ps_ray.train import TrainingRun
     from ps_ray.weights import policy_anchor_set
 
@@ -177,7 +147,6 @@ def check_inputs(spec: SweepSpec) -> None:
     """The files a sweep starts from, read before Ray starts and anything is written: the anchor
     file must exist, and every trial's ``init_policy`` must fit its method, sizes and env."""
     from ps_ray.errors import UserError
-    from ps_ray.train import read_inputs
 
     if spec.anchors.file and not Path(spec.anchors.file).is_file():
         raise UserError(f"anchors.file: {spec.anchors.file}: no such file")
@@ -186,8 +155,11 @@ def check_inputs(spec: SweepSpec) -> None:
         for t in spec.trials()
         if t.init_policy is not None
     }
-    for trial in starts.values():
-        read_inputs(dataclasses.replace(trial, anchors=None))
+    if starts:  # reading policy files needs torch; a sweep without them is checked without it
+        from ps_ray.train import read_inputs
+
+        for trial in starts.values():
+            read_inputs(dataclasses.replace(trial, anchors=None))
 
 
 def require_same_sweep(spec: SweepSpec) -> None:
@@ -196,7 +168,7 @@ def require_same_sweep(spec: SweepSpec) -> None:
     only the spec of a start that failed early (no trial, no anchor set) takes the new spec."""
     import yaml
 
-    from ps_ray.pipeline.trials import attempts
+    from ps_ray.store.attempts import attempts
 
     layout = SweepLayout(sweep_dir(spec))
     spec_file = layout.spec_file
@@ -225,8 +197,8 @@ def run_sweep(spec: SweepSpec, *, resume: bool = False, progress: bool = True):
     import yaml
 
     from ps_ray.envs.registry import register
-    from ps_ray.pipeline.trials import require_fresh
     from ps_ray.pipeline.tune_tracking import default_key_fn
+    from ps_ray.store.attempts import require_fresh
 
     root = sweep_dir(spec)
     spec_file = SweepLayout(root).spec_file
@@ -268,7 +240,7 @@ def connect(spec: SweepSpec) -> tuple[str, str]:
     The driver creates the store and experiment once, before any trial could race for it."""
     import ray
 
-    from ps_ray.pipeline.tracking import default_tracking_uri, ensure_experiment
+    from ps_ray.tracking import default_tracking_uri, ensure_experiment
 
     if not ray.is_initialized():
         ray.init(
@@ -311,9 +283,9 @@ def run_tune(
 ):
     """Training trials (sweep_trial) as one Tune experiment in ``folder``, tracked in MLflow."""
 
-    from ps_ray.pipeline.tracking import git_commit
     from ps_ray.pipeline.trials import run_trials
     from ps_ray.pipeline.tune_tracking import MLflowTuneCallback
+    from ps_ray.tracking import git_commit
 
     callback = MLflowTuneCallback(
         *tracking,

@@ -1,4 +1,4 @@
-"""The driver-side Tune callback that logs every trial to MLflow (:mod:`ps_ray.pipeline.tracking`):
+"""The driver-side Tune callback that logs every trial to MLflow (:mod:`ps_ray.tracking`):
 one run per trial key, metrics in batches, artifacts and status at the end."""
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING, Any
 from ray.tune import Callback
 
 from ps_ray.names import trial_key
-from ps_ray.pipeline.tracking import (
+from ps_ray.tracking import (
     GIT_COMMIT_TAG,
     TrialTracker,
     _client,

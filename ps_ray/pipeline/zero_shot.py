@@ -20,6 +20,7 @@ import pandas as pd
 from ps_ray.atomic import atomic_path
 from ps_ray.errors import UserError
 from ps_ray.names import CONTROL_ROLES, short_name
+from ps_ray.pairs import pairs
 from ps_ray.pipeline.sweep import layout, raise_on_errors, sweep_dir
 from ps_ray.sweep_spec import SweepSpec
 
@@ -33,61 +34,6 @@ RESULT_KEYS = (
 )
 # each control's success on the pair's episodes (ps_ray.stitch.controls), and the gain over them
 CONTROL_KEYS = (*(f"{role}_success" for role in CONTROL_ROLES), "best_unstitched", "transfer_gain")
-
-
-def seed_pairs(seeds: tuple[int, ...], pairing: str) -> list[tuple[str, int, int]]:
-    """(pairing, task module's seed, robot module's seed): same seed, and/or each seed's task
-    modules with the next seed's robot modules (cyclically: every seed once on each side)."""
-    out = []
-    if pairing in ("same_seed", "both"):
-        out += [("same_seed", s, s) for s in seeds]
-    if pairing in ("cross_seed", "both") and len(seeds) > 1:
-        out += [("cross_seed", s, seeds[(i + 1) % len(seeds)]) for i, s in enumerate(seeds)]
-    return out
-
-
-def pairs(
-    spec: SweepSpec, methods: list[str] | None = None, translate: bool = False, pairing: str = "same_seed"
-) -> list[dict[str, Any]]:
-    """One trial config per stitched pair of the sweep's trained policies (``pairing``: see
-    :func:`seed_pairs`), with the zoo keys and files of its controls (:func:`ps_ray.stitch.controls`);
-    with ``translate``, also one per latent translation that ``spec.zero_shot.translate`` names for
-    the method (its method shown as ``<method>+<translation>``)."""
-    from ps_ray.stitch import combos, controls
-    from ps_ray.zoo import ModuleZoo
-
-    zoo = ModuleZoo.from_sweep(sweep_dir(spec))
-    out = []
-    for method in methods or spec.methods:
-        kinds = ("", *spec.zero_shot.translations(method)) if translate else ("",)
-        for kind_of_pair, seed, robot_seed in seed_pairs(spec.seeds, pairing):
-            for combo in combos(zoo, method, seed, robot_seed=robot_seed):
-                seeds = str(seed) if kind_of_pair == "same_seed" else f"{seed}x{robot_seed}"
-                for kind in kinds:
-                    name = f"{method}+{kind}" if kind else method
-                    out.append(
-                        {
-                            "key": f"zero_shot/{name}/{combo.label}/{seeds}",
-                            "method": name,
-                            "translation": kind,
-                            "pairing": kind_of_pair,
-                            "seed": seed,
-                            "robot_seed": robot_seed,
-                            "label": combo.label,
-                            "task_from": str(combo.task_from.key),
-                            "robot_from": str(combo.robot_from.key),
-                            "task_from_path": str(combo.task_from.path),
-                            "robot_from_path": str(combo.robot_from.path),
-                            "fit_tasks": [combo.task_from.spec["task"], combo.robot_from.spec["task"]],
-                            "robot": combo.robot,
-                            "task": combo.task,
-                            "controls": {
-                                role: {"source": str(entry.key), "path": str(entry.path)}
-                                for role, entry in controls(zoo, combo).items()
-                            },
-                        }
-                    )
-    return out
 
 
 def fit_states(tasks: list, per_quadrant: int, seed: int) -> np.ndarray:
@@ -107,8 +53,8 @@ def zero_shot_trial(config: dict[str, Any]) -> None:
     from ray import tune
 
     from ps_ray.evaluate import evaluate
-    from ps_ray.pipeline.trials import FINISHED
     from ps_ray.stitch import load_source, stitch_policies
+    from ps_ray.store.attempts import FINISHED
 
     pair, settings = config["pair"], config["eval"]
     translation = pair.get("translation") or None
@@ -145,9 +91,10 @@ def run_zero_shot(
 
     ``resume`` finishes an interrupted matrix (restores ``tune_zero_shot``)."""
     from ps_ray.pipeline.sweep import connect
-    from ps_ray.pipeline.tracking import git_commit
-    from ps_ray.pipeline.trials import require_fresh, run_trials
+    from ps_ray.pipeline.trials import run_trials
     from ps_ray.pipeline.tune_tracking import MLflowTuneCallback
+    from ps_ray.store.attempts import require_fresh
+    from ps_ray.tracking import git_commit
 
     settings = dataclasses.replace(spec.zero_shot, **overrides)
     root = sweep_dir(spec)
@@ -198,7 +145,7 @@ HIDDEN = ("fit_tasks", "controls", "key")
 
 
 def _tags(client, experiment_id: str, pair: dict[str, Any]) -> dict:
-    from ps_ray.pipeline.tracking import source_tags
+    from ps_ray.tracking import source_tags
 
     return source_tags(client, experiment_id, pair["task_from"], pair["robot_from"], pair["task_from_path"])
 

@@ -96,3 +96,8 @@ class SweepLayout:
             "zero_shot": self.tune_zero_shot,
             "few_shot": self.tune_few_shot,
         }
+
+
+def sweep_dir(spec) -> Path:
+    """The folder of a sweep spec (anything with ``storage`` and ``name``)."""
+    return SweepLayout.of(spec.storage, spec.name).root

@@ -20,8 +20,9 @@ from pathlib import Path
 
 from ps_ray.config import SpecError, TrainSpec
 from ps_ray.envs import EPISODE_STEPS
+from ps_ray.methods import uses_anchors
 from ps_ray.names import CONTROL_ROLES
-from ps_ray.pipeline.layout import SweepLayout
+from ps_ray.store.layout import SweepLayout
 from ps_ray.sweep_spec import SweepSpec
 
 
@@ -108,10 +109,9 @@ def stitch_pairs(
     """(task source, robot source) pairs the stitching stages will build for one method, by the
     rule of :func:`ps_ray.stitch.combos`: another task, another arm, the same interface, for
     relative methods the same anchor set (the same task-input width), and the seeds that
-    ``pairing`` joins (:func:`ps_ray.pipeline.zero_shot.seed_pairs`)."""
-    from ps_ray.pipeline.sweep import task_input_dim
-    from ps_ray.pipeline.zero_shot import seed_pairs
-    from ps_ray.stitch import arm
+    ``pairing`` joins (:func:`ps_ray.sweep_spec.seed_pairs`)."""
+    from ps_ray.envs.robots import arm
+    from ps_ray.sweep_spec import seed_pairs, task_input_dim
 
     cells = [t for t in spec.trials() if t.method == method]
     joined = {(task_seed, robot_seed) for _, task_seed, robot_seed in seed_pairs(spec.seeds, pairing)}
@@ -123,13 +123,13 @@ def stitch_pairs(
         and t.interface_dim == r.interface_dim
         and t.task != r.task
         and arm(t.robot) != arm(r.robot)
-        and (not t.method.startswith("ps") or task_input_dim(t.task) == task_input_dim(r.task))
+        and (not uses_anchors(t.method) or task_input_dim(t.task) == task_input_dim(r.task))
     ]
 
 
 def workload(spec: SweepSpec) -> list[StageLoad]:
     """The work of every stage the spec runs, in order."""
-    from ps_ray.pipeline.sweep import anchor_sources
+    from ps_ray.sweep_spec import anchor_sources
 
     loads = []
     if "train" in spec.stages:
@@ -149,7 +149,7 @@ def workload(spec: SweepSpec) -> list[StageLoad]:
         )
         loads.append(StageLoad("zero_shot", [None] * n, 0, 0, steps))
     if "few_shot" in spec.stages:
-        from ps_ray.pipeline.sweep import task_input_dim
+        from ps_ray.sweep_spec import task_input_dim
 
         few = spec.few_shot
         runs: list[TrainSpec] = []
@@ -273,7 +273,7 @@ def describe(p: Projection) -> list[str]:
 def spent(root: Path) -> dict[str, tuple[int, float]]:
     """What each stage of a sweep folder actually used: (attempts, core-seconds inside trials,
     from the last result of every attempt, retries and resumed attempts included)."""
-    from ps_ray.pipeline.trials import PARAMS_FILE, read_rows
+    from ps_ray.store.attempts import PARAMS_FILE, read_rows
 
     out = {}
     for stage, folder in SweepLayout(root).stage_folders().items():

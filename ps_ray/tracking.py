@@ -48,7 +48,7 @@ TERMINAL_STATUSES = ("FINISHED", "FAILED", "KILLED")
 
 def default_tracking_uri(root: str | Path) -> str:
     """The sqlite store of a project root: ``sqlite:////abs/root/mlflow.db``."""
-    from ps_ray.pipeline.layout import SweepLayout
+    from ps_ray.store.layout import SweepLayout
 
     return f"sqlite:///{SweepLayout(Path(root).expanduser().resolve()).mlflow_db}"
 

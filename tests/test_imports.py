@@ -1,0 +1,115 @@
+"""The house's boundaries, read from its imports: no circle, analysis reads a sweep only through the
+store, and the light commands load neither Ray nor torch."""
+
+from __future__ import annotations
+
+import ast
+import subprocess
+import sys
+from pathlib import Path
+
+PACKAGE = Path(__file__).parents[1] / "ps_ray"
+REPO = PACKAGE.parent
+
+
+def _module(path: Path) -> str:
+    parts = path.relative_to(REPO).with_suffix("").parts
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def _imports(path: Path, modules: set[str]) -> set[str]:
+    """Every ps_ray module ``path`` imports, at the top or inside a function; imports under
+    ``if TYPE_CHECKING:`` are for annotations only and run never."""
+    tree = ast.parse(path.read_text())
+    skipped = {
+        id(node)
+        for block in ast.walk(tree)
+        if isinstance(block, ast.If) and "TYPE_CHECKING" in ast.unparse(block.test)
+        for node in ast.walk(block)
+    }
+    package = _module(path) if path.name == "__init__.py" else _module(path).rpartition(".")[0]
+    found = set()
+    for node in ast.walk(tree):
+        if id(node) in skipped:
+            continue
+        if isinstance(node, ast.Import):
+            names = [alias.name for alias in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:  # relative: "from .sim import Sim" inside ps_ray.envs
+                parent = package.split(".")[: len(package.split(".")) - node.level + 1]
+                base = ".".join([*parent, base] if base else parent)
+            names = [f"{base}.{alias.name}" for alias in node.names]
+        else:
+            continue
+        for name in names:
+            while name and name not in modules:  # "from ps_ray.x import func" -> ps_ray.x
+                name = name.rpartition(".")[0]
+            if name.startswith("ps_ray"):
+                found.add(name)
+    return found
+
+
+def _graph() -> dict[str, set[str]]:
+    paths = {_module(p): p for p in PACKAGE.rglob("*.py")}
+    graph = {}
+    for name, path in paths.items():
+        # a module importing its own package's __init__ (or a parent's) is not a cycle
+        graph[name] = {m for m in _imports(path, set(paths)) if m != name and not name.startswith(m + ".")}
+    return graph
+
+
+def _cycle(graph: dict[str, set[str]]) -> list[str] | None:
+    state: dict[str, int] = {}  # 1: on the current path, 2: done
+    path: list[str] = []
+
+    def visit(node: str) -> list[str] | None:
+        state[node] = 1
+        path.append(node)
+        for nxt in sorted(graph.get(node, ())):
+            if state.get(nxt) == 1:
+                return path[path.index(nxt) :] + [nxt]
+            if nxt not in state and (found := visit(nxt)):
+                return found
+        path.pop()
+        state[node] = 2
+        return None
+
+    for node in sorted(graph):
+        if node not in state and (found := visit(node)):
+            return found
+    return None
+
+
+def test_no_module_of_the_package_imports_itself_in_a_circle():
+    graph = _graph()
+    assert len(graph) > 50
+    assert _cycle(graph) is None, " -> ".join(_cycle(graph))
+    # the check finds one: a planted back edge closes a circle
+    planted = {**graph, "ps_ray.methods": graph["ps_ray.methods"] | {"ps_ray.config"}}
+    assert _cycle(planted) is not None
+
+
+def test_analysis_and_the_store_never_import_the_tune_stages():
+    for name, imported in _graph().items():
+        if name.startswith(("ps_ray.analysis", "ps_ray.store")):
+            stages = sorted(m for m in imported if m.startswith("ps_ray.pipeline"))
+            assert not stages, f"{name} imports {stages}"
+
+
+def test_no_module_is_over_400_lines():
+    long = {p.name: n for p in PACKAGE.rglob("*.py") if (n := len(p.read_text().splitlines())) > 400}
+    assert not long, long
+
+
+def _loaded_after(code: str) -> set[str]:
+    probe = code + "\nimport sys; print(' '.join(m for m in ('ray', 'torch') if m in sys.modules))"
+    out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, cwd=REPO, check=True)
+    return set(out.stdout.split("\n")[-2].split())
+
+
+def test_the_report_module_and_a_sweep_check_load_neither_ray_nor_torch():
+    assert _loaded_after("import ps_ray.analysis.report") == set()
+    check = "from ps_ray import cli\nassert cli.main(['sweep', 'sweeps/transfer.yaml', '--check']) == 0"
+    assert _loaded_after(check) == set()
+    assert _loaded_after("import ps_ray.weights") == {"torch"}  # the probe sees what is loaded

@@ -101,7 +101,7 @@ CASES = [  # (arguments, with {f} the input folder and {out} a path that must no
     ("train --method ps+norm=batch --run-dir {out}", "method 'ps+norm=batch': unknown relative norm 'batch'"),
     (
         "train --method ps+nrom=layer --run-dir {out}",
-        "method 'ps': unknown option 'nrom'; valid: relative, center",
+        "method 'ps+nrom=layer': unknown option 'nrom'; valid: relative, center",
     ),
     ("bench learn --methods ps_ref_actor --out {out}/b", "--baseline 'ablation' is not among --methods"),
 ]

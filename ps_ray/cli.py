@@ -25,8 +25,13 @@ def cmd_train(args: argparse.Namespace) -> int:
     from ps_ray.train import train
 
     fields = {f.name: getattr(args, f.name) for f in dataclasses.fields(TrainSpec)}
-    fields["robot"], fields["task"] = parse_spec_text(args.robot), parse_spec_text(args.task)
-    spec = TrainSpec.from_mapping(fields)
+    try:
+        fields["robot"], fields["task"] = parse_spec_text(args.robot), parse_spec_text(args.task)
+        spec = TrainSpec.from_mapping(fields)
+    except UserError as e:  # name the flag the bad value came from
+        named = next((f for f in sorted(fields, key=len, reverse=True) if str(e).startswith(f)), None)
+        flag = "--" + (named or _flag_of(str(e), fields)).replace("_", "-")
+        raise UserError(f"{flag}: {e}") from None
     run_dir = Path(args.run_dir or Path("runs") / spec.slug())
     train(spec, run_dir, progress=not args.quiet)
     return 0
@@ -56,6 +61,12 @@ def cmd_sweep(args: argparse.Namespace) -> int:
         f"results in {sweep_dir(spec)}"
     )
     return 1 if errors else 0
+
+
+def _flag_of(message: str, fields) -> str:
+    """The field a spec error is about: the first field name the message mentions."""
+    words = message.replace("'", " ").replace(".", " ").replace(":", " ").split()
+    return next((w for w in words if w in fields), "robot" if "robot" in message else "task")
 
 
 def _load(args: argparse.Namespace):
@@ -173,7 +184,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     if "report" in summaries:
         print(f"report: {SweepLayout(sweep_dir(spec)).report / 'index.html'}")
     uri = spec.tracking_uri or default_tracking_uri(sweep_dir(spec))
-    print(f"MLflow: .venv/bin/mlflow ui --backend-store-uri {uri}")
+    print(f"MLflow: mlflow ui --backend-store-uri {uri}")
     note = budget_note(spec)
     if note:
         print(f"note: {note}")
@@ -183,6 +194,8 @@ def cmd_run(args: argparse.Namespace) -> int:
 def cmd_report(args: argparse.Namespace) -> int:
     from ps_ray.analysis.report import build_report
 
+    if args.screenshot:  # a place that cannot hold it is refused before the report is built
+        _output_file(args.screenshot)
     with _trained_sweep(args, "report") as spec:
         page = build_report(spec, log_to_mlflow=not args.no_mlflow)
     print(f"report: {page}")

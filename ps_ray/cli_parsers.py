@@ -10,12 +10,21 @@ from ps_ray.config import TrainSpec
 
 def positive_int(text: str) -> int:
     """argparse type of a size: a zero or negative count is refused in one line (exit 2)."""
+    return _int_from(text, 1, "a positive integer")
+
+
+def seed_int(text: str) -> int:
+    """argparse type of a seed: gymnasium and numpy take 0 .. 2**32 - 1."""
+    return _int_from(text, 0, "a seed in 0..4294967295", 2**32 - 1)
+
+
+def _int_from(text: str, low: int, what: str, high: int | None = None) -> int:
     try:
         value = int(text)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
-    if value <= 0:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {value}")
+        raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}") from None
+    if value < low or (high is not None and value > high):
+        raise argparse.ArgumentTypeError(f"expected {what}, got {value}")
     return value
 
 
@@ -103,7 +112,7 @@ def _zero_shot_parser(sub) -> None:
     p.add_argument("--methods", nargs="+", default=None, help="default: the spec's zero_shot.methods")
     p.add_argument("--episodes", type=int, default=None, help="default: the spec's (200)")
     p.add_argument("--repeats", type=int, default=None, help="default: the spec's (5)")
-    p.add_argument("--seed", type=int, default=None, help="first evaluation seed")
+    p.add_argument("--seed", type=seed_int, default=None, help="first evaluation seed")
     p.add_argument(
         "--pairs",
         default=None,
@@ -170,7 +179,7 @@ def _render_parser(sub) -> None:
     p.add_argument("--robot", default="panda")
     p.add_argument("--task", default="reach")
     p.add_argument("--policy", default=None, help="a policy.safetensors (default: random actions)")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=seed_int, default=0)
     p.add_argument("--png", default=None)
     p.add_argument("--gif", default=None)
 
@@ -195,7 +204,7 @@ def _stitch_parser(sub) -> None:
     p.add_argument("--task", default=None, help="target task (default: the task module's task)")
     p.add_argument("--episodes", type=int, default=200, help="episodes per repeat (0: no evaluation)")
     p.add_argument("--repeats", type=positive_int, default=5, help="repeats (mean +- std over them)")
-    p.add_argument("--seed", type=int, default=0, help="first evaluation seed")
+    p.add_argument("--seed", type=seed_int, default=0, help="first evaluation seed")
     p.add_argument("--num-envs", type=positive_int, default=8, help="envs stepped in lockstep")
     p.add_argument("--save", default=None, help="write the stitched policy (.safetensors) here")
     p.add_argument(

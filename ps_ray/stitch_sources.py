@@ -32,9 +32,13 @@ def resolve_source(ref: str, zoo: ModuleZoo | None = None) -> Resolved:
         if not spec_path.is_file():
             return Resolved(path, None)
         try:
-            return Resolved(path, dict(json.loads(spec_path.read_text())))
-        except (json.JSONDecodeError, TypeError, ValueError) as e:
+            spec = dict(json.loads(spec_path.read_text()))
+        except (json.JSONDecodeError, TypeError, ValueError, UnicodeDecodeError) as e:
             raise UserError(f"{spec_path}: unreadable training spec ({e})") from None
+        missing = [key for key in ("robot", "task") if key not in spec]
+        if missing:
+            raise UserError(f"{spec_path}: incomplete training spec (no {missing[0]!r}); give --{missing[0]}")
+        return Resolved(path, spec)
     if zoo is None:
         raise UserError(f"{ref}: no such policy file (give --sweep DIR to look keys up)")
     entry = zoo.get(ref)

@@ -13,11 +13,11 @@ A run directory holds:
 from __future__ import annotations
 
 import csv
-import io
 import json
 import os
-import shutil
 import time
+from collections.abc import Iterator
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -25,15 +25,15 @@ import numpy as np
 import torch
 
 from ps_ray import checkpoint
-from ps_ray.atomic import atomic_file, atomic_path, fsync_dir, write_text
+from ps_ray.atomic import write_text
 from ps_ray.config import POINT_TASK, TrainSpec, require_same
 from ps_ray.errors import UserError
 from ps_ray.lock import folder_lock
 from ps_ray.methods import method_spec, spec_json, uses_anchors
+from ps_ray.store.run_folder import best_so_far, latest_checkpoint, metrics_up_to, save_atomically
 from ps_ray.store.run_layout import (
     ANCHORS_FILE,
     BEST_POLICY_FILE,
-    CHECKPOINT_DIR,
     METRIC_FIELDS,
     METRICS_FILE,
     POLICY_FILE,
@@ -98,6 +98,16 @@ def _check_run_dir(spec: TrainSpec, run_dir: Path) -> None:
         )
 
 
+@dataclass(frozen=True)
+class Tick:
+    """One turn of :meth:`TrainingRun.ticks`: the latest step's metrics, whether to save a
+    checkpoint now, and (on the last tick only) the consolidation's figures."""
+
+    row: dict[str, Any]
+    checkpoint: bool
+    finished: dict[str, float] | None = None
+
+
 class TrainingRun:
     """One ModularSAC algorithm with its signature; the loop body shared by `ps-ray train` and Tune."""
 
@@ -156,6 +166,17 @@ class TrainingRun:
             self.consolidated = self.algo.consolidate_actor(self.consolidation)
         return {f"consolidation_{k}": v for k, v in self.consolidated.items()}
 
+    def ticks(self) -> Iterator[Tick]:
+        """The one training loop, of ``ps-ray train`` and of the Tune trial: a step per tick until
+        the run is done (budget or success target, decided by :meth:`step`), a checkpoint every
+        ``checkpoint_every`` steps, then the method's consolidation (:meth:`finish`) and a last tick
+        that repeats the last step's row with its figures, to be saved and finally evaluated."""
+        row = self.position()  # a run restored already done takes no step
+        while not self.done:
+            row = self.step()
+            yield Tick(row, checkpoint=not self.done and row["iteration"] % self.spec.checkpoint_every == 0)
+        yield Tick(row, checkpoint=True, finished=self.finish())
+
     def position(self) -> dict[str, Any]:
         """Where the run stands without a step: iteration, env steps and the best so far."""
         return {"iteration": self.algo.iteration, "env_steps": self.env_steps, **self.best_field()}
@@ -210,77 +231,6 @@ class TrainingRun:
         )
 
 
-def _checkpoint_dirs(run_dir: Path) -> tuple[Path, Path, Path]:
-    return (run_dir / f"{CHECKPOINT_DIR}.tmp", run_dir / CHECKPOINT_DIR, run_dir / f"{CHECKPOINT_DIR}.old")
-
-
-def _save_atomically(run: TrainingRun, run_dir: Path) -> None:
-    """Checkpoint into a fresh directory, then swap it in: a kill never leaves half a checkpoint.
-    Between the two renames only ``checkpoint.old`` exists; :func:`_latest_checkpoint` reads it
-    then, so no moment makes a started run look unstarted."""
-    tmp, final, old = _checkpoint_dirs(run_dir)
-    shutil.rmtree(tmp, ignore_errors=True)
-    run.save(tmp)
-    fsync_dir(tmp)
-    if final.exists():
-        shutil.rmtree(old, ignore_errors=True)
-        os.replace(final, old)
-    os.replace(tmp, final)
-    fsync_dir(run_dir)
-    shutil.rmtree(old, ignore_errors=True)
-    with atomic_path(run_dir / POLICY_FILE) as partial:
-        shutil.copyfile(final / POLICY_FILE, partial)
-
-
-def _latest_checkpoint(run_dir: Path) -> Path | None:
-    """The complete checkpoint of a run folder: ``checkpoint/``, else ``checkpoint.old/`` (a kill
-    between the swap's two renames); ``checkpoint.tmp/`` is never complete. A folder that holds
-    checkpoints but none that verifies is refused (CheckpointError), not silently restarted."""
-    _, final, old = _checkpoint_dirs(run_dir)
-    found = [d for d in (final, old) if d.is_dir()]
-    best = checkpoint.latest(found)
-    if found and best is None:
-        checkpoint.verify(found[0])  # raises, naming the problem
-    return best
-
-
-def _metrics_up_to(run_dir: Path, env_steps: int) -> None:
-    """Drop metrics rows written after the checkpoint a run resumes from (they will be written
-    again, and must not be there twice) and a last row that a kill cut short."""
-    path = run_dir / METRICS_FILE
-    if not path.exists():
-        return
-    text = path.read_text()
-    complete = text if text.endswith("\n") else text[: text.rfind("\n") + 1]
-    rows = list(csv.DictReader(io.StringIO(complete, newline="")))
-    kept = [
-        r
-        for r in rows
-        if None not in r and None not in r.values() and r["env_steps"] and int(r["env_steps"]) <= env_steps
-    ]
-    if len(kept) == len(rows) and complete == text:
-        return
-    with atomic_file(path) as f:
-        text = io.StringIO()
-        writer = csv.DictWriter(text, METRIC_FIELDS)
-        writer.writeheader()
-        writer.writerows(kept)
-        f.write(text.getvalue().encode())
-
-
-def _best_so_far(run_dir: Path) -> float:
-    """The greedy success of ``best_policy.safetensors`` (stored in its metadata), -1 if none."""
-    from ps_ray.weights import read_signature
-
-    path = run_dir / BEST_POLICY_FILE
-    if not path.exists():
-        return -1.0
-    try:
-        return float(read_signature(path)[1].get("eval_success", -1.0))
-    except UserError:
-        return -1.0
-
-
 def train(spec: TrainSpec, run_dir: str | Path, *, progress: bool = True) -> dict[str, Any]:
     """Train (or resume) until spec.env_steps; returns the last metrics row with final_* figures.
     One process at a time per run folder (:mod:`ps_ray.lock`)."""
@@ -333,29 +283,29 @@ def _train(spec: TrainSpec, run_dir: Path, given, progress: bool) -> dict[str, A
         )
     run = TrainingRun(spec, anchor_set)  # loads --init-policy: a bad one fails before spec.json
     _check_run_dir(spec, run_dir)
-    resume_from = _latest_checkpoint(run_dir)
+    resume_from = latest_checkpoint(run_dir)
     if resume_from is not None:
         run.restore(resume_from)  # may refuse the new budget: spec.json is written after it
         if progress:
             print(f"[{spec.label()}] resumed at {run.env_steps} env steps", flush=True)
     write_text(run_dir / SPEC_FILE, json.dumps(spec.to_dict(), indent=2))
-    _metrics_up_to(run_dir, run.env_steps)
-    row: dict[str, Any] = run.position()
-    best_file = _best_so_far(run_dir)  # the best policy file may be newer than the checkpoint
+    metrics_up_to(run_dir, run.env_steps)
+    best_file = best_so_far(run_dir)  # the best policy file may be newer than the checkpoint
     if best_file >= 0:
         run.best = max(best_file, run.best if run.best is not None else best_file)
     with open(run_dir / METRICS_FILE, "a", newline="") as f:
         writer = csv.DictWriter(f, METRIC_FIELDS)
         if f.tell() == 0:
             writer.writeheader()
-        while not run.done:
-            best_before = run.best
-            row = run.step()
+        best_before = run.best
+        for tick in run.ticks():
+            row = tick.row
+            if tick.finished is not None:
+                break
             writer.writerow(row)
-            if row["iteration"] % spec.checkpoint_every == 0:
+            if tick.checkpoint:
                 f.flush()
-                if not run.done:  # a done run is saved once below, after its consolidation
-                    _save_atomically(run, run_dir)
+                save_atomically(run.save, run_dir)
             if row.get("eval_success") is not None:
                 if best_before is None or row["eval_success"] > best_before:  # a new best greedy policy
                     run.algo.export_policy(
@@ -363,10 +313,11 @@ def _train(spec: TrainSpec, run_dir: Path, given, progress: bool) -> dict[str, A
                         run.signature,
                         extra={"eval_success": repr(run.best), "env_steps": str(row["env_steps"])},
                     )
+                best_before = run.best
                 if progress:
                     print(run.progress_line(row), flush=True)
-    consolidation = run.finish()
-    _save_atomically(run, run_dir)
+    consolidation = tick.finished
+    save_atomically(run.save, run_dir)
     final = run.final_eval()
     row = {
         **row,

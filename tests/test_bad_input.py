@@ -27,6 +27,9 @@ def files(tmp_path_factory):
     save_policy(root / "reach.safetensors", nets, signature_of(nets, "ablation", 8, 16))
     (root / "garbage.safetensors").write_bytes(bytes(range(256)) * 2)
     (root / "evil.npy").write_bytes(pickle.dumps(_Evil()))
+    (root / "incomplete_run").mkdir()
+    (root / "incomplete_run" / "policy.safetensors").write_bytes((root / "reach.safetensors").read_bytes())
+    (root / "incomplete_run" / "spec.json").write_text('{"seed": 1}')
     for name, content in (("binary", bytes(range(256))), ("list", b"[1, 2]")):
         (root / f"{name}_run").mkdir()
         (root / f"{name}_run" / "spec.json").write_bytes(content)
@@ -38,6 +41,10 @@ def files(tmp_path_factory):
             f"name: {name}\nmethods: [ablation]\nrobots: [panda]\ntasks: [reach]\nseeds: [1]\n"
             f"storage: {root / 'sweeps'}\n{extra}"
         )
+    (root / "typed.yaml").write_text(
+        "name: typed\nmethods: [ablation]\nrobots: [panda]\ntasks: [{name: reach_red, min_separation: x}]\n"
+        f"seeds: [1]\nstorage: {root / 'sweeps'}\n"
+    )
     (root / "sweep.yaml").write_text(
         f"name: never\nmethods: [ablation]\nrobots: [panda]\ntasks: [reach]\nseeds: [1]\n"
         f"storage: {root / 'sweeps'}\n"
@@ -63,7 +70,20 @@ CASES = [  # (arguments, with {f} the input folder and {out} a path that must no
     ("train --anchors {f}/missing.npz --run-dir {out}", "missing.npz: cannot read the file (No such file"),
     ("train --anchors {f}/evil.npy --run-dir {out}", "evil.npy: neither an .npy nor an .npz file"),
     ("train --seed -1 --run-dir {out}", "seed must be a non-negative integer, got -1"),
-    ("train --eval-every -2 --run-dir {out}", "eval_every must be a non-negative integer, got -2"),
+    (
+        "train --eval-every -2 --run-dir {out}",
+        "--eval-every: eval_every must be a non-negative integer, got -2",
+    ),
+    ("render --seed -1 --png {out}/x.png", "argument --seed: expected a seed in 0..4294967295, got -1"),
+    (
+        "stitch --task-from {f}/incomplete_run --robot-from {f}/reach.safetensors --save {out}/s.safetensors",
+        "incomplete_run/spec.json: incomplete training spec (no 'robot'); give --robot",
+    ),
+    (
+        "report {f}/sweep.yaml --screenshot {f}/garbage.safetensors/x.png",
+        "garbage.safetensors is a file, not a",
+    ),
+    ("sweep {f}/typed.yaml --check", "task 'reach_red' option min_separation: expected float, got 'x'"),
     ("zero-shot {f}/sweep.yaml --methods ps", "method 'ps' is not trained by this sweep; valid: ablation"),
     ("zero-shot {f}/sweep.yaml", "sweeps/never: no trained sweep there; train it first"),
     ("few-shot {f}/sweep.yaml --env-steps 0", "few_shot.env_steps must be positive, got 0"),

@@ -150,8 +150,8 @@ def test_resume_after_a_kill_between_the_checkpoint_renames_keeps_rows_and_best(
 
 
 def test_resume_drops_rows_after_the_checkpoint_and_a_row_a_kill_cut_short(tmp_path):
+    from ps_ray.store.run_folder import metrics_up_to
     from ps_ray.store.run_layout import METRIC_FIELDS, METRICS_FILE
-    from ps_ray.train import _metrics_up_to
 
     def row(steps):
         return ",".join(str(steps) if f == "env_steps" else "1" for f in METRIC_FIELDS)
@@ -159,10 +159,10 @@ def test_resume_drops_rows_after_the_checkpoint_and_a_row_a_kill_cut_short(tmp_p
     path = tmp_path / METRICS_FILE
     header = ",".join(METRIC_FIELDS)
     path.write_text(f"{header}\n{row(100)}\n{row(200)}\n{row(300)}\n4,4")  # killed mid-row
-    _metrics_up_to(tmp_path, 200)
+    metrics_up_to(tmp_path, 200)
     assert path.read_text().split() == [header, row(100), row(200)]
     path.write_text(f"{header}\n{row(100)}\n1,1")  # cut short before the checkpoint's steps
-    _metrics_up_to(tmp_path, 200)
+    metrics_up_to(tmp_path, 200)
     assert pd.read_csv(path)["env_steps"].tolist() == [100]
     with open(path, "a", newline="") as f:  # the resumed run appends cleanly
         f.write(row(200) + "\n")

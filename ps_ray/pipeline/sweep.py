@@ -123,22 +123,19 @@ def sweep_trial(config: dict[str, Any]) -> None:
     elif (earlier := earlier_checkpoint(config, "trial")) is not None:
         run.restore(earlier)
     node_id = ray.get_runtime_context().get_node_id()
-    row: dict[str, Any] = run.position()  # the last result of a run restored already done
-    while True:
-        if not run.done:
-            row = {**run.step(), "node_id": node_id}
-        if run.done or row["iteration"] % spec.checkpoint_every == 0:
-            row.update(run.finish())  # after the last step: the method's consolidation, if any
+    for tick in run.ticks():  # the loop of `ps-ray train` too: it decides steps and checkpoints
+        if tick.finished is None and run.done:
+            continue  # the last step: reported once, by the last tick, with the checkpoint
+        row = {**tick.row, **(tick.finished or {}), "node_id": node_id}
+        if tick.checkpoint:
             with tempfile.TemporaryDirectory() as directory:
                 run.save(Path(directory))
-                if run.done:
+                if tick.finished is not None:
                     final = {f"final_{k}": v for k, v in run.final_eval().items()}
                     row.update(final, converged=run.converged, **{FINISHED: True})
                 tune.report(row, checkpoint=tune.Checkpoint.from_directory(directory))
         elif row.get("eval_success") is not None:
             tune.report(row)
-        if row.get(FINISHED):
-            break
     run.stop()
 
 

@@ -47,6 +47,25 @@ def fit_states(tasks: list, per_quadrant: int, seed: int) -> np.ndarray:
     return np.concatenate([probe_states(task, per_quadrant, seed).states for task in tasks])
 
 
+def check_sources(trials: list[dict[str, Any]]) -> None:
+    """Every policy file the pairs read loads, and every pair stitches, before a trial starts: a
+    damaged or unfinished file is one line naming it, not a failing trial retried per pair."""
+    from ps_ray.stitch import check_stitchable
+    from ps_ray.weights import load_policy
+
+    signatures = {}
+    for pair in trials:
+        paths = [pair["task_from_path"], pair["robot_from_path"]]
+        paths += [control["path"] for control in pair["controls"].values()]
+        for path in paths:
+            if path not in signatures:
+                signatures[path] = load_policy(path)[1]
+        try:
+            check_stitchable(signatures[pair["task_from_path"]], signatures[pair["robot_from_path"]])
+        except UserError as e:
+            raise UserError(f"{pair['task_from_path']} with {pair['robot_from_path']}: {e}") from None
+
+
 def zero_shot_trial(config: dict[str, Any]) -> None:
     """Tune function trainable: stitch one pair (translated, if the pair says so), evaluate it,
     then evaluate each of its controls as it is, all on the stage's fixed episodes."""
@@ -103,6 +122,7 @@ def run_zero_shot(
     trials = pairs(spec, list(settings.methods) or None, translate=True, pairing=settings.pairs)
     if not trials:
         raise UserError(f"{root}: no stitchable pairs (train the sweep first: ps-ray sweep)")
+    check_sources(trials)
     tracking_uri, experiment_id = connect(spec)
     callback = MLflowTuneCallback(
         tracking_uri,

@@ -39,6 +39,8 @@ def consolidate(actor: Actor, task_in: Tensor, robot_in: Tensor, spec: Consolida
         raise ValueError(f"method {actor.spec.name!r} has no relative interface to consolidate")
     if len(task_in) != spec.rows or len(robot_in) != spec.rows:
         raise ValueError(f"consolidation needs {spec.rows} states, got {len(task_in)} and {len(robot_in)}")
+    device = next(actor.parameters()).device  # replay states arrive on the CPU
+    task_in, robot_in = task_in.to(device), robot_in.to(device)
     teacher = copy.deepcopy(actor).requires_grad_(False)
     if actor.task.projection is None:
         actor.task.switch_relative_on()
@@ -46,7 +48,7 @@ def consolidate(actor: Actor, task_in: Tensor, robot_in: Tensor, spec: Consolida
     with torch.no_grad():
         gap_before = relative.reference_gap(actor.task.encode, probe).item()
     optimizer = torch.optim.Adam(actor.parameters(), lr=spec.lr)
-    bc = torch.zeros(())
+    bc = torch.zeros((), device=device)
     for task, robot in zip(task_in.split(spec.batch_size), robot_in.split(spec.batch_size), strict=True):
         mean, log_std = actor(task, robot)
         with torch.no_grad():

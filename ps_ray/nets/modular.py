@@ -69,7 +69,10 @@ class TaskModule(nn.Module):
         self.relative = relative
         if relative is not None and spec.defer_relative:
             # off while training: the raw latent is the interface until consolidation switches it
+            # the switch travels in the state dict; a Python mirror keeps forward from reading a
+            # device tensor (a host sync per pass on a GPU)
             self.register_buffer("relative_on", torch.tensor(False))
+        self._relative_on = not (relative is not None and spec.defer_relative)
 
     @property
     def anchors(self) -> Tensor | None:
@@ -79,7 +82,7 @@ class TaskModule(nn.Module):
     def projection(self) -> RelativeProjection | None:
         """The relative projection in use at the cut: None for a raw latent, which is also a
         deferred projection's (MethodSpec.defer_relative) until :meth:`switch_relative_on`."""
-        if self.relative is None or not bool(getattr(self, "relative_on", True)):
+        if self.relative is None or not self._relative_on:
             return None
         return self.relative
 
@@ -93,6 +96,12 @@ class TaskModule(nn.Module):
         if not hasattr(self, "relative_on"):
             raise ValueError(f"method {self.spec.name!r} has no deferred relative projection")
         self.relative_on.fill_(True)
+        self._relative_on = True
+
+    def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs) -> None:
+        super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
+        if prefix + "relative_on" in state_dict:
+            self._relative_on = bool(state_dict[prefix + "relative_on"])
 
     def encode(self, task_in: Tensor) -> Tensor:
         """Normalised input -> raw latent (modular methods; also embeds the PS anchors)."""

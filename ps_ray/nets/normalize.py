@@ -34,7 +34,8 @@ class RunningNorm(nn.Module):
         """Merge a batch of shape (..., dim) into the running statistics."""
         if x.shape[-1] != self.dim:
             raise ValueError(f"RunningNorm({self.dim}) got input with last dim {x.shape[-1]}")
-        batch = x.detach().reshape(-1, self.dim).to(torch.float64)
+        # on the statistics' device, whatever the data's (a CPU batch into GPU buffers)
+        batch = x.detach().reshape(-1, self.dim).to(device=self.mean.device, dtype=torch.float64)
         n_b = batch.shape[0]
         if n_b == 0:
             return

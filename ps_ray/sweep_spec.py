@@ -17,6 +17,7 @@ from ps_ray.envs.tasks import resolve_task
 from ps_ray.errors import UserError
 from ps_ray.methods import method_key, uses_anchors
 from ps_ray.names import TRANSLATIONS, canonical, parse_spec_text, spec_text
+from ps_ray.resources import ResourcesSpec
 
 ANCHOR_POLICIES = ("plain", "random")
 # Pipeline stages in order; "train" covers plain sources, anchors and the grid (ps_ray.pipeline.sweep).
@@ -175,9 +176,15 @@ class ReportSpec:
         _positive("report", probes_per_group=self.probes_per_group)
 
 
-SUB_SPECS = {"anchors": AnchorSpec, "zero_shot": ZeroShotSpec, "few_shot": FewShotSpec, "report": ReportSpec}
+SUB_SPECS = {
+    "anchors": AnchorSpec,
+    "zero_shot": ZeroShotSpec,
+    "few_shot": FewShotSpec,
+    "report": ReportSpec,
+    "resources": ResourcesSpec,
+}
 # Settings that do not change what the training stage produces (a resumed sweep may change them).
-NOT_TRAINING = ("stages", "zero_shot", "few_shot", "report", "max_concurrent", "max_failures")
+NOT_TRAINING = ("stages", "zero_shot", "few_shot", "report", "resources", "max_concurrent", "max_failures")
 
 
 @dataclass(frozen=True)
@@ -198,6 +205,7 @@ class SweepSpec:
     zero_shot: ZeroShotSpec = ZeroShotSpec()
     few_shot: FewShotSpec = FewShotSpec()
     report: ReportSpec = ReportSpec()
+    resources: ResourcesSpec = ResourcesSpec()  # per trial of each stage (ps_ray.resources)
     max_concurrent: int | None = None  # default: one trial per available CPU
     max_failures: int = 2  # retries of a crashed trial, from its last checkpoint
     storage: str = "runs/sweeps"

@@ -111,13 +111,15 @@ class Tick:
 class TrainingRun:
     """One ModularSAC algorithm with its signature; the loop body shared by `ps-ray train` and Tune."""
 
-    def __init__(self, spec: TrainSpec, anchor_set=None):
+    def __init__(self, spec: TrainSpec, anchor_set=None, *, threads: int = 1, gpu: float = 0):
+        """``threads``: torch's CPU threads; ``gpu``: the learner's GPU share (ps_ray.resources)."""
         from ps_ray.rllib.algo import algo_config
         from ps_ray.weights import Signature
 
-        torch.set_num_threads(1)
+        torch.set_num_threads(threads)
         self.spec = spec
-        self.algo = algo_config(spec, None if anchor_set is None else anchor_set.anchors).build_algo()
+        anchors = None if anchor_set is None else anchor_set.anchors
+        self.algo = algo_config(spec, anchors, gpu=gpu).build_algo()
         self.signature = Signature(
             method=spec.method,
             settings=spec_json(method_spec(spec.method)),

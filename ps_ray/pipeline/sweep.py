@@ -115,7 +115,8 @@ def sweep_trial(config: dict[str, Any]) -> None:
         anchor_set = policy_anchor_set(spec.init_policy)
     else:
         anchor_set = None
-    run = TrainingRun(spec, anchor_set)
+    granted = ray.get_runtime_context().get_assigned_resources()  # what spec.resources asked for
+    run = TrainingRun(spec, anchor_set, threads=max(1, int(granted.get("CPU", 1))), gpu=granted.get("GPU", 0))
     checkpoint = tune.get_checkpoint()
     if checkpoint is not None:
         with checkpoint.as_directory() as directory:
@@ -307,6 +308,7 @@ def run_tune(
         progress=progress,
         max_concurrent=spec.max_concurrent,
         max_failures=spec.max_failures,
+        resources=spec.resources.few_shot if stage == "few_shot" else spec.resources.train,
     )
 
 

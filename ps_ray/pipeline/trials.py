@@ -6,8 +6,11 @@ from __future__ import annotations
 import contextlib
 from pathlib import Path
 
+from ps_ray.resources import StageResources
 from ps_ray.store.attempts import STAGE_DIR_KEY, TrialOutcome, identity, outcomes, require_fresh
 from ps_ray.store.layout import LOG_FOLDER
+
+ONE_CPU = StageResources()
 
 
 def run_trials(
@@ -21,11 +24,13 @@ def run_trials(
     progress: bool,
     max_concurrent: int | None,
     max_failures: int,
+    resources: StageResources = ONE_CPU,
     constants: dict | None = None,
 ) -> list[TrialOutcome]:
     """Run a grid over ``grid``'s one key (plus ``constants``) as the Tune experiment in
-    ``folder``: one CPU per trial, the sweep's retry policy, the MLflow ``callback``, a compact
-    live view on the terminal and Tune's own output in ``<folder's parent>/logs/<folder name>.log``
+    ``folder``: ``resources`` per trial (one CPU by default), the sweep's retry policy, the MLflow
+    ``callback``, a compact live view on the terminal and Tune's own output in
+    ``<folder's parent>/logs/<folder name>.log``
     (:mod:`ps_ray.pipeline.progress`). ``resume`` keeps the trials that finished earlier and runs the rest."""
     from ray import tune
 
@@ -40,7 +45,7 @@ def run_trials(
     if todo:
         quiet = progress and not verbose()
         tuner = tune.Tuner(
-            tune.with_resources(trainable, {"cpu": 1}),
+            tune.with_resources(trainable, resources.tune_request()),
             param_space={key: tune.grid_search(todo), **(constants or {}), STAGE_DIR_KEY: str(path)},
             tune_config=tune.TuneConfig(max_concurrent_trials=max_concurrent),
             run_config=tune.RunConfig(

@@ -145,6 +145,7 @@ def run_zero_shot(
         progress=progress,
         max_concurrent=spec.max_concurrent,
         max_failures=spec.max_failures,
+        resources=spec.resources.zero_shot,
         constants={
             "eval": {"episodes": settings.episodes, "repeats": settings.repeats, "seed": settings.seed},
             "fit_states_per_quadrant": settings.fit_states_per_quadrant,

@@ -6,16 +6,19 @@ import numpy as np
 
 from ps_ray.config import TrainSpec
 from ps_ray.envs.registry import register
+from ps_ray.resources import learner_device
 from ps_ray.rllib.sac_her import TRAIN_SETTINGS, ModularSACConfig
 
 
-def algo_config(spec: TrainSpec, anchors: np.ndarray | None = None) -> ModularSACConfig:
+def algo_config(spec: TrainSpec, anchors: np.ndarray | None = None, *, gpu: float = 0) -> ModularSACConfig:
+    """``gpu``: the learner's GPU share (RLlib's num_gpus_per_learner); none without CUDA is an error."""
+    learner_device(gpu)
     register()
     config = (
         ModularSACConfig()
         .environment(spec.env_name, env_config=spec.env_config)
         .env_runners(num_env_runners=0, num_envs_per_env_runner=spec.num_envs)
-        .learners(num_learners=0)
+        .learners(num_learners=0, num_gpus_per_learner=gpu)
         .rl_module(
             model_config={
                 "method": spec.method,

@@ -1,0 +1,99 @@
+"""Resources per stage: what a sweep asks Ray for per trial, and what a trial does with it."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from ps_ray.config import TrainSpec
+from ps_ray.errors import UserError
+from ps_ray.resources import StageResources, learner_device
+from ps_ray.rllib.algo import algo_config
+from ps_ray.sweep_spec import SweepSpec
+
+GRID = {"name": "r", "methods": ["ablation"], "robots": ["panda"], "tasks": ["reach"], "seeds": [1]}
+
+# Four Tune trials through the stages' one runner on a Ray with one logical GPU, each asking for a
+# quarter of it: each reports what Ray granted it and when it ran.
+SHARE = """
+import json, sys, time
+from pathlib import Path
+import ray
+from ray import tune
+from ps_ray.pipeline.trials import run_trials
+from ps_ray.resources import StageResources
+from ps_ray.store.attempts import FINISHED
+
+def trial(config):
+    granted = ray.get_runtime_context().get_assigned_resources()
+    start = time.time()
+    time.sleep(3)
+    tune.report({"cpu": granted.get("CPU"), "gpu": granted.get("GPU"), "gpu_ids": ray.get_gpu_ids(),
+                 "start": start, "end": time.time(), FINISHED: True})
+
+ray.init(num_cpus=4, num_gpus=1, include_dashboard=False, log_to_driver=False)
+out = run_trials(trial, {"n": [0, 1, 2, 3]}, folder=Path(sys.argv[1]), stage="share",
+                 callback=tune.Callback(), resume=False, progress=False, max_concurrent=None,
+                 max_failures=0, resources=StageResources(cpu=1, gpu=0.25))
+print(json.dumps([o.metrics for o in out]))
+"""
+
+
+def test_four_trials_asking_a_quarter_gpu_each_run_at_once_on_one_gpu(tmp_path):
+    proc = subprocess.run(
+        [sys.executable, "-c", SHARE, str(tmp_path / "share")], capture_output=True, text=True, timeout=300
+    )
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    rows = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert len(rows) == 4
+    assert all(r["gpu"] == 0.25 and r["cpu"] == 1 and r["gpu_ids"] == [0] for r in rows), rows
+    assert max(r["start"] for r in rows) < min(r["end"] for r in rows)  # all four overlapped
+
+
+def test_a_sweep_gives_each_stage_its_resources_outside_its_training_identity():
+    spec = SweepSpec.from_mapping({**GRID, "resources": {"train": {"cpu": 2, "gpu": 0.25}}})
+    assert (
+        spec.resources.train == StageResources(cpu=2, gpu=0.25)
+        and spec.resources.zero_shot == StageResources()
+    )
+    assert spec.resources.train.tune_request() == {"cpu": 2, "gpu": 0.25}
+    assert spec.resources.zero_shot.tune_request() == {"cpu": 1} and spec.resources.train.threads == 2
+    assert spec.training_identity() == SweepSpec.from_mapping(GRID).training_identity()  # resumable elsewhere
+
+
+@pytest.mark.parametrize(
+    "resources, message",
+    [
+        ({"train": {"cpu": 0}}, "resources.train: resources cpu must be positive, got 0"),
+        ({"train": {"gpu": -1}}, "resources.train: resources gpu must be >= 0, got -1"),
+        ({"train": {"gpu": 1.5}}, "whole number of GPUs, got 1.5"),
+        ({"train": {"gpus": 1}}, "resources.train: unknown key 'gpus'; valid keys: cpu, gpu"),
+        ({"trian": {}}, "unknown key 'trian'; valid keys: train, zero_shot, few_shot"),
+        ({"train": {"cpu": "two"}}, "resources cpu must be a number, got 'two'"),
+    ],
+)
+def test_bad_resources_are_one_line(resources, message):
+    with pytest.raises(UserError) as info:
+        SweepSpec.from_mapping({**GRID, "resources": resources})
+    assert message in str(info.value)
+
+
+def test_a_gpu_share_without_cuda_is_one_clear_error_and_none_is_the_cpu():
+    assert learner_device(0) == "cpu"
+    with pytest.raises(UserError, match="granted gpu 0.25 but torch sees no CUDA device on this node"):
+        learner_device(0.25)
+    with pytest.raises(UserError, match="no CUDA device"):  # before any RLlib object is built
+        algo_config(TrainSpec(method="ablation"), gpu=0.25)
+    config = algo_config(TrainSpec(method="ablation"))
+    assert config.num_gpus_per_learner == 0 and config.num_learners == 0
+
+
+def test_the_shipped_cluster_sweeps_parse_their_resources():
+    for path in sorted(Path(__file__).parents[1].glob("sweeps/*.yaml")):
+        from ps_ray.sweep_spec import load_sweep
+
+        assert isinstance(load_sweep(path).resources.train, StageResources), path

@@ -110,6 +110,8 @@ def save_policy(
     """Write atomically: a crash leaves either the old file or the new one, never half of one."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
+    if not signature.settings:  # every file written names its resolved method
+        signature = dataclasses.replace(signature, settings=spec_json(signature.spec))
     metadata = {"format": FORMAT, "signature": json.dumps(dataclasses.asdict(signature)), **(extra or {})}
     with atomic_path(path) as tmp:
         save_file(nets_state(nets), str(tmp), metadata=metadata)

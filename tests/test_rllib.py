@@ -10,7 +10,7 @@ import torch
 
 from ps_ray.anchors import anchor_hash
 from ps_ray.config import TrainSpec
-from ps_ray.methods import method_spec
+from ps_ray.methods import method_spec, spec_json
 from ps_ray.nets.sac import NET_NAMES
 from ps_ray.rllib.algo import algo_config
 from ps_ray.rllib.episodes import train_batch
@@ -120,9 +120,13 @@ def test_policy_file_round_trip_keeps_actions_q_and_targets(trained, tmp_path):
     signature = Signature(
         method=spec.method, interface_dim=16, hidden=64, anchor_hash=anchor_hash(anchors), **algo.replay_dims
     )
-    algo.export_policy(tmp_path / "policy.safetensors", signature)
+    written = algo.export_policy(tmp_path / "policy.safetensors", signature)
     nets, loaded_signature = load_policy(tmp_path / "policy.safetensors")
-    assert loaded_signature == signature
+    assert (
+        loaded_signature
+        == written
+        == dataclasses.replace(signature, settings=spec_json(method_spec(spec.method)))
+    )
     assert read_signature(tmp_path / "policy.safetensors")[0].anchor_hash == anchor_hash(anchors)
     batch = train_batch(algo.replay.sample(32))
     expected, got = _outputs(_learner_module(algo), batch), _outputs(nets, batch)

@@ -32,7 +32,7 @@ from ps_ray.config import TrainSpec
 from ps_ray.envs.goals import ROBOT_KEY, task_input
 from ps_ray.errors import UserError
 from ps_ray.her import HindsightReplay
-from ps_ray.methods import ConsolidateSpec
+from ps_ray.methods import ConsolidateSpec, spec_json
 from ps_ray.nets.consolidate import consolidate
 from ps_ray.nets.modular import update_normalizers
 from ps_ray.nets.obs import dims_from_spaces
@@ -183,7 +183,9 @@ class ModularSAC(SAC):
         """Write the learner's nets as a policy file; returns its signature, which records whether
         a deferred relative projection is still off (``Signature.projection_off``)."""
         nets = nets_from_state(self.learner_state(), signature)
-        signature = dataclasses.replace(signature, projection_off=nets.actor.task.projection_off)
+        signature = dataclasses.replace(
+            signature, projection_off=nets.actor.task.projection_off, settings=spec_json(nets.actor.spec)
+        )
         save_policy(path, nets, signature, extra)
         return signature
 

@@ -197,3 +197,14 @@ def test_docs_submit_with_an_absolute_entrypoint(raw):
     assert submit, "docs/cluster.md shows the job submission"
     assert "--address http://127.0.0.1:8265" in submit.group(0)
     assert f"/home/{raw['auth']['ssh_user']}/venv/bin/ps-ray sweep" in submit.group(0)
+
+
+def test_a_gpu_worker_type_installs_the_cuda_build_of_the_same_torch(raw, prepared):
+    gpu = {k: v for k, v in raw["available_node_types"].items() if v["resources"].get("GPU")}
+    assert list(gpu) == ["gpu_worker"] and gpu["gpu_worker"]["resources"]["GPU"] >= 1
+    commands = prepared["available_node_types"]["gpu_worker"]["worker_setup_commands"]
+    install = [c for c in commands if "pip install torch" in c]
+    assert install and all("torch==2.13.0" in c and "whl/cpu" not in c for c in install)
+    assert any("torch.cuda.is_available()" in c for c in commands), "a GPU node without CUDA must fail setup"
+    # the CPU workers keep the global commands (no GPU type's command leaks into them)
+    assert "worker_setup_commands" not in raw["available_node_types"]["cpu_worker"]

@@ -54,7 +54,7 @@ class Rates:
 
     def update_s(self, spec: TrainSpec) -> float:
         unit = spec.batch_size * spec.hidden**2 / 256**3
-        factor = self.relative_factor if spec.method.startswith("ps") else 1.0
+        factor = self.relative_factor if uses_anchors(spec.method) else 1.0
         return (self.update_fixed_s + self.update_per_unit_s * unit) * factor
 
 

@@ -25,8 +25,12 @@ def cmd_train(args: argparse.Namespace) -> int:
     from ps_ray.train import train
 
     fields = {f.name: getattr(args, f.name) for f in dataclasses.fields(TrainSpec)}
+    for key in ("robot", "task"):
+        try:
+            fields[key] = parse_spec_text(getattr(args, key))
+        except UserError as e:
+            raise UserError(f"--{key}: {e}") from None
     try:
-        fields["robot"], fields["task"] = parse_spec_text(args.robot), parse_spec_text(args.task)
         spec = TrainSpec.from_mapping(fields)
     except UserError as e:  # name the flag the bad value came from
         named = next((f for f in sorted(fields, key=len, reverse=True) if str(e).startswith(f)), None)

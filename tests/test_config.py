@@ -263,7 +263,7 @@ def test_a_bad_json_robot_flag_is_one_line_but_a_bug_keeps_its_traceback(tmp_pat
     run_dir = tmp_path / "run"
     assert cli.main(["train", "--robot", '{"name": "panda",', "--run-dir", str(run_dir)]) == 2
     err = capsys.readouterr().err.strip()
-    assert err.startswith('ps-ray train: error: \'{"name": "panda",\' is neither a name nor a JSON mapping')
+    assert err.startswith('ps-ray train: error: --robot: \'{"name": "panda",\' is neither a name nor a JSON')
     assert "\n" not in err and not run_dir.exists()
 
     # a ValueError that is not a user error (here numpy's) is a bug: it is raised, not summarised

@@ -16,7 +16,7 @@ from ps_ray.defaults import HIDDEN, INTERFACE_DIM, MAX_WIDTH
 from ps_ray.envs.robots import resolve_robot
 from ps_ray.envs.tasks import resolve_task
 from ps_ray.errors import UserError
-from ps_ray.methods import PRESETS, method_key
+from ps_ray.methods import OPTIONS, PRESETS, method_key
 from ps_ray.names import canonical, trial_key
 
 POINT_TASK = "point"  # the physics-free PointGoalEnv (robot is ignored), for fast checks
@@ -105,7 +105,9 @@ class TrainSpec:
     robot: str | Mapping = setting("panda", "built-in robot name or a JSON mapping")
     task: str | Mapping = setting("reach", "built-in task name or a JSON mapping")
     method: str = setting(
-        "ps", "a preset (" + ", ".join(PRESETS) + ") with +option=value overrides (docs/methods.md)"
+        "ps",
+        "a preset (" + ", ".join(PRESETS) + ") with +option=value overrides, e.g. ps+norm=layer; "
+        "options: " + ", ".join(OPTIONS) + " (docs/methods.md)",
     )
     seed: int = setting(101, "seed of networks, env runner and replay sampling")
     interface_dim: int = setting(INTERFACE_DIM, "width of the task-robot interface (PS: number of anchors)")

@@ -4,6 +4,9 @@ The nets are the ones training builds (the task's real dims, hidden 256, interfa
 256, one torch thread); the batch and the anchors are random, which changes values, not cost.
 Methods take turns round by round, so a noisy machine slows them alike; the last column is each
 method's median over rounds divided by the ablation's (the ablation is added when not listed).
+``--compile`` adds each method with its forward pass and losses compiled (``torch.compile``; the
+backward pass follows through AOTAutograd), eager and compiled taking turns, and prints the
+compilation time (docs/cost.md has the figures of this machine).
 """
 
 from __future__ import annotations
@@ -25,7 +28,15 @@ from ps_ray.train import make_env
 class UpdateLoop:
     """One method's nets, optimiser and a fixed random batch."""
 
-    def __init__(self, method: str, dims: NetDims, batch_size: int, interface_dim: int, seed: int = 0):
+    def __init__(
+        self,
+        method: str,
+        dims: NetDims,
+        batch_size: int,
+        interface_dim: int,
+        seed: int = 0,
+        compile: bool = False,
+    ):
         rng = np.random.default_rng(seed)
         anchors = rng.normal(size=(interface_dim, dims.task_dim)) if uses_anchors(method) else None
         self.nets = build_sac_nets(method, dims, interface_dim=interface_dim, anchors=anchors)
@@ -40,13 +51,16 @@ class UpdateLoop:
         }
         self.rewards = -torch.ones(batch_size)
         self.action_dim = dims.action_dim
+        self.loss = torch.compile(self._loss) if compile else self._loss
+
+    def _loss(self) -> torch.Tensor:
+        fwd = sac_forward(self.nets, self.batch)
+        return sac_losses(fwd, self.rewards, self.log_alpha, SACHyper(), self.action_dim)["total"]
 
     def update(self) -> None:
-        losses = sac_losses(
-            sac_forward(self.nets, self.batch), self.rewards, self.log_alpha, SACHyper(), self.action_dim
-        )
+        loss = self.loss()
         self.optimizer.zero_grad()
-        losses["total"].backward()
+        loss.backward()
         self.optimizer.step()
 
 
@@ -58,6 +72,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--rounds", type=positive_int, default=7)
     parser.add_argument("--batch-size", type=positive_int, default=256)
     parser.add_argument("--interface-dim", type=positive_int, default=128)
+    parser.add_argument("--compile", action="store_true", help="also each method compiled (torch.compile)")
     args = parser.parse_args(argv)
     methods = list(dict.fromkeys(["ablation", *args.methods]))
     for method in methods:
@@ -67,9 +82,16 @@ def main(argv: list[str] | None = None) -> None:
     dims = dims_from_spaces(env.observation_space, env.action_space)
     env.close()
     loops = {m: UpdateLoop(m, dims, args.batch_size, args.interface_dim) for m in methods}
+    compiled = {}
+    for m in methods if args.compile else ():
+        compiled[f"{m} compiled"] = UpdateLoop(m, dims, args.batch_size, args.interface_dim, compile=True)
+        start = time.perf_counter()
+        compiled[f"{m} compiled"].update()  # the first call compiles
+        print(f"{m}: compiled in {time.perf_counter() - start:.1f} s", flush=True)
+    loops |= compiled
     for loop in loops.values():
         loop.update()  # warm-up: allocator, Adam state
-    seconds: dict[str, list[float]] = {m: [] for m in methods}
+    seconds: dict[str, list[float]] = {m: [] for m in loops}
     for _ in range(args.rounds):
         for method, loop in loops.items():
             start = time.perf_counter()
@@ -81,11 +103,11 @@ def main(argv: list[str] | None = None) -> None:
         f"batch {args.batch_size}, interface {args.interface_dim}, 1 torch thread; "
         f"median over {args.rounds} rounds of {args.updates} updates"
     )
-    print(f"{'method':<16}{'ms/update':>10}{'min':>8}{'max':>8}{'/ ablation':>12}")
+    print(f"{'method':<22}{'ms/update':>10}{'min':>8}{'max':>8}{'/ ablation':>12}")
     base = float(np.median(seconds["ablation"]))
     for method, values in seconds.items():
         ms, ratio = 1000 * np.asarray(values), np.median(values) / base
-        print(f"{method:<16}{np.median(ms):>10.2f}{ms.min():>8.2f}{ms.max():>8.2f}{ratio:>12.2f}")
+        print(f"{method:<22}{np.median(ms):>10.2f}{ms.min():>8.2f}{ms.max():>8.2f}{ratio:>12.2f}")
 
 
 if __name__ == "__main__":

@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from ps_ray.errors import UserError
+from ps_ray.methods import method_key
 from ps_ray.names import short_name, trial_key
 from ps_ray.store.layout import SweepLayout
 from ps_ray.store.run_layout import POLICY_FILE, SPEC_FILE
@@ -76,7 +77,7 @@ class ZooEntry:
 def key_of(spec: Mapping[str, Any]) -> ZooKey:
     """The key of a TrainSpec dict; as a string, the trial key (MLflow run name)."""
     return ZooKey(
-        str(spec["method"]),
+        method_key(str(spec["method"])),  # a folder written before the menu may name an old row
         short_name(spec["robot"]),
         short_name(spec["task"]),
         int(spec["seed"]),
@@ -96,7 +97,7 @@ def read_entry(policy_path: str | Path, stage: str = "run") -> ZooEntry:
         key = key_of(spec)
     except (OSError, json.JSONDecodeError, KeyError, TypeError, ValueError) as e:
         raise UserError(f"{spec_path}: missing or unreadable training spec ({e})") from None
-    if (spec["method"], int(spec["interface_dim"])) != (signature.method, signature.interface_dim):
+    if (key.method, key.interface_dim) != (signature.method, signature.interface_dim):
         raise UserError(
             f"{path}: signature ({signature.method}, interface dim "
             f"{signature.interface_dim}) disagrees with {spec_path}"

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import json
 from pathlib import Path
 
 import pytest
@@ -143,8 +144,6 @@ def test_a_policy_file_keeps_its_settings_whatever_the_menu_becomes(tmp_path, mo
 
 
 def test_a_policy_file_whose_settings_disagree_with_its_name_is_refused(tmp_path):
-    import json
-
     from safetensors import safe_open
     from safetensors.torch import save_file
 
@@ -159,3 +158,16 @@ def test_a_policy_file_whose_settings_disagree_with_its_name_is_refused(tmp_path
     )
     with pytest.raises(UserError, match="bad policy signature: relative scale must be positive, got -1.0"):
         load_policy(tmp_path / "bad.safetensors")
+
+
+def test_a_run_folder_written_before_the_menu_joins_a_zoo_under_its_key(tmp_path):
+    """An old sweep's run folder names an old row in its spec.json and its policy file alike."""
+    from ps_ray.zoo import read_entry
+
+    folder = tmp_path / "run"
+    folder.mkdir()
+    (folder / "policy.safetensors").write_bytes((OLD / "ps_ref_light_0.safetensors").read_bytes())
+    spec = {"method": "ps_ref_light", "robot": "panda", "task": "reach", "seed": 1, "interface_dim": 8}
+    (folder / "spec.json").write_text(json.dumps(spec))
+    entry = read_entry(folder / "policy.safetensors")
+    assert entry.key.method == entry.signature.method == "ps+norm=layer+norm_reg=1+ref_weight=0.1"

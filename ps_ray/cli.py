@@ -13,11 +13,11 @@ import time
 from pathlib import Path
 
 from ps_ray.cli_parsers import build_parser
-from ps_ray.config import TrainSpec
 from ps_ray.errors import UserError
 from ps_ray.lock import folder_lock
 from ps_ray.names import parse_spec_text
 from ps_ray.pipeline.sweep import StageError
+from ps_ray.specs.train import TrainSpec
 from ps_ray.store.layout import SweepLayout
 
 
@@ -75,7 +75,7 @@ def _flag_of(message: str, fields) -> str:
 
 def _load(args: argparse.Namespace):
     """The sweep spec named on the command line, with --storage/--tracking-uri applied."""
-    from ps_ray.sweep_spec import load_sweep
+    from ps_ray.specs.sweep import load_sweep
 
     path = Path(args.sweep)
     if path.is_dir():  # a sweep folder: its resolved spec, stored where the folder is
@@ -222,7 +222,7 @@ def cmd_render(args: argparse.Namespace) -> int:
     resolve_robot(robot), resolve_task(task)  # bad names fail before any folder is made
     policy = None
     if args.policy:
-        from ps_ray.stitch import target_problems
+        from ps_ray.stitching.stitch import target_problems
         from ps_ray.weights import read_signature
 
         problems = target_problems(read_signature(args.policy)[0], (robot, task))
@@ -267,10 +267,10 @@ def _output_file(path: str) -> Path:
 
 def cmd_stitch(args: argparse.Namespace) -> int:
     from ps_ray.evaluate import evaluate, format_result
-    from ps_ray.stitch import stitch_metadata, stitch_policies
-    from ps_ray.stitch_sources import resolve_source, resolve_target
+    from ps_ray.stitching.sources import resolve_source, resolve_target
+    from ps_ray.stitching.stitch import stitch_metadata, stitch_policies
+    from ps_ray.stitching.zoo import ModuleZoo
     from ps_ray.weights import save_policy
-    from ps_ray.zoo import ModuleZoo
 
     if args.episodes < 0:
         raise UserError(f"--episodes must be >= 0, got {args.episodes}")

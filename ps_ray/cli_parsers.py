@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 
-from ps_ray.config import TrainSpec
+from ps_ray.specs.train import TrainSpec
 
 
 def positive_int(text: str) -> int:

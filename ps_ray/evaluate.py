@@ -60,7 +60,7 @@ class EpisodeRecord:
 def as_action_fn(policy: PolicyLike, fast: bool = True) -> tuple[ActionFn, NetDims | None]:
     """A batched action function and the dims it expects (None for a bare callable)."""
     if isinstance(policy, (str, Path)):
-        from ps_ray.stitch import load_source
+        from ps_ray.stitching.stitch import load_source
 
         policy = load_source(policy)
     if isinstance(policy, tuple):

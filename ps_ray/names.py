@@ -11,7 +11,7 @@ from typing import Any
 from ps_ray.defaults import INTERFACE_DIM
 from ps_ray.errors import UserError
 
-# The unstitched controls and the oracle scored beside every stitched pair (ps_ray.stitch.controls)
+# The unstitched controls and the oracle scored beside every stitched pair (ps_ray.stitching.stitch.controls)
 # The latent translations a stitch may fit (ps_ray.nets.translation), by name.
 TRANSLATIONS = ("orthogonal", "affine")
 CONTROL_ROLES = ("robot_source", "task_source", "oracle")

@@ -26,10 +26,10 @@ import torch
 
 from ps_ray import checkpoint
 from ps_ray.atomic import write_text
-from ps_ray.config import POINT_TASK, TrainSpec, require_same
 from ps_ray.errors import UserError
 from ps_ray.lock import folder_lock
-from ps_ray.methods import method_spec, spec_json, uses_anchors
+from ps_ray.specs.methods import method_spec, spec_json, uses_anchors
+from ps_ray.specs.train import POINT_TASK, TrainSpec, require_same
 from ps_ray.store.run_folder import best_so_far, latest_checkpoint, metrics_up_to, save_atomically
 from ps_ray.store.run_layout import (
     ANCHORS_FILE,
@@ -112,7 +112,7 @@ class TrainingRun:
     """One ModularSAC algorithm with its signature; the loop body shared by `ps-ray train` and Tune."""
 
     def __init__(self, spec: TrainSpec, anchor_set=None, *, threads: int = 1, gpu: float = 0):
-        """``threads``: torch's CPU threads; ``gpu``: the learner's GPU share (ps_ray.resources)."""
+        """``threads``: torch's CPU threads; ``gpu``: the learner's GPU share (ps_ray.specs.resources)."""
         from ps_ray.rllib.algo import algo_config
         from ps_ray.weights import Signature
 
@@ -248,7 +248,7 @@ def read_inputs(spec: TrainSpec):
     ``init_policy`` must fit the spec's method, sizes and env; ``anchors`` must give an anchor
     set of K = interface_dim. Returns the anchor set they give (None: none given)."""
     if spec.init_policy is not None:
-        from ps_ray.stitch import target_problems
+        from ps_ray.stitching.stitch import target_problems
         from ps_ray.weights import load_policy, policy_anchor_set
 
         _, signature = load_policy(spec.init_policy)

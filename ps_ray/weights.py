@@ -22,9 +22,9 @@ from ps_ray.anchors import AnchorSet, anchor_hash
 from ps_ray.atomic import atomic_path
 from ps_ray.defaults import MAX_WIDTH
 from ps_ray.errors import UserError
-from ps_ray.methods import MethodSpec, method_spec, spec_from_dict, spec_json
 from ps_ray.nets.modular import NetDims
 from ps_ray.nets.sac import NET_NAMES, SACNets, build_sac_nets
+from ps_ray.specs.methods import MethodSpec, method_spec, spec_from_dict, spec_json
 
 FORMAT = "ps_ray.policy/1"
 ANCHORS_KEY = "actor.task.relative.anchors"
@@ -34,7 +34,7 @@ ANCHORS_KEY = "actor.task.relative.anchors"
 class Signature:
     """What must agree for two modules to be stitched."""
 
-    method: str  # the method's key (ps_ray.methods)
+    method: str  # the method's key (ps_ray.specs.methods)
     interface_dim: int
     hidden: int
     anchor_hash: str  # "" for methods without anchors

@@ -10,7 +10,7 @@ import sys
 import pytest
 
 from ps_ray.nets.sac import build_sac_nets
-from ps_ray.stitch import env_dims
+from ps_ray.stitching.stitch import env_dims
 from ps_ray.weights import save_policy, signature_of
 
 

@@ -9,9 +9,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from ps_ray.config import SpecError, TrainSpec
-from ps_ray.methods import PRESETS
-from ps_ray.sweep_spec import SweepSpec, load_sweep
+from ps_ray.specs.methods import PRESETS
+from ps_ray.specs.sweep import SweepSpec, load_sweep
+from ps_ray.specs.train import SpecError, TrainSpec
 
 SWEEPS = Path(__file__).resolve().parents[1] / "sweeps"
 

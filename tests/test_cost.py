@@ -13,7 +13,7 @@ import pytest
 import yaml
 
 from ps_ray.analysis.cost import DEFAULT_RATES, Rates, describe, load_rates, project, workload
-from ps_ray.sweep_spec import SweepSpec, load_sweep
+from ps_ray.specs.sweep import SweepSpec, load_sweep
 
 SWEEPS = Path(__file__).resolve().parents[1] / "sweeps"
 RATES = Rates(

@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 import torch
 
-from ps_ray.methods import ConsolidateSpec
 from ps_ray.nets.consolidate import consolidate
 from ps_ray.nets.modular import NetDims
 from ps_ray.nets.normalize import RunningNorm
 from ps_ray.nets.sac import SACHyper, build_sac_nets, sac_forward, sac_losses
+from ps_ray.specs.methods import ConsolidateSpec
 from tests.code_paths import CODE_PATHS
 
 DIMS = NetDims(6, 8, 7)

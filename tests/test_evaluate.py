@@ -10,11 +10,11 @@ import torch
 
 from ps_ray.envs import make
 from ps_ray.evaluate import EpisodeRecord, evaluate, summarize
-from ps_ray.methods import uses_anchors
 from ps_ray.nets.modular import NetDims
 from ps_ray.nets.obs import split_obs
 from ps_ray.nets.sac import build_sac_nets
 from ps_ray.policy import GreedyPolicy
+from ps_ray.specs.methods import uses_anchors
 
 torch.set_num_threads(1)
 
@@ -133,7 +133,7 @@ def test_fast_actions_match_the_actor(method, translation):
         nets.actor.task.switch_relative_on()
         translation = None
     if translation:  # a translated stitch of the policy with another seed of it
-        from ps_ray.stitch import stitch_policies
+        from ps_ray.stitching.stitch import stitch_policies
         from ps_ray.weights import signature_of
 
         sig = signature_of(nets, method, 8, 16)

@@ -10,13 +10,13 @@ import pytest
 import torch
 from safetensors.torch import load_file
 
-from ps_ray.config import SpecError
 from ps_ray.errors import UserError
-from ps_ray.methods import LEGACY, PRESETS, MethodSpec, method_key, method_spec
 from ps_ray.nets.modular import NetDims
 from ps_ray.nets.sac import build_sac_nets
-from ps_ray.stitch import stitch_policies
-from ps_ray.sweep_spec import SweepSpec
+from ps_ray.specs.methods import LEGACY, PRESETS, MethodSpec, method_key, method_spec
+from ps_ray.specs.sweep import SweepSpec
+from ps_ray.specs.train import SpecError
+from ps_ray.stitching.stitch import stitch_policies
 from ps_ray.weights import load_policy, read_signature, save_policy, signature_of
 
 torch.set_num_threads(1)
@@ -162,7 +162,7 @@ def test_a_policy_file_whose_settings_disagree_with_its_name_is_refused(tmp_path
 
 def test_a_run_folder_written_before_the_menu_joins_a_zoo_under_its_key(tmp_path):
     """An old sweep's run folder names an old row in its spec.json and its policy file alike."""
-    from ps_ray.zoo import read_entry
+    from ps_ray.stitching.zoo import read_entry
 
     folder = tmp_path / "run"
     folder.mkdir()

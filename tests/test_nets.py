@@ -11,7 +11,6 @@ import pytest
 import torch
 from torch import nn
 
-from ps_ray.methods import RelativeSpec, method_spec
 from ps_ray.nets import (
     Actor,
     Critic,
@@ -24,6 +23,7 @@ from ps_ray.nets import (
     mlp,
     update_normalizers,
 )
+from ps_ray.specs.methods import RelativeSpec, method_spec
 from tests.code_paths import CODE_PATHS
 
 torch.set_num_threads(1)

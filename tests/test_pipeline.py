@@ -29,9 +29,9 @@ from ps_ray.analysis.browser import find_chromium
 from ps_ray.analysis.cost import workload
 from ps_ray.checkpoint import latest as latest_checkpoint
 from ps_ray.names import trial_key
+from ps_ray.specs.sweep import load_sweep
 from ps_ray.store.layout import SweepLayout
 from ps_ray.store.stages import stage_state
-from ps_ray.sweep_spec import load_sweep
 from ps_ray.tracking import TRIAL_KEY_TAG
 
 SMOKE = Path(__file__).resolve().parents[1] / "sweeps" / "smoke.yaml"
@@ -183,7 +183,7 @@ def test_a_pipeline_killed_at_five_moments_resumes_without_redoing_finished_work
     ]
     assert relaunched and all(read_rows(f)[0]["iteration"] > 1 for f in relaunched)
     # the report covers exactly the trials and stitched pairs an uninterrupted run would have
-    from ps_ray.pairs import pairs
+    from ps_ray.stitching.pairs import pairs
 
     tables = root / "report" / "tables"
     sources = pd.read_csv(tables / "training_sources.csv")["run"]
@@ -441,7 +441,7 @@ def test_no_entry_point_runs_the_pickles_planted_in_the_sweep_folder(smoke, cli,
     and none loads them. (`run` and `sweep --resume` are checked by the fixture and test_sweep,
     `report` by the rebuilt fixture.)"""
     from ps_ray.names import spec_text
-    from ps_ray.zoo import ModuleZoo
+    from ps_ray.stitching.zoo import ModuleZoo
 
     spec, root, _ = smoke
     assert list(root.glob("tune/*/checkpoint_*/*.pkl")), "the fixture planted pickles beside the policies"

@@ -9,11 +9,11 @@ from pathlib import Path
 
 import pytest
 
-from ps_ray.config import TrainSpec
 from ps_ray.errors import UserError
-from ps_ray.resources import StageResources, learner_device
 from ps_ray.rllib.algo import algo_config
-from ps_ray.sweep_spec import SweepSpec
+from ps_ray.specs.resources import StageResources, learner_device
+from ps_ray.specs.sweep import SweepSpec
+from ps_ray.specs.train import TrainSpec
 
 GRID = {"name": "r", "methods": ["ablation"], "robots": ["panda"], "tasks": ["reach"], "seeds": [1]}
 
@@ -25,7 +25,7 @@ from pathlib import Path
 import ray
 from ray import tune
 from ps_ray.pipeline.trials import run_trials
-from ps_ray.resources import StageResources
+from ps_ray.specs.resources import StageResources
 from ps_ray.store.attempts import FINISHED
 
 def trial(config):
@@ -94,6 +94,6 @@ def test_a_gpu_share_without_cuda_is_one_clear_error_and_none_is_the_cpu():
 
 def test_the_shipped_cluster_sweeps_parse_their_resources():
     for path in sorted(Path(__file__).parents[1].glob("sweeps/*.yaml")):
-        from ps_ray.sweep_spec import load_sweep
+        from ps_ray.specs.sweep import load_sweep
 
         assert isinstance(load_sweep(path).resources.train, StageResources), path

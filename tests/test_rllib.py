@@ -9,11 +9,11 @@ import pytest
 import torch
 
 from ps_ray.anchors import anchor_hash
-from ps_ray.config import TrainSpec
-from ps_ray.methods import method_spec, spec_json
 from ps_ray.nets.sac import NET_NAMES
 from ps_ray.rllib.algo import algo_config
 from ps_ray.rllib.episodes import train_batch
+from ps_ray.specs.methods import method_spec, spec_json
+from ps_ray.specs.train import TrainSpec
 from ps_ray.weights import Signature, load_policy, read_signature
 from tests.code_paths import PS_CONSOLIDATED
 

@@ -23,12 +23,12 @@ from ps_ray.checkpoint import STATE_FILE, seal
 from ps_ray.envs import make
 from ps_ray.envs.core import effective_gripper
 from ps_ray.errors import UserError
-from ps_ray.methods import method_spec, uses_anchors
 from ps_ray.nets.modular import NetDims, update_normalizers
 from ps_ray.nets.obs import dims_from_spaces
 from ps_ray.nets.sac import NET_NAMES, SACNets, build_sac_nets
-from ps_ray.paper import PANDA_L3_GRIPPER, PAPER_COMBOS
-from ps_ray.stitch import (
+from ps_ray.specs.methods import method_spec, uses_anchors
+from ps_ray.stitching.paper import PANDA_L3_GRIPPER, PAPER_COMBOS
+from ps_ray.stitching.stitch import (
     check_stitchable,
     combos,
     controls,
@@ -36,9 +36,9 @@ from ps_ray.stitch import (
     env_dims,
     stitch_policies,
 )
+from ps_ray.stitching.zoo import ModuleZoo, read_entry
 from ps_ray.store.attempts import FINISHED, PARAMS_FILE, RESULT_FILE
 from ps_ray.weights import Signature, load_policy, nets_state, save_policy, signature_of
-from ps_ray.zoo import ModuleZoo, read_entry
 from tests.code_paths import CODE_PATHS
 
 torch.set_num_threads(1)
@@ -239,7 +239,7 @@ def test_a_zoo_entry_needs_its_training_spec(tmp_path):
 
 def test_zoo_from_a_real_tiny_sweep(tmp_path, ray_local, tiny_train):
     from ps_ray.pipeline.sweep import run_sweep, sweep_dir
-    from ps_ray.sweep_spec import load_sweep
+    from ps_ray.specs.sweep import load_sweep
 
     train = tiny_train
     path = tmp_path / "tiny.yaml"
@@ -556,7 +556,7 @@ def arm_name(robot) -> str:
 
 
 def test_paper_combo_sources_are_trials_of_the_few_shot_sweep():
-    from ps_ray.sweep_spec import load_sweep
+    from ps_ray.specs.sweep import load_sweep
 
     sweep_file = Path(__file__).resolve().parents[1] / "sweeps" / "few_shot.yaml"  # any working dir
     trials = {t.label() for t in load_sweep(sweep_file).trials()}

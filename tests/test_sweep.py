@@ -14,7 +14,7 @@ import yaml
 
 from ps_ray.checkpoint import latest as latest_checkpoint
 from ps_ray.pipeline.sweep import sweep_dir
-from ps_ray.sweep_spec import load_sweep
+from ps_ray.specs.sweep import load_sweep
 from ps_ray.weights import load_policy
 
 
@@ -177,9 +177,9 @@ def test_trials_spread_over_two_nodes(tmp_path, tiny_train, two_node_cluster):
 
 @pytest.mark.parametrize("entry", ["sweep", "sweep --resume", "run"])
 def test_a_sweep_with_other_training_settings_is_refused_before_anything_runs(tmp_path, entry):
-    from ps_ray.config import SpecError
     from ps_ray.pipeline.run import run_pipeline
     from ps_ray.pipeline.sweep import require_same_sweep, run_sweep
+    from ps_ray.specs.train import SpecError
     from ps_ray.store.layout import SweepLayout
 
     trained = load_sweep(write_sweep(tmp_path, "same", {"env_steps": 400}))
@@ -260,7 +260,7 @@ def test_a_killed_worker_node_s_trial_resumes_from_its_checkpoint_on_another_nod
     assert all(r.metrics["env_steps"] >= 3000 for r in results)
     retried = [r for r in results if Path(r.path).name == killed["trial"]]
     assert retried and retried[0].metrics["node_id"] != worker.node_id  # finished on the head
-    from ps_ray.config import TrainSpec
+    from ps_ray.specs.train import TrainSpec
 
     run = runs(path)[TrainSpec.from_mapping(retried[0].config["trial"]["spec"]).label()]
     steps = [v for _, v in history(path, run, "env_steps")]

@@ -8,11 +8,11 @@ import mlflow
 import pytest
 import yaml
 
-from ps_ray.pairs import pairs
 from ps_ray.pipeline.few_shot import curves, run_few_shot
 from ps_ray.pipeline.sweep import run_sweep, sweep_dir
 from ps_ray.pipeline.zero_shot import run_zero_shot, summary
-from ps_ray.sweep_spec import load_sweep
+from ps_ray.specs.sweep import load_sweep
+from ps_ray.stitching.pairs import pairs
 from ps_ray.weights import read_signature
 
 

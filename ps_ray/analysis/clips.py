@@ -7,7 +7,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from ps_ray.names import short_name
-from ps_ray.sweep_spec import SweepSpec
+from ps_ray.specs.sweep import SweepSpec
 
 CLIP_SIZE = (240, 180)  # pixels; every second step, so a clip is about 26 frames
 START_SEED = 0  # the env reset every clip starts from
@@ -48,10 +48,10 @@ def stitched_clips(spec: SweepSpec, out_dir: Path, pairs_per_method: int = 2) ->
     """Rows of clips: per chosen pair (the first ``pairs_per_method`` that every method has, at the
     first seed), each method's stitched policy in the target env, then its two sources in their
     own envs. Returns (pair label, clips) rows; empty when the sweep has no stitchable pairs."""
-    from ps_ray.pairs import pairs
-    from ps_ray.stitch import stitch_policies
+    from ps_ray.stitching.pairs import pairs
+    from ps_ray.stitching.stitch import stitch_policies
+    from ps_ray.stitching.zoo import ModuleZoo
     from ps_ray.store.layout import sweep_dir
-    from ps_ray.zoo import ModuleZoo
 
     methods = list(spec.zero_shot.methods) or list(spec.methods)
     found: dict[str, dict[str, dict]] = {}

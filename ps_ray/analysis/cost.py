@@ -18,12 +18,12 @@ import socket
 from dataclasses import dataclass
 from pathlib import Path
 
-from ps_ray.config import SpecError, TrainSpec
 from ps_ray.envs import EPISODE_STEPS
-from ps_ray.methods import uses_anchors
 from ps_ray.names import CONTROL_ROLES
+from ps_ray.specs.methods import uses_anchors
+from ps_ray.specs.sweep import SweepSpec
+from ps_ray.specs.train import SpecError, TrainSpec
 from ps_ray.store.layout import SweepLayout
-from ps_ray.sweep_spec import SweepSpec
 
 
 @dataclass(frozen=True)
@@ -107,11 +107,11 @@ def stitch_pairs(
     spec: SweepSpec, method: str, pairing: str = "same_seed"
 ) -> list[tuple[TrainSpec, TrainSpec]]:
     """(task source, robot source) pairs the stitching stages will build for one method, by the
-    rule of :func:`ps_ray.stitch.combos`: another task, another arm, the same interface, for
+    rule of :func:`ps_ray.stitching.stitch.combos`: another task, another arm, the same interface, for
     relative methods the same anchor set (the same task-input width), and the seeds that
-    ``pairing`` joins (:func:`ps_ray.sweep_spec.seed_pairs`)."""
+    ``pairing`` joins (:func:`ps_ray.specs.sweep.seed_pairs`)."""
     from ps_ray.envs.robots import arm
-    from ps_ray.sweep_spec import seed_pairs, task_input_dim
+    from ps_ray.specs.sweep import seed_pairs, task_input_dim
 
     cells = [t for t in spec.trials() if t.method == method]
     joined = {(task_seed, robot_seed) for _, task_seed, robot_seed in seed_pairs(spec.seeds, pairing)}
@@ -129,7 +129,7 @@ def stitch_pairs(
 
 def workload(spec: SweepSpec) -> list[StageLoad]:
     """The work of every stage the spec runs, in order."""
-    from ps_ray.sweep_spec import anchor_sources
+    from ps_ray.specs.sweep import anchor_sources
 
     loads = []
     if "train" in spec.stages:
@@ -143,13 +143,13 @@ def workload(spec: SweepSpec) -> list[StageLoad]:
         n = sum(
             len(stitch_pairs(spec, m, pairing)) * (1 + len(spec.zero_shot.translations(m))) for m in methods
         )
-        # each trial evaluates its pair and up to three controls (ps_ray.stitch.controls)
+        # each trial evaluates its pair and up to three controls (ps_ray.stitching.stitch.controls)
         steps = (
             n * (1 + len(CONTROL_ROLES)) * spec.zero_shot.episodes * spec.zero_shot.repeats * EPISODE_STEPS
         )
         loads.append(StageLoad("zero_shot", [None] * n, 0, 0, steps))
     if "few_shot" in spec.stages:
-        from ps_ray.sweep_spec import task_input_dim
+        from ps_ray.specs.sweep import task_input_dim
 
         few = spec.few_shot
         runs: list[TrainSpec] = []

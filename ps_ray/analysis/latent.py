@@ -109,7 +109,7 @@ class Dump:
 
 def dump_interfaces(entries: Iterable, probes_for: Callable[[str | Mapping], Probes]) -> list[Dump]:
     """Dumps of every modular zoo entry; ``probes_for(task)`` gives the probe states of a task."""
-    from ps_ray.methods import method_spec
+    from ps_ray.specs.methods import method_spec
 
     dumps = []
     for entry in entries:

@@ -13,7 +13,7 @@ import pandas as pd
 
 from ps_ray.analysis import clips
 from ps_ray.names import short_name
-from ps_ray.sweep_spec import SweepSpec
+from ps_ray.specs.sweep import SweepSpec
 
 
 @dataclass

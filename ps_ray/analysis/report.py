@@ -26,8 +26,8 @@ from ps_ray.analysis.summary import cost_section, summary_section
 from ps_ray.atomic import fsync_dir, write_text
 from ps_ray.errors import UserError
 from ps_ray.names import short_name
+from ps_ray.specs.sweep import SweepSpec
 from ps_ray.store.layout import SweepLayout
-from ps_ray.sweep_spec import SweepSpec
 
 
 def build_report(spec: SweepSpec, *, progress: bool = True, log_to_mlflow: bool = True) -> Path:
@@ -136,7 +136,7 @@ def _training(report: Report, root: Path, target: float, say) -> None:
 
 
 def _latent(report: Report, spec: SweepSpec, root: Path, say) -> None:
-    from ps_ray.zoo import ModuleZoo
+    from ps_ray.stitching.zoo import ModuleZoo
 
     section = report.section(
         "Latent alignment",

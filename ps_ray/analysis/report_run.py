@@ -6,8 +6,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from ps_ray.specs.sweep import SweepSpec
 from ps_ray.store.layout import SweepLayout
-from ps_ray.sweep_spec import SweepSpec
 
 REPORT_RUN = "report"  # the MLflow run's trial key
 

@@ -11,7 +11,7 @@ from ps_ray.analysis import tables
 from ps_ray.analysis.alignment import chance_mrr
 from ps_ray.analysis.latent import QUADRANTS
 from ps_ray.analysis.page import Report, Section
-from ps_ray.sweep_spec import SweepSpec
+from ps_ray.specs.sweep import SweepSpec
 
 
 def cost_section(report: Report, spec: SweepSpec, root: Path) -> None:

@@ -6,8 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from ps_ray.methods import table_order
 from ps_ray.names import short_name
+from ps_ray.specs.methods import table_order
 
 
 def pm(mean: float, std: float, digits: int = 2) -> str:
@@ -61,7 +61,7 @@ def pool_seeds(table: pd.DataFrame) -> pd.DataFrame:
 
 def paper_names() -> dict[str, str]:
     """ps_ray-style combination label -> the paper's name, e.g. ``E1 (t: Pu1-R1 & r: Pu2-R2)``."""
-    from ps_ray.paper import PAPER_COMBOS
+    from ps_ray.stitching.paper import PAPER_COMBOS
 
     names = {}
     for combo in PAPER_COMBOS:

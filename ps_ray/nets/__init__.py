@@ -1,6 +1,5 @@
 """Plain-torch networks for Policy Stitching (no Ray imports here)."""
 
-from ps_ray.methods import MethodSpec, RelativeSpec, method_spec
 from ps_ray.nets.mlp import mlp
 from ps_ray.nets.modular import (
     Actor,
@@ -16,6 +15,7 @@ from ps_ray.nets.modular import (
 )
 from ps_ray.nets.normalize import RunningNorm
 from ps_ray.nets.relative import RelativeProjection
+from ps_ray.specs.methods import MethodSpec, RelativeSpec, method_spec
 
 __all__ = [
     "Actor",

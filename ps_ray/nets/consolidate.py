@@ -24,7 +24,7 @@ from typing import TYPE_CHECKING
 import torch
 from torch import Tensor
 
-from ps_ray.methods import ConsolidateSpec
+from ps_ray.specs.methods import ConsolidateSpec
 
 if TYPE_CHECKING:
     from ps_ray.nets.modular import Actor

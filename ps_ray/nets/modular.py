@@ -1,7 +1,8 @@
 """Modular SAC networks: task module g (task input -> latent) + robot module f (latent + robot -> out).
 
-Every method is a :class:`ps_ray.methods.MethodSpec`; one :class:`TaskModule` and one robot-module trunk are
-configured from a :class:`MethodSpec` and :class:`NetDims`. Architecture (hidden = 256, latent D):
+Every method is a :class:`ps_ray.specs.methods.MethodSpec`; one :class:`TaskModule` and one
+robot-module trunk are configured from a :class:`MethodSpec` and :class:`NetDims`.
+Architecture (hidden = 256, latent D):
 
 - modular task module:  RunningNorm(task) -> mlp(task, [h, h], D) [-> cosine vs K = D anchors (PS)]
 - actor robot module:   RunningNorm(robot) -> Linear(robot, h/2) + ReLU, concat latent
@@ -26,10 +27,10 @@ from torch import Tensor, nn
 
 from ps_ray.defaults import HIDDEN, INTERFACE_DIM
 from ps_ray.errors import UserError
-from ps_ray.methods import MethodSpec, RelativeSpec, method_spec
 from ps_ray.nets.mlp import mlp
 from ps_ray.nets.normalize import RunningNorm
 from ps_ray.nets.relative import RelativeProjection
+from ps_ray.specs.methods import MethodSpec, RelativeSpec, method_spec
 
 LOG_STD_MIN, LOG_STD_MAX = -9.0, 2.0
 

@@ -1,7 +1,7 @@
 """Relative representation: cosine similarity of an embedding to embedded anchors (Moschella et al.).
 
 The paper's projection and its variants (docs/methods.md) are settings of one
-:class:`ps_ray.methods.RelativeSpec`, a field of a method's :class:`ps_ray.methods.MethodSpec`.
+:class:`ps_ray.specs.methods.RelativeSpec`, a field of a method's :class:`ps_ray.specs.methods.MethodSpec`.
 """
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from ps_ray.methods import RelativeSpec
+from ps_ray.specs.methods import RelativeSpec
 
 SCALE_EPS = 1e-6
 REF_STD_FLOOR = 1e-2  # task inputs are metres, radians and their rates: 1 cm is "no spread"

@@ -13,19 +13,19 @@ import hashlib
 from collections import Counter
 from typing import Any
 
-from ps_ray.config import TrainSpec
 from ps_ray.errors import UserError
 from ps_ray.names import trial_key
 from ps_ray.pipeline.sweep import anchor_file, layout, sweep_dir
-from ps_ray.sweep_spec import FewShotSpec, SweepSpec
+from ps_ray.specs.sweep import FewShotSpec, SweepSpec
+from ps_ray.specs.train import TrainSpec
 
 
 def few_shot_trials(spec: SweepSpec, settings: FewShotSpec) -> list[dict[str, Any]]:
     """Trial configs for `sweep_trial`: stitched starts, each pair's robot source fine-tuned as it
     is (unstitched), and from-scratch baselines. Starts from trained weights fit their critics
     alone for ``critic_warmup_updates`` updates first."""
-    from ps_ray.pairs import pairs
-    from ps_ray.stitch import stitch_policies
+    from ps_ray.stitching.pairs import pairs
+    from ps_ray.stitching.stitch import stitch_policies
     from ps_ray.weights import save_policy
 
     selected, taken, per_seed = [], Counter(), Counter()

@@ -15,12 +15,12 @@ from pathlib import Path
 from typing import Any
 
 from ps_ray.atomic import write_text
-from ps_ray.config import TrainSpec, require_same
-from ps_ray.methods import uses_anchors
 from ps_ray.names import spec_text
+from ps_ray.specs.methods import uses_anchors
+from ps_ray.specs.sweep import SweepSpec, anchor_sources, task_input_dim
+from ps_ray.specs.train import TrainSpec, require_same
 from ps_ray.store.layout import SweepLayout, sweep_dir
 from ps_ray.store.run_layout import METRIC_FIELDS, POLICY_FILE, SIGNATURE_FILE, SPEC_FILE
-from ps_ray.sweep_spec import SweepSpec, anchor_sources, task_input_dim
 
 # What each training result sends to MLflow: the metrics.csv columns but the step and the clock.
 METRIC_KEYS = tuple(k for k in METRIC_FIELDS if k not in ("iteration", "wall_s"))

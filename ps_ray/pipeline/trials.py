@@ -6,7 +6,7 @@ from __future__ import annotations
 import contextlib
 from pathlib import Path
 
-from ps_ray.resources import StageResources
+from ps_ray.specs.resources import StageResources
 from ps_ray.store.attempts import STAGE_DIR_KEY, TrialOutcome, identity, outcomes, require_fresh
 from ps_ray.store.layout import LOG_FOLDER
 

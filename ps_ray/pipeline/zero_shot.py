@@ -20,9 +20,9 @@ import pandas as pd
 from ps_ray.atomic import atomic_path
 from ps_ray.errors import UserError
 from ps_ray.names import CONTROL_ROLES, short_name
-from ps_ray.pairs import pairs
 from ps_ray.pipeline.sweep import layout, raise_on_errors, sweep_dir
-from ps_ray.sweep_spec import SweepSpec
+from ps_ray.specs.sweep import SweepSpec
+from ps_ray.stitching.pairs import pairs
 
 RESULT_KEYS = (
     "success_mean",
@@ -32,7 +32,7 @@ RESULT_KEYS = (
     "contact_mean",
     "episodes_per_s",
 )
-# each control's success on the pair's episodes (ps_ray.stitch.controls), and the gain over them
+# each control's success on the pair's episodes (ps_ray.stitching.stitch.controls), and the gain over them
 CONTROL_KEYS = (*(f"{role}_success" for role in CONTROL_ROLES), "best_unstitched", "transfer_gain")
 
 
@@ -50,7 +50,7 @@ def fit_states(tasks: list, per_quadrant: int, seed: int) -> np.ndarray:
 def check_sources(trials: list[dict[str, Any]]) -> None:
     """Every policy file the pairs read loads, and every pair stitches, before a trial starts: a
     damaged or unfinished file is one line naming it, not a failing trial retried per pair."""
-    from ps_ray.stitch import check_stitchable
+    from ps_ray.stitching.stitch import check_stitchable
     from ps_ray.weights import load_policy
 
     signatures = {}
@@ -72,7 +72,7 @@ def zero_shot_trial(config: dict[str, Any]) -> None:
     from ray import tune
 
     from ps_ray.evaluate import evaluate
-    from ps_ray.stitch import load_source, stitch_policies
+    from ps_ray.stitching.stitch import load_source, stitch_policies
     from ps_ray.store.attempts import FINISHED
 
     pair, settings = config["pair"], config["eval"]

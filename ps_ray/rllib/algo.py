@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from ps_ray.config import TrainSpec
 from ps_ray.envs.registry import register
-from ps_ray.resources import learner_device
 from ps_ray.rllib.sac_her import TRAIN_SETTINGS, ModularSACConfig
+from ps_ray.specs.resources import learner_device
+from ps_ray.specs.train import TrainSpec
 
 
 def algo_config(spec: TrainSpec, anchors: np.ndarray | None = None, *, gpu: float = 0) -> ModularSACConfig:

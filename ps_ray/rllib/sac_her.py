@@ -28,11 +28,9 @@ from ray.rllib.utils.metrics import (
 from safetensors.torch import load_file, save_file
 
 from ps_ray.checkpoint import STATE_FILE
-from ps_ray.config import TrainSpec
 from ps_ray.envs.goals import ROBOT_KEY, task_input
 from ps_ray.errors import UserError
 from ps_ray.her import HindsightReplay
-from ps_ray.methods import ConsolidateSpec, spec_json
 from ps_ray.nets.consolidate import consolidate
 from ps_ray.nets.modular import update_normalizers
 from ps_ray.nets.obs import dims_from_spaces
@@ -45,6 +43,8 @@ from ps_ray.rllib.private import (
     set_runner_seed,
     set_training_iteration,
 )
+from ps_ray.specs.methods import ConsolidateSpec, spec_json
+from ps_ray.specs.train import TrainSpec
 from ps_ray.weights import (
     Signature,
     load_nets_state,

@@ -13,8 +13,8 @@ import json
 from pathlib import Path
 
 from ps_ray.atomic import write_text
+from ps_ray.specs.sweep import STAGES, SweepSpec
 from ps_ray.store.layout import SweepLayout
-from ps_ray.sweep_spec import STAGES, SweepSpec
 
 # The settings each stage's outputs depend on, besides those of the earlier stages.
 STAGE_SETTINGS = {"train": None, "zero_shot": "zero_shot", "few_shot": "few_shot", "report": "report"}

@@ -22,8 +22,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from ps_ray.errors import UserError
-from ps_ray.methods import method_key
 from ps_ray.names import short_name, trial_key
+from ps_ray.specs.methods import method_key
 from ps_ray.store.layout import SweepLayout
 from ps_ray.store.run_layout import POLICY_FILE, SPEC_FILE
 from ps_ray.weights import Signature, read_signature

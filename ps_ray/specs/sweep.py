@@ -10,14 +10,14 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from ps_ray.config import SpecError, TrainSpec, check_keys, check_types
 from ps_ray.defaults import INTERFACE_DIM
 from ps_ray.envs.robots import resolve_robot
 from ps_ray.envs.tasks import resolve_task
 from ps_ray.errors import UserError
-from ps_ray.methods import method_key, uses_anchors
 from ps_ray.names import TRANSLATIONS, canonical, parse_spec_text, spec_text
-from ps_ray.resources import ResourcesSpec
+from ps_ray.specs.methods import method_key, uses_anchors
+from ps_ray.specs.resources import ResourcesSpec
+from ps_ray.specs.train import SpecError, TrainSpec, check_keys, check_types
 
 ANCHOR_POLICIES = ("plain", "random")
 # Pipeline stages in order; "train" covers plain sources, anchors and the grid (ps_ray.pipeline.sweep).
@@ -205,7 +205,7 @@ class SweepSpec:
     zero_shot: ZeroShotSpec = ZeroShotSpec()
     few_shot: FewShotSpec = FewShotSpec()
     report: ReportSpec = ReportSpec()
-    resources: ResourcesSpec = ResourcesSpec()  # per trial of each stage (ps_ray.resources)
+    resources: ResourcesSpec = ResourcesSpec()  # per trial of each stage (ps_ray.specs.resources)
     max_concurrent: int | None = None  # default: one trial per available CPU
     max_failures: int = 2  # retries of a crashed trial, from its last checkpoint
     storage: str = "runs/sweeps"

@@ -41,8 +41,8 @@ from ps_ray.names import short_name
 from ps_ray.nets.modular import NetDims
 from ps_ray.nets.sac import NET_NAMES, SACNets, build_sac_nets
 from ps_ray.nets.translation import LatentTranslation, check_kind
+from ps_ray.stitching.zoo import ModuleZoo, ZooEntry
 from ps_ray.weights import Signature, load_policy, signature_of
-from ps_ray.zoo import ModuleZoo, ZooEntry
 
 PolicySource = str | Path | ZooEntry | tuple[SACNets, Signature]
 EnvSpec = tuple[str | Mapping, str | Mapping]  # (robot, task) as make() takes them

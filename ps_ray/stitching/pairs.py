@@ -5,19 +5,20 @@ from __future__ import annotations
 
 from typing import Any
 
+from ps_ray.specs.sweep import SweepSpec, seed_pairs
 from ps_ray.store.layout import sweep_dir
-from ps_ray.sweep_spec import SweepSpec, seed_pairs
 
 
 def pairs(
     spec: SweepSpec, methods: list[str] | None = None, translate: bool = False, pairing: str = "same_seed"
 ) -> list[dict[str, Any]]:
     """One trial config per stitched pair of the sweep's trained policies (``pairing``: see
-    :func:`seed_pairs`), with the zoo keys and files of its controls (:func:`ps_ray.stitch.controls`);
-    with ``translate``, also one per latent translation that ``spec.zero_shot.translate`` names for
-    the method (its method shown as ``<method>+<translation>``)."""
-    from ps_ray.stitch import combos, controls
-    from ps_ray.zoo import ModuleZoo
+    :func:`seed_pairs`), with the zoo keys and files of its controls
+    (:func:`ps_ray.stitching.stitch.controls`); with ``translate``, also one per latent
+    translation that ``spec.zero_shot.translate`` names for the method (its method shown as
+    ``<method>+<translation>``)."""
+    from ps_ray.stitching.stitch import combos, controls
+    from ps_ray.stitching.zoo import ModuleZoo
 
     zoo = ModuleZoo.from_sweep(sweep_dir(spec))
     out = []

@@ -1,5 +1,6 @@
 """Policies and target envs named on the ``ps-ray stitch`` command line: a policy file, a run
-folder or a key of a sweep's zoo, and the target env they imply (:func:`ps_ray.stitch.default_target`)."""
+folder or a key of a sweep's zoo, and the target env they imply
+(:func:`ps_ray.stitching.stitch.default_target`)."""
 
 from __future__ import annotations
 
@@ -9,9 +10,9 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from ps_ray.errors import UserError
-from ps_ray.stitch import EnvSpec, default_target
+from ps_ray.stitching.stitch import EnvSpec, default_target
+from ps_ray.stitching.zoo import ModuleZoo
 from ps_ray.store.run_layout import POLICY_FILE, SPEC_FILE
-from ps_ray.zoo import ModuleZoo
 
 
 @dataclass(frozen=True)

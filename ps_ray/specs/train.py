@@ -1,5 +1,5 @@
 """The training spec and the helpers every spec shares. Unknown keys and bad values fail with one
-line naming them. The sweep spec is in ``ps_ray.sweep_spec``."""
+line naming them. The sweep spec is in ``ps_ray.specs.sweep``."""
 
 from __future__ import annotations
 
@@ -16,8 +16,8 @@ from ps_ray.defaults import HIDDEN, INTERFACE_DIM, MAX_WIDTH
 from ps_ray.envs.robots import resolve_robot
 from ps_ray.envs.tasks import resolve_task
 from ps_ray.errors import UserError
-from ps_ray.methods import OPTIONS, PRESETS, method_key
 from ps_ray.names import canonical, trial_key
+from ps_ray.specs.methods import OPTIONS, PRESETS, method_key
 
 POINT_TASK = "point"  # the physics-free PointGoalEnv (robot is ignored), for fast checks
 

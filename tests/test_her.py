@@ -190,18 +190,19 @@ def test_save_load_round_trip_continues_identically(tmp_path: Path, capacity: in
     into.load(path)
     for other in (restored, into):
         assert (other.num_episodes, other.episodes_added) == (buf.num_episodes, buf.episodes_added)
-        for k in SPEC:
-            np.testing.assert_array_equal(other._obs[k], buf._obs[k])
-        np.testing.assert_array_equal(other._actions, buf._actions)
+        assert other.nbytes == buf.nbytes
     expected = [buf.sample(50) for _ in range(3)]
     for other in (restored, into):
         for e in expected:
             got = other.sample(50)
             assert all(np.array_equal(got[k], e[k]) for k in e)
-    # adding after restore lands in the same slot as it would have originally
+    # adding after restore lands in the same slot as it would have originally: the same samples
     for b in (buf, restored):
         b.add_episodes(*batch([ID0 + 500]))
-    np.testing.assert_array_equal(buf._obs["robot_state"], restored._obs["robot_state"])
+    again = [buf.sample(50) for _ in range(3)]
+    for e in again:
+        got = restored.sample(50)
+        assert all(np.array_equal(got[k], e[k]) for k in e)
 
 
 class _Boom:

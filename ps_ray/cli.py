@@ -97,7 +97,12 @@ def _load(args: argparse.Namespace):
         for k, v in (("storage", args.storage), ("tracking_uri", getattr(args, "tracking_uri", None)))
         if v
     }
-    return dataclasses.replace(spec, **overrides) if overrides else spec
+    spec = dataclasses.replace(spec, **overrides) if overrides else spec
+    if spec.tracking_uri:  # a store MLflow cannot use is refused before any folder is made
+        from ps_ray.tracking import check_tracking_uri
+
+        check_tracking_uri(spec.tracking_uri)
+    return spec
 
 
 def _sweep_lock(spec):

@@ -53,6 +53,21 @@ def default_tracking_uri(root: str | Path) -> str:
     return f"sqlite:///{SweepLayout(Path(root).expanduser().resolve()).mlflow_db}"
 
 
+# The stores MLflow 3 writes to: its server, and databases through SQLAlchemy (file stores are
+# frozen in MLflow 3 and refused).
+TRACKING_SCHEMES = ("http", "https", "databricks", "sqlite", "postgresql", "mysql", "mssql")
+
+
+def check_tracking_uri(uri: str) -> None:
+    """A tracking URI MLflow can write to, checked before anything is made; else one line."""
+    scheme = uri.split(":", 1)[0].split("+", 1)[0].lower() if ":" in uri else ""
+    if scheme not in TRACKING_SCHEMES:
+        raise UserError(
+            f"tracking_uri {uri!r}: not an MLflow tracking store; valid: http(s)://HOST:PORT (a "
+            f"tracking server), sqlite:///PATH, postgresql://..., mysql://..., mssql://..., databricks"
+        )
+
+
 def _client(tracking_uri: str) -> MlflowClient:
     from mlflow import MlflowClient
 

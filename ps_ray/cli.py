@@ -17,7 +17,7 @@ from ps_ray.errors import UserError
 from ps_ray.lock import folder_lock
 from ps_ray.names import parse_spec_text
 from ps_ray.pipeline.sweep import StageError
-from ps_ray.specs.train import TrainSpec
+from ps_ray.specs.train import POINT_TASK, TrainSpec
 from ps_ray.store.layout import SweepLayout
 
 
@@ -25,17 +25,21 @@ def cmd_train(args: argparse.Namespace) -> int:
     from ps_ray.train import train
 
     fields = {f.name: getattr(args, f.name) for f in dataclasses.fields(TrainSpec)}
-    for key in ("robot", "task"):
-        try:
+    from ps_ray.envs.robots import resolve_robot
+    from ps_ray.envs.tasks import resolve_task
+
+    for key, resolve in (("robot", resolve_robot), ("task", resolve_task)):
+        try:  # each checked on its own, so its error names its own flag
             fields[key] = parse_spec_text(getattr(args, key))
-        except UserError as e:
+            if args.task != POINT_TASK:  # the physics-free point env takes any robot
+                resolve(fields[key])
+        except (UserError, ValueError, TypeError) as e:
             raise UserError(f"--{key}: {e}") from None
     try:
         spec = TrainSpec.from_mapping(fields)
     except UserError as e:  # name the flag the bad value came from
-        named = next((f for f in sorted(fields, key=len, reverse=True) if str(e).startswith(f)), None)
-        flag = "--" + (named or _flag_of(str(e), fields)).replace("_", "-")
-        raise UserError(f"{flag}: {e}") from None
+        named = _flag_of(str(e), fields)
+        raise UserError(f"--{named.replace('_', '-')}: {e}" if named else str(e)) from None
     run_dir = Path(args.run_dir or Path("runs") / spec.slug())
     train(spec, run_dir, progress=not args.quiet)
     return 0
@@ -67,10 +71,10 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     return 1 if errors else 0
 
 
-def _flag_of(message: str, fields) -> str:
-    """The field a spec error is about: the first field name the message mentions."""
+def _flag_of(message: str, fields) -> str | None:
+    """The field a spec error is about: the first field name the message mentions (None: none)."""
     words = message.replace("'", " ").replace(".", " ").replace(":", " ").split()
-    return next((w for w in words if w in fields), "robot" if "robot" in message else "task")
+    return next((w for w in words if w in fields), None)
 
 
 def _load(args: argparse.Namespace):

@@ -283,7 +283,7 @@ def test_a_stage_run_afresh_on_a_folder_with_earlier_attempts_is_refused_before_
     layout = SweepLayout(sweep_dir(spec))
     folder, key = {
         "train": (layout.tune_train, "trial"),
-        "zero_shot": (layout.tune_zero_shot, "pair"),
+        "zero_shot": (layout.tune_zero_shot, "batch"),
         "few_shot": (layout.tune_few_shot, "trial"),
     }[stage]
     attempt = folder / "attempt_0"

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import mlflow
@@ -83,6 +84,43 @@ def test_zero_shot_matrix_of_a_sweep(trained_matrix):
         assert tags["ps_ray.task_module_run"] == train_runs[tags["ps_ray.task_module"]]
         assert tags["ps_ray.robot_module_run"] == train_runs[tags["ps_ray.robot_module"]]
         assert tags["ps_ray.task_module"] != tags["ps_ray.robot_module"]
+
+
+def test_pairs_run_in_batches_and_a_resume_keeps_each_pair_whatever_batch_it_ran_in(trained_matrix):
+    """Batching changes how many Tune trials start, never a pair's figures; a resumed matrix
+    evaluates only the pairs that have no result row."""
+    import shutil
+
+    import pandas as pd
+
+    from ps_ray.pipeline.zero_shot import PAIR_KEY
+    from ps_ray.store.attempts import attempts, read_rows
+
+    spec, root = trained_matrix, sweep_dir(trained_matrix)
+    folder = root / "tune_zero_shot"
+    if not folder.exists():  # this test alone: the one-batch matrix first
+        run_zero_shot(spec, episodes=4, repeats=2, progress=False)
+    figures = lambda: pd.read_csv(root / "zero_shot.csv").drop(columns="episodes_per_s")  # noqa: E731
+    one_batch = figures()
+    assert len(attempts(folder, "batch")) == 1  # 4 pairs, 8 per trial by default: one start
+    shutil.rmtree(folder)
+
+    run_zero_shot(spec, episodes=4, repeats=2, pairs_per_trial=3, progress=False)
+    batches = {len(json.loads(k)): v for k, v in attempts(folder, "batch").items()}
+    assert sorted(batches) == [1, 3]
+    pd.testing.assert_frame_equal(figures(), one_batch)
+
+    (lone,) = batches[1]  # the one-pair batch never ran: a resume runs that pair alone
+    (lost,) = [row[PAIR_KEY] for row in read_rows(lone)]
+    shutil.rmtree(lone)
+    run_zero_shot(spec, episodes=4, repeats=2, pairs_per_trial=3, resume=True, progress=False)
+    rerun = [json.loads(k) for k in attempts(folder, "batch")]
+    assert sorted(len(b) for b in rerun) == [1, 3] and lost in [p["key"] for b in rerun for p in b]
+    pd.testing.assert_frame_equal(figures(), one_batch)
+    client = mlflow.MlflowClient(f"sqlite:///{root / 'mlflow.db'}")
+    experiment = client.get_experiment_by_name("matrix")
+    runs = client.search_runs([experiment.experiment_id], "tags.`ps_ray.stage` = 'zero_shot'")
+    assert len(runs) == 4  # still one MLflow run per pair, found again on each run
 
 
 def test_few_shot_trials_start_from_stitched_weights_beside_unstitched_and_scratch_runs(trained_matrix):

@@ -224,3 +224,62 @@ class MLflowTuneCallback(Callback):
             fn(*args)
         except Exception as e:  # noqa: BLE001 - tracking must not end a sweep
             log.warning("MLflow: could not %s: %s", what, _first_line(e))
+
+
+class RowRunsCallback(Callback):
+    """Driver-side: one MLflow run per result row that names ``row_key``, for trials that report
+    one row per item (a batch of stitched pairs): the item's run is created (or found again, on a
+    retried batch), its ``metric_keys`` logged at step 0 and the run closed FINISHED at once.
+    ``params_fn(name)`` and ``tags_fn(name, client)`` describe the item; writing metrics and
+    status never raises into Tune, finding or creating the run does (as in MLflowTuneCallback)."""
+
+    def __init__(
+        self,
+        tracking_uri: str,
+        experiment_id: str,
+        *,
+        row_key: str,
+        metric_keys: Sequence[str],
+        params_fn: Callable[[str], Mapping[str, Any]],
+        tags: Mapping[str, str],
+        tags_fn: Callable[[str, MlflowClient], Mapping[str, str]] | None = None,
+    ) -> None:
+        self.tracking_uri = tracking_uri
+        self.experiment_id = experiment_id
+        self.row_key = row_key
+        self.metric_keys = tuple(metric_keys)
+        self.params_fn = params_fn
+        self.tags = dict(tags)
+        self.tags_fn = tags_fn
+        self._client_cache: MlflowClient | None = None
+
+    def __getstate__(self) -> dict[str, Any]:
+        return {**self.__dict__, "_client_cache": None}
+
+    def on_trial_result(
+        self, iteration: int, trials: list[Trial], trial: Trial, result: dict, **info: Any
+    ) -> None:
+        name = result.get(self.row_key)
+        if not isinstance(name, str):
+            return
+        if self._client_cache is None:
+            self._client_cache = _client(self.tracking_uri)
+        tags = {**self.tags, "ps_ray.tune_trial_id": trial.trial_id}
+        if self.tags_fn is not None:
+            tags.update(self.tags_fn(name, self._client_cache))
+        tracker = TrialTracker(
+            self.tracking_uri,
+            self.experiment_id,
+            name,
+            params=self.params_fn(name),
+            tags=tags,
+            client=self._client_cache,
+            once_per_step=True,  # a retried batch reports its pairs again: logged once
+        )
+        stamp = result.get("timestamp")
+        tracker.log_metrics(
+            {k: lookup(result, k) for k in self.metric_keys},
+            step=0,
+            timestamp_ms=int(stamp * 1000) if stamp else None,
+        )
+        MLflowTuneCallback._guard(f"close run of {name}", tracker.close, "FINISHED")

@@ -1,11 +1,13 @@
 """`ps-ray zero-shot`: the stitching matrix of a sweep, evaluated as Tune trials, into MLflow.
 
 Every valid (task module, robot module) pair of each method (see `stitch.combos`), of one seed or,
-with ``zero_shot.pairs``, across seeds, is one trial: stitch, evaluate on fixed seeds (episodes x
-repeats), then evaluate the pair's controls as they are on the same episodes (its robot source, its
+with ``zero_shot.pairs``, across seeds, is stitched, evaluated on fixed seeds (episodes x
+repeats), then the pair's controls are evaluated as they are on the same episodes (its robot source, its
 task source, the oracle: `stitch.controls`, docs/transfer.md), so that every method and control is
 scored on identical episodes. The table, one row per pair with its controls and transfer gain,
-goes to <sweep>/zero_shot.csv and to MLflow (stage zero_shot, one run per pair).
+goes to <sweep>/zero_shot.csv and to MLflow (stage zero_shot, one run per pair). Pairs run in
+batches (``zero_shot.pairs_per_trial`` per Tune trial), so that a trial's start is paid once per
+batch; each pair is still one result row and one MLflow run.
 """
 
 from __future__ import annotations
@@ -66,33 +68,52 @@ def check_sources(trials: list[dict[str, Any]]) -> None:
             raise UserError(f"{pair['task_from_path']} with {pair['robot_from_path']}: {e}") from None
 
 
+PAIR_KEY = "pair_key"  # names the stitched pair of a batched trial's result row
+
+
 def zero_shot_trial(config: dict[str, Any]) -> None:
-    """Tune function trainable: stitch one pair (translated, if the pair says so), evaluate it,
-    then evaluate each of its controls as it is, all on the stage's fixed episodes."""
+    """Tune function trainable: a batch of pairs one after another, one result row per pair
+    (named by ``PAIR_KEY``); a source file that several pairs share is read once."""
     from ray import tune
 
-    from ps_ray.evaluate import evaluate
-    from ps_ray.stitching.stitch import load_source, stitch_policies
     from ps_ray.store.attempts import FINISHED
+    from ps_ray.weights import load_policy
 
-    pair, settings = config["pair"], config["eval"]
+    loaded: dict[str, Any] = {}
+
+    def source(path: str):
+        if path not in loaded:
+            loaded[path] = load_policy(path)
+        return loaded[path]
+
+    batch = config["batch"]
+    for i, pair in enumerate(batch):
+        metrics = evaluate_pair(pair, config["eval"], config["fit_states_per_quadrant"], source)
+        tune.report({**metrics, PAIR_KEY: pair["key"], **({FINISHED: True} if i == len(batch) - 1 else {})})
+
+
+def evaluate_pair(pair: dict[str, Any], settings: dict[str, Any], per_quadrant: int, source) -> dict:
+    """Stitch one pair (translated, if the pair says so), evaluate it, then each of its controls
+    as it is, all on the stage's fixed episodes; ``source(path)`` gives a loaded policy file."""
+    from ps_ray.evaluate import evaluate
+    from ps_ray.stitching.stitch import stitch_policies
+
     translation = pair.get("translation") or None
-    states = (
-        fit_states(pair["fit_tasks"], config["fit_states_per_quadrant"], settings["seed"])
-        if translation
-        else None
-    )
+    states = fit_states(pair["fit_tasks"], per_quadrant, settings["seed"]) if translation else None
     stitched = stitch_policies(
-        pair["task_from_path"], pair["robot_from_path"], translation=translation, fit_states=states
+        source(pair["task_from_path"]),
+        source(pair["robot_from_path"]),
+        translation=translation,
+        fit_states=states,
     )
     result = evaluate(stitched, pair["robot"], pair["task"], **settings)
     metrics = {k: result[k] for k in RESULT_KEYS}
     for role, control in pair["controls"].items():
-        unstitched = evaluate(load_source(control["path"]), pair["robot"], pair["task"], **settings)
+        unstitched = evaluate(source(control["path"]), pair["robot"], pair["task"], **settings)
         if unstitched["episodes_digest"] != result["episodes_digest"]:  # a bug, never bad input
             raise RuntimeError(f"{pair['key']}: its {role} control ran on other episodes")
         metrics[f"{role}_success"] = unstitched["success_mean"]
-    tune.report({**metrics, **gain(metrics), FINISHED: True})
+    return {**metrics, **gain(metrics)}
 
 
 def gain(metrics: dict[str, Any]) -> dict[str, float]:
@@ -106,39 +127,44 @@ def gain(metrics: dict[str, Any]) -> dict[str, float]:
 def run_zero_shot(
     spec: SweepSpec, *, resume: bool = False, progress: bool = True, **overrides: Any
 ) -> pd.DataFrame:
-    """The matrix as Tune trials, settings from ``spec.zero_shot`` (``overrides`` replace fields).
+    """The matrix as Tune trials of ``zero_shot.pairs_per_trial`` pairs each, settings from
+    ``spec.zero_shot`` (``overrides`` replace fields).
 
-    ``resume`` finishes an interrupted matrix (restores ``tune_zero_shot``)."""
+    ``resume`` finishes an interrupted matrix: pairs with a result row in ``tune_zero_shot`` are
+    kept, whatever batch they ran in; the others run in new batches."""
     from ps_ray.pipeline.sweep import connect
     from ps_ray.pipeline.trials import run_trials
-    from ps_ray.pipeline.tune_tracking import MLflowTuneCallback
-    from ps_ray.store.attempts import require_fresh
+    from ps_ray.pipeline.tune_tracking import RowRunsCallback
+    from ps_ray.store.attempts import require_fresh, rows_naming
     from ps_ray.tracking import git_commit
 
     settings = dataclasses.replace(spec.zero_shot, **overrides)
-    root = sweep_dir(spec)
+    root, folder = sweep_dir(spec), layout(spec).tune_zero_shot
     if not resume:
-        require_fresh(layout(spec).tune_zero_shot, "pair", "zero_shot")
+        require_fresh(folder, "batch", "zero_shot")
     trials = pairs(spec, list(settings.methods) or None, translate=True, pairing=settings.pairs)
     if not trials:
         raise UserError(f"{root}: no stitchable pairs (train the sweep first: ps-ray sweep)")
     check_sources(trials)
+    by_key = {pair["key"]: pair for pair in trials}
+    done = rows_naming(folder, PAIR_KEY) if resume else {}
+    todo = [pair for pair in trials if pair["key"] not in done]
+    size = settings.pairs_per_trial
+    evaluated = {"episodes": settings.episodes, "repeats": settings.repeats}
     tracking_uri, experiment_id = connect(spec)
-    callback = MLflowTuneCallback(
+    callback = RowRunsCallback(
         tracking_uri,
         experiment_id,
+        row_key=PAIR_KEY,
         metric_keys=(*RESULT_KEYS, *CONTROL_KEYS),
-        key_fn=lambda trial: trial.config["pair"]["key"],
-        params_fn=lambda trial: (
-            _shown(trial.config["pair"]) | {"episodes": settings.episodes, "repeats": settings.repeats}
-        ),
+        params_fn=lambda key: _shown(by_key[key]) | evaluated,
         tags={"ps_ray.sweep": spec.name, "ps_ray.stage": "zero_shot", "git_commit": git_commit() or ""},
-        tags_fn=lambda trial, client: _tags(client, experiment_id, trial.config["pair"]),
+        tags_fn=lambda key, client: _tags(client, experiment_id, by_key[key]),
     )
     results = run_trials(
         zero_shot_trial,
-        {"pair": trials},
-        folder=layout(spec).tune_zero_shot,
+        {"batch": [todo[i : i + size] for i in range(0, len(todo), size)]},
+        folder=folder,
         stage="zero_shot",
         callback=callback,
         resume=resume,
@@ -151,8 +177,12 @@ def run_zero_shot(
             "fit_states_per_quadrant": settings.fit_states_per_quadrant,
         },
     )
-    raise_on_errors(results, "zero-shot trials")
-    table = table_of([(r.config["pair"], r.metrics) for r in results])
+    raise_on_errors(results, "zero-shot batches")
+    rows = rows_naming(folder, PAIR_KEY)
+    missing = [key for key in by_key if key not in rows]
+    if missing:  # every batch finished, so each of its pairs reported: a bug, never bad input
+        raise RuntimeError(f"{len(missing)} pairs have no result row, e.g. {missing[0]}")
+    table = table_of([(pair, rows[pair["key"]]) for pair in trials])
     write_atomic_csv(table, layout(spec).zero_shot_table)
     return table
 

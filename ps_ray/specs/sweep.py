@@ -97,6 +97,9 @@ class ZeroShotSpec:
     # which modules meet: of one training seed, of two seeds (seed i's task modules with seed
     # i+1's robot modules, cyclically: separate training runs), or both
     pairs: str = "same_seed"
+    # pairs evaluated one after another in one Tune trial: a trial's start (process, imports,
+    # loading the sources) is paid once per batch; results and MLflow runs stay one per pair
+    pairs_per_trial: int = 8
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "methods", _method_keys("zero_shot.methods", self.methods))
@@ -112,6 +115,7 @@ class ZeroShotSpec:
             episodes=self.episodes,
             repeats=self.repeats,
             fit_states_per_quadrant=self.fit_states_per_quadrant,
+            pairs_per_trial=self.pairs_per_trial,
         )
         if not isinstance(self.translate, Mapping):
             raise SpecError(f"zero_shot.translate must map methods to translations, got {self.translate!r}")

@@ -85,6 +85,19 @@ def merged_rows(folders: list[Path]) -> list[dict]:
     return merged
 
 
+def rows_naming(stage_dir: Path, field: str) -> dict[str, dict]:
+    """Every result row of a stage folder that names ``field`` (e.g. one stitched pair of a
+    batched trial), by that field's value; of several attempts' rows, the newest attempt's wins."""
+    found: dict[str, tuple[float, dict]] = {}
+    for result in Path(stage_dir).glob(f"*/{RESULT_FILE}"):
+        for row in read_rows(result.parent):
+            name = row.get(field)
+            stamp = row.get("timestamp", 0)
+            if isinstance(name, str) and (name not in found or stamp >= found[name][0]):
+                found[name] = (stamp, row)
+    return {name: row for name, (_, row) in found.items()}
+
+
 @dataclass
 class TrialOutcome:
     """A trial as the stage sees it after running: its config, last result and folder."""

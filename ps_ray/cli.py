@@ -148,7 +148,9 @@ def _trained_sweep(args: argparse.Namespace, stage: str, *flags: str):
 def cmd_zero_shot(args: argparse.Namespace) -> int:
     from ps_ray.pipeline.zero_shot import run_zero_shot, summary
 
-    with _trained_sweep(args, "zero_shot", "methods", "episodes", "repeats", "seed", "pairs") as spec:
+    with _trained_sweep(
+        args, "zero_shot", "methods", "episodes", "repeats", "seed", "pairs", "pairs_per_trial"
+    ) as spec:
         table = run_zero_shot(spec, resume=args.resume)
     columns = [
         "method",

@@ -119,6 +119,12 @@ def _zero_shot_parser(sub) -> None:
         choices=("same_seed", "cross_seed", "both"),
         help="modules of one training seed, of two, or both (default: the spec's zero_shot.pairs)",
     )
+    p.add_argument(
+        "--pairs-per-trial",
+        type=int,
+        default=None,
+        help="pairs evaluated in one Tune trial (default: the spec's zero_shot.pairs_per_trial, 8)",
+    )
     p.add_argument("--resume", action="store_true", help="finish an interrupted matrix")
     p.add_argument("--storage", default=None, help="override the spec's storage directory")
 

@@ -11,8 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from ps_ray.anchors import AnchorSet, _as_states, anchor_hash, select_anchors, selection_provenance
-from ps_ray.atomic import atomic_file
-from ps_ray.checkpoint import file_sha256
+from ps_ray.atomic import atomic_file, file_sha256
 from ps_ray.errors import UserError
 from ps_ray.npz import NPY_MAGIC, ZIP_MAGIC, NpzError, magic, read_npy, read_npz
 

@@ -2,7 +2,9 @@
 
 Files of a checkpoint folder (docs/state.md):
   learner.safetensors  the five SAC nets, log alpha and every Adam slot
-  replay.npz           the hindsight replay buffer (read with ``allow_pickle=False``)
+  replay.json          the replay buffer's state and the segment files that hold its episodes,
+                       outside the folder (:mod:`ps_ray.store.replay`); a checkpoint written
+                       without a segment store, or by ps_ray before them, has replay.npz instead
   ps_ray_state.json    counters (env steps, episodes, updates) and the training iteration
   policy.safetensors   the policy file with its signature (what stitching and the zoo read)
   signature.json, spec.json, progress.json
@@ -16,12 +18,12 @@ planted beside the listed files is never opened.
 
 from __future__ import annotations
 
-import hashlib
 import json
 from pathlib import Path
 
-from ps_ray.atomic import fsync_file, write_text
+from ps_ray.atomic import file_sha256, fsync_file, write_text
 from ps_ray.errors import UserError
+from ps_ray.store import replay
 from ps_ray.store.run_layout import POLICY_FILE
 
 MANIFEST = "manifest.json"
@@ -32,15 +34,6 @@ POLICY_ONLY = (STATE_FILE, POLICY_FILE)  # what a reader of the policy alone mus
 
 class CheckpointError(UserError):
     """A checkpoint folder that is incomplete, altered, foreign or from an older ps_ray."""
-
-
-def file_sha256(path: Path) -> str:
-    """SHA-256 of a file's bytes, read in 1 MiB blocks."""
-    digest = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            digest.update(block)
-    return digest.hexdigest()
 
 
 def seal(directory: str | Path) -> None:
@@ -55,10 +48,14 @@ def seal(directory: str | Path) -> None:
     write_text(directory / MANIFEST, json.dumps({"format": FORMAT, "files": files}, indent=1))
 
 
-def verify(directory: str | Path, hashed: tuple[str, ...] | None = None) -> Path:
+def verify(
+    directory: str | Path, hashed: tuple[str, ...] | None = None, replay_store: Path | None = None
+) -> Path:
     """``directory`` if every file its manifest lists is there with its size, and the files in
     ``hashed`` (default: all) match their hashes; else CheckpointError naming the folder and the
-    first problem. A reader hashes what it loads: the zoo only needs the policy file."""
+    first problem. A reader hashes what it loads: the zoo only needs the policy file. With a
+    ``replay_store``, the replay segments the checkpoint names are checked too (hashed when
+    ``hashed`` is the default)."""
     directory = Path(directory)
 
     def bad(why: str) -> CheckpointError:
@@ -86,6 +83,11 @@ def verify(directory: str | Path, hashed: tuple[str, ...] | None = None) -> Path
             raise bad(f"{MANIFEST} lists no {name}")
         if file_sha256(directory / name) != files[name].get("sha256"):
             raise bad(f"{name} does not match its hash")
+    if replay_store is not None and replay.MANIFEST_FILE in files:
+        try:
+            replay.check(directory, Path(replay_store), hashed=hashed is None)
+        except replay.ReplayStoreError as e:
+            raise bad(str(e).removeprefix(f"{directory}: ")) from None
     return directory
 
 
@@ -94,14 +96,16 @@ def env_steps(directory: str | Path) -> int:
     return int(json.loads((Path(directory) / STATE_FILE).read_text())["counters"]["env_steps"])
 
 
-def latest(folders: list[Path], hashed: tuple[str, ...] | None = None) -> Path | None:
-    """The verified checkpoint with the most env steps among ``folders`` (``hashed`` as in
-    :func:`verify`); unusable ones are skipped: a checkpoint cut short by a kill is expected, and
-    an earlier one is used."""
+def latest(
+    folders: list[Path], hashed: tuple[str, ...] | None = None, replay_store: Path | None = None
+) -> Path | None:
+    """The verified checkpoint with the most env steps among ``folders`` (``hashed`` and
+    ``replay_store`` as in :func:`verify`); unusable ones are skipped: a checkpoint cut short by a
+    kill is expected, and an earlier one is used."""
     usable = []
     for folder in folders:
         try:
-            usable.append((env_steps(verify(folder, hashed)), folder))
+            usable.append((env_steps(verify(folder, hashed, replay_store)), folder))
         except (CheckpointError, KeyError, TypeError, ValueError):
             continue
     return max(usable)[1] if usable else None

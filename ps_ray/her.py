@@ -262,16 +262,69 @@ class HindsightReplay:
         """
         self._restore(path, *self._read(path))
 
-    def _restore(self, path: str | Path, meta: dict[str, Any], arrays: dict[str, np.ndarray]) -> None:
+    def _matching_rng(self, path: str | Path, meta: dict[str, Any]) -> np.random.Generator:
+        """The RNG that ``meta`` (of :meth:`state`) saved, once its layout matches this buffer's."""
         mine = self._meta()
         for key in ("obs_spec", "action_dim", "horizon", "capacity_episodes", "achieved_key", "goal_key"):
-            if meta[key] != mine[key]:
-                raise UserError(f"{path}: {key} {meta[key]!r} does not match this buffer's {mine[key]!r}")
+            if meta.get(key) != mine[key]:
+                raise UserError(f"{path}: {key} {meta.get(key)!r} does not match this buffer's {mine[key]!r}")
         rng = np.random.Generator(np.random.PCG64())
         try:
             rng.bit_generator.state = meta["rng_state"]
         except (TypeError, ValueError, KeyError) as exc:
             raise UserError(f"{path}: bad rng_state ({exc})") from exc
+        return rng
+
+    # ------------------------------------------------------------------ episodes by lifetime index
+    # Episode e (the e-th ever added) sits in slot e % capacity and never changes while it is held:
+    # what an incremental checkpoint (ps_ray.store.replay) writes once and reuses.
+    def state(self) -> dict[str, Any]:
+        """Layout, ring position and RNG state: JSON-serialisable, without the episodes."""
+        return self._meta()
+
+    def live_range(self) -> tuple[int, int]:
+        """Lifetime indices [first, end) of the episodes held."""
+        return max(0, self._episodes_added - self._capacity), self._episodes_added
+
+    def episodes(self, first: int, end: int) -> dict[str, np.ndarray]:
+        """Episodes ``first`` to ``end - 1`` (lifetime indices, all held), as "obs/<key>" and
+        "actions" arrays in the layout of :meth:`save`."""
+        lo, hi = self.live_range()
+        if not lo <= first <= end <= hi:
+            raise ValueError(f"episodes [{first}, {end}) are not all held (held: [{lo}, {hi}))")
+        slots = np.arange(first, end) % self._capacity
+        return {**{f"obs/{k}": a[slots] for k, a in self._obs.items()}, "actions": self._actions[slots]}
+
+    def restore(
+        self, where: str, state: dict[str, Any], parts: list[tuple[int, dict[str, np.ndarray]]]
+    ) -> None:
+        """Restore from :meth:`state` and ``(first, arrays)`` parts that together hold every
+        episode of the saved live range (extra episodes are ignored); ``where`` names the source
+        in errors."""
+        rng = self._matching_rng(where, state)
+        added = int(state["episodes_added"])
+        lo, hi = max(0, added - self._capacity), added
+        held = np.zeros(hi - lo, bool)
+        for first, arrays in parts:
+            n = arrays["actions"].shape[0]
+            a, b = max(first, lo), min(first + n, hi)
+            if a >= b:
+                continue
+            slots = np.arange(a, b) % self._capacity
+            for k, dst in self._obs.items():
+                dst[slots] = arrays[f"obs/{k}"][a - first : b - first]
+            self._actions[slots] = arrays["actions"][a - first : b - first]
+            held[a - lo : b - lo] = True
+        if not held.all():
+            missing = lo + int(np.argmin(held))
+            raise UserError(f"{where}: episode {missing} of the saved buffer is in none of its parts")
+        for dst in (*self._obs.values(), self._actions):  # slots filled here beyond the saved ones
+            dst[hi - lo : self.num_episodes] = 0
+        self._episodes_added = added
+        self._rng = rng
+
+    def _restore(self, path: str | Path, meta: dict[str, Any], arrays: dict[str, np.ndarray]) -> None:
+        rng = self._matching_rng(path, meta)
         n, stale = arrays["actions"].shape[0], self.num_episodes
         for k, a in self._obs.items():
             a[:n] = arrays[f"obs/{k}"]

@@ -37,6 +37,7 @@ from ps_ray.store.run_layout import (
     METRIC_FIELDS,
     METRICS_FILE,
     POLICY_FILE,
+    REPLAY_FOLDER,
     SIGNATURE_FILE,
     SPEC_FILE,
 )
@@ -111,8 +112,18 @@ class Tick:
 class TrainingRun:
     """One ModularSAC algorithm with its signature; the loop body shared by `ps-ray train` and Tune."""
 
-    def __init__(self, spec: TrainSpec, anchor_set=None, *, threads: int = 1, gpu: float = 0):
-        """``threads``: torch's CPU threads; ``gpu``: the learner's GPU share (ps_ray.specs.resources)."""
+    def __init__(
+        self,
+        spec: TrainSpec,
+        anchor_set=None,
+        *,
+        threads: int = 1,
+        gpu: float = 0,
+        replay_store: Path | None = None,
+    ):
+        """``threads``: torch's CPU threads; ``gpu``: the learner's GPU share (ps_ray.specs.resources);
+        ``replay_store``: the folder of this run's replay segments, kept across checkpoints and
+        attempts (:mod:`ps_ray.store.replay`; None: every checkpoint holds the whole buffer)."""
         from ps_ray.rllib.algo import algo_config
         from ps_ray.weights import Signature
 
@@ -120,6 +131,7 @@ class TrainingRun:
         self.spec = spec
         anchors = None if anchor_set is None else anchor_set.anchors
         self.algo = algo_config(spec, anchors, gpu=gpu).build_algo()
+        self.algo.replay_store = self.replay_store = replay_store
         self.signature = Signature(
             method=spec.method,
             settings=spec_json(method_spec(spec.method)),
@@ -202,7 +214,7 @@ class TrainingRun:
     def restore(self, directory: Path) -> None:
         """Resume from a checkpoint folder; CheckpointError (one line) if it is not a complete,
         unaltered ps_ray checkpoint. Nothing in it is unpickled."""
-        self.algo.load_checkpoint(str(checkpoint.verify(directory)))
+        self.algo.load_checkpoint(str(checkpoint.verify(directory, replay_store=self.replay_store)))
         self.start_steps = self.env_steps
         progress = Path(directory) / PROGRESS_FILE
         if progress.is_file():
@@ -283,8 +295,8 @@ def _train(spec: TrainSpec, run_dir: Path, given, progress: bool) -> dict[str, A
             log_to_driver=False,
             configure_logging=False,
         )
-    run = TrainingRun(spec, anchor_set)  # loads --init-policy: a bad one fails before spec.json
-    _check_run_dir(spec, run_dir)
+    run = TrainingRun(spec, anchor_set, replay_store=run_dir / REPLAY_FOLDER)  # loads --init-policy:
+    _check_run_dir(spec, run_dir)  # a bad one fails before spec.json
     resume_from = latest_checkpoint(run_dir)
     if resume_from is not None:
         run.restore(resume_from)  # may refuse the new budget: spec.json is written after it

@@ -54,9 +54,12 @@ def test_train_resume_never_runs_planted_pickles_and_refuses_altered_state(tmp_p
     assert "resumed at 320 env steps" in resumed.stdout  # whole episodes of 40 steps
     assert not marker.exists()
 
-    (run_dir / "checkpoint" / "replay.npz").write_bytes(b"PK\x03\x04 planted")
+    # the replay buffer lives in segment files beside the checkpoint, named by its replay.json
+    assert not (run_dir / "checkpoint" / "replay.npz").exists()
+    (segment,) = sorted((run_dir / "replay").glob("*.npz"))[-1:]
+    segment.write_bytes(b"PK\x03\x04 planted".ljust(segment.stat().st_size, b"\0"))
     refused = subprocess.run(train_cmd(run_dir, 500), capture_output=True, text=True, timeout=600)
     assert refused.returncode == 2
     last = refused.stderr.strip().splitlines()[-1]
     assert last.startswith("ps-ray train: error:") and "not a usable ps_ray checkpoint" in last
-    assert "replay.npz" in last and not marker.exists()
+    assert f"replay segment {segment} does not match its checkpoint" in last and not marker.exists()

@@ -347,3 +347,39 @@ SPEC_ALPHA = TrainSpec().initial_alpha
 
 def _log_alpha(algo) -> float:
     return _on_learner(algo, lambda learner: float(learner.curr_log_alpha["default_policy"].detach()))
+
+
+def test_a_checkpoint_holding_the_whole_replay_buffer_restores_into_a_run_with_segments(ray_local, tmp_path):
+    """Checkpoints written before replay segments (replay.npz inside) resume; the next checkpoint
+    names segments instead, and a run restored from either samples the same transitions."""
+    from ps_ray.store import replay
+    from ps_ray.train import TrainingRun
+
+    spec = TrainSpec(method="ablation", **SMALL)
+    whole, segmented, again = (
+        TrainingRun(spec),
+        TrainingRun(spec, replay_store=tmp_path / "segments"),
+        TrainingRun(spec, replay_store=tmp_path / "segments"),
+    )
+    try:
+        whole.step()
+        whole.step()
+        whole.save(tmp_path / "old")
+        assert (tmp_path / "old" / "replay.npz").is_file()
+        segmented.restore(tmp_path / "old")
+        segmented.save(tmp_path / "new")
+        assert not (tmp_path / "new" / "replay.npz").exists()
+        assert (tmp_path / "new" / replay.MANIFEST_FILE).is_file() and list(
+            (tmp_path / "segments").glob("*.npz")
+        )
+        again.restore(tmp_path / "new")
+        held = whole.algo.replay.live_range()
+        assert held[1] > 0 and segmented.algo.replay.live_range() == again.algo.replay.live_range() == held
+        samples = [run.algo.replay.sample(32) for run in (whole, segmented, again)]
+        for key in samples[0]:
+            assert np.array_equal(samples[0][key], samples[1][key]) and np.array_equal(
+                samples[0][key], samples[2][key]
+            )
+    finally:
+        for run in (whole, segmented, again):
+            run.stop()

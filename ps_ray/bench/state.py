@@ -1,5 +1,7 @@
 """What crash safety costs: the atomic write, the folder lock, and sealing / verifying a training
-checkpoint, each next to its unsafe counterpart (figures, never assertions)."""
+checkpoint, each next to its unsafe counterpart; with ``--replay``, what a trial writes to shared
+storage per checkpoint and per hour, the whole buffer each time against its segments
+(:mod:`ps_ray.store.replay`), at the paper's buffer size (figures, never assertions)."""
 
 from __future__ import annotations
 
@@ -25,6 +27,13 @@ def main(argv: list[str] | None = None) -> None:
     parser = Parser(prog="ps-ray bench state", description=__doc__)
     parser.add_argument("--checkpoint", default=None, help="a training checkpoint folder to seal and verify")
     parser.add_argument("--repeats", type=positive_int, default=200)
+    parser.add_argument(
+        "--replay",
+        type=positive_int,
+        default=None,
+        metavar="EPISODES",
+        help="also time replay checkpoints of a buffer holding this many push episodes (paper: 20000)",
+    )
     args = parser.parse_args(argv)
     if args.repeats < 1:
         parser.error(f"--repeats must be positive, got {args.repeats}")
@@ -54,6 +63,60 @@ def main(argv: list[str] | None = None) -> None:
                 f"checkpoint of {size:.1f} MB: seal {seal * 1e3:.1f} ms, verify {verify * 1e3:.1f} ms, "
                 f"against {copy * 1e3:.1f} ms to copy it (what Tune does with every checkpoint)"
             )
+        if args.replay:
+            replay_checkpoints(args.replay, root)
+
+
+def replay_checkpoints(held: int, root: Path, checkpoints: int = 5) -> None:
+    """A full buffer of ``held`` push episodes, checkpointed ``checkpoints`` times, each after one
+    checkpoint interval of new episodes (TrainSpec defaults): the whole buffer as one .npz (before)
+    against its segments (after). Per hour from this machine's rates (ps_ray.analysis.cost)."""
+    import numpy as np
+
+    from ps_ray.analysis.cost import load_rates
+    from ps_ray.bench.her import PUSH_SPEC, A, T
+    from ps_ray.envs.goals import goal_reward
+    from ps_ray.her import HindsightReplay
+    from ps_ray.specs.train import TrainSpec
+    from ps_ray.store import replay
+
+    spec = TrainSpec(robot="panda", task="push", hidden=256)
+    interval = spec.checkpoint_every * spec.episodes_per_step  # episodes between checkpoints
+    rates = load_rates()
+    step_s = rates.env_step_s + spec.updates_per_step * rates.update_s(spec)
+    per_hour = 3600 / (interval * T * step_s)
+    rng = np.random.default_rng(0)
+    chunk = {k: rng.standard_normal((interval, T + 1, *s)).astype(dt) for k, (s, dt) in PUSH_SPEC.items()}
+    actions = rng.uniform(-1, 1, (interval, T, A)).astype(np.float32)
+    buffer = HindsightReplay(PUSH_SPEC, A, T, held, goal_reward, seed=0)
+    while buffer.episodes_added < held:
+        buffer.add_episodes(chunk, actions)
+    store, manifest = root / "segments", replay.write(buffer, root / "segments")  # the trial so far
+    whole_bytes, whole_s, part_bytes, part_s = [], [], [], []
+    for _ in range(checkpoints):
+        buffer.add_episodes(chunk, actions)
+        start = time.perf_counter()
+        buffer.save(root / "replay.npz")
+        whole_s.append(time.perf_counter() - start)
+        whole_bytes.append((root / "replay.npz").stat().st_size)
+        before = {p.name for p in store.iterdir()}
+        start = time.perf_counter()
+        new = replay.write(buffer, store, manifest)
+        replay.prune(store, manifest, new)
+        part_s.append(time.perf_counter() - start)
+        part_bytes.append(sum(e["bytes"] for e in new["segments"] if e["file"] not in before))
+        manifest = new
+    mb = lambda b: np.mean(b) / 1e6  # noqa: E731
+    print(
+        f"replay checkpoints, buffer of {held:,} push episodes, a checkpoint every {interval} "
+        f"episodes ({per_hour:.0f} per trial-hour at hidden 256 with {rates.source.split(' (')[0]}):"
+    )
+    for name, sizes, seconds in (("whole buffer", whole_bytes, whole_s), ("segments", part_bytes, part_s)):
+        print(
+            f"  {name:13} {mb(sizes):8.1f} MB and {np.mean(seconds) * 1e3:7.0f} ms per checkpoint, "
+            f"{mb(sizes) * per_hour / 1e3:6.2f} GB per trial-hour"
+        )
+    print(f"  written per checkpoint, segments / whole: {np.mean(part_bytes) / np.mean(whole_bytes):.3f}")
 
 
 if __name__ == "__main__":

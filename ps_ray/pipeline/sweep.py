@@ -103,7 +103,7 @@ def sweep_trial(config: dict[str, Any]) -> None:
     from ray import tune
 
     from ps_ray.anchor_file import load_anchor_set
-    from ps_ray.store.attempts import FINISHED, earlier_checkpoint
+    from ps_ray.store.attempts import FINISHED, earlier_checkpoint, replay_store
     from ps_ray.train import TrainingRun
     from ps_ray.weights import policy_anchor_set
 
@@ -116,7 +116,13 @@ def sweep_trial(config: dict[str, Any]) -> None:
     else:
         anchor_set = None
     granted = ray.get_runtime_context().get_assigned_resources()  # what spec.resources asked for
-    run = TrainingRun(spec, anchor_set, threads=max(1, int(granted.get("CPU", 1))), gpu=granted.get("GPU", 0))
+    run = TrainingRun(
+        spec,
+        anchor_set,
+        threads=max(1, int(granted.get("CPU", 1))),
+        gpu=granted.get("GPU", 0),
+        replay_store=replay_store(config, "trial"),
+    )
     checkpoint = tune.get_checkpoint()
     if checkpoint is not None:
         with checkpoint.as_directory() as directory:

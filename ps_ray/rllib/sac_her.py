@@ -45,6 +45,7 @@ from ps_ray.rllib.private import (
 )
 from ps_ray.specs.methods import ConsolidateSpec, spec_json
 from ps_ray.specs.train import TrainSpec
+from ps_ray.store import replay as replay_segments
 from ps_ray.weights import (
     Signature,
     load_nets_state,
@@ -123,6 +124,9 @@ class ModularSAC(SAC):
             seed=cfg.seed,
         )
         self.counters = {"env_steps": 0, "episodes": 0, "updates": 0}
+        # Where replay segments go (ps_ray.store.replay); None: each checkpoint holds the whole buffer.
+        self.replay_store: Path | None = None
+        self._replay_manifest: dict | None = None  # the segments of the last checkpoint saved or loaded
         dims = dims_from_spaces(space, self._reward_env.action_space)
         self.replay_dims = {
             "task_dim": dims.task_dim,
@@ -268,7 +272,13 @@ class ModularSAC(SAC):
         directory.mkdir(parents=True, exist_ok=True)
         tensors = self.learner_group.foreach_learner(lambda learner: learner.training_state())
         save_file(tensors.result_or_errors[0].get(), directory / LEARNER_FILE)
-        self.replay.save(directory / REPLAY_FILE)
+        if self.replay_store is None:
+            self.replay.save(directory / REPLAY_FILE)
+        else:  # only the segments the last checkpoint does not hold yet; then what neither names goes
+            manifest = replay_segments.write(self.replay, self.replay_store, self._replay_manifest)
+            replay_segments.save_manifest(manifest, directory)
+            replay_segments.prune(self.replay_store, self._replay_manifest, manifest)
+            self._replay_manifest = manifest
         state = {"counters": self.counters, "iteration": self.iteration}
         (directory / STATE_FILE).write_text(json.dumps(state))
 
@@ -280,7 +290,12 @@ class ModularSAC(SAC):
         self.env_runner_group.sync_weights(
             from_worker_or_learner_group=self.learner_group, inference_only=True
         )
-        self.replay.load(directory / REPLAY_FILE)
+        if (directory / replay_segments.MANIFEST_FILE).is_file():
+            if self.replay_store is None:
+                raise UserError(f"{directory}: its replay buffer is in segment files; give their store")
+            self._replay_manifest = replay_segments.load(self.replay, directory, self.replay_store)
+        else:  # a checkpoint that holds the whole buffer (no store, or an earlier ps_ray)
+            self.replay.load(directory / REPLAY_FILE)
         state = json.loads((directory / STATE_FILE).read_text())
         self.counters = {k: int(state["counters"][k]) for k in self.counters}
         set_training_iteration(self, int(state["iteration"]))

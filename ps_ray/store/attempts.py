@@ -15,6 +15,7 @@ Readers without Ray (the report, the zoo) use :func:`outcomes` and :func:`merged
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -22,6 +23,7 @@ from typing import Any
 
 from ps_ray import checkpoint
 from ps_ray.errors import UserError
+from ps_ray.store.run_layout import REPLAY_FOLDER
 
 FINISHED = "ps_ray_finished"  # in the last result of a trial that ran to its end
 STAGE_DIR_KEY = "stage_dir"  # a constant of every grid: where earlier attempts lie
@@ -51,6 +53,16 @@ def read_rows(attempt: Path) -> list[dict]:
     return rows
 
 
+def _first_row(attempt: Path) -> dict | None:
+    """An attempt's first result, reading only its first line (None: no complete first row)."""
+    try:
+        with open(attempt / RESULT_FILE) as f:
+            row = json.loads(f.readline())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError):
+        return None
+    return row if isinstance(row, dict) else None
+
+
 def _params(attempt: Path) -> dict | None:
     try:
         params = json.loads((attempt / PARAMS_FILE).read_text())
@@ -66,8 +78,8 @@ def attempts(stage_dir: Path, key: str) -> dict[str, list[Path]]:
         params = _params(params_path.parent)
         if params is None or key not in params:
             continue
-        rows = read_rows(params_path.parent)
-        started = rows[0].get("timestamp", 0) if rows else float("inf")
+        first = _first_row(params_path.parent)  # not the whole file: a resume reads little
+        started = first.get("timestamp", 0) if first is not None else float("inf")
         found.setdefault(identity(params[key]), []).append((started, params_path.parent))
     return {k: [p for _, p in sorted(v, key=lambda sp: (sp[0], str(sp[1])))] for k, v in found.items()}
 
@@ -145,14 +157,24 @@ def outcomes(
     return out
 
 
+def replay_store(config: dict, key: str) -> Path | None:
+    """The folder of a trial's replay segments (:mod:`ps_ray.store.replay`), shared by all its
+    attempts: ``<stage folder>/replay/<digest of the trial>``; None outside a stage."""
+    stage_dir = config.get(STAGE_DIR_KEY)
+    if not stage_dir:
+        return None
+    digest = hashlib.sha256(identity(config[key]).encode()).hexdigest()[:16]
+    return Path(stage_dir) / REPLAY_FOLDER / digest
+
+
 def earlier_checkpoint(config: dict, key: str) -> Path | None:
     """For a trial starting afresh: the furthest verified checkpoint of its earlier attempts in
-    the stage folder (``config[STAGE_DIR_KEY]``), or None."""
+    the stage folder (``config[STAGE_DIR_KEY]``), its replay segments included, or None."""
     stage_dir = config.get(STAGE_DIR_KEY)
     if not stage_dir:
         return None
     folders = attempts(Path(stage_dir), key).get(identity(config[key]), [])
-    return checkpoint.latest(checkpoint_dirs(folders))
+    return checkpoint.latest(checkpoint_dirs(folders), replay_store=replay_store(config, key))
 
 
 def checkpoint_dirs(folders: list[Path]) -> list[Path]:

@@ -14,7 +14,14 @@ from pathlib import Path
 from ps_ray import checkpoint
 from ps_ray.atomic import atomic_file, atomic_path, fsync_dir
 from ps_ray.errors import UserError
-from ps_ray.store.run_layout import BEST_POLICY_FILE, CHECKPOINT_DIR, METRIC_FIELDS, METRICS_FILE, POLICY_FILE
+from ps_ray.store.run_layout import (
+    BEST_POLICY_FILE,
+    CHECKPOINT_DIR,
+    METRIC_FIELDS,
+    METRICS_FILE,
+    POLICY_FILE,
+    REPLAY_FOLDER,
+)
 
 
 def _checkpoint_dirs(run_dir: Path) -> tuple[Path, Path, Path]:
@@ -45,9 +52,9 @@ def latest_checkpoint(run_dir: Path) -> Path | None:
     checkpoints but none that verifies is refused (CheckpointError), not silently restarted."""
     _, final, old = _checkpoint_dirs(run_dir)
     found = [d for d in (final, old) if d.is_dir()]
-    best = checkpoint.latest(found)
+    best = checkpoint.latest(found, replay_store=run_dir / REPLAY_FOLDER)
     if found and best is None:
-        checkpoint.verify(found[0])  # raises, naming the problem
+        checkpoint.verify(found[0], replay_store=run_dir / REPLAY_FOLDER)  # raises, naming the problem
     return best
 
 

@@ -5,6 +5,7 @@ policy inside a checkpoint, in one place (docs/state.md). A sweep folder's paths
 SPEC_FILE = "spec.json"  # the run's TrainSpec; also written into every checkpoint
 ANCHORS_FILE = "anchors.npz"  # PS: the run's anchor set
 CHECKPOINT_DIR = "checkpoint"  # the sealed checkpoint, swapped in through .tmp and .old
+REPLAY_FOLDER = "replay"  # the replay buffer's segment files (ps_ray.store.replay), for every checkpoint
 POLICY_FILE = "policy.safetensors"  # the latest policy (also inside every checkpoint)
 SIGNATURE_FILE = "signature.json"  # the policy's interface signature, inside every checkpoint
 BEST_POLICY_FILE = "best_policy.safetensors"  # the best greedy evaluation so far

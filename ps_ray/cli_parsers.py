@@ -102,7 +102,12 @@ def _sweep_parser(sub) -> None:
     p.add_argument(
         "--check", action="store_true", help="validate the spec, list trials, project the cost; run nothing"
     )
-    p.add_argument("--cores", type=int, default=64, help="cluster size for the --check wall-time projection")
+    p.add_argument(
+        "--cores",
+        type=int,
+        default=64,
+        help="ideal cores (one trial each) for --check; cluster.yaml's kinds are projected too",
+    )
 
 
 def _zero_shot_parser(sub) -> None:

@@ -17,6 +17,7 @@ from pathlib import Path
 
 import jsonschema
 import pytest
+import ray.autoscaler
 import yaml
 from ray.autoscaler._private.util import prepare_config, validate_config
 
@@ -117,7 +118,7 @@ def test_head_and_cpu_workers(raw):
         cpu = node["resources"].get("CPU")
         assert isinstance(cpu, int) and cpu >= 1, name
         assert node["node_config"]["InstanceType"], name
-        assert node.get("max_workers", 0) >= 1, name
+        assert node.get("max_workers", 0) >= (0 if name == "cpu_spot_worker" else 1), name
     assert sum(n.get("min_workers", 0) for n in types.values()) <= raw["max_workers"]
     assert raw["idle_timeout_minutes"] > 0
     for node in types.values():
@@ -208,3 +209,27 @@ def test_a_gpu_worker_type_installs_the_cuda_build_of_the_same_torch(raw, prepar
     assert any("torch.cuda.is_available()" in c for c in commands), "a GPU node without CUDA must fail setup"
     # the CPU workers keep the global commands (no GPU type's command leaks into them)
     assert "worker_setup_commands" not in raw["available_node_types"]["cpu_worker"]
+
+
+def test_a_spot_copy_of_the_cpu_worker_is_there_to_switch_to(raw):
+    types = raw["available_node_types"]
+    on_demand, spot = types["cpu_worker"], types["cpu_spot_worker"]
+    # the same node bought on the spot market, off until switched to
+    assert spot["node_config"] == {
+        **on_demand["node_config"],
+        "InstanceMarketOptions": {"MarketType": "spot"},
+    }
+    assert spot["resources"] == on_demand["resources"] and spot["max_workers"] == 0
+    assert (
+        "InstanceMarketOptions" not in on_demand["node_config"]
+        and "InstanceMarketOptions" not in (types[raw["head_node_type"]]["node_config"])
+    ), "the head runs the driver and the MLflow store: never on spot"
+    # switched as the comment says (spot 4, on-demand 0): still a config `ray up` takes
+    switched = copy.deepcopy(raw)
+    switched["available_node_types"]["cpu_spot_worker"]["max_workers"] = on_demand["max_workers"]
+    switched["available_node_types"]["cpu_worker"]["max_workers"] = 0
+    validate_config(prepare_config(switched))
+    # Ray passes node_config to EC2 unchecked; the spot option is the one of Ray's own AWS defaults
+    ray_aws = yaml.safe_load((Path(ray.autoscaler.__file__).parent / "aws" / "defaults.yaml").read_text())
+    ray_worker = ray_aws["available_node_types"]["ray.worker.default"]["node_config"]
+    assert spot["node_config"]["InstanceMarketOptions"] == ray_worker["InstanceMarketOptions"]

@@ -13,9 +13,20 @@ import pytest
 import yaml
 
 from ps_ray.analysis.cost import DEFAULT_RATES, Rates, describe, load_rates, project, workload
+from ps_ray.analysis.hardware import (
+    CLUSTERS,
+    CPU_CLUSTER,
+    DEFAULT_GPU_RATES,
+    GPU_CLUSTER,
+    HT_WORTH,
+    PARALLEL_FRACTION,
+    NodeKind,
+)
+from ps_ray.specs.resources import ResourcesSpec, StageResources
 from ps_ray.specs.sweep import SweepSpec, load_sweep
 
-SWEEPS = Path(__file__).resolve().parents[1] / "sweeps"
+ROOT = Path(__file__).resolve().parents[1]
+SWEEPS = ROOT / "sweeps"
 RATES = Rates(
     trial_s=10.0,
     stage_s=5.0,
@@ -37,6 +48,13 @@ def one_trial(method: str = "ablation", **train) -> SweepSpec:
         seeds=(1,),
         train={"env_steps": 2000, "learning_starts": 1000, "eval_every": 5, "eval_episodes": 4, **train},
     )
+
+
+def many_trials(n: int, **resources) -> SweepSpec:
+    """``n`` one-stage training trials (ablation: no anchor stage) asking ``resources`` each."""
+    train = StageResources(**resources) if resources else StageResources()
+    seeds = tuple(range(1, n + 1))
+    return dataclasses.replace(one_trial(), seeds=seeds, resources=ResourcesSpec(train=train))
 
 
 def test_the_workload_of_the_smoke_sweep_is_counted_from_its_spec():
@@ -100,6 +118,12 @@ def test_check_prints_the_projection_and_refuses_a_bad_core_count(tmp_path):
     assert run.returncode == 0, run.stderr[-2000:]
     assert "total: 26 trials, 33,000 training env steps" in run.stdout
     assert "on 16 cores" in run.stdout and "rates: conservative defaults" in run.stdout
+    # this machine, then cluster.yaml's two worker kinds side by side, with the GPU figures' source
+    lines = run.stdout.splitlines()
+    here = next(i for i, line in enumerate(lines) if line.startswith("  this machine: "))
+    assert lines[here + 1].startswith("  CPU cluster: 4 x c6i.4xlarge (16 vCPUs, 8 cores) ")
+    assert lines[here + 2].startswith("  GPU cluster: 2 x g5.2xlarge (8 vCPUs, 4 cores, 1 A10G) ")
+    assert "LeanRL" in run.stdout and "not measured here" in run.stdout
     assert not list((tmp_path / "rates").iterdir())  # --check writes nothing
     bad = subprocess.run(
         [sys.executable, "-m", "ps_ray.cli", "sweep", str(SWEEPS / "smoke.yaml"), "--check", "--cores", "0"],
@@ -119,3 +143,73 @@ def test_a_success_target_makes_the_budget_a_cap(tmp_path):
     assert not any(
         "caps" in line for line in describe(project(load_sweep(SWEEPS / "smoke.yaml"), rates=RATES))
     )
+
+
+# -- on a cluster: physical cores, threads, GPU shares (docs/cost.md, "On a cluster") -----------
+def test_the_cluster_kinds_are_cluster_yamls_worker_types():
+    types = yaml.safe_load((ROOT / "cluster.yaml").read_text())["available_node_types"]
+    for kind in CLUSTERS:
+        node = types[kind.node_type]
+        assert node["node_config"]["InstanceType"] == kind.instance
+        assert node["resources"] == {"CPU": kind.vcpus, **({"GPU": kind.gpus} if kind.gpus else {})}
+        assert node["max_workers"] == kind.nodes
+        assert kind.cores * 2 == kind.vcpus  # c6i and g5: two hyperthreads per core
+    assert CPU_CLUSTER.nodes * CPU_CLUSTER.vcpus == 64 and GPU_CLUSTER.gpus == 1
+
+
+def test_a_cluster_counts_physical_cores_not_vcpus():
+    spec = many_trials(64)
+    as_cores = dataclasses.replace(CPU_CLUSTER, cores=CPU_CLUSTER.vcpus)  # 16 vCPUs as 16 cores
+    p = project(spec, cores_on=64, rates=RATES, kinds=(CPU_CLUSTER, as_cores))
+    real, ideal = p.clusters
+    assert real.at_once == ideal.at_once == {"train": 64}
+    # every trial's work runs on a vCPU whose sibling is busy: worth HT_WORTH of a core
+    assert (real.wall_s - RATES.stage_s) == pytest.approx((ideal.wall_s - RATES.stage_s) / HT_WORTH)
+    assert real.vcpu_s == pytest.approx(ideal.vcpu_s / HT_WORTH)
+    # 16 cores per node is what `--cores 64` assumes: the same wall time
+    assert ideal.wall_s == pytest.approx(p.wall_s_on)
+    assert real.node_s == pytest.approx(4 * real.wall_s)  # all four nodes held throughout
+    # 8 trials need one node, and get a physical core each: no hyperthreading penalty
+    few = project(many_trials(8), rates=RATES, kinds=(CPU_CLUSTER, as_cores)).clusters
+    assert few[0].wall_s == pytest.approx(few[1].wall_s) and few[0].node_s == pytest.approx(few[0].wall_s)
+
+
+def trial_wall_s(kind: NodeKind, n: int, cpu: float) -> float:
+    """Wall time of one trial of ``n`` asking ``cpu`` vCPUs each (the stage start excluded)."""
+    p = project(many_trials(n, cpu=cpu), rates=RATES, kinds=(kind,))
+    (on,) = p.clusters
+    slots = on.at_once["train"]
+    return (on.wall_s - RATES.stage_s) * slots / n
+
+
+@pytest.mark.parametrize("n", [1, 64])
+def test_more_threads_per_trial_never_make_a_trial_slower(n):
+    cpus = [0.5, 1, 1.5, 2, 3, 4, 6, 8, 16]
+    times = [trial_wall_s(CPU_CLUSTER, n, cpu) for cpu in cpus]
+    assert times == sorted(times, reverse=True), dict(zip(cpus, times))
+    # on full nodes two threads make one trial's update faster by Amdahl: a 2-vCPU trial has
+    # 2 x HT_WORTH = 1.2 cores, its env steps a full core
+    own = 10 + 2000 * 0.01 + 800 * 0.002  # start, env steps, evaluation: one core's seconds
+    updates = 400 * 0.12
+    one, two = times[cpus.index(1)], times[cpus.index(2)]
+    if n == 64:
+        assert one == pytest.approx((own + updates) / HT_WORTH)
+        p = PARALLEL_FRACTION
+        assert two == pytest.approx(own + updates * ((1 - p) + p / (2 * HT_WORTH)))
+
+
+@pytest.mark.parametrize("share", [1, 0.5, 0.25, 0.125])
+def test_a_gpu_share_packs_one_over_share_trials_per_gpu(share):
+    roomy = NodeKind("GPU", "g", nodes=2, vcpus=64, cores=32, gpus=1, gpu="X")  # CPUs never limit
+    assert roomy.per_node(StageResources(cpu=1, gpu=share)) == round(1 / share)
+    p = project(many_trials(32, cpu=1, gpu=share), rates=RATES, kinds=(roomy, CPU_CLUSTER))
+    gpu, cpu = p.clusters
+    assert gpu.at_once == {"train": min(32, round(2 / share))}
+    assert gpu.gpu_s == pytest.approx(gpu.vcpu_s * share)  # each trial holds its share
+    # a GPU update takes max(launch, busy / share): packing more trials per GPU only slows
+    # each once the GPU, not the host, is the bound
+    g = DEFAULT_GPU_RATES
+    own = 10 + 2000 * 0.01 + 800 * 0.002
+    expected = own + 400 * max(g.launch_s, g.busy_s / share)  # hidden 256, batch 256: one unit
+    assert (gpu.wall_s - RATES.stage_s) * gpu.at_once["train"] / 32 == pytest.approx(expected)
+    assert "train: its gpu" in " ".join(cpu.notes)  # the CPU cluster trains it on the CPU

@@ -11,7 +11,7 @@ import pytest
 
 from ps_ray.errors import UserError
 from ps_ray.rllib.algo import algo_config
-from ps_ray.specs.resources import StageResources, learner_device
+from ps_ray.specs.resources import StageResources, device_tags, learner_device
 from ps_ray.specs.sweep import SweepSpec
 from ps_ray.specs.train import TrainSpec
 
@@ -80,6 +80,19 @@ def test_bad_resources_are_one_line(resources, message):
     with pytest.raises(UserError) as info:
         SweepSpec.from_mapping({**GRID, "resources": resources})
     assert message in str(info.value)
+
+
+def test_mlflow_device_tags_name_the_device_cpus_and_gpu_share():
+    assert device_tags(StageResources(cpu=2, gpu=0.25)) == {
+        "ps_ray.device": "cuda",
+        "ps_ray.cpus": "2",
+        "ps_ray.gpu_share": "0.25",
+    }
+    assert device_tags(StageResources(cpu=0.5)) == {
+        "ps_ray.device": "cpu",
+        "ps_ray.cpus": "0.5",
+        "ps_ray.gpu_share": "0",
+    }
 
 
 def test_a_gpu_share_without_cuda_is_one_clear_error_and_none_is_the_cpu():

@@ -64,6 +64,9 @@ def test_sweep_tracks_one_mlflow_run_per_trial_with_artifacts(tmp_path, cli, tin
     consolidated = "ps_distilled/panda/reach/1/i8"
     assert sorted(found) == ["ablation/panda/reach/1/i8", plain, "ps/panda/reach/1/i8", consolidated]
     assert found[plain].data.tags["ps_ray.stage"] == "anchors_plain"
+    # every run names the device its trial trained on (the default request: one CPU, no GPU)
+    on_cpu = {"ps_ray.device": "cpu", "ps_ray.cpus": "1", "ps_ray.gpu_share": "0"}
+    assert all({k: r.data.tags.get(k) for k in on_cpu} == on_cpu for r in found.values())
     found.pop(plain)
     client = mlflow.MlflowClient(f"sqlite:///{sweep_dir(load_sweep(path)) / 'mlflow.db'}")
     for name, run in found.items():

@@ -2,9 +2,14 @@
 
 from __future__ import annotations
 
+import os
 import pickle
+import signal
+import socket
 import subprocess
 import sys
+import time
+import urllib.request
 from pathlib import Path
 from urllib.parse import urlparse
 
@@ -22,6 +27,7 @@ from ps_ray.pipeline.tune_tracking import (
 from ps_ray.tracking import (
     TRIAL_KEY_TAG,
     TrialTracker,
+    check_tracking_uri,
     default_tracking_uri,
     ensure_experiment,
     git_commit,
@@ -81,6 +87,53 @@ def test_ensure_experiment_errors_are_one_line(store, tmp_path):
     assert "\n" not in str(info.value)
     with pytest.raises(ValueError, match="'bogus://nowhere'"):
         ensure_experiment("bogus://nowhere", "x", tmp_path)
+
+
+def test_a_tracking_server_as_docs_cluster_md_starts_it_takes_a_sweeps_runs(tmp_path):
+    """`mlflow server` on 127.0.0.1 over a sqlite store (docs/cluster.md): an http URI passes the
+    check, and a run logged through it keeps its artifacts in the sweep folder."""
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        port = sock.getsockname()[1]
+    server = subprocess.Popen(
+        [
+            str(Path(sys.executable).with_name("mlflow")),
+            "server",
+            *("--backend-store-uri", f"sqlite:///{tmp_path / 'server' / 'mlflow.db'}"),
+            *("--artifacts-destination", str(tmp_path / "server" / "artifacts")),
+            *("--host", "127.0.0.1", "--port", str(port)),
+        ],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+        start_new_session=True,
+    )
+    try:
+        uri = f"http://127.0.0.1:{port}"
+        deadline = time.time() + 120
+        while True:
+            try:
+                with urllib.request.urlopen(f"{uri}/health", timeout=2):
+                    break
+            except OSError:
+                assert server.poll() is None and time.time() < deadline, "mlflow server did not start"
+                time.sleep(0.5)
+        check_tracking_uri(uri)  # accepted, no error
+        sweep = tmp_path / "storage" / "big"
+        exp_id = ensure_experiment(uri, "big", sweep / "mlartifacts")
+        tracker = TrialTracker(
+            uri, exp_id, "ps/panda/push/1", params={"seed": 1}, tags={"ps_ray.device": "cuda"}
+        )
+        policy = tmp_path / "policy.safetensors"
+        policy.write_bytes(b"weights")
+        tracker.log_artifact(policy)
+        tracker.close("FINISHED")
+        (run,) = MlflowClient(uri).search_runs([exp_id])
+        assert run.data.tags["ps_ray.device"] == "cuda" and run.info.status == "FINISHED"
+        stored = sweep / "mlartifacts" / run.info.run_id / "artifacts" / "policy.safetensors"
+        assert stored.read_bytes() == b"weights"  # in the sweep folder, not the server's destination
+    finally:
+        os.killpg(server.pid, signal.SIGTERM)
+        server.wait(timeout=30)
 
 
 def test_git_commit(tmp_path):

@@ -1,12 +1,13 @@
 """What a sweep will cost before it runs: trials, env steps, gradient updates, core-hours, wall time.
 
-The workload is counted from the spec alone (no policy needs to exist): training trials, the
-plain policies trained for PS anchors, the stitched pairs of the zero-shot stage, and the
-fine-tuning and from-scratch runs of the few-shot stage. Budgets with a success target are caps,
-so the projection is an upper bound for them.
+The workload is counted from the spec alone (:mod:`ps_ray.analysis.workload`). Budgets with a
+success target are caps, so the projection is an upper bound for them.
 
 Seconds come from per-core rates (:class:`Rates`): measured on this machine by
 ``ps-ray bench rates`` and cached, or :data:`DEFAULT_RATES`, conservative figures stated as such.
+On this machine and on cluster.yaml's node kinds the hardware model of
+:mod:`ps_ray.analysis.hardware` applies: physical cores, not vCPUs, torch threads per trial, and a
+GPU's update time (docs/cost.md, "On a cluster").
 """
 
 from __future__ import annotations
@@ -18,23 +19,13 @@ import socket
 from dataclasses import dataclass
 from pathlib import Path
 
-from ps_ray.envs import EPISODE_STEPS
-from ps_ray.names import CONTROL_ROLES
+from ps_ray.analysis.hardware import CLUSTERS, DEFAULT_GPU_RATES, GpuRates, NodeKind, this_machine
+from ps_ray.analysis.placement import OnKind, on_kind
+from ps_ray.analysis.workload import StageLoad, train_load, workload
 from ps_ray.specs.methods import uses_anchors
 from ps_ray.specs.sweep import SweepSpec
 from ps_ray.specs.train import SpecError, TrainSpec
 from ps_ray.store.layout import SweepLayout
-
-
-@dataclass(frozen=True)
-class StageLoad:
-    """One stage's work: its trials, their env steps (training and evaluation) and updates."""
-
-    stage: str
-    trials: list[TrainSpec | None]  # None: an evaluation-only trial (zero-shot)
-    env_steps: int
-    updates: int
-    eval_steps: int
 
 
 @dataclass(frozen=True)
@@ -52,10 +43,16 @@ class Rates:
     relative_factor: float
     source: str
 
+    @staticmethod
+    def size_unit(spec: TrainSpec) -> float:
+        return spec.batch_size * spec.hidden**2 / 256**3
+
+    def method_factor(self, spec: TrainSpec) -> float:
+        return self.relative_factor if uses_anchors(spec.method) else 1.0
+
     def update_s(self, spec: TrainSpec) -> float:
-        unit = spec.batch_size * spec.hidden**2 / 256**3
-        factor = self.relative_factor if uses_anchors(spec.method) else 1.0
-        return (self.update_fixed_s + self.update_per_unit_s * unit) * factor
+        per_update = self.update_fixed_s + self.update_per_unit_s * self.size_unit(spec)
+        return per_update * self.method_factor(spec)
 
 
 # Measured for hidden 256 on a 2-core machine (docs/cost.md), rounded up by about 1.5x.
@@ -93,99 +90,11 @@ def load_rates(path: Path | None = None) -> Rates:
         )
 
 
-def _train_load(stage: str, specs: list[TrainSpec]) -> StageLoad:
-    env = updates = evals = 0
-    for s in specs:
-        env += s.env_steps
-        updates += int(max(0, s.env_steps - s.learning_starts) * s.updates_per_step)
-        steps_per_iteration = s.episodes_per_step * EPISODE_STEPS
-        evals += s.env_steps // (steps_per_iteration * s.eval_every) * s.eval_episodes * EPISODE_STEPS
-    return StageLoad(stage, list(specs), env, updates, evals)
-
-
-def stitch_pairs(
-    spec: SweepSpec, method: str, pairing: str = "same_seed"
-) -> list[tuple[TrainSpec, TrainSpec]]:
-    """(task source, robot source) pairs the stitching stages will build for one method, by the
-    rule of :func:`ps_ray.stitching.stitch.combos`: another task, another arm, the same interface, for
-    relative methods the same anchor set (the same task-input width), and the seeds that
-    ``pairing`` joins (:func:`ps_ray.specs.sweep.seed_pairs`)."""
-    from ps_ray.envs.robots import arm
-    from ps_ray.specs.sweep import seed_pairs, task_input_dim
-
-    cells = [t for t in spec.trials() if t.method == method]
-    joined = {(task_seed, robot_seed) for _, task_seed, robot_seed in seed_pairs(spec.seeds, pairing)}
-    return [
-        (t, r)
-        for t in cells
-        for r in cells
-        if (t.seed, r.seed) in joined
-        and t.interface_dim == r.interface_dim
-        and t.task != r.task
-        and arm(t.robot) != arm(r.robot)
-        and (not uses_anchors(t.method) or task_input_dim(t.task) == task_input_dim(r.task))
-    ]
-
-
-def workload(spec: SweepSpec) -> list[StageLoad]:
-    """The work of every stage the spec runs, in order."""
-    from ps_ray.specs.sweep import anchor_sources
-
-    loads = []
-    if "train" in spec.stages:
-        plain = anchor_sources(spec) if spec.anchors.policy == "plain" and not spec.anchors.file else []
-        if plain:
-            loads.append(_train_load("anchors_plain", plain))
-        loads.append(_train_load("train", spec.trials()))
-    if "zero_shot" in spec.stages:
-        methods = list(spec.zero_shot.methods) or list(spec.methods)
-        pairing = spec.zero_shot.pairs
-        n = sum(
-            len(stitch_pairs(spec, m, pairing)) * (1 + len(spec.zero_shot.translations(m))) for m in methods
-        )
-        # each trial evaluates its pair and up to three controls (ps_ray.stitching.stitch.controls)
-        steps = (
-            n * (1 + len(CONTROL_ROLES)) * spec.zero_shot.episodes * spec.zero_shot.repeats * EPISODE_STEPS
-        )
-        batches = -(-n // spec.zero_shot.pairs_per_trial)  # trials of pairs_per_trial pairs each
-        loads.append(StageLoad("zero_shot", [None] * batches, 0, 0, steps))
-    if "few_shot" in spec.stages:
-        from ps_ray.specs.sweep import task_input_dim
-
-        few = spec.few_shot
-        runs: list[TrainSpec] = []
-        targets: dict[str, TrainSpec] = {}
-        unstitched: dict[str, TrainSpec] = {}
-        for method in list(few.methods) or list(spec.methods):
-            chosen, per_seed = [], {}
-            for t, r in stitch_pairs(spec, method):
-                if few.pairs_per_seed is not None and per_seed.get(t.seed, 0) >= few.pairs_per_seed:
-                    continue
-                per_seed[t.seed] = per_seed.get(t.seed, 0) + 1
-                chosen.append((t, r))
-            for t, r in chosen[: few.max_pairs]:
-                run = TrainSpec.from_mapping(
-                    {
-                        **r.to_dict(),
-                        "task": t.task,
-                        "env_steps": few.env_steps,
-                        "learning_starts": few.collect_steps,
-                    }
-                )
-                runs.append(run)  # fine-tuning a stitched start
-                key = json.dumps(run.to_dict(), sort_keys=True, default=str)
-                targets.setdefault(key, run)
-                if few.unstitched and task_input_dim(r.task) == task_input_dim(t.task):
-                    unstitched.setdefault(key + json.dumps(r.task, sort_keys=True, default=str), run)
-        runs += unstitched.values()  # each pair's robot source fine-tuned as it is
-        if few.scratch:  # one from-scratch run per distinct target
-            runs += targets.values()
-        loads.append(_train_load("few_shot", runs))
-    return loads
-
-
 @dataclass(frozen=True)
 class Projection:
+    """``core_s``: per-core seconds (one trial per core, nothing shared); ``wall_s_on``: on
+    ``cores_on`` cores counted the same way; ``here`` and ``clusters``: the hardware model."""
+
     loads: list[StageLoad]
     core_s: float
     wall_s_here: float
@@ -193,12 +102,15 @@ class Projection:
     cores_here: int
     cores_on: int
     rates: Rates
+    here: OnKind
+    clusters: tuple[OnKind, ...]
+    gpu_rates: GpuRates
 
 
 def _trial_s(spec: TrainSpec | None, load: StageLoad, rates: Rates, n: int) -> float:
     if spec is None:  # an evaluation-only trial: its share of the stage's evaluation steps
         return rates.trial_s + load.eval_steps / max(n, 1) * rates.eval_step_s
-    own = _train_load(load.stage, [spec])
+    own = train_load(load.stage, [spec])
     return (
         rates.trial_s
         + own.env_steps * rates.env_step_s
@@ -221,26 +133,40 @@ def _wall_s(loads: list[StageLoad], rates: Rates, cores: int, max_concurrent: in
     return total
 
 
-def project(spec: SweepSpec, cores_on: int = 64, rates: Rates | None = None) -> Projection:
-    """Core-seconds of the whole sweep, and its wall time here and on ``cores_on`` cores."""
+def project(
+    spec: SweepSpec,
+    cores_on: int = 64,
+    rates: Rates | None = None,
+    *,
+    kinds: tuple[NodeKind, ...] = CLUSTERS,
+    here: NodeKind | None = None,
+    gpu_rates: GpuRates = DEFAULT_GPU_RATES,
+) -> Projection:
+    """Core-seconds of the whole sweep; its wall time on ``cores_on`` ideal cores, on this
+    machine (``here``) and on each of ``kinds`` (cluster.yaml's CPU and GPU workers)."""
     if not isinstance(cores_on, int) or cores_on < 1:
         raise SpecError(f"--cores must be a positive number of cores, got {cores_on!r}")
     rates = rates or load_rates()
     loads = workload(spec)
     core_s = sum(sum(trial_seconds(load, rates)) for load in loads)
-    here = os.cpu_count() or 1
+    local = on_kind(spec, loads, rates, gpu_rates, here or this_machine(), spec.max_concurrent)
     return Projection(
         loads,
         core_s,
-        _wall_s(loads, rates, here, spec.max_concurrent),
+        local.wall_s,
         _wall_s(loads, rates, cores_on, None),
-        here,
+        local.kind.vcpus,
         cores_on,
         rates,
+        local,
+        tuple(on_kind(spec, loads, rates, gpu_rates, kind) for kind in kinds),
+        gpu_rates,
     )
 
 
 def _duration(seconds: float) -> str:
+    if seconds == float("inf"):
+        return "never"
     if seconds < 120:
         return f"{seconds:.0f} s"
     if seconds < 2 * 3600:
@@ -248,6 +174,21 @@ def _duration(seconds: float) -> str:
     if seconds < 3 * 86400:
         return f"{seconds / 3600:.1f} h"
     return f"{seconds / 86400:.1f} days"
+
+
+def _hardware_lines(p: Projection) -> list[str]:
+    """This machine and each cluster kind side by side, then how each runs the stages."""
+    lines = [f"  {'on':56} {'wall time':>10} {'vCPU-hours':>11} {'GPU-hours':>10} {'node-hours':>11}"]
+    for o in (p.here, *p.clusters):
+        lines.append(
+            f"  {o.kind.name + ': ' + o.kind.describe():56} {_duration(o.wall_s):>10} "
+            f"{o.vcpu_s / 3600:>11,.1f} {o.gpu_s / 3600:>10,.1f} {o.node_s / 3600:>11,.1f}"
+        )
+    for o in (p.here, *p.clusters):
+        at_once = ", ".join(f"{stage} {n:,}" for stage, n in o.at_once.items())
+        lines.append(f"    {o.kind.name}: trials at once: {at_once or 'none'}")
+        lines += [f"    {o.kind.name}: {note}" for note in o.notes]
+    return lines
 
 
 def describe(p: Projection) -> list[str]:
@@ -263,8 +204,11 @@ def describe(p: Projection) -> list[str]:
         f"  total: {trials:,} trials, {sum(x.env_steps for x in p.loads):,} training env steps, "
         f"{sum(x.updates for x in p.loads):,} gradient updates",
         f"  projected cost: {p.core_s / 3600:,.1f} core-hours; wall time {_duration(p.wall_s_here)} "
-        f"on this machine ({p.cores_here} cores), {_duration(p.wall_s_on)} on {p.cores_on} cores",
+        f"on this machine ({p.cores_here} cores), {_duration(p.wall_s_on)} on {p.cores_on} cores "
+        f"(one trial per physical core)",
+        *_hardware_lines(p),
         f"  rates: {p.rates.source}",
+        f"  {p.gpu_rates.source}; hyperthreads, threads and GPU sharing as in docs/cost.md",
     ]
     if any(s is not None and s.target_success is not None for load in p.loads for s in load.trials):
         lines.append("  budgets with a success target are caps: sources that converge early cost less")

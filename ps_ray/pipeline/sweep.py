@@ -289,12 +289,19 @@ def run_tune(
 
     from ps_ray.pipeline.trials import run_trials
     from ps_ray.pipeline.tune_tracking import MLflowTuneCallback
+    from ps_ray.specs.resources import device_tags
     from ps_ray.tracking import git_commit
 
+    resources = spec.resources.few_shot if stage == "few_shot" else spec.resources.train
     callback = MLflowTuneCallback(
         *tracking,
         metric_keys=METRIC_KEYS + ("final_success", "final_touching"),
-        tags={"ps_ray.sweep": spec.name, "ps_ray.stage": stage, "git_commit": git_commit() or ""},
+        tags={
+            "ps_ray.sweep": spec.name,
+            "ps_ray.stage": stage,
+            "git_commit": git_commit() or "",
+            **device_tags(resources),
+        },
         artifacts_fn=_trial_artifacts,
         **({"key_fn": key_fn} if key_fn else {}),
         tags_fn=tags_fn,
@@ -314,7 +321,7 @@ def run_tune(
         progress=progress,
         max_concurrent=spec.max_concurrent,
         max_failures=spec.max_failures,
-        resources=spec.resources.few_shot if stage == "few_shot" else spec.resources.train,
+        resources=resources,
     )
 
 

@@ -6,6 +6,7 @@ from __future__ import annotations
 import contextlib
 from pathlib import Path
 
+from ps_ray.pipeline.preemption import PREEMPTION_RETRIES, failures, preempted
 from ps_ray.specs.resources import StageResources
 from ps_ray.store.attempts import STAGE_DIR_KEY, TrialOutcome, identity, outcomes, require_fresh
 from ps_ray.store.layout import LOG_FOLDER
@@ -26,12 +27,17 @@ def run_trials(
     max_failures: int,
     resources: StageResources = ONE_CPU,
     constants: dict | None = None,
+    preemption_retries: int = PREEMPTION_RETRIES,
 ) -> list[TrialOutcome]:
     """Run a grid over ``grid``'s one key (plus ``constants``) as the Tune experiment in
     ``folder``: ``resources`` per trial (one CPU by default), the sweep's retry policy, the MLflow
     ``callback``, a compact live view on the terminal and Tune's own output in
     ``<folder's parent>/logs/<folder name>.log``
-    (:mod:`ps_ray.pipeline.progress`). ``resume`` keeps the trials that finished earlier and runs the rest."""
+    (:mod:`ps_ray.pipeline.progress`). ``resume`` keeps the trials that finished earlier and runs the rest.
+
+    Trials that failed only because their node went away (:mod:`ps_ray.pipeline.preemption`)
+    are launched again by the resume path, up to ``preemption_retries`` rounds: a training
+    trial continues from its checkpoint, and preemptions do not use up ``max_failures``."""
     from ray import tune
 
     from ps_ray.pipeline.progress import StageProgress, quiet_tune, verbose
@@ -42,8 +48,16 @@ def run_trials(
         require_fresh(path, key, stage)
     todo = [o.config[key] for o in outcomes(path, key, trials) if o.error] if resume else trials
     errors: dict[str, str] = {}
-    if todo:
-        quiet = progress and not verbose()
+    quiet = progress and not verbose()
+    for attempt in range(preemption_retries + 1):
+        if not todo:
+            break
+        if attempt:
+            print(
+                f"{stage}: {len(todo)} trial(s) lost their node; launching them again "
+                f"({attempt}/{preemption_retries})",
+                flush=True,
+            )
         tuner = tune.Tuner(
             tune.with_resources(trainable, resources.tune_request()),
             param_space={key: tune.grid_search(todo), **(constants or {}), STAGE_DIR_KEY: str(path)},
@@ -59,5 +73,15 @@ def run_trials(
         )
         with quiet_tune(root / LOG_FOLDER / f"{name}.log") if quiet else contextlib.nullcontext():
             grid_results = tuner.fit()  # quiet: Tune's tables go to the log
-        errors = {identity(r.config[key]): str(r.error) for r in grid_results if r.error}
+        failed = [r for r in grid_results if r.error]
+        errors.update({identity(r.config[key]): str(r.error) for r in failed})
+        todo = [r.config[key] for r in failed if preempted(_failures(r))]
     return outcomes(path, key, trials, errors)
+
+
+def _failures(result) -> list[str]:
+    """Every failure of a Tune trial: its ``error.txt`` (ray.air.constants.EXPR_ERROR_FILE),
+    else its last error."""
+    listed = Path(result.path) / "error.txt"
+    text = listed.read_text(errors="replace") if listed.is_file() else ""
+    return failures(text) or [str(result.error)]

@@ -77,6 +77,16 @@ class ResourcesSpec:
                 )
 
 
+def device_tags(resources: StageResources) -> dict[str, str]:
+    """MLflow tags of a stage's runs: the device its trials asked for (a GPU share that finds no
+    CUDA stops the trial, :func:`learner_device`), their CPUs and GPU share (docs/cluster.md)."""
+    return {
+        "ps_ray.device": "cuda" if resources.gpu else "cpu",
+        "ps_ray.cpus": f"{resources.cpu:g}",
+        "ps_ray.gpu_share": f"{resources.gpu:g}",
+    }
+
+
 def learner_device(gpu: float) -> str:
     """The torch device a learner granted ``gpu`` uses: ``"cpu"`` for none, ``"cuda"`` where CUDA
     is there; a GPU share on a node without CUDA is one clear error, never a silent CPU run."""

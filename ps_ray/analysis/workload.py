@@ -1,0 +1,116 @@
+"""A sweep's work, counted from its spec alone (no policy needs to exist): training trials, the
+plain policies trained for PS anchors, the stitched pairs of the zero-shot stage, and the
+fine-tuning and from-scratch runs of the few-shot stage (docs/cost.md, "The work, per stage")."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+
+from ps_ray.envs import EPISODE_STEPS
+from ps_ray.names import CONTROL_ROLES
+from ps_ray.specs.methods import uses_anchors
+from ps_ray.specs.sweep import SweepSpec
+from ps_ray.specs.train import TrainSpec
+
+
+@dataclass(frozen=True)
+class StageLoad:
+    """One stage's work: its trials, their env steps (training and evaluation) and updates."""
+
+    stage: str
+    trials: list[TrainSpec | None]  # None: an evaluation-only trial (zero-shot)
+    env_steps: int
+    updates: int
+    eval_steps: int
+
+
+def train_load(stage: str, specs: list[TrainSpec]) -> StageLoad:
+    env = updates = evals = 0
+    for s in specs:
+        env += s.env_steps
+        updates += int(max(0, s.env_steps - s.learning_starts) * s.updates_per_step)
+        steps_per_iteration = s.episodes_per_step * EPISODE_STEPS
+        evals += s.env_steps // (steps_per_iteration * s.eval_every) * s.eval_episodes * EPISODE_STEPS
+    return StageLoad(stage, list(specs), env, updates, evals)
+
+
+def stitch_pairs(
+    spec: SweepSpec, method: str, pairing: str = "same_seed"
+) -> list[tuple[TrainSpec, TrainSpec]]:
+    """(task source, robot source) pairs the stitching stages will build for one method, by the
+    rule of :func:`ps_ray.stitching.stitch.combos`: another task, another arm, the same interface, for
+    relative methods the same anchor set (the same task-input width), and the seeds that
+    ``pairing`` joins (:func:`ps_ray.specs.sweep.seed_pairs`)."""
+    from ps_ray.envs.robots import arm
+    from ps_ray.specs.sweep import seed_pairs, task_input_dim
+
+    cells = [t for t in spec.trials() if t.method == method]
+    joined = {(task_seed, robot_seed) for _, task_seed, robot_seed in seed_pairs(spec.seeds, pairing)}
+    return [
+        (t, r)
+        for t in cells
+        for r in cells
+        if (t.seed, r.seed) in joined
+        and t.interface_dim == r.interface_dim
+        and t.task != r.task
+        and arm(t.robot) != arm(r.robot)
+        and (not uses_anchors(t.method) or task_input_dim(t.task) == task_input_dim(r.task))
+    ]
+
+
+def workload(spec: SweepSpec) -> list[StageLoad]:
+    """The work of every stage the spec runs, in order."""
+    from ps_ray.specs.sweep import anchor_sources
+
+    loads = []
+    if "train" in spec.stages:
+        plain = anchor_sources(spec) if spec.anchors.policy == "plain" and not spec.anchors.file else []
+        if plain:
+            loads.append(train_load("anchors_plain", plain))
+        loads.append(train_load("train", spec.trials()))
+    if "zero_shot" in spec.stages:
+        methods = list(spec.zero_shot.methods) or list(spec.methods)
+        pairing = spec.zero_shot.pairs
+        n = sum(
+            len(stitch_pairs(spec, m, pairing)) * (1 + len(spec.zero_shot.translations(m))) for m in methods
+        )
+        # each trial evaluates its pair and up to three controls (ps_ray.stitching.stitch.controls)
+        steps = (
+            n * (1 + len(CONTROL_ROLES)) * spec.zero_shot.episodes * spec.zero_shot.repeats * EPISODE_STEPS
+        )
+        batches = -(-n // spec.zero_shot.pairs_per_trial)  # trials of pairs_per_trial pairs each
+        loads.append(StageLoad("zero_shot", [None] * batches, 0, 0, steps))
+    if "few_shot" in spec.stages:
+        from ps_ray.specs.sweep import task_input_dim
+
+        few = spec.few_shot
+        runs: list[TrainSpec] = []
+        targets: dict[str, TrainSpec] = {}
+        unstitched: dict[str, TrainSpec] = {}
+        for method in list(few.methods) or list(spec.methods):
+            chosen, per_seed = [], {}
+            for t, r in stitch_pairs(spec, method):
+                if few.pairs_per_seed is not None and per_seed.get(t.seed, 0) >= few.pairs_per_seed:
+                    continue
+                per_seed[t.seed] = per_seed.get(t.seed, 0) + 1
+                chosen.append((t, r))
+            for t, r in chosen[: few.max_pairs]:
+                run = TrainSpec.from_mapping(
+                    {
+                        **r.to_dict(),
+                        "task": t.task,
+                        "env_steps": few.env_steps,
+                        "learning_starts": few.collect_steps,
+                    }
+                )
+                runs.append(run)  # fine-tuning a stitched start
+                key = json.dumps(run.to_dict(), sort_keys=True, default=str)
+                targets.setdefault(key, run)
+                if few.unstitched and task_input_dim(r.task) == task_input_dim(t.task):
+                    unstitched.setdefault(key + json.dumps(r.task, sort_keys=True, default=str), run)
+        runs += unstitched.values()  # each pair's robot source fine-tuned as it is
+        if few.scratch:  # one from-scratch run per distinct target
+            runs += targets.values()
+        loads.append(train_load("few_shot", runs))
+    return loads

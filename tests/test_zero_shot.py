@@ -84,6 +84,7 @@ def test_zero_shot_matrix_of_a_sweep(trained_matrix):
         assert tags["ps_ray.task_module_run"] == train_runs[tags["ps_ray.task_module"]]
         assert tags["ps_ray.robot_module_run"] == train_runs[tags["ps_ray.robot_module"]]
         assert tags["ps_ray.task_module"] != tags["ps_ray.robot_module"]
+        assert (tags["ps_ray.device"], tags["ps_ray.cpus"]) == ("cpu", "1")
 
 
 def test_pairs_run_in_batches_and_a_resume_keeps_each_pair_whatever_batch_it_ran_in(trained_matrix):

@@ -135,6 +135,7 @@ def run_zero_shot(
     from ps_ray.pipeline.sweep import connect
     from ps_ray.pipeline.trials import run_trials
     from ps_ray.pipeline.tune_tracking import RowRunsCallback
+    from ps_ray.specs.resources import device_tags
     from ps_ray.store.attempts import require_fresh, rows_naming
     from ps_ray.tracking import git_commit
 
@@ -158,7 +159,13 @@ def run_zero_shot(
         row_key=PAIR_KEY,
         metric_keys=(*RESULT_KEYS, *CONTROL_KEYS),
         params_fn=lambda key: _shown(by_key[key]) | evaluated,
-        tags={"ps_ray.sweep": spec.name, "ps_ray.stage": "zero_shot", "git_commit": git_commit() or ""},
+        tags={
+            "ps_ray.sweep": spec.name,
+            "ps_ray.stage": "zero_shot",
+            "git_commit": git_commit() or "",
+            **device_tags(spec.resources.zero_shot),
+            "ps_ray.device": "cpu",  # stitching and evaluation run on the CPU, whatever the grant
+        },
         tags_fn=lambda key, client: _tags(client, experiment_id, by_key[key]),
     )
     results = run_trials(

@@ -41,7 +41,7 @@ def cmd_train(args: argparse.Namespace) -> int:
         named = _flag_of(str(e), fields)
         raise UserError(f"--{named.replace('_', '-')}: {e}" if named else str(e)) from None
     run_dir = Path(args.run_dir or Path("runs") / spec.slug())
-    train(spec, run_dir, progress=not args.quiet)
+    train(spec, run_dir, progress=not args.quiet, compile=args.compile)
     return 0
 
 

@@ -76,6 +76,11 @@ def _train_parser(sub) -> None:
         help="where checkpoints, policy and metrics go (default runs/<method>-<robot>-...)",
     )
     p.add_argument("--quiet", action="store_true")
+    p.add_argument(
+        "--compile",
+        action="store_true",
+        help="compile the learner's forward pass (torch.compile; measured slower on CPU cores, docs/cost.md)",
+    )
 
 
 def _bench_parser(sub) -> None:

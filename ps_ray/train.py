@@ -119,9 +119,11 @@ class TrainingRun:
         *,
         threads: int = 1,
         gpu: float = 0,
+        compile: bool = False,
         replay_store: Path | None = None,
     ):
-        """``threads``: torch's CPU threads; ``gpu``: the learner's GPU share (ps_ray.specs.resources);
+        """``threads``: torch's CPU threads; ``gpu``: the learner's GPU share and ``compile`` its
+        compiled forward pass (ps_ray.specs.resources);
         ``replay_store``: the folder of this run's replay segments, kept across checkpoints and
         attempts (:mod:`ps_ray.store.replay`; None: every checkpoint holds the whole buffer)."""
         from ps_ray.rllib.algo import algo_config
@@ -130,7 +132,7 @@ class TrainingRun:
         torch.set_num_threads(threads)
         self.spec = spec
         anchors = None if anchor_set is None else anchor_set.anchors
-        self.algo = algo_config(spec, anchors, gpu=gpu).build_algo()
+        self.algo = algo_config(spec, anchors, gpu=gpu, compile=compile).build_algo()
         self.algo.replay_store = self.replay_store = replay_store
         self.signature = Signature(
             method=spec.method,
@@ -245,14 +247,16 @@ class TrainingRun:
         )
 
 
-def train(spec: TrainSpec, run_dir: str | Path, *, progress: bool = True) -> dict[str, Any]:
+def train(
+    spec: TrainSpec, run_dir: str | Path, *, progress: bool = True, compile: bool = False
+) -> dict[str, Any]:
     """Train (or resume) until spec.env_steps; returns the last metrics row with final_* figures.
-    One process at a time per run folder (:mod:`ps_ray.lock`)."""
+    One process at a time per run folder (:mod:`ps_ray.lock`). ``compile``: see TrainingRun."""
     run_dir = Path(run_dir).resolve()  # RLlib's checkpoint writer needs absolute paths
     _check_run_dir(spec, run_dir)
     given = read_inputs(spec)  # a bad --init-policy or --anchors fails before the folder is made
     with folder_lock(run_dir, "run"):
-        return _train(spec, run_dir, given, progress)
+        return _train(spec, run_dir, given, progress, compile)
 
 
 def read_inputs(spec: TrainSpec):
@@ -283,7 +287,7 @@ def read_inputs(spec: TrainSpec):
     return None
 
 
-def _train(spec: TrainSpec, run_dir: Path, given, progress: bool) -> dict[str, Any]:
+def _train(spec: TrainSpec, run_dir: Path, given, progress: bool, compile: bool) -> dict[str, Any]:
     import ray
 
     anchor_set = prepare_anchors(spec, run_dir, given) if uses_anchors(spec.method) else None
@@ -295,8 +299,8 @@ def _train(spec: TrainSpec, run_dir: Path, given, progress: bool) -> dict[str, A
             log_to_driver=False,
             configure_logging=False,
         )
-    run = TrainingRun(spec, anchor_set, replay_store=run_dir / REPLAY_FOLDER)  # loads --init-policy:
-    _check_run_dir(spec, run_dir)  # a bad one fails before spec.json
+    run = TrainingRun(spec, anchor_set, compile=compile, replay_store=run_dir / REPLAY_FOLDER)  # loads
+    _check_run_dir(spec, run_dir)  # --init-policy: a bad one fails before spec.json
     resume_from = latest_checkpoint(run_dir)
     if resume_from is not None:
         run.restore(resume_from)  # may refuse the new budget: spec.json is written after it

@@ -114,8 +114,10 @@ def _measure(step, counters, seconds: float) -> tuple[float, float]:
     return (steps1 - steps0) / elapsed, (updates1 - updates0) / elapsed
 
 
-def run(spec: TrainSpec, seconds: float = 60.0, rounds: int = 2) -> dict[str, float]:
-    """Alternate RLlib and bare measurements (after a warm-up that fills the buffer)."""
+def run(spec: TrainSpec, seconds: float = 60.0, rounds: int = 2, compile: bool = False) -> dict[str, float]:
+    """Alternate RLlib and bare measurements (after a warm-up that fills the buffer); with
+    ``compile``, also RLlib with the learner's forward pass compiled (its compilation is in the
+    warm-up, not in the figures)."""
     import ray
 
     from ps_ray.rllib.algo import algo_config
@@ -125,24 +127,30 @@ def run(spec: TrainSpec, seconds: float = 60.0, rounds: int = 2) -> dict[str, fl
         ray.init(
             address="local", num_cpus=1, include_dashboard=False, log_to_driver=False, configure_logging=False
         )
-    algo = algo_config(spec).build_algo()
+    algos = {"rllib": algo_config(spec).build_algo()}
+    if compile:
+        algos["rllib compiled"] = algo_config(spec, compile=True).build_algo()
     bare = BareTrainer(spec)
-    while algo.counters["env_steps"] < spec.learning_starts + 200:
-        algo.train()
-    while bare.env_steps < spec.learning_starts + 200:
+    for algo in algos.values():
+        while algo.counters["updates"] < 100:
+            algo.train()
+    while bare.updates < 100:
         bare.step()
-    rates = {"rllib": [], "bare": []}
+    rates = {side: [] for side in (*algos, "bare")}
     for _ in range(rounds):
-        rates["rllib"].append(
-            _measure(algo.train, lambda: (algo.counters["env_steps"], algo.counters["updates"]), seconds)
-        )
+        for side, algo in algos.items():
+            counters = lambda a=algo: (a.counters["env_steps"], a.counters["updates"])  # noqa: E731
+            rates[side].append(_measure(algo.train, counters, seconds))
         rates["bare"].append(_measure(bare.step, lambda: (bare.env_steps, bare.updates), seconds))
-    algo.stop()
+    for algo in algos.values():
+        algo.stop()
     out = {}
     for side, values in rates.items():
         out[f"{side}_env_steps_per_s"] = float(np.mean([v[0] for v in values]))
         out[f"{side}_updates_per_s"] = float(np.mean([v[1] for v in values]))
     out["ratio"] = out["rllib_env_steps_per_s"] / out["bare_env_steps_per_s"]
+    if compile:
+        out["compiled_ratio"] = out["rllib compiled_updates_per_s"] / out["rllib_updates_per_s"]
     out["peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     return out
 
@@ -156,27 +164,31 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--seconds", type=float, default=60.0, help="per measurement round")
     parser.add_argument("--rounds", type=int, default=2)
     parser.add_argument("--updates-per-step", type=float, default=0.4)
+    parser.add_argument("--hidden", type=int, default=256)
+    parser.add_argument("--compile", action="store_true", help="also RLlib with the learner compiled")
     args = parser.parse_args(argv)
     spec = TrainSpec(
         task=args.task,
         method=args.method,
         updates_per_step=args.updates_per_step,
+        hidden=args.hidden,
         eval_every=10**9,
         learning_starts=500,
         random_episodes=2,
     )
-    figures = run(spec, args.seconds, args.rounds)
+    figures = run(spec, args.seconds, args.rounds, args.compile)
     print(
-        f"task {args.task}, method {args.method}, batch {spec.batch_size}, "
+        f"task {args.task}, method {args.method}, hidden {spec.hidden}, batch {spec.batch_size}, "
         f"{spec.updates_per_step} updates per env step, {spec.num_envs} envs, 1 torch thread"
     )
-    print(f"{'':<8}{'env steps/s':>13}{'updates/s':>11}")
-    for side in ("rllib", "bare"):
-        print(
-            f"{side:<8}{figures[f'{side}_env_steps_per_s']:>13.1f}{figures[f'{side}_updates_per_s']:>11.1f}"
-        )
-    print(f"peak RSS {figures['peak_rss_mb']:.0f} MB (both trainers in one process)")
+    print(f"{'':<16}{'env steps/s':>13}{'updates/s':>11}{'ms/update':>11}")
+    for side in ("rllib", *(["rllib compiled"] if args.compile else []), "bare"):
+        steps, updates = figures[f"{side}_env_steps_per_s"], figures[f"{side}_updates_per_s"]
+        print(f"{side:<16}{steps:>13.1f}{updates:>11.1f}{1e3 / updates:>11.1f}")
+    print(f"peak RSS {figures['peak_rss_mb']:.0f} MB (all trainers in one process)")
     print(f"ratio {figures['ratio']:.2f}")
+    if args.compile:  # ms/update includes the env steps between updates
+        print(f"compiled / eager updates per second: {figures['compiled_ratio']:.2f}")
 
 
 if __name__ == "__main__":

@@ -121,6 +121,7 @@ def sweep_trial(config: dict[str, Any]) -> None:
         anchor_set,
         threads=max(1, int(granted.get("CPU", 1))),
         gpu=granted.get("GPU", 0),
+        compile=config.get("compile", False),
         replay_store=replay_store(config, "trial"),
     )
     checkpoint = tune.get_checkpoint()
@@ -322,6 +323,7 @@ def run_tune(
         max_concurrent=spec.max_concurrent,
         max_failures=spec.max_failures,
         resources=resources,
+        constants={"compile": resources.compile},  # how to run, not what: not the trial's identity
     )
 
 

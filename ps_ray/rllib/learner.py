@@ -8,6 +8,7 @@ from typing import Any
 import torch
 from ray.rllib.algorithms.sac.torch.sac_torch_learner import SACTorchLearner
 from ray.rllib.core import DEFAULT_MODULE_ID
+from ray.rllib.core.rl_module.torch.torch_compile_config import TorchCompileConfig
 
 from ps_ray.nets.sac import SACHyper, polyak, sac_losses
 from ps_ray.rllib.private import after_update_without_target_sync, gradients_in_one_backward, learner_module
@@ -18,6 +19,18 @@ LOG_ALPHA = "log_alpha"
 
 
 class ModularSACLearner(SACTorchLearner):
+    def build(self) -> None:
+        super().build()
+        # Ray 2.60 asks for a compiled forward_train but skips the modules of a MultiRLModule
+        # (TorchLearner.build tests the container, not each module): compile them here.
+        if self.config.torch_compile_learner:
+            compile_config = TorchCompileConfig(
+                torch_dynamo_backend=self.config.torch_compile_learner_dynamo_backend,
+                torch_dynamo_mode=self.config.torch_compile_learner_dynamo_mode,
+            )
+            for module_id in self.module.keys():
+                learner_module(self, module_id).compile(compile_config)
+
     def configure_optimizers_for_module(self, module_id, config=None) -> None:
         nets = learner_module(self, module_id)
         groups = {

@@ -27,10 +27,13 @@ STAGES_WITH_TRIALS = ("train", "zero_shot", "few_shot")
 
 @dataclass(frozen=True)
 class StageResources:
-    """One trial's request: ``cpu`` cores (torch threads follow them) and a ``gpu`` share."""
+    """One trial's request: ``cpu`` cores (torch threads follow them) and a ``gpu`` share; and
+    ``compile``: the learner's forward pass compiled (RLlib's ``torch_compile_learner``), off by
+    default because it measured slower on CPU cores (docs/cost.md)."""
 
     cpu: float = 1
     gpu: float = 0
+    compile: bool = False
 
     def __post_init__(self) -> None:
         for name, low in (("cpu", 0), ("gpu", 0)):
@@ -41,6 +44,8 @@ class StageResources:
                 raise UserError(
                     f"resources {name} must be {'positive' if name == 'cpu' else '>= 0'}, got {value}"
                 )
+        if not isinstance(self.compile, bool):
+            raise UserError(f"resources compile must be true or false, got {self.compile!r}")
         if self.gpu > 1 and not float(self.gpu).is_integer():
             raise UserError(f"resources gpu above 1 must be a whole number of GPUs, got {self.gpu}")
 
@@ -64,9 +69,11 @@ class ResourcesSpec:
         for stage in STAGES_WITH_TRIALS:
             value = getattr(self, stage)
             if isinstance(value, dict):
-                unknown = [k for k in value if k not in ("cpu", "gpu")]
+                unknown = [k for k in value if k not in ("cpu", "gpu", "compile")]
                 if unknown:
-                    raise UserError(f"resources.{stage}: unknown key {unknown[0]!r}; valid keys: cpu, gpu")
+                    raise UserError(
+                        f"resources.{stage}: unknown key {unknown[0]!r}; valid keys: cpu, gpu, compile"
+                    )
                 try:
                     object.__setattr__(self, stage, StageResources(**value))
                 except UserError as e:

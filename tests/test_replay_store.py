@@ -47,7 +47,7 @@ def test_each_checkpoint_writes_only_the_segments_the_last_one_lacks(tmp_path):
     second = replay.write(buffer, store, first)
     written = {e["file"] for e in second["segments"]} - {e["file"] for e in first["segments"]}
     # the two full segments are reused; only the one that was filling up, and the new one
-    assert sorted(written) == sorted([replay._name(8, 12), replay._name(12, 13)])
+    assert sorted(written) == sorted([replay.segment_file(8, 12), replay.segment_file(12, 13)])
     assert second["segments"][:2] == first["segments"][:2]
 
 
@@ -93,7 +93,7 @@ def test_latest_passes_over_a_checkpoint_whose_segment_is_missing_or_altered(tmp
     save(buffer, store, tmp_path / "c1", c0)
     folders = [tmp_path / "c0", tmp_path / "c1"]
     assert checkpoint.latest(folders, replay_store=store) == tmp_path / "c1"
-    tail = store / replay._name(4, 7)  # only c1 names it
+    tail = store / replay.segment_file(4, 7)  # only c1 names it
     tail.write_bytes(tail.read_bytes()[:-8] + b"\0" * 8)  # same size, other bytes
     assert checkpoint.latest(folders, replay_store=store) == tmp_path / "c0"
     with pytest.raises(

@@ -162,13 +162,15 @@ def test_training_episodes_get_fresh_goals_and_evaluations_fixed_ones(ray_local)
     try:
         for _ in range(3):
             algo.train()
-        stored = algo.replay._obs["desired_goal"][: algo.replay.num_episodes, 0]
+        stored = algo.replay.episodes(*algo.replay.live_range())["obs/desired_goal"][:, 0]
         assert len(np.unique(stored.round(6), axis=0)) == algo.replay.num_episodes == 12
         first = [
-            ep.get_observations()["desired_goal"][0] for ep in algo._collect(explore=False, random=False, n=2)
+            ep.get_observations()["desired_goal"][0]
+            for ep in algo.collect_episodes(explore=False, random=False, n=2)
         ]
         second = [
-            ep.get_observations()["desired_goal"][0] for ep in algo._collect(explore=False, random=False, n=2)
+            ep.get_observations()["desired_goal"][0]
+            for ep in algo.collect_episodes(explore=False, random=False, n=2)
         ]
         np.testing.assert_array_equal(first, second)
     finally:
@@ -180,7 +182,7 @@ def _run_state(spec: TrainSpec, iterations: int) -> tuple[dict[str, torch.Tensor
     try:
         for _ in range(iterations):
             algo.train()
-        return algo.learner_state(), algo.replay._actions[: algo.replay.num_episodes].copy()
+        return algo.learner_state(), algo.replay.episodes(*algo.replay.live_range())["actions"]
     finally:
         algo.stop()
 

@@ -102,22 +102,23 @@ def test_pairs_run_in_batches_and_a_resume_keeps_each_pair_whatever_batch_it_ran
     if not folder.exists():  # this test alone: the one-batch matrix first
         run_zero_shot(spec, episodes=4, repeats=2, progress=False)
     figures = lambda: pd.read_csv(root / "zero_shot.csv").drop(columns="episodes_per_s")  # noqa: E731
-    one_batch = figures()
-    assert len(attempts(folder, "batch")) == 1  # 4 pairs, 8 per trial by default: one start
+    batched = figures()
+    # 4 pairs, at most 8 per trial, on 2 slots: two trials of two, not one lone trial of four
+    assert sorted(len(json.loads(k)) for k in attempts(folder, "batch")) == [2, 2]
     shutil.rmtree(folder)
 
-    run_zero_shot(spec, episodes=4, repeats=2, pairs_per_trial=3, progress=False)
-    batches = {len(json.loads(k)): v for k, v in attempts(folder, "batch").items()}
-    assert sorted(batches) == [1, 3]
-    pd.testing.assert_frame_equal(figures(), one_batch)
+    run_zero_shot(spec, episodes=4, repeats=2, pairs_per_trial=1, progress=False)
+    singles = attempts(folder, "batch")
+    assert sorted(len(json.loads(k)) for k in singles) == [1, 1, 1, 1]
+    pd.testing.assert_frame_equal(figures(), batched)
 
-    (lone,) = batches[1]  # the one-pair batch never ran: a resume runs that pair alone
+    lone = next(iter(singles.values()))[0]  # one pair's trial never ran: a resume runs it alone
     (lost,) = [row[PAIR_KEY] for row in read_rows(lone)]
     shutil.rmtree(lone)
-    run_zero_shot(spec, episodes=4, repeats=2, pairs_per_trial=3, resume=True, progress=False)
+    run_zero_shot(spec, episodes=4, repeats=2, pairs_per_trial=1, resume=True, progress=False)
     rerun = [json.loads(k) for k in attempts(folder, "batch")]
-    assert sorted(len(b) for b in rerun) == [1, 3] and lost in [p["key"] for b in rerun for p in b]
-    pd.testing.assert_frame_equal(figures(), one_batch)
+    assert len(rerun) == 4 and lost in [p["key"] for b in rerun for p in b]
+    pd.testing.assert_frame_equal(figures(), batched)
     client = mlflow.MlflowClient(f"sqlite:///{root / 'mlflow.db'}")
     experiment = client.get_experiment_by_name("matrix")
     runs = client.search_runs([experiment.experiment_id], "tags.`ps_ray.stage` = 'zero_shot'")

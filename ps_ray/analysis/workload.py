@@ -79,7 +79,7 @@ def workload(spec: SweepSpec) -> list[StageLoad]:
         steps = (
             n * (1 + len(CONTROL_ROLES)) * spec.zero_shot.episodes * spec.zero_shot.repeats * EPISODE_STEPS
         )
-        batches = -(-n // spec.zero_shot.pairs_per_trial)  # trials of pairs_per_trial pairs each
+        batches = len(spec.zero_shot.batch_sizes(n, spec.max_concurrent))  # trials of several pairs
         loads.append(StageLoad("zero_shot", [None] * batches, 0, 0, steps))
     if "few_shot" in spec.stages:
         from ps_ray.specs.sweep import task_input_dim

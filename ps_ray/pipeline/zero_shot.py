@@ -150,7 +150,6 @@ def run_zero_shot(
     by_key = {pair["key"]: pair for pair in trials}
     done = rows_naming(folder, PAIR_KEY) if resume else {}
     todo = [pair for pair in trials if pair["key"] not in done]
-    size = settings.pairs_per_trial
     evaluated = {"episodes": settings.episodes, "repeats": settings.repeats}
     tracking_uri, experiment_id = connect(spec)
     callback = RowRunsCallback(
@@ -170,7 +169,7 @@ def run_zero_shot(
     )
     results = run_trials(
         zero_shot_trial,
-        {"batch": [todo[i : i + size] for i in range(0, len(todo), size)]},
+        {"batch": _batches(todo, settings.batch_sizes(len(todo), spec.max_concurrent))},
         folder=folder,
         stage="zero_shot",
         callback=callback,
@@ -192,6 +191,12 @@ def run_zero_shot(
     table = table_of([(pair, rows[pair["key"]]) for pair in trials])
     write_atomic_csv(table, layout(spec).zero_shot_table)
     return table
+
+
+def _batches(pairs: list, sizes: list[int]) -> list[list]:
+    """Consecutive runs of ``pairs`` (pairs of one seed share their sources) of the given sizes."""
+    ends = np.cumsum([0, *sizes])
+    return [pairs[a:b] for a, b in zip(ends[:-1], ends[1:], strict=True)]
 
 
 def _shown(pair: dict[str, Any]) -> dict[str, Any]:

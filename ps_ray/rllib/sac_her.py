@@ -194,9 +194,9 @@ class ModularSAC(SAC):
         return signature
 
     def evaluate_greedy(self, episodes: int) -> dict[str, float]:
-        return episode_stats(self._collect(explore=False, random=False, n=episodes))
+        return episode_stats(self.collect_episodes(explore=False, random=False, n=episodes))
 
-    def _collect(self, *, explore: bool, random: bool, n: int) -> list:
+    def collect_episodes(self, *, explore: bool, random: bool, n: int) -> list:
         """n whole episodes per env runner. Training episodes get fresh reset seeds (derived from
         the run's seed and episode count, so a resumed run does not replay old goals); greedy
         evaluations reuse one fixed seed, so every evaluation sees the same episodes."""
@@ -218,7 +218,7 @@ class ModularSAC(SAC):
     def training_step(self) -> None:
         cfg = self.config
         with self.metrics.log_time((TIMERS, ENV_RUNNER_SAMPLING_TIMER)):
-            episodes = self._collect(
+            episodes = self.collect_episodes(
                 explore=True, n=cfg.episodes_per_step, random=self.counters["episodes"] < cfg.random_episodes
             )
         obs, actions = episodes_to_arrays(episodes)
@@ -258,7 +258,9 @@ class ModularSAC(SAC):
         )
 
         if cfg.eval_every and self.iteration % cfg.eval_every == 0:
-            self._log_episode_stats("eval", self._collect(explore=False, random=False, n=cfg.eval_episodes))
+            self._log_episode_stats(
+                "eval", self.collect_episodes(explore=False, random=False, n=cfg.eval_episodes)
+            )
         for key, value in self.counters.items():
             self.metrics.log_value(("ps_ray", key), value, reduce="item")
 

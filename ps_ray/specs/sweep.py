@@ -97,8 +97,8 @@ class ZeroShotSpec:
     # which modules meet: of one training seed, of two seeds (seed i's task modules with seed
     # i+1's robot modules, cyclically: separate training runs), or both
     pairs: str = "same_seed"
-    # pairs evaluated one after another in one Tune trial: a trial's start (process, imports,
-    # loading the sources) is paid once per batch; results and MLflow runs stay one per pair
+    # at most this many pairs evaluated one after another in one Tune trial: a trial's start
+    # (process, imports, reading the sources) is paid once per batch (see batch_sizes)
     pairs_per_trial: int = 8
 
     def __post_init__(self) -> None:
@@ -134,6 +134,15 @@ class ZeroShotSpec:
                     )
             if len(set(kinds)) != len(kinds):
                 raise SpecError(f"zero_shot.translate.{method}: duplicate translation in {list(kinds)}")
+
+    def batch_sizes(self, pairs: int, slots: int | None) -> list[int]:
+        """How many pairs each Tune trial of the stage evaluates: at most ``pairs_per_trial``, as
+        even as can be, and as many trials as fill whole rounds of ``slots`` trials at once (the
+        sweep's max_concurrent), so that no round runs a lone batch on an idle machine."""
+        count = -(-pairs // self.pairs_per_trial)
+        if slots:
+            count = min(pairs, -(-count // slots) * slots)
+        return [pairs // count + (i < pairs % count) for i in range(count)] if pairs else []
 
     def translations(self, method: str) -> tuple[str, ...]:
         kinds = self.translate.get(method, ())

@@ -34,7 +34,8 @@ class ReplayStoreError(UserError):
     """A segment a checkpoint names is missing, altered or not a segment."""
 
 
-def _name(first: int, end: int) -> str:
+def segment_file(first: int, end: int) -> str:
+    """The file name of the segment that holds episodes [first, end)."""
     return f"ep{first:010d}-{end:010d}.npz"
 
 
@@ -56,7 +57,7 @@ def write(buffer, store: Path, previous: dict[str, Any] | None = None) -> dict[s
         ):
             segments.append(old)  # episodes never change: a file that holds them stays valid
             continue
-        path = store / _name(first, end)
+        path = store / segment_file(first, end)
         with atomic_file(path) as f:
             np.savez(f, **buffer.episodes(first, end))
         fsync_file(path)

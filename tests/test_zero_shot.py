@@ -87,6 +87,16 @@ def test_zero_shot_matrix_of_a_sweep(trained_matrix):
         assert (tags["ps_ray.device"], tags["ps_ray.cpus"]) == ("cpu", "1")
 
 
+def test_batches_are_even_and_fill_whole_rounds_of_concurrent_trials():
+    from ps_ray.specs.sweep import ZeroShotSpec
+
+    settings = ZeroShotSpec(pairs_per_trial=8)
+    assert settings.batch_sizes(40, 2) == [7, 7, 7, 7, 6, 6]  # 3 full rounds, not 8+8 | 8+8 | 8
+    assert settings.batch_sizes(16, 2) == [8, 8] and settings.batch_sizes(7, 3) == [3, 2, 2]
+    assert settings.batch_sizes(1800, None) == [8] * 225  # a cluster: as Tune places them
+    assert settings.batch_sizes(1, 4) == [1] and settings.batch_sizes(0, 2) == []
+
+
 def test_pairs_run_in_batches_and_a_resume_keeps_each_pair_whatever_batch_it_ran_in(trained_matrix):
     """Batching changes how many Tune trials start, never a pair's figures; a resumed matrix
     evaluates only the pairs that have no result row."""

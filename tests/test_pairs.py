@@ -1,15 +1,22 @@
-"""One record per stitched pair: the zero-shot trials' configs and the rows of zero_shot.csv
-(no Ray, no training)."""
+"""One record per stitched pair: the zero-shot trials' configs, the rows of zero_shot.csv, and
+the pairs few-shot and the report's clips read back from that table (no Ray, no training)."""
 
 from __future__ import annotations
 
 import json
+import shutil
+from pathlib import Path
 
 import pandas as pd
 import pytest
 
+from ps_ray.pipeline.few_shot import selected_pairs
 from ps_ray.pipeline.zero_shot import table_of, write_atomic_csv
-from ps_ray.stitching.pairs import Control, StitchedPair
+from ps_ray.specs.sweep import FewShotSpec, SweepSpec
+from ps_ray.stitching.pairs import Control, StitchedPair, evaluated_pairs, pairs, pairs_from_table
+from ps_ray.store.layout import SweepLayout, sweep_dir
+from tests.test_stitch import K, write_trial
+from tests.test_stitch import spec as train_spec
 
 Q1, Q3 = {"name": "reach", "goal_region": "q1"}, {"name": "reach", "goal_region": "q3"}
 GRIPPER = {"name": "panda_l3", "gripper": True}
@@ -57,5 +64,62 @@ def test_a_pair_survives_the_tune_config_and_the_csv_row(tmp_path, translation):
     # as zero_shot.csv: written by the zero-shot stage, read back cell by cell as text
     path = tmp_path / "zero_shot.csv"
     write_atomic_csv(table_of([(pair, {"success_mean": 0.5})]), path)
-    (row,) = pd.read_csv(path, dtype=str, keep_default_na=False).to_dict("records")
-    assert StitchedPair.from_row(row) == pair and row["task_from_path"] == pair.task_from_path
+    assert pairs_from_table(path) == [pair]
+    assert pd.read_csv(path)["task_from_path"].tolist() == ["/sweep/tune/a/policy.safetensors"]
+
+
+@pytest.fixture
+def sweep_spec(tmp_path) -> SweepSpec:
+    """Two methods x two arms x two goal regions x two seeds of random policies, as trained."""
+    spec = SweepSpec.from_mapping(
+        {
+            "name": "pairs",
+            "methods": ["ps", "ablation"],
+            "robots": ["panda", "panda_l3"],
+            "tasks": [Q1, Q3],
+            "seeds": [1, 2],
+            "interface_dims": [K],
+            "train": {"hidden": 16, "env_steps": 300},
+            "zero_shot": {"pairs": "both", "translate": {"ps": ["orthogonal"]}},
+            "storage": str(tmp_path / "store"),
+        }
+    )
+    for t in spec.trials():
+        write_trial(sweep_dir(spec), "tune", train_spec(t.method, t.robot, t.task, seed=t.seed))
+    return spec
+
+
+def test_few_shot_and_the_clips_read_the_pairs_zero_shot_wrote(sweep_spec):
+    spec, table_path = sweep_spec, SweepLayout(sweep_dir(sweep_spec)).zero_shot_table
+    matrix = pairs(spec, translate=True, pairing="both")
+    # per method: 4 seed pairings (2 same-seed, 2 cross-seed) x 4 stitchable pairs; ps translated too
+    assert len(matrix) == 4 * 4 * 2 + 4 * 4
+    write_atomic_csv(table_of([(p, {"success_mean": 0.5}) for p in matrix]), table_path)
+    assert pairs_from_table(table_path) == matrix  # the matrix's order, every field
+    for pair in matrix:
+        files = [pair.task_from_path, pair.robot_from_path, *(c.path for c in pair.controls.values())]
+        assert all(Path(f).is_file() for f in files)
+    same_seed = [p for p in matrix if p.pairing == "same_seed" and not p.translation]
+    assert len(same_seed) == 2 * 2 * 4
+
+    zoo = sweep_dir(spec) / "tune"
+    shutil.move(zoo, zoo.with_name("elsewhere"))  # with the table, nothing reads the zoo
+    assert evaluated_pairs(spec) == same_seed
+    assert evaluated_pairs(spec, ["ablation", "ps"]) == [
+        p for m in ("ablation", "ps") for p in same_seed if p.method == m
+    ]
+    settings = FewShotSpec(max_pairs=3, pairs_per_seed=2)
+    from_table = selected_pairs(spec, settings)
+    shutil.move(zoo.with_name("elsewhere"), zoo)
+
+    table_path.unlink()  # a sweep that skips zero-shot: the same pairs, from the zoo
+    assert [p.key for p in selected_pairs(spec, settings)] == [p.key for p in from_table]
+    assert [(p.method, p.seed) for p in from_table] == [("ps", 1), ("ps", 1), ("ps", 2)] + [
+        ("ablation", 1),
+        ("ablation", 1),
+        ("ablation", 2),
+    ]
+    # a table written before its rows carried the sources' files: built from the zoo
+    old = table_of([(p, {}) for p in matrix]).drop(columns=["task_from_path", "robot_from_path"])
+    write_atomic_csv(old, table_path)
+    assert pairs_from_table(table_path) is None and evaluated_pairs(spec) == same_seed

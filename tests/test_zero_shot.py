@@ -14,7 +14,7 @@ from ps_ray.pipeline.few_shot import curves, run_few_shot
 from ps_ray.pipeline.sweep import run_sweep, sweep_dir
 from ps_ray.pipeline.zero_shot import run_zero_shot, summary
 from ps_ray.specs.sweep import load_sweep
-from ps_ray.stitching.pairs import StitchedPair, pairs
+from ps_ray.stitching.pairs import pairs, pairs_from_table
 from ps_ray.weights import read_signature
 
 
@@ -76,7 +76,7 @@ def test_zero_shot_matrix_of_a_sweep(trained_matrix):
     ):
         assert all(Path(path).is_file() for path in written[column])
     assert written["robot_source_path"].tolist() == written["robot_from_path"].tolist()
-    assert [StitchedPair.from_row(row) for row in written.to_dict("records")] == found
+    assert pairs_from_table(sweep_dir(spec) / "zero_shot.csv") == found
 
     client = mlflow.MlflowClient(f"sqlite:///{sweep_dir(spec) / 'mlflow.db'}")
     experiment = client.get_experiment_by_name("matrix")

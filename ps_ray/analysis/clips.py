@@ -8,7 +8,7 @@ from pathlib import Path
 
 from ps_ray.names import short_name
 from ps_ray.specs.sweep import SweepSpec
-from ps_ray.stitching.pairs import StitchedPair, pairs
+from ps_ray.stitching.pairs import StitchedPair, evaluated_pairs
 
 CLIP_SIZE = (240, 180)  # pixels; every second step, so a clip is about 26 frames
 START_SEED = 0  # the env reset every clip starts from
@@ -48,13 +48,14 @@ def _clip(policy_file_or_nets, robot, task, path: Path, method: str, role: str) 
 def stitched_clips(spec: SweepSpec, out_dir: Path, pairs_per_method: int = 2) -> list[tuple[str, list[Clip]]]:
     """Rows of clips: per chosen pair (the first ``pairs_per_method`` that every method has, at the
     first seed), each method's stitched policy in the target env, then its two sources in their
-    own envs, from the pairs' records. Returns (pair label, clips) rows; empty when the sweep has
-    no stitchable pairs."""
+    own envs. The pairs and their sources' files and envs are the zero-shot table's records
+    (:func:`ps_ray.stitching.pairs.evaluated_pairs`). Returns (pair label, clips) rows; empty when
+    the sweep has no stitchable pairs."""
     from ps_ray.stitching.stitch import stitch_policies
 
     methods = list(spec.zero_shot.methods) or list(spec.methods)
     found: dict[str, dict[str, StitchedPair]] = {}
-    for pair in pairs(spec, methods):
+    for pair in evaluated_pairs(spec, methods):
         if pair.seed == spec.seeds[0]:
             found.setdefault(pair.label, {})[pair.method] = pair
     labels = [label for label, by_method in found.items() if set(methods) <= set(by_method)]

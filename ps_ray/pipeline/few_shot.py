@@ -1,7 +1,9 @@
 """`ps-ray few-shot`: fine-tune stitched policies with SAC + HER in their target env.
 
-For each stitched pair (the sweep's matrix, or the pairs named), the stitched actor, critics and
-target critics are saved and a training trial starts from them: first `collect_steps` of data
+For each stitched pair of one seed without a translation, of the methods named (read from
+``zero_shot.csv`` where the zero-shot stage wrote it, else from the zoo:
+:func:`ps_ray.stitching.pairs.evaluated_pairs`), the stitched actor, critics and target critics
+are saved and a training trial starts from them: first `collect_steps` of data
 collection without updates (the paper: 10 epochs), then training. The same target env trained
 from scratch runs beside it, so MLflow holds both learning curves (success vs env steps).
 """
@@ -18,14 +20,14 @@ from ps_ray.names import trial_key
 from ps_ray.pipeline.sweep import anchor_file, layout, sweep_dir
 from ps_ray.specs.sweep import FewShotSpec, SweepSpec
 from ps_ray.specs.train import TrainSpec
-from ps_ray.stitching.pairs import StitchedPair, pairs
+from ps_ray.stitching.pairs import StitchedPair, evaluated_pairs
 
 
 def selected_pairs(spec: SweepSpec, settings: FewShotSpec) -> list[StitchedPair]:
     """The pairs few-shot starts from: per method, the first ``max_pairs``, at most
     ``pairs_per_seed`` of each seed, in the matrix's order."""
     selected, taken, per_seed = [], Counter(), Counter()
-    for pair in pairs(spec, list(settings.methods) or None):
+    for pair in evaluated_pairs(spec, list(settings.methods) or None):
         seed_key = (pair.method, pair.seed)
         if settings.max_pairs is not None and taken[pair.method] >= settings.max_pairs:
             continue

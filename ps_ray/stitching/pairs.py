@@ -1,20 +1,23 @@
 """The stitching matrix of a sweep: one :class:`StitchedPair` per stitched pair, with its sources,
 target env and controls. The zero-shot trials' configs (:meth:`StitchedPair.to_dict`), the rows of
 ``zero_shot.csv`` (:meth:`StitchedPair.to_row`), few-shot's starts and the report's clips are this
-one record.
+one record; few-shot and the clips read it back from the table (:func:`evaluated_pairs`).
 
 Ray- and torch-free at import: the report reads the table through it."""
 
 from __future__ import annotations
 
+import csv
 import dataclasses
 from collections.abc import Mapping
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
+from ps_ray.errors import UserError
 from ps_ray.names import CONTROL_ROLES, parse_spec_text, short_name, spec_text
 from ps_ray.specs.sweep import SweepSpec, seed_pairs
-from ps_ray.store.layout import sweep_dir
+from ps_ray.store.layout import SweepLayout, sweep_dir
 
 EnvPart = str | Mapping[str, Any]  # a robot or task as make() takes it
 # fields that are a robot or task: a name, or a mapping written as spec_text in a row
@@ -152,3 +155,36 @@ def pairs(
                         )
                     )
     return out
+
+
+def pairs_from_table(path: Path) -> list[StitchedPair] | None:
+    """The pairs of a ``zero_shot.csv``, in its order (the matrix's, :func:`pairs`); None when
+    there is no table, or it was written before its rows carried the sources' files."""
+    if not path.is_file():
+        return None
+    with path.open(newline="") as f:
+        rows = list(csv.DictReader(f))
+    needed = [f.name for f in dataclasses.fields(StitchedPair) if f.name != "controls"]
+    if not rows or any(name not in rows[0] for name in needed):
+        return None
+    try:
+        return [StitchedPair.from_row(row) for row in rows]
+    except (KeyError, ValueError) as e:  # a damaged table: one line naming it
+        raise UserError(f"{path}: unreadable pair row ({e})") from None
+
+
+def evaluated_pairs(spec: SweepSpec, methods: list[str] | None = None) -> list[StitchedPair]:
+    """The same-seed pairs without a translation of ``methods`` (default: the sweep's), in
+    :func:`pairs` order: read from ``zero_shot.csv`` for the methods the zero-shot stage
+    evaluated, built from the zoo only for the others (a sweep that skips zero-shot)."""
+    methods = list(methods or spec.methods)
+    table = pairs_from_table(SweepLayout(sweep_dir(spec)).zero_shot_table) or []
+    by_method = {
+        m: [p for p in table if p.method == m and p.pairing == "same_seed" and not p.translation]
+        for m in methods
+    }
+    missing = [m for m in methods if not by_method[m]]
+    if missing:
+        built = pairs(spec, missing)
+        by_method.update({m: [p for p in built if p.method == m] for m in missing})
+    return [pair for m in methods for pair in by_method[m]]

@@ -10,8 +10,11 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
+from ps_ray.analysis.clips import stitched_clips
+from ps_ray.analysis.page import Report
+from ps_ray.names import short_name
 from ps_ray.pipeline.few_shot import selected_pairs
-from ps_ray.pipeline.zero_shot import table_of, write_atomic_csv
+from ps_ray.pipeline.zero_shot import CONTROL_KEYS, RESULT_KEYS, table_of, write_atomic_csv
 from ps_ray.specs.sweep import FewShotSpec, SweepSpec
 from ps_ray.stitching.pairs import Control, StitchedPair, evaluated_pairs, pairs, pairs_from_table
 from ps_ray.store.layout import SweepLayout, sweep_dir
@@ -89,7 +92,7 @@ def sweep_spec(tmp_path) -> SweepSpec:
     return spec
 
 
-def test_few_shot_and_the_clips_read_the_pairs_zero_shot_wrote(sweep_spec):
+def test_few_shot_reads_the_pairs_zero_shot_wrote_in_the_zoos_order(sweep_spec):
     spec, table_path = sweep_spec, SweepLayout(sweep_dir(sweep_spec)).zero_shot_table
     matrix = pairs(spec, translate=True, pairing="both")
     # per method: 4 seed pairings (2 same-seed, 2 cross-seed) x 4 stitchable pairs; ps translated too
@@ -123,3 +126,39 @@ def test_few_shot_and_the_clips_read_the_pairs_zero_shot_wrote(sweep_spec):
     old = table_of([(p, {}) for p in matrix]).drop(columns=["task_from_path", "robot_from_path"])
     write_atomic_csv(old, table_path)
     assert pairs_from_table(table_path) is None and evaluated_pairs(spec) == same_seed
+
+
+def write_table(spec: SweepSpec) -> list[StitchedPair]:
+    """zero_shot.csv of the sweep's same-seed pairs, every figure 0.5; returns the pairs."""
+    matrix = pairs(spec)
+    figures = {k: 0.5 for k in (*RESULT_KEYS, *CONTROL_KEYS)}
+    write_atomic_csv(table_of([(p, figures) for p in matrix]), SweepLayout(sweep_dir(spec)).zero_shot_table)
+    return matrix
+
+
+def test_the_reports_zero_shot_tables_show_no_files(sweep_spec, tmp_path):
+    from ps_ray.analysis import report
+
+    write_table(sweep_spec)
+    page = Report(tmp_path / "report")
+    report._zero_shot(page, sweep_dir(sweep_spec), 0.8, lambda *a: None)
+    shown = [item[1] for section in page.sections for kind, item in section.items if kind == "table"]
+    columns = {str(c) for frame in shown for c in [*frame.columns.to_flat_index(), *frame.index.names]}
+    assert {"('ps', 'success')", "('ablation', 'success')", "oracle (trained on the target)"} <= columns
+    assert not [c for c in columns if "path" in c or "touching" in c]  # reach: nothing to touch
+
+
+def test_the_clips_run_each_source_in_its_own_env_as_the_table_says(sweep_spec, tmp_path):
+    from ps_ray.stitching.zoo import ModuleZoo
+
+    matrix = write_table(sweep_spec)
+    ((label, clips),) = stitched_clips(sweep_spec, tmp_path / "clips", pairs_per_method=1)
+    zoo = ModuleZoo.from_sweep(sweep_dir(sweep_spec))
+    assert len(clips) == 2 * 3  # per method: stitched, task source, robot source
+    for method, i in (("ps", 0), ("ablation", 3)):
+        stitched, task_source, robot_source = clips[i : i + 3]
+        pair = next(p for p in matrix if (p.method, p.label, p.seed) == (method, label, 1))
+        assert stitched.env == f"{short_name(pair.robot)}, {short_name(pair.task)}"
+        for clip, key in ((task_source, pair.task_from), (robot_source, pair.robot_from)):
+            entry = zoo.get(key)  # the env the source was trained in
+            assert clip.env == f"{short_name(entry.robot)}, {short_name(entry.task)}" and clip.path.is_file()

@@ -3,8 +3,8 @@
 For each stitched pair of one seed without a translation, of the methods named (read from
 ``zero_shot.csv`` where the zero-shot stage wrote it, else from the zoo:
 :func:`ps_ray.stitching.pairs.evaluated_pairs`), the stitched actor, critics and target critics
-are saved and a training trial starts from them: first `collect_steps` of data
-collection without updates (the paper: 10 epochs), then training. The same target env trained
+are saved and a training trial starts from them: first `collect_steps` of data collection
+without updates (the paper: 10 epochs), then training. The same target env trained
 from scratch runs beside it, so MLflow holds both learning curves (success vs env steps).
 """
 

@@ -194,7 +194,7 @@ def test_a_pipeline_killed_at_five_moments_resumes_without_redoing_finished_work
     tables = root / "report" / "tables"
     sources = pd.read_csv(tables / "training_sources.csv")["run"]
     assert sorted(sources) == sorted(t.label() for t in spec.trials())  # each once
-    expected = {(p["method"], p["label"]) for p in pairs(spec)}  # a row per pair, over its seeds
+    expected = {(p.method, p.label) for p in pairs(spec)}  # a row per pair, over its seeds
     zero_shot = pd.read_csv(tables / "zero_shot.csv")
     assert sorted(zip(zero_shot["method"], zero_shot["label"])) == sorted(expected)
     assert (zero_shot["seeds"] == len(spec.seeds)).all()

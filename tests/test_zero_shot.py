@@ -6,6 +6,7 @@ import json
 from pathlib import Path
 
 import mlflow
+import pandas as pd
 import pytest
 import yaml
 
@@ -13,7 +14,7 @@ from ps_ray.pipeline.few_shot import curves, run_few_shot
 from ps_ray.pipeline.sweep import run_sweep, sweep_dir
 from ps_ray.pipeline.zero_shot import run_zero_shot, summary
 from ps_ray.specs.sweep import load_sweep
-from ps_ray.stitching.pairs import pairs
+from ps_ray.stitching.pairs import pairs, pairs_from_table
 from ps_ray.weights import read_signature
 
 
@@ -47,10 +48,9 @@ def test_zero_shot_matrix_of_a_sweep(trained_matrix):
     # task module of (region X, arm A) with robot module of (region Y != X, arm B != A)
     assert len(found) == 4
     for pair in found:
-        assert pair["task"]["name"] == "reach" and pair["robot"] in ("panda", "panda_l3")
-        task_source_task, robot_source_task = pair["fit_tasks"]
-        assert pair["task"] == task_source_task != robot_source_task  # the task module's task
-        assert pair["task_from"].split("/")[1] != pair["robot"]
+        assert pair.task["name"] == "reach" and pair.robot in ("panda", "panda_l3")
+        assert pair.task != pair.robot_from_task  # the task module's task, not the robot module's
+        assert pair.task_from.split("/")[1] == pair.task_from_robot != pair.robot
 
     table = run_zero_shot(spec, episodes=4, repeats=2, progress=False)
     assert len(table) == 4 and set(table["method"]) == {"ablation"}
@@ -65,6 +65,18 @@ def test_zero_shot_matrix_of_a_sweep(trained_matrix):
         best = max(row["robot_source_success"], row["task_source_success"])
         assert row["best_unstitched"] == best
         assert row["transfer_gain"] == pytest.approx(row["success_mean"] - best)
+    # the table keeps each pair's record: its sources' and controls' files, which few-shot reads
+    written = pd.read_csv(sweep_dir(spec) / "zero_shot.csv")
+    for column in (
+        "task_from_path",
+        "robot_from_path",
+        "robot_source_path",
+        "task_source_path",
+        "oracle_path",
+    ):
+        assert all(Path(path).is_file() for path in written[column])
+    assert written["robot_source_path"].tolist() == written["robot_from_path"].tolist()
+    assert pairs_from_table(sweep_dir(spec) / "zero_shot.csv") == found
 
     client = mlflow.MlflowClient(f"sqlite:///{sweep_dir(spec) / 'mlflow.db'}")
     experiment = client.get_experiment_by_name("matrix")
@@ -101,8 +113,6 @@ def test_pairs_run_in_batches_and_a_resume_keeps_each_pair_whatever_batch_it_ran
     """Batching changes how many Tune trials start, never a pair's figures; a resumed matrix
     evaluates only the pairs that have no result row."""
     import shutil
-
-    import pandas as pd
 
     from ps_ray.pipeline.zero_shot import PAIR_KEY
     from ps_ray.store.attempts import attempts, read_rows
@@ -146,9 +156,9 @@ def test_few_shot_trials_start_from_stitched_weights_beside_unstitched_and_scrat
     first = pairs(spec)[0]
     start = by_kind["stitched"]["spec"]["init_policy"]
     assert start and Path(start).exists()
-    assert read_signature(start)[1]["task_from"] == first["task_from"]
+    assert read_signature(start)[1]["task_from"] == first.task_from
     # the unstitched start is the pair's robot source as it is, in the same target env
-    assert by_kind["unstitched"]["spec"]["init_policy"] == first["robot_from_path"]
+    assert by_kind["unstitched"]["spec"]["init_policy"] == first.robot_from_path
     assert by_kind["unstitched"]["spec"]["task"] == by_kind["stitched"]["spec"]["task"]
     # starts from trained weights fit their critics first; scratch has nothing to fit them to
     assert by_kind["stitched"]["spec"]["critic_warmup_updates"] == 20

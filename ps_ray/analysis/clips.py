@@ -8,6 +8,7 @@ from pathlib import Path
 
 from ps_ray.names import short_name
 from ps_ray.specs.sweep import SweepSpec
+from ps_ray.stitching.pairs import StitchedPair, evaluated_pairs
 
 CLIP_SIZE = (240, 180)  # pixels; every second step, so a clip is about 26 frames
 START_SEED = 0  # the env reset every clip starts from
@@ -47,31 +48,32 @@ def _clip(policy_file_or_nets, robot, task, path: Path, method: str, role: str) 
 def stitched_clips(spec: SweepSpec, out_dir: Path, pairs_per_method: int = 2) -> list[tuple[str, list[Clip]]]:
     """Rows of clips: per chosen pair (the first ``pairs_per_method`` that every method has, at the
     first seed), each method's stitched policy in the target env, then its two sources in their
-    own envs. Returns (pair label, clips) rows; empty when the sweep has no stitchable pairs."""
-    from ps_ray.stitching.pairs import pairs
+    own envs. The pairs and their sources' files and envs are the zero-shot table's records
+    (:func:`ps_ray.stitching.pairs.evaluated_pairs`). Returns (pair label, clips) rows; empty when
+    the sweep has no stitchable pairs."""
     from ps_ray.stitching.stitch import stitch_policies
-    from ps_ray.stitching.zoo import ModuleZoo
-    from ps_ray.store.layout import sweep_dir
 
     methods = list(spec.zero_shot.methods) or list(spec.methods)
-    found: dict[str, dict[str, dict]] = {}
-    for pair in pairs(spec, methods):
-        if pair["seed"] == spec.seeds[0]:
-            found.setdefault(pair["label"], {})[pair["method"]] = pair
+    found: dict[str, dict[str, StitchedPair]] = {}
+    for pair in evaluated_pairs(spec, methods):
+        if pair.seed == spec.seeds[0]:
+            found.setdefault(pair.label, {})[pair.method] = pair
     labels = [label for label, by_method in found.items() if set(methods) <= set(by_method)]
-    sources = {str(e.key): e for e in ModuleZoo.from_sweep(sweep_dir(spec))}
     rows = []
     for number, label in enumerate(labels[:pairs_per_method]):
         clips = []
         for method in methods:
             pair = found[label][method]
-            nets, _ = stitch_policies(pair["task_from_path"], pair["robot_from_path"])
+            nets, _ = stitch_policies(pair.task_from_path, pair.robot_from_path)
             stem = f"pair{number}_{method}"
-            path = out_dir / f"{stem}.gif"
-            clips.append(_clip(nets, pair["robot"], pair["task"], path, method, "stitched"))
-            for role, key in (("task source", pair["task_from"]), ("robot source", pair["robot_from"])):
-                entry = sources[key]
-                path = out_dir / f"{stem}_{role.split()[0]}.gif"
-                clips.append(_clip(entry.path, entry.robot, entry.task, path, method, role))
+            clips.append(_clip(nets, pair.robot, pair.task, out_dir / f"{stem}.gif", method, "stitched"))
+            sources = (
+                ("task source", pair.task_from_path, pair.task_from_robot, pair.task),
+                ("robot source", pair.robot_from_path, pair.robot_from_robot, pair.robot_from_task),
+            )
+            for role, path, robot, task in sources:
+                clips.append(
+                    _clip(path, robot, task, out_dir / f"{stem}_{role.split()[0]}.gif", method, role)
+                )
         rows.append((label, clips))
     return rows

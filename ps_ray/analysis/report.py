@@ -25,7 +25,7 @@ from ps_ray.analysis.report_run import REPORT_RUN, log_report
 from ps_ray.analysis.summary import cost_section, summary_section
 from ps_ray.atomic import fsync_dir, write_text
 from ps_ray.errors import UserError
-from ps_ray.names import short_name
+from ps_ray.names import as_mapping, parse_spec_text, short_name
 from ps_ray.specs.sweep import SweepSpec
 from ps_ray.store.layout import SweepLayout
 
@@ -324,11 +324,13 @@ def _transfer(report: Report, table: pd.DataFrame) -> None:
 
 
 def _has_object(tasks: pd.Series) -> bool:
-    """Whether any of these tasks (short names, e.g. ``reach{"goal_region": "east"}``) has an
-    object, i.e. a task state beyond the goal."""
+    """Whether any of these tasks (spec text, ``{"goal_region": "east", "name": "reach"}``, or
+    a short name of an older table, ``reach{"goal_region":"east"}``) has an object, i.e. a task
+    state beyond the goal."""
     from ps_ray.envs.tasks import resolve_task
 
-    return any(resolve_task(str(name).split("{")[0]).has_object for name in tasks.unique())
+    names = {as_mapping(parse_spec_text(str(t)))["name"].split("{")[0].split("#")[0] for t in tasks.unique()}
+    return any(resolve_task(name).has_object for name in names)
 
 
 def _few_shot(report: Report, root: Path, say) -> None:

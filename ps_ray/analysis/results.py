@@ -61,5 +61,9 @@ def final_success(curves_frame: pd.DataFrame) -> pd.DataFrame:
 
 
 def zero_shot_results(path: Path) -> pd.DataFrame | None:
-    """``zero_shot.csv`` of a sweep, or None when the stage has not run."""
-    return pd.read_csv(path) if path.exists() else None
+    """``zero_shot.csv`` of a sweep (its pairs in the matrix's order) sorted by method, pairing,
+    seed and label, as the report shows it; None when the stage has not run."""
+    if not path.exists():
+        return None
+    table = pd.read_csv(path)
+    return table.sort_values(["method", "pairing", "seed", "label"]).reset_index(drop=True)

@@ -1,8 +1,10 @@
 """`ps-ray few-shot`: fine-tune stitched policies with SAC + HER in their target env.
 
-For each stitched pair (the sweep's matrix, or the pairs named), the stitched actor, critics and
-target critics are saved and a training trial starts from them: first `collect_steps` of data
-collection without updates (the paper: 10 epochs), then training. The same target env trained
+For each stitched pair of one seed without a translation, of the methods named (read from
+``zero_shot.csv`` where the zero-shot stage wrote it, else from the zoo:
+:func:`ps_ray.stitching.pairs.evaluated_pairs`), the stitched actor, critics and target critics
+are saved and a training trial starts from them: first `collect_steps` of data collection
+without updates (the paper: 10 epochs), then training. The same target env trained
 from scratch runs beside it, so MLflow holds both learning curves (success vs env steps).
 """
 
@@ -18,45 +20,48 @@ from ps_ray.names import trial_key
 from ps_ray.pipeline.sweep import anchor_file, layout, sweep_dir
 from ps_ray.specs.sweep import FewShotSpec, SweepSpec
 from ps_ray.specs.train import TrainSpec
+from ps_ray.stitching.pairs import StitchedPair, evaluated_pairs
 
 
-def few_shot_trials(spec: SweepSpec, settings: FewShotSpec) -> list[dict[str, Any]]:
-    """Trial configs for `sweep_trial`: stitched starts, each pair's robot source fine-tuned as it
-    is (unstitched), and from-scratch baselines. Starts from trained weights fit their critics
-    alone for ``critic_warmup_updates`` updates first."""
-    from ps_ray.stitching.pairs import pairs
-    from ps_ray.stitching.stitch import stitch_policies
-    from ps_ray.weights import save_policy
-
+def selected_pairs(spec: SweepSpec, settings: FewShotSpec) -> list[StitchedPair]:
+    """The pairs few-shot starts from: per method, the first ``max_pairs``, at most
+    ``pairs_per_seed`` of each seed, in the matrix's order."""
     selected, taken, per_seed = [], Counter(), Counter()
-    for pair in pairs(spec, list(settings.methods) or None):
-        seed_key = (pair["method"], pair["seed"])
-        if settings.max_pairs is not None and taken[pair["method"]] >= settings.max_pairs:
+    for pair in evaluated_pairs(spec, list(settings.methods) or None):
+        seed_key = (pair.method, pair.seed)
+        if settings.max_pairs is not None and taken[pair.method] >= settings.max_pairs:
             continue
         if settings.pairs_per_seed is not None and per_seed[seed_key] >= settings.pairs_per_seed:
             continue
-        taken[pair["method"]] += 1
+        taken[pair.method] += 1
         per_seed[seed_key] += 1
         selected.append(pair)
+    return selected
+
+
+def few_shot_trials(spec: SweepSpec, settings: FewShotSpec) -> list[dict[str, Any]]:
+    """Trial configs for `sweep_trial`: stitched starts (:func:`selected_pairs`), each pair's
+    robot source fine-tuned as it is (unstitched), and from-scratch baselines. Starts from
+    trained weights fit their critics alone for ``critic_warmup_updates`` updates first."""
+    from ps_ray.stitching.stitch import stitch_policies
+    from ps_ray.weights import save_policy
+
     trials, targets, seen = [], {}, set()
-    for pair in selected:
-        nets, signature = stitch_policies(pair["task_from_path"], pair["robot_from_path"])
-        digest = hashlib.sha256(f"{pair['task_from']}|{pair['robot_from']}".encode()).hexdigest()
+    for pair in selected_pairs(spec, settings):
+        nets, signature = stitch_policies(pair.task_from_path, pair.robot_from_path)
+        digest = hashlib.sha256(f"{pair.task_from}|{pair.robot_from}".encode()).hexdigest()
         path = layout(spec).stitched / f"{digest[:16]}.safetensors"
         if not path.exists():  # a resumed stage keeps the files its trials started from
             save_policy(
-                path,
-                nets,
-                signature,
-                extra={"task_from": pair["task_from"], "robot_from": pair["robot_from"]},
+                path, nets, signature, extra={"task_from": pair.task_from, "robot_from": pair.robot_from}
             )
         base = TrainSpec.from_mapping(
             {
                 **dict(spec.train),
-                "method": pair["method"],
-                "robot": pair["robot"],
-                "task": pair["task"],
-                "seed": pair["seed"],
+                "method": pair.method,
+                "robot": pair.robot,
+                "task": pair.task,
+                "seed": pair.seed,
                 "interface_dim": signature.interface_dim,
                 "env_steps": settings.env_steps,
                 "learning_starts": settings.collect_steps,
@@ -69,15 +74,15 @@ def few_shot_trials(spec: SweepSpec, settings: FewShotSpec) -> list[dict[str, An
             {
                 "spec": stitched.to_dict(),
                 "anchors": None,
-                "key": f"few_shot/{pair['label']}/{trial_key(base.to_dict())}",
-                "label": pair["label"],
+                "key": f"few_shot/{pair.label}/{trial_key(base.to_dict())}",
+                "label": pair.label,
                 "kind": "stitched",
             }
         )
-        own = pair["controls"].get("robot_source")
+        own = pair.controls.get("robot_source")
         if settings.unstitched and own is not None:  # the robot source as it is, fine-tuned
-            unstitched = TrainSpec.from_mapping({**base.to_dict(), **warm, "init_policy": own["path"]})
-            key = f"unstitched/{own['source']}/{trial_key(base.to_dict())}"
+            unstitched = TrainSpec.from_mapping({**base.to_dict(), **warm, "init_policy": own.path})
+            key = f"unstitched/{own.source}/{trial_key(base.to_dict())}"
             if key not in seen:
                 seen.add(key)
                 trials.append(

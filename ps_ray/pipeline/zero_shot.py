@@ -4,8 +4,9 @@ Every valid (task module, robot module) pair of each method (see `stitch.combos`
 with ``zero_shot.pairs``, across seeds, is stitched, evaluated on fixed seeds (episodes x
 repeats), then the pair's controls are evaluated as they are on the same episodes (its robot source, its
 task source, the oracle: `stitch.controls`, docs/transfer.md), so that every method and control is
-scored on identical episodes. The table, one row per pair with its controls and transfer gain,
-goes to <sweep>/zero_shot.csv and to MLflow (stage zero_shot, one run per pair). Pairs run in
+scored on identical episodes. The table, one row per pair (its record, :meth:`StitchedPair.to_row`:
+the sources' and controls' keys and files) with its controls' figures and transfer gain, goes to
+<sweep>/zero_shot.csv, and to MLflow (stage zero_shot, one run per pair). Pairs run in
 batches (``zero_shot.pairs_per_trial`` per Tune trial), so that a trial's start is paid once per
 batch; each pair is still one result row and one MLflow run.
 """
@@ -21,10 +22,10 @@ import pandas as pd
 
 from ps_ray.atomic import atomic_path
 from ps_ray.errors import UserError
-from ps_ray.names import CONTROL_ROLES, short_name
+from ps_ray.names import CONTROL_ROLES
 from ps_ray.pipeline.sweep import layout, raise_on_errors, sweep_dir
 from ps_ray.specs.sweep import SweepSpec
-from ps_ray.stitching.pairs import pairs
+from ps_ray.stitching.pairs import StitchedPair, pairs
 
 RESULT_KEYS = (
     "success_mean",
@@ -49,7 +50,7 @@ def fit_states(tasks: list, per_quadrant: int, seed: int) -> np.ndarray:
     return np.concatenate([probe_states(task, per_quadrant, seed).states for task in tasks])
 
 
-def check_sources(trials: list[dict[str, Any]]) -> None:
+def check_sources(trials: list[StitchedPair]) -> None:
     """Every policy file the pairs read loads, and every pair stitches, before a trial starts: a
     damaged or unfinished file is one line naming it, not a failing trial retried per pair."""
     from ps_ray.stitching.stitch import check_stitchable
@@ -57,23 +58,24 @@ def check_sources(trials: list[dict[str, Any]]) -> None:
 
     signatures = {}
     for pair in trials:
-        paths = [pair["task_from_path"], pair["robot_from_path"]]
-        paths += [control["path"] for control in pair["controls"].values()]
+        paths = [pair.task_from_path, pair.robot_from_path]
+        paths += [control.path for control in pair.controls.values()]
         for path in paths:
             if path not in signatures:
                 signatures[path] = load_policy(path)[1]
         try:
-            check_stitchable(signatures[pair["task_from_path"]], signatures[pair["robot_from_path"]])
+            check_stitchable(signatures[pair.task_from_path], signatures[pair.robot_from_path])
         except UserError as e:
-            raise UserError(f"{pair['task_from_path']} with {pair['robot_from_path']}: {e}") from None
+            raise UserError(f"{pair.task_from_path} with {pair.robot_from_path}: {e}") from None
 
 
 PAIR_KEY = "pair_key"  # names the stitched pair of a batched trial's result row
 
 
 def zero_shot_trial(config: dict[str, Any]) -> None:
-    """Tune function trainable: a batch of pairs one after another, one result row per pair
-    (named by ``PAIR_KEY``); a source file that several pairs share is read once."""
+    """Tune function trainable: a batch of pairs (:meth:`StitchedPair.to_dict`) one after
+    another, one result row per pair (named by ``PAIR_KEY``); a source file that several pairs
+    share is read once."""
     from ray import tune
 
     from ps_ray.store.attempts import FINISHED
@@ -87,31 +89,31 @@ def zero_shot_trial(config: dict[str, Any]) -> None:
         return loaded[path]
 
     batch = config["batch"]
-    for i, pair in enumerate(batch):
+    for i, pair in enumerate(map(StitchedPair.from_dict, batch)):
         metrics = evaluate_pair(pair, config["eval"], config["fit_states_per_quadrant"], source)
-        tune.report({**metrics, PAIR_KEY: pair["key"], **({FINISHED: True} if i == len(batch) - 1 else {})})
+        tune.report({**metrics, PAIR_KEY: pair.key, **({FINISHED: True} if i == len(batch) - 1 else {})})
 
 
-def evaluate_pair(pair: dict[str, Any], settings: dict[str, Any], per_quadrant: int, source) -> dict:
+def evaluate_pair(pair: StitchedPair, settings: dict[str, Any], per_quadrant: int, source) -> dict:
     """Stitch one pair (translated, if the pair says so), evaluate it, then each of its controls
     as it is, all on the stage's fixed episodes; ``source(path)`` gives a loaded policy file."""
     from ps_ray.evaluate import evaluate
     from ps_ray.stitching.stitch import stitch_policies
 
-    translation = pair.get("translation") or None
-    states = fit_states(pair["fit_tasks"], per_quadrant, settings["seed"]) if translation else None
+    translation = pair.translation or None
+    states = fit_states(list(pair.fit_tasks), per_quadrant, settings["seed"]) if translation else None
     stitched = stitch_policies(
-        source(pair["task_from_path"]),
-        source(pair["robot_from_path"]),
+        source(pair.task_from_path),
+        source(pair.robot_from_path),
         translation=translation,
         fit_states=states,
     )
-    result = evaluate(stitched, pair["robot"], pair["task"], **settings)
+    result = evaluate(stitched, pair.robot, pair.task, **settings)
     metrics = {k: result[k] for k in RESULT_KEYS}
-    for role, control in pair["controls"].items():
-        unstitched = evaluate(source(control["path"]), pair["robot"], pair["task"], **settings)
+    for role, control in pair.controls.items():
+        unstitched = evaluate(source(control.path), pair.robot, pair.task, **settings)
         if unstitched["episodes_digest"] != result["episodes_digest"]:  # a bug, never bad input
-            raise RuntimeError(f"{pair['key']}: its {role} control ran on other episodes")
+            raise RuntimeError(f"{pair.key}: its {role} control ran on other episodes")
         metrics[f"{role}_success"] = unstitched["success_mean"]
     return {**metrics, **gain(metrics)}
 
@@ -147,9 +149,9 @@ def run_zero_shot(
     if not trials:
         raise UserError(f"{root}: no stitchable pairs (train the sweep first: ps-ray sweep)")
     check_sources(trials)
-    by_key = {pair["key"]: pair for pair in trials}
+    by_key = {pair.key: pair for pair in trials}
     done = rows_naming(folder, PAIR_KEY) if resume else {}
-    todo = [pair for pair in trials if pair["key"] not in done]
+    todo = [pair.to_dict() for pair in trials if pair.key not in done]
     evaluated = {"episodes": settings.episodes, "repeats": settings.repeats}
     tracking_uri, experiment_id = connect(spec)
     callback = RowRunsCallback(
@@ -157,7 +159,7 @@ def run_zero_shot(
         experiment_id,
         row_key=PAIR_KEY,
         metric_keys=(*RESULT_KEYS, *CONTROL_KEYS),
-        params_fn=lambda key: _shown(by_key[key]) | evaluated,
+        params_fn=lambda key: by_key[key].shown() | evaluated,
         tags={
             "ps_ray.sweep": spec.name,
             "ps_ray.stage": "zero_shot",
@@ -188,7 +190,7 @@ def run_zero_shot(
     missing = [key for key in by_key if key not in rows]
     if missing:  # every batch finished, so each of its pairs reported: a bug, never bad input
         raise RuntimeError(f"{len(missing)} pairs have no result row, e.g. {missing[0]}")
-    table = table_of([(pair, rows[pair["key"]]) for pair in trials])
+    table = table_of([(pair, rows[pair.key]) for pair in trials])
     write_atomic_csv(table, layout(spec).zero_shot_table)
     return table
 
@@ -199,32 +201,21 @@ def _batches(pairs: list, sizes: list[int]) -> list[list]:
     return [pairs[a:b] for a, b in zip(ends[:-1], ends[1:], strict=True)]
 
 
-def _shown(pair: dict[str, Any]) -> dict[str, Any]:
-    """A trial config's fields for a table row or MLflow params (no paths, no nested controls)."""
-    return {k: short_name(v) for k, v in pair.items() if not k.endswith("path") and k not in HIDDEN}
-
-
-HIDDEN = ("fit_tasks", "controls", "key")
-
-
-def _tags(client, experiment_id: str, pair: dict[str, Any]) -> dict:
+def _tags(client, experiment_id: str, pair: StitchedPair) -> dict:
     from ps_ray.tracking import source_tags
 
-    return source_tags(client, experiment_id, pair["task_from"], pair["robot_from"], pair["task_from_path"])
+    return source_tags(client, experiment_id, pair.task_from, pair.robot_from, pair.task_from_path)
 
 
-def table_of(results: list[tuple[dict[str, Any], dict[str, Any]]]) -> pd.DataFrame:
-    """One row per stitched pair from (trial config, metrics): the pair's fields, its success and
-    touching, each control's source key (``<role>``, empty where the role does not apply) and
-    success (``<role>_success``, NaN there), ``best_unstitched`` and ``transfer_gain``."""
-    rows = []
-    for pair, metrics in results:
-        row = {**_shown(pair), **{k: metrics.get(k, np.nan) for k in (*RESULT_KEYS, *CONTROL_KEYS)}}
-        for role in CONTROL_ROLES:
-            row[role] = pair["controls"].get(role, {}).get("source", "")
-        rows.append(row)
-    table = pd.DataFrame(rows)
-    return table.sort_values(["method", "pairing", "seed", "label"]).reset_index(drop=True)
+def table_of(results: list[tuple[StitchedPair, dict[str, Any]]]) -> pd.DataFrame:
+    """One row per stitched pair from (pair, metrics), in the given (the matrix's) order: the
+    pair's record (:meth:`StitchedPair.to_row`: its sources' and controls' keys and files), its
+    success and touching, each control's success (``<role>_success``, NaN where the role does not
+    apply), ``best_unstitched`` and ``transfer_gain``."""
+    keys = (*RESULT_KEYS, *CONTROL_KEYS)
+    return pd.DataFrame(
+        [{**pair.to_row(), **{k: metrics.get(k, np.nan) for k in keys}} for pair, metrics in results]
+    )
 
 
 def summary(table: pd.DataFrame) -> pd.DataFrame:

@@ -1,22 +1,124 @@
-"""The stitching matrix of a sweep: one record per stitched pair, with its sources, target env
-and controls (the zero-shot trials' configs, few-shot's starts and the report's clips read these)."""
+"""The stitching matrix of a sweep: one :class:`StitchedPair` per stitched pair, with its sources,
+target env and controls. The zero-shot trials' configs (:meth:`StitchedPair.to_dict`), the rows of
+``zero_shot.csv`` (:meth:`StitchedPair.to_row`), few-shot's starts and the report's clips are this
+one record; few-shot and the clips read it back from the table (:func:`evaluated_pairs`).
+
+Ray- and torch-free at import: the report reads the table through it."""
 
 from __future__ import annotations
 
+import csv
+import dataclasses
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
+from ps_ray.errors import UserError
+from ps_ray.names import CONTROL_ROLES, parse_spec_text, short_name, spec_text
 from ps_ray.specs.sweep import SweepSpec, seed_pairs
-from ps_ray.store.layout import sweep_dir
+from ps_ray.store.layout import SweepLayout, sweep_dir
+
+EnvPart = str | Mapping[str, Any]  # a robot or task as make() takes it
+# fields that are a robot or task: a name, or a mapping written as spec_text in a row
+ENV_FIELDS = ("robot", "task", "task_from_robot", "robot_from_robot", "robot_from_task")
+# a pair's fields as MLflow params and as they were before the record carried paths and envs:
+# a run's params must not change (the tracker refuses a run whose params differ)
+SHOWN = ("method", "translation", "pairing", "seed", "robot_seed", "label", "task_from", "robot_from")
+
+
+@dataclass(frozen=True)
+class Control:
+    """An unstitched policy scored beside a pair (:func:`ps_ray.stitching.stitch.controls`)."""
+
+    source: str  # its zoo key
+    path: str  # its policy file
+
+
+@dataclass(frozen=True)
+class StitchedPair:
+    """One stitched pair: the task module of ``task_from`` with the robot module of
+    ``robot_from``, run on (``robot``, ``task``), with its controls by role."""
+
+    key: str  # zero_shot/<method>/<label>/<seed or seed x robot_seed>
+    method: str  # <method>+<translation> for a translated stitch
+    translation: str  # "" for none
+    pairing: str  # same_seed or cross_seed
+    seed: int  # the task module's
+    robot_seed: int  # the robot module's
+    label: str
+    task_from: str  # zoo keys and policy files of the two sources
+    robot_from: str
+    task_from_path: str
+    robot_from_path: str
+    robot: EnvPart  # the target env
+    task: EnvPart
+    task_from_robot: EnvPart  # the sources' own envs: the task source ran (task_from_robot, task)
+    robot_from_robot: EnvPart
+    robot_from_task: EnvPart
+    controls: Mapping[str, Control]
+
+    @property
+    def fit_tasks(self) -> tuple[EnvPart, EnvPart]:
+        """The tasks a latent translation is fit on: the task source's and the robot source's."""
+        return self.task, self.robot_from_task
+
+    def shown(self) -> dict[str, str]:
+        """MLflow params: no paths, no controls; robot and task by short name."""
+        return {k: short_name(getattr(self, k)) for k in (*SHOWN, "robot", "task")}
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-able, for a Tune config; :meth:`from_dict` gives the record back."""
+        return dataclasses.asdict(self)
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> StitchedPair:
+        controls = {role: Control(**c) for role, c in data["controls"].items()}
+        return cls(**{**data, "controls": controls})
+
+    def to_row(self) -> dict[str, Any]:
+        """A flat CSV row: robots and tasks as :func:`spec_text`, each control role as its
+        source key (``<role>``) and file (``<role>_path``), empty where the role does not apply."""
+        row = {f.name: getattr(self, f.name) for f in dataclasses.fields(self) if f.name != "controls"}
+        row.update({k: spec_text(row[k]) for k in ENV_FIELDS})
+        for role in CONTROL_ROLES:
+            control = self.controls.get(role)
+            row[role], row[f"{role}_path"] = (control.source, control.path) if control else ("", "")
+        return row
+
+    @classmethod
+    def from_row(cls, row: Mapping[str, Any]) -> StitchedPair:
+        """The record of a :meth:`to_row` row, also as read back from CSV (every cell text)."""
+        text = {f.name: _text(row[f.name]) for f in dataclasses.fields(cls) if f.name != "controls"}
+        controls = {
+            role: Control(_text(row[role]), _text(row[f"{role}_path"]))
+            for role in CONTROL_ROLES
+            if _text(row.get(role))
+        }
+        return cls(
+            **{
+                **text,
+                **{k: parse_spec_text(text[k]) for k in ENV_FIELDS},
+                "seed": int(text["seed"]),
+                "robot_seed": int(text["robot_seed"]),
+                "controls": controls,
+            }
+        )
+
+
+def _text(value: Any) -> str:
+    """A cell as text; a missing one (None, NaN) empty."""
+    return "" if value is None or value != value else str(value)
 
 
 def pairs(
     spec: SweepSpec, methods: list[str] | None = None, translate: bool = False, pairing: str = "same_seed"
-) -> list[dict[str, Any]]:
-    """One trial config per stitched pair of the sweep's trained policies (``pairing``: see
-    :func:`seed_pairs`), with the zoo keys and files of its controls
+) -> list[StitchedPair]:
+    """Every stitched pair of the sweep's trained policies (``pairing``: see :func:`seed_pairs`),
+    from its zoo, with the zoo keys and files of its controls
     (:func:`ps_ray.stitching.stitch.controls`); with ``translate``, also one per latent
     translation that ``spec.zero_shot.translate`` names for the method (its method shown as
-    ``<method>+<translation>``)."""
+    ``<method>+<translation>``, right after the untranslated pair)."""
     from ps_ray.stitching.stitch import combos, controls
     from ps_ray.stitching.zoo import ModuleZoo
 
@@ -27,28 +129,62 @@ def pairs(
         for kind_of_pair, seed, robot_seed in seed_pairs(spec.seeds, pairing):
             for combo in combos(zoo, method, seed, robot_seed=robot_seed):
                 seeds = str(seed) if kind_of_pair == "same_seed" else f"{seed}x{robot_seed}"
+                t, r = combo.task_from, combo.robot_from
+                found = {role: Control(str(e.key), str(e.path)) for role, e in controls(zoo, combo).items()}
                 for kind in kinds:
                     name = f"{method}+{kind}" if kind else method
                     out.append(
-                        {
-                            "key": f"zero_shot/{name}/{combo.label}/{seeds}",
-                            "method": name,
-                            "translation": kind,
-                            "pairing": kind_of_pair,
-                            "seed": seed,
-                            "robot_seed": robot_seed,
-                            "label": combo.label,
-                            "task_from": str(combo.task_from.key),
-                            "robot_from": str(combo.robot_from.key),
-                            "task_from_path": str(combo.task_from.path),
-                            "robot_from_path": str(combo.robot_from.path),
-                            "fit_tasks": [combo.task_from.spec["task"], combo.robot_from.spec["task"]],
-                            "robot": combo.robot,
-                            "task": combo.task,
-                            "controls": {
-                                role: {"source": str(entry.key), "path": str(entry.path)}
-                                for role, entry in controls(zoo, combo).items()
-                            },
-                        }
+                        StitchedPair(
+                            key=f"zero_shot/{name}/{combo.label}/{seeds}",
+                            method=name,
+                            translation=kind,
+                            pairing=kind_of_pair,
+                            seed=seed,
+                            robot_seed=robot_seed,
+                            label=combo.label,
+                            task_from=str(t.key),
+                            robot_from=str(r.key),
+                            task_from_path=str(t.path),
+                            robot_from_path=str(r.path),
+                            robot=combo.robot,
+                            task=combo.task,
+                            task_from_robot=t.robot,
+                            robot_from_robot=r.robot,
+                            robot_from_task=r.task,
+                            controls=found,
+                        )
                     )
     return out
+
+
+def pairs_from_table(path: Path) -> list[StitchedPair] | None:
+    """The pairs of a ``zero_shot.csv``, in its order (the matrix's, :func:`pairs`); None when
+    there is no table, or it was written before its rows carried the sources' files."""
+    if not path.is_file():
+        return None
+    with path.open(newline="") as f:
+        rows = list(csv.DictReader(f))
+    needed = [f.name for f in dataclasses.fields(StitchedPair) if f.name != "controls"]
+    if not rows or any(name not in rows[0] for name in needed):
+        return None
+    try:
+        return [StitchedPair.from_row(row) for row in rows]
+    except (KeyError, ValueError) as e:  # a damaged table: one line naming it
+        raise UserError(f"{path}: unreadable pair row ({e})") from None
+
+
+def evaluated_pairs(spec: SweepSpec, methods: list[str] | None = None) -> list[StitchedPair]:
+    """The same-seed pairs without a translation of ``methods`` (default: the sweep's), in
+    :func:`pairs` order: read from ``zero_shot.csv`` for the methods the zero-shot stage
+    evaluated, built from the zoo only for the others (a sweep that skips zero-shot)."""
+    methods = list(methods or spec.methods)
+    table = pairs_from_table(SweepLayout(sweep_dir(spec)).zero_shot_table) or []
+    by_method = {
+        m: [p for p in table if p.method == m and p.pairing == "same_seed" and not p.translation]
+        for m in methods
+    }
+    missing = [m for m in methods if not by_method[m]]
+    if missing:
+        built = pairs(spec, missing)
+        by_method.update({m: [p for p in built if p.method == m] for m in missing})
+    return [pair for m in methods for pair in by_method[m]]

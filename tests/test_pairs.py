@@ -1,0 +1,164 @@
+"""One record per stitched pair: the zero-shot trials' configs, the rows of zero_shot.csv, and
+the pairs few-shot and the report's clips read back from that table (no Ray, no training)."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import pandas as pd
+import pytest
+
+from ps_ray.analysis.clips import stitched_clips
+from ps_ray.analysis.page import Report
+from ps_ray.names import short_name
+from ps_ray.pipeline.few_shot import selected_pairs
+from ps_ray.pipeline.zero_shot import CONTROL_KEYS, RESULT_KEYS, table_of, write_atomic_csv
+from ps_ray.specs.sweep import FewShotSpec, SweepSpec
+from ps_ray.stitching.pairs import Control, StitchedPair, evaluated_pairs, pairs, pairs_from_table
+from ps_ray.store.layout import SweepLayout, sweep_dir
+from tests.test_stitch import K, write_trial
+from tests.test_stitch import spec as train_spec
+
+Q1, Q3 = {"name": "reach", "goal_region": "q1"}, {"name": "reach", "goal_region": "q3"}
+GRIPPER = {"name": "panda_l3", "gripper": True}
+
+
+def a_pair(translation: str = "") -> StitchedPair:
+    method = f"ps+{translation}" if translation else "ps"
+    return StitchedPair(
+        key=f"zero_shot/{method}/t: q1 & r: q3/1",
+        method=method,
+        translation=translation,
+        pairing="same_seed",
+        seed=1,
+        robot_seed=1,
+        label="t: q1 & r: q3",
+        task_from="ps/panda/reach/1/i8",
+        robot_from="ps/panda_l3/reach/1/i8",
+        task_from_path="/sweep/tune/a/policy.safetensors",
+        robot_from_path="/sweep/tune/b/policy.safetensors",
+        robot=GRIPPER,
+        task=Q1,
+        task_from_robot="panda",
+        robot_from_robot=GRIPPER,
+        robot_from_task=Q3,
+        controls={
+            "robot_source": Control("ps/panda_l3/reach/1/i8", "/sweep/tune/b/policy.safetensors"),
+            "task_source": Control("ps/panda/reach/1/i8", "/sweep/tune/a/policy.safetensors"),
+        },
+    )
+
+
+@pytest.mark.parametrize("translation", ["", "orthogonal"])
+def test_a_pair_survives_the_tune_config_and_the_csv_row(tmp_path, translation):
+    pair = a_pair(translation)
+    assert StitchedPair.from_dict(json.loads(json.dumps(pair.to_dict()))) == pair
+    assert StitchedPair.from_row(pair.to_row()) == pair
+    row = pair.to_row()
+    assert row["task"] == '{"goal_region": "q1", "name": "reach"}'  # exact, not the short name
+    assert (row["robot_source"], row["robot_source_path"]) == (pair.robot_from, pair.robot_from_path)
+    assert (row["oracle"], row["oracle_path"]) == ("", "")  # no oracle trained for this target
+    assert pair.fit_tasks == (Q1, Q3)
+    # MLflow params as before the record: no paths, envs by short name
+    assert pair.shown()["task"] == 'reach{"goal_region":"q1"}'
+    assert not any("path" in k for k in pair.shown())
+    # as zero_shot.csv: written by the zero-shot stage, read back cell by cell as text
+    path = tmp_path / "zero_shot.csv"
+    write_atomic_csv(table_of([(pair, {"success_mean": 0.5})]), path)
+    assert pairs_from_table(path) == [pair]
+    assert pd.read_csv(path)["task_from_path"].tolist() == ["/sweep/tune/a/policy.safetensors"]
+
+
+@pytest.fixture
+def sweep_spec(tmp_path) -> SweepSpec:
+    """Two methods x two arms x two goal regions x two seeds of random policies, as trained."""
+    spec = SweepSpec.from_mapping(
+        {
+            "name": "pairs",
+            "methods": ["ps", "ablation"],
+            "robots": ["panda", "panda_l3"],
+            "tasks": [Q1, Q3],
+            "seeds": [1, 2],
+            "interface_dims": [K],
+            "train": {"hidden": 16, "env_steps": 300},
+            "zero_shot": {"pairs": "both", "translate": {"ps": ["orthogonal"]}},
+            "storage": str(tmp_path / "store"),
+        }
+    )
+    for t in spec.trials():
+        write_trial(sweep_dir(spec), "tune", train_spec(t.method, t.robot, t.task, seed=t.seed))
+    return spec
+
+
+def test_few_shot_reads_the_pairs_zero_shot_wrote_in_the_zoos_order(sweep_spec):
+    spec, table_path = sweep_spec, SweepLayout(sweep_dir(sweep_spec)).zero_shot_table
+    matrix = pairs(spec, translate=True, pairing="both")
+    # per method: 4 seed pairings (2 same-seed, 2 cross-seed) x 4 stitchable pairs; ps translated too
+    assert len(matrix) == 4 * 4 * 2 + 4 * 4
+    write_atomic_csv(table_of([(p, {"success_mean": 0.5}) for p in matrix]), table_path)
+    assert pairs_from_table(table_path) == matrix  # the matrix's order, every field
+    for pair in matrix:
+        files = [pair.task_from_path, pair.robot_from_path, *(c.path for c in pair.controls.values())]
+        assert all(Path(f).is_file() for f in files)
+    same_seed = [p for p in matrix if p.pairing == "same_seed" and not p.translation]
+    assert len(same_seed) == 2 * 2 * 4
+
+    zoo = sweep_dir(spec) / "tune"
+    shutil.move(zoo, zoo.with_name("elsewhere"))  # with the table, nothing reads the zoo
+    assert evaluated_pairs(spec) == same_seed
+    assert evaluated_pairs(spec, ["ablation", "ps"]) == [
+        p for m in ("ablation", "ps") for p in same_seed if p.method == m
+    ]
+    settings = FewShotSpec(max_pairs=3, pairs_per_seed=2)
+    from_table = selected_pairs(spec, settings)
+    shutil.move(zoo.with_name("elsewhere"), zoo)
+
+    table_path.unlink()  # a sweep that skips zero-shot: the same pairs, from the zoo
+    assert [p.key for p in selected_pairs(spec, settings)] == [p.key for p in from_table]
+    assert [(p.method, p.seed) for p in from_table] == [("ps", 1), ("ps", 1), ("ps", 2)] + [
+        ("ablation", 1),
+        ("ablation", 1),
+        ("ablation", 2),
+    ]
+    # a table written before its rows carried the sources' files: built from the zoo
+    old = table_of([(p, {}) for p in matrix]).drop(columns=["task_from_path", "robot_from_path"])
+    write_atomic_csv(old, table_path)
+    assert pairs_from_table(table_path) is None and evaluated_pairs(spec) == same_seed
+
+
+def write_table(spec: SweepSpec) -> list[StitchedPair]:
+    """zero_shot.csv of the sweep's same-seed pairs, every figure 0.5; returns the pairs."""
+    matrix = pairs(spec)
+    figures = {k: 0.5 for k in (*RESULT_KEYS, *CONTROL_KEYS)}
+    write_atomic_csv(table_of([(p, figures) for p in matrix]), SweepLayout(sweep_dir(spec)).zero_shot_table)
+    return matrix
+
+
+def test_the_reports_zero_shot_tables_show_no_files(sweep_spec, tmp_path):
+    from ps_ray.analysis import report
+
+    write_table(sweep_spec)
+    page = Report(tmp_path / "report")
+    report._zero_shot(page, sweep_dir(sweep_spec), 0.8, lambda *a: None)
+    shown = [item[1] for section in page.sections for kind, item in section.items if kind == "table"]
+    columns = {str(c) for frame in shown for c in [*frame.columns.to_flat_index(), *frame.index.names]}
+    assert {"('ps', 'success')", "('ablation', 'success')", "oracle (trained on the target)"} <= columns
+    assert not [c for c in columns if "path" in c or "touching" in c]  # reach: nothing to touch
+
+
+def test_the_clips_run_each_source_in_its_own_env_as_the_table_says(sweep_spec, tmp_path):
+    from ps_ray.stitching.zoo import ModuleZoo
+
+    matrix = write_table(sweep_spec)
+    ((label, clips),) = stitched_clips(sweep_spec, tmp_path / "clips", pairs_per_method=1)
+    zoo = ModuleZoo.from_sweep(sweep_dir(sweep_spec))
+    assert len(clips) == 2 * 3  # per method: stitched, task source, robot source
+    for method, i in (("ps", 0), ("ablation", 3)):
+        stitched, task_source, robot_source = clips[i : i + 3]
+        pair = next(p for p in matrix if (p.method, p.label, p.seed) == (method, label, 1))
+        assert stitched.env == f"{short_name(pair.robot)}, {short_name(pair.task)}"
+        for clip, key in ((task_source, pair.task_from), (robot_source, pair.robot_from)):
+            entry = zoo.get(key)  # the env the source was trained in
+            assert clip.env == f"{short_name(entry.robot)}, {short_name(entry.task)}" and clip.path.is_file()

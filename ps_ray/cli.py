@@ -14,11 +14,11 @@ from pathlib import Path
 
 from ps_ray.cli_parsers import build_parser
 from ps_ray.errors import UserError
-from ps_ray.lock import folder_lock
 from ps_ray.names import parse_spec_text
 from ps_ray.pipeline.sweep import StageError
 from ps_ray.specs.train import POINT_TASK, TrainSpec
 from ps_ray.store.layout import SweepLayout
+from ps_ray.store.lock import folder_lock
 
 
 def cmd_train(args: argparse.Namespace) -> int:

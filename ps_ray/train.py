@@ -3,7 +3,7 @@
 A run directory holds:
   spec.json          the TrainSpec (a directory belongs to one spec; a different one is refused)
   anchors.npz        the anchor set (PS only)
-  checkpoint/        the latest checkpoint (ps_ray/checkpoint.py: safetensors, npz, JSON, sealed
+  checkpoint/        the latest checkpoint (ps_ray/store/checkpoint.py: safetensors, npz, JSON, sealed
                      by a manifest; replaced atomically)
   policy.safetensors actor, critics and targets with the interface signature
   best_policy.safetensors  the same at the best greedy evaluation so far
@@ -24,12 +24,12 @@ from typing import Any
 import numpy as np
 import torch
 
-from ps_ray import checkpoint
-from ps_ray.atomic import write_text
 from ps_ray.errors import UserError
-from ps_ray.lock import folder_lock
 from ps_ray.specs.methods import method_spec, spec_json, uses_anchors
 from ps_ray.specs.train import POINT_TASK, TrainSpec, require_same
+from ps_ray.store import checkpoint
+from ps_ray.store.atomic import write_text
+from ps_ray.store.lock import folder_lock
 from ps_ray.store.run_folder import best_so_far, latest_checkpoint, metrics_up_to, save_atomically
 from ps_ray.store.run_layout import (
     ANCHORS_FILE,
@@ -60,8 +60,8 @@ def prepare_anchors(spec: TrainSpec, run_dir: Path, given=None):
     """The anchor set of a PS run: the run folder's own (a resume), else the one its inputs give
     (:func:`read_inputs`: the init policy's or the anchors file's), else k-means over
     random-policy rollouts; saved into the run folder."""
-    from ps_ray.anchor_file import load_anchor_set, save_anchor_set
-    from ps_ray.anchors import AnchorSet, collect_task_states, select_anchors
+    from ps_ray.data.anchor_file import load_anchor_set, save_anchor_set
+    from ps_ray.data.anchors import AnchorSet, collect_task_states, select_anchors
 
     path = run_dir / ANCHORS_FILE
     if path.exists():
@@ -251,7 +251,7 @@ def train(
     spec: TrainSpec, run_dir: str | Path, *, progress: bool = True, compile: bool = False
 ) -> dict[str, Any]:
     """Train (or resume) until spec.env_steps; returns the last metrics row with final_* figures.
-    One process at a time per run folder (:mod:`ps_ray.lock`). ``compile``: see TrainingRun."""
+    One process at a time per run folder (:mod:`ps_ray.store.lock`). ``compile``: see TrainingRun."""
     run_dir = Path(run_dir).resolve()  # RLlib's checkpoint writer needs absolute paths
     _check_run_dir(spec, run_dir)
     given = read_inputs(spec)  # a bad --init-policy or --anchors fails before the folder is made
@@ -281,7 +281,7 @@ def read_inputs(spec: TrainSpec):
             raise UserError(f"{spec.init_policy}: cannot start this run: " + "; ".join(problems))
         return policy_anchor_set(spec.init_policy) if uses_anchors(spec.method) else None
     if spec.anchors is not None and uses_anchors(spec.method):
-        from ps_ray.anchor_file import anchors_from_file
+        from ps_ray.data.anchor_file import anchors_from_file
 
         return anchors_from_file(spec.anchors, spec.interface_dim, seed=0)
     return None

@@ -18,13 +18,13 @@ from safetensors import SafetensorError, safe_open
 from safetensors.torch import save_file
 from torch import nn
 
-from ps_ray.anchors import AnchorSet, anchor_hash
-from ps_ray.atomic import atomic_path
+from ps_ray.data.anchors import AnchorSet, anchor_hash
 from ps_ray.defaults import MAX_WIDTH
 from ps_ray.errors import UserError
 from ps_ray.nets.modular import NetDims
 from ps_ray.nets.sac import NET_NAMES, SACNets, build_sac_nets
 from ps_ray.specs.methods import MethodSpec, method_spec, spec_from_dict, spec_json
+from ps_ray.store.atomic import atomic_path
 
 FORMAT = "ps_ray.policy/1"
 ANCHORS_KEY = "actor.task.relative.anchors"

@@ -1,4 +1,4 @@
-"""Tests for ps_ray.anchors: real scikit-learn, real files, a tiny env; all fast."""
+"""Tests for ps_ray.data.anchors: real scikit-learn, real files, a tiny env; all fast."""
 
 from __future__ import annotations
 
@@ -15,9 +15,9 @@ import pytest
 from sklearn.cluster import KMeans
 from sklearn.metrics import pairwise_distances_argmin_min
 
-from ps_ray import anchors as A
-from ps_ray.anchor_file import anchors_from_file, load_anchor_set, save_anchor_set
-from ps_ray.anchors import (
+from ps_ray.data import anchors as A
+from ps_ray.data.anchor_file import anchors_from_file, load_anchor_set, save_anchor_set
+from ps_ray.data.anchors import (
     AnchorSet,
     anchor_hash,
     collect_task_states,
@@ -154,7 +154,7 @@ def test_hash_is_pinned_and_identical_in_a_fresh_process():
     a = np.array([[0.5, -1.0, 2.0], [3.25, 0.0, -4.5]], np.float32)
     golden = "8e3c5d5e69989676ce157404dd851f4b18f18eda46ad82bab215336e8533e521"
     code = (
-        "import numpy as np; from ps_ray.anchors import anchor_hash; "
+        "import numpy as np; from ps_ray.data.anchors import anchor_hash; "
         "print(anchor_hash(np.array([[0.5, -1.0, 2.0], [3.25, 0.0, -4.5]], np.float32)))"
     )
     env = dict(os.environ, PYTHONHASHSEED="123")

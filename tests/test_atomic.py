@@ -7,7 +7,7 @@ import os
 
 import pytest
 
-from ps_ray.atomic import atomic_file, write_text
+from ps_ray.store.atomic import atomic_file, write_text
 
 
 def test_a_failed_write_keeps_the_old_file_and_leaves_no_temp_file(tmp_path):

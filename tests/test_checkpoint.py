@@ -8,7 +8,7 @@ import subprocess
 
 import pytest
 
-from ps_ray import checkpoint
+from ps_ray.store import checkpoint
 
 
 def test_seal_and_verify_tell_complete_from_cut_short_and_altered(tmp_path):

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from ps_ray.her import HindsightReplay
+from ps_ray.data.her import HindsightReplay
 
 
 def stack_episodes(episodes, action_key: str = "actions"):

@@ -8,7 +8,7 @@ import sys
 
 import pytest
 
-from ps_ray.lock import LOCK_FILE, FolderLocked, folder_lock
+from ps_ray.store.lock import LOCK_FILE, FolderLocked, folder_lock
 
 SWEEP = """name: locked
 methods: [ps]
@@ -30,7 +30,7 @@ def test_a_held_folder_refuses_a_second_holder_and_names_the_first(tmp_path):
 def test_a_lock_left_by_a_killed_process_is_taken_over(tmp_path):
     folder = tmp_path / "sweep"
     code = (
-        f"from ps_ray.lock import folder_lock\nimport os\n"
+        f"from ps_ray.store.lock import folder_lock\nimport os\n"
         f"with folder_lock({str(folder)!r}):\n    os._exit(9)\n"
     )  # dies holding it
     assert subprocess.run([sys.executable, "-c", code]).returncode == 9

@@ -27,9 +27,9 @@ import pytest
 
 from ps_ray.analysis.browser import find_chromium
 from ps_ray.analysis.cost import workload
-from ps_ray.checkpoint import latest as latest_checkpoint
 from ps_ray.names import trial_key
 from ps_ray.specs.sweep import load_sweep
+from ps_ray.store.checkpoint import latest as latest_checkpoint
 from ps_ray.store.layout import SweepLayout
 from ps_ray.store.stages import stage_state
 from ps_ray.tracking import TRIAL_KEY_TAG

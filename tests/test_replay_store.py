@@ -9,9 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from ps_ray import checkpoint
-from ps_ray.her import HindsightReplay
-from ps_ray.store import replay
+from ps_ray.data.her import HindsightReplay
+from ps_ray.store import checkpoint, replay
 from tests.test_her import SPEC, A, T, batch, make, reward_fn
 
 

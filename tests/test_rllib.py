@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 
-from ps_ray.anchors import anchor_hash
+from ps_ray.data.anchors import anchor_hash
 from ps_ray.nets.sac import NET_NAMES
 from ps_ray.rllib.algo import algo_config
 from ps_ray.rllib.episodes import train_batch

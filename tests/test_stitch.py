@@ -19,7 +19,6 @@ import yaml
 from safetensors.torch import save_file
 
 from ps_ray import cli
-from ps_ray.checkpoint import STATE_FILE, seal
 from ps_ray.envs import make
 from ps_ray.envs.core import effective_gripper
 from ps_ray.errors import UserError
@@ -38,6 +37,7 @@ from ps_ray.stitching.stitch import (
 )
 from ps_ray.stitching.zoo import ModuleZoo, read_entry
 from ps_ray.store.attempts import FINISHED, PARAMS_FILE, RESULT_FILE
+from ps_ray.store.checkpoint import STATE_FILE, seal
 from ps_ray.weights import Signature, load_policy, nets_state, save_policy, signature_of
 from tests.code_paths import CODE_PATHS
 

@@ -12,9 +12,9 @@ import mlflow
 import pytest
 import yaml
 
-from ps_ray.checkpoint import latest as latest_checkpoint
 from ps_ray.pipeline.sweep import sweep_dir
 from ps_ray.specs.sweep import load_sweep
+from ps_ray.store.checkpoint import latest as latest_checkpoint
 from ps_ray.weights import load_policy
 
 

@@ -1,4 +1,4 @@
-"""Benchmark ps_ray.her.HindsightReplay with the push spec (T=50, A=7, 8+12+3+3 obs floats).
+"""Benchmark ps_ray.data.her.HindsightReplay with the push spec (T=50, A=7, 8+12+3+3 obs floats).
 
 Prints add_episodes time per 100 episodes, sample(256) and sample_many(40, 256) times, storage
 size and resident-memory growth, for buffers of 2,000 and 20,000 episodes (1e5 and 1e6
@@ -17,8 +17,8 @@ from pathlib import Path
 import numpy as np
 
 from ps_ray.cli_parsers import Parser, positive_int
+from ps_ray.data.her import HindsightReplay
 from ps_ray.envs.goals import goal_reward
-from ps_ray.her import HindsightReplay
 
 T, A = 50, 7
 PUSH_SPEC = {

@@ -52,7 +52,7 @@ def train_in_fresh_process(spec: TrainSpec, run_dir: Path) -> dict:
     """``train`` in a spawned process of its own, as ``ps-ray train`` and every Tune trial run, so
     that no process-wide state set by an earlier run (thread pools, Ray's settings) reaches it.
     Such state once made a seed's run depend on the runs before it: k-means followed the OpenMP
-    thread count that an earlier run had left (fixed in :mod:`ps_ray.anchors`)."""
+    thread count that an earlier run had left (fixed in :mod:`ps_ray.data.anchors`)."""
     with ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("spawn")) as pool:
         return pool.submit(functools.partial(train, spec, run_dir, progress=False)).result()
 

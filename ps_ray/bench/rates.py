@@ -24,10 +24,10 @@ import numpy as np
 import pandas as pd
 
 from ps_ray.analysis.cost import DEFAULT_RATES, Rates, rates_path
-from ps_ray.atomic import write_text
 from ps_ray.cli_parsers import Parser, positive_int
 from ps_ray.envs import EPISODE_STEPS
 from ps_ray.specs.train import TrainSpec
+from ps_ray.store.atomic import write_text
 
 
 def _slope(x: pd.Series, y: pd.Series) -> float:

@@ -10,10 +10,10 @@ import tempfile
 import time
 from pathlib import Path
 
-from ps_ray import checkpoint
-from ps_ray.atomic import write_text
 from ps_ray.cli_parsers import Parser, positive_int
-from ps_ray.lock import folder_lock
+from ps_ray.store import checkpoint
+from ps_ray.store.atomic import write_text
+from ps_ray.store.lock import folder_lock
 
 
 def _per_call(fn, n: int) -> float:
@@ -75,8 +75,8 @@ def replay_checkpoints(held: int, root: Path, checkpoints: int = 5) -> None:
 
     from ps_ray.analysis.cost import load_rates
     from ps_ray.bench.her import PUSH_SPEC, A, T
+    from ps_ray.data.her import HindsightReplay
     from ps_ray.envs.goals import goal_reward
-    from ps_ray.her import HindsightReplay
     from ps_ray.specs.train import TrainSpec
     from ps_ray.store import replay
 

@@ -16,7 +16,7 @@ import numpy as np
 import torch
 
 from ps_ray.cli_parsers import Parser
-from ps_ray.her import HindsightReplay
+from ps_ray.data.her import HindsightReplay
 from ps_ray.nets.modular import update_normalizers
 from ps_ray.nets.obs import dims_from_spaces, split_obs
 from ps_ray.nets.sac import SACHyper, build_sac_nets, polyak, sac_forward, sac_losses, squashed_sample

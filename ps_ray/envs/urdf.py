@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pybullet_data
 
-from ps_ray.atomic import write_text
+from ps_ray.store.atomic import write_text
 
 PANDA_URDF = os.path.join(pybullet_data.getDataPath(), "franka_panda", "panda.urdf")
 CACHE_DIR = Path(tempfile.gettempdir()) / "ps_ray_urdf"

@@ -14,11 +14,11 @@ from functools import partial
 from pathlib import Path
 from typing import Any
 
-from ps_ray.atomic import write_text
 from ps_ray.names import spec_text
 from ps_ray.specs.methods import uses_anchors
 from ps_ray.specs.sweep import SweepSpec, anchor_sources, task_input_dim
 from ps_ray.specs.train import TrainSpec, require_same
+from ps_ray.store.atomic import write_text
 from ps_ray.store.layout import SweepLayout, sweep_dir
 from ps_ray.store.run_layout import METRIC_FIELDS, POLICY_FILE, SIGNATURE_FILE, SPEC_FILE
 
@@ -48,8 +48,8 @@ def prepare_sweep_anchors(
     States come from `spec.anchors.file`, from greedy rollouts of the trained plain policies
     (policy: plain, after stage 1) or from random-action rollouts (policy: random).
     """
-    from ps_ray.anchor_file import anchors_from_file, save_anchor_set
-    from ps_ray.anchors import collect_task_states, make_anchor_set
+    from ps_ray.data.anchor_file import anchors_from_file, save_anchor_set
+    from ps_ray.data.anchors import collect_task_states, make_anchor_set
     from ps_ray.envs import make
     from ps_ray.policy import GreedyPolicy
 
@@ -102,7 +102,7 @@ def sweep_trial(config: dict[str, Any]) -> None:
     import ray
     from ray import tune
 
-    from ps_ray.anchor_file import load_anchor_set
+    from ps_ray.data.anchor_file import load_anchor_set
     from ps_ray.store.attempts import FINISHED, earlier_checkpoint, replay_store
     from ps_ray.train import TrainingRun
     from ps_ray.weights import policy_anchor_set

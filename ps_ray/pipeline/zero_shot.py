@@ -20,12 +20,12 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from ps_ray.atomic import atomic_path
 from ps_ray.errors import UserError
 from ps_ray.names import CONTROL_ROLES
 from ps_ray.pipeline.sweep import layout, raise_on_errors, sweep_dir
 from ps_ray.specs.sweep import SweepSpec
 from ps_ray.stitching.pairs import StitchedPair, pairs
+from ps_ray.store.atomic import atomic_path
 
 RESULT_KEYS = (
     "success_mean",

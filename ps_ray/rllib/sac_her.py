@@ -27,10 +27,9 @@ from ray.rllib.utils.metrics import (
 )
 from safetensors.torch import load_file, save_file
 
-from ps_ray.checkpoint import STATE_FILE
+from ps_ray.data.her import HindsightReplay
 from ps_ray.envs.goals import ROBOT_KEY, task_input
 from ps_ray.errors import UserError
-from ps_ray.her import HindsightReplay
 from ps_ray.nets.consolidate import consolidate
 from ps_ray.nets.modular import update_normalizers
 from ps_ray.nets.obs import dims_from_spaces
@@ -46,6 +45,7 @@ from ps_ray.rllib.private import (
 from ps_ray.specs.methods import ConsolidateSpec, spec_json
 from ps_ray.specs.train import TrainSpec
 from ps_ray.store import replay as replay_segments
+from ps_ray.store.checkpoint import STATE_FILE
 from ps_ray.weights import (
     Signature,
     load_nets_state,
@@ -268,7 +268,7 @@ class ModularSAC(SAC):
         for key, value in episode_stats(episodes).items():
             self.metrics.log_value(("ps_ray", f"{prefix}_{key}"), value, reduce="item")
 
-    # -- checkpoints: ps_ray's own files, never RLlib's pickles (ps_ray/checkpoint.py) -------------
+    # -- checkpoints: ps_ray's own files, never RLlib's pickles (ps_ray/store/checkpoint.py) -------------
     def save_checkpoint(self, checkpoint_dir: str) -> None:
         directory = Path(checkpoint_dir)
         directory.mkdir(parents=True, exist_ok=True)
@@ -285,7 +285,7 @@ class ModularSAC(SAC):
         (directory / STATE_FILE).write_text(json.dumps(state))
 
     def load_checkpoint(self, checkpoint_dir: str) -> None:
-        """Restore from a checkpoint folder that :func:`ps_ray.checkpoint.verify` accepted."""
+        """Restore from a checkpoint folder that :func:`ps_ray.store.checkpoint.verify` accepted."""
         directory = Path(checkpoint_dir)
         tensors = load_file(directory / LEARNER_FILE)
         self.learner_group.foreach_learner(lambda learner: learner.load_training_state(tensors))

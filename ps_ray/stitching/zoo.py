@@ -108,7 +108,7 @@ def read_entry(policy_path: str | Path, stage: str = "run") -> ZooEntry:
 def _latest_checkpoints(stage_dir: Path) -> tuple[list[Path], list[str]]:
     """The policy file of each trial's furthest checkpoint over its attempts (ps_ray.store.attempts)
     whose manifest and policy file verify, and a problem line per trial that has none."""
-    from ps_ray import checkpoint
+    from ps_ray.store import checkpoint
     from ps_ray.store.attempts import attempts, checkpoint_dirs
 
     policies, problems = [], []

@@ -7,7 +7,7 @@ enough instead. Every Tune trial folder is one *attempt* of a trial: its ``param
 the trial (the grid value), its ``result.json`` holds one JSON result per line, and a trial that
 ran to its end reported ``FINISHED`` in its last result. Resuming a stage launches a fresh Tune
 experiment of the trials without a finished attempt; a relaunched training trial continues from
-the furthest verified checkpoint that any earlier attempt left (:mod:`ps_ray.checkpoint`).
+the furthest verified checkpoint that any earlier attempt left (:mod:`ps_ray.store.checkpoint`).
 
 Readers without Ray (the report, the zoo) use :func:`outcomes` and :func:`merged_rows`.
 """
@@ -21,8 +21,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from ps_ray import checkpoint
 from ps_ray.errors import UserError
+from ps_ray.store import checkpoint
 from ps_ray.store.run_layout import REPLAY_FOLDER
 
 FINISHED = "ps_ray_finished"  # in the last result of a trial that ran to its end

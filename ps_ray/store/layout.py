@@ -15,7 +15,7 @@ class SweepLayout:
     """``<storage>/<name>/``:
 
     sweep.yaml        the resolved spec (a resumed sweep must match it)
-    .ps_ray.lock      held by the one driver writing the folder (ps_ray/lock.py)
+    .ps_ray.lock      held by the one driver writing the folder (ps_ray/store/lock.py)
     mlflow.db, mlartifacts/   the default MLflow store and its artifacts
     tune_plain/       plain source policies of the anchors (anchors.policy: plain)
     anchors/          one anchor set per (task-input width, k)

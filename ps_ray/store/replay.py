@@ -21,9 +21,9 @@ from typing import Any
 
 import numpy as np
 
-from ps_ray.atomic import atomic_file, file_sha256, fsync_file
 from ps_ray.errors import UserError
-from ps_ray.npz import NpzError, read_npz
+from ps_ray.store.atomic import atomic_file, file_sha256, fsync_file
+from ps_ray.store.npz import NpzError, read_npz
 
 FORMAT = "ps_ray-replay-segments-1"
 MANIFEST_FILE = "replay.json"  # in the checkpoint folder

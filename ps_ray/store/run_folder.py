@@ -11,9 +11,9 @@ import shutil
 from collections.abc import Callable
 from pathlib import Path
 
-from ps_ray import checkpoint
-from ps_ray.atomic import atomic_file, atomic_path, fsync_dir
 from ps_ray.errors import UserError
+from ps_ray.store import checkpoint
+from ps_ray.store.atomic import atomic_file, atomic_path, fsync_dir
 from ps_ray.store.run_layout import (
     BEST_POLICY_FILE,
     CHECKPOINT_DIR,

@@ -1,6 +1,6 @@
 """The file names of a run folder (`ps-ray train --run-dir`, and each training trial) and of the
 policy inside a checkpoint, in one place (docs/state.md). A sweep folder's paths are in
-:class:`ps_ray.store.layout.SweepLayout`; a checkpoint's own files in :mod:`ps_ray.checkpoint`."""
+:class:`ps_ray.store.layout.SweepLayout`; a checkpoint's own files in :mod:`ps_ray.store.checkpoint`."""
 
 SPEC_FILE = "spec.json"  # the run's TrainSpec; also written into every checkpoint
 ANCHORS_FILE = "anchors.npz"  # PS: the run's anchor set

@@ -12,8 +12,8 @@ import hashlib
 import json
 from pathlib import Path
 
-from ps_ray.atomic import write_text
 from ps_ray.specs.sweep import STAGES, SweepSpec
+from ps_ray.store.atomic import write_text
 from ps_ray.store.layout import SweepLayout
 
 # The settings each stage's outputs depend on, besides those of the earlier stages.

@@ -21,9 +21,9 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from ps_ray.atomic import file_sha256, fsync_file, write_text
 from ps_ray.errors import UserError
 from ps_ray.store import replay
+from ps_ray.store.atomic import file_sha256, fsync_file, write_text
 from ps_ray.store.run_layout import POLICY_FILE
 
 MANIFEST = "manifest.json"

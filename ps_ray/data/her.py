@@ -20,9 +20,9 @@ from typing import Any
 
 import numpy as np
 
-from ps_ray.atomic import atomic_file
 from ps_ray.errors import UserError
-from ps_ray.npz import NpzError, read_npz
+from ps_ray.store.atomic import atomic_file
+from ps_ray.store.npz import NpzError, read_npz
 
 __all__ = ["HindsightReplay", "ObsSpec", "RewardFn"]
 

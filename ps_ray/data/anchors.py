@@ -25,7 +25,7 @@ Here:
   case - the result is bit-identical to the authors' rule; ``distinct=False`` reproduces it
   always, duplicates included.
 - :class:`AnchorSet` bundles the anchors with a content hash (:func:`anchor_hash`) and a
-  provenance dict; :mod:`ps_ray.anchor_file` stores it as an ``.npz`` that never needs pickle
+  provenance dict; :mod:`ps_ray.data.anchor_file` stores it as an ``.npz`` that never needs pickle
   and makes one from any file of task states.
 
 No torch and no Ray here: numpy, scikit-learn and gymnasium-style env objects only.
@@ -56,7 +56,7 @@ __all__ = [
 
 log = logging.getLogger(__name__)
 
-_HASH_DOMAIN = b"ps_ray.anchors.v1\x00"
+_HASH_DOMAIN = b"ps_ray.anchors.v1\x00"  # a format constant: never renamed with the module
 
 Policy = Callable[[dict[str, np.ndarray]], Any]
 

@@ -10,10 +10,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ps_ray.anchors import AnchorSet, _as_states, anchor_hash, select_anchors, selection_provenance
-from ps_ray.atomic import atomic_file, file_sha256
+from ps_ray.data.anchors import AnchorSet, _as_states, anchor_hash, select_anchors, selection_provenance
 from ps_ray.errors import UserError
-from ps_ray.npz import NPY_MAGIC, ZIP_MAGIC, NpzError, magic, read_npy, read_npz
+from ps_ray.store.atomic import atomic_file, file_sha256
+from ps_ray.store.npz import NPY_MAGIC, ZIP_MAGIC, NpzError, magic, read_npy, read_npz
 
 FORMAT = "ps_ray.anchor_set"
 FORMAT_VERSION = 1

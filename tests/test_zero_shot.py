@@ -141,6 +141,28 @@ def test_pairs_run_in_batches_and_a_resume_keeps_each_pair_whatever_batch_it_ran
     assert len(runs) == 4  # still one MLflow run per pair, found again on each run
 
 
+def test_a_sweep_with_a_damaged_policy_file_is_refused_before_any_trial_starts(trained_matrix, tmp_path):
+    """One line naming the damaged checkpoint, before Ray starts or the stage folder is made."""
+    import dataclasses
+    import shutil
+
+    from ps_ray.errors import UserError
+
+    copy = tmp_path / "copy"
+    shutil.copytree(sweep_dir(trained_matrix), copy / trained_matrix.name)
+    shutil.rmtree(copy / trained_matrix.name / "tune_zero_shot", ignore_errors=True)
+    spec = dataclasses.replace(trained_matrix, storage=str(copy))
+    policy = sorted((copy / spec.name / "tune").glob("*/checkpoint_*/policy.safetensors"))[0]
+    with open(policy, "r+b") as f:
+        f.seek(100)
+        f.write(b"damaged")
+    with pytest.raises(
+        UserError, match=f"{policy.parent}: not a usable ps_ray checkpoint .policy.safetensors"
+    ):
+        run_zero_shot(spec, episodes=4, repeats=2, progress=False)
+    assert not (copy / spec.name / "tune_zero_shot").exists()
+
+
 def test_few_shot_trials_start_from_stitched_weights_beside_unstitched_and_scratch_runs(trained_matrix):
     spec = trained_matrix
     results = run_few_shot(

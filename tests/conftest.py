@@ -7,6 +7,8 @@ import re
 import subprocess
 import sys
 import tempfile
+import time
+import urllib.request
 from pathlib import Path
 
 import pytest
@@ -174,3 +176,15 @@ HEAVY_FIRST = ("test_pipeline.py", "test_sweep.py", "test_train.py", "test_check
 def pytest_collection_modifyitems(items):
     rank = {name: i for i, name in enumerate(HEAVY_FIRST)}
     items.sort(key=lambda item: rank.get(item.path.name, len(rank)))
+
+
+def wait_until_serving(base: str, server: subprocess.Popen, what: str, timeout: float = 120) -> None:
+    """Poll ``<base>/health`` until the server answers; fail if it exited or the time ran out."""
+    deadline = time.time() + timeout
+    while True:
+        try:
+            with urllib.request.urlopen(f"{base}/health", timeout=2):
+                return
+        except OSError:
+            assert server.poll() is None and time.time() < deadline, f"{what} did not start"
+            time.sleep(0.5)

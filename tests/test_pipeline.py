@@ -15,7 +15,6 @@ import socket
 import subprocess
 import sys
 import time
-import urllib.request
 from pathlib import Path
 
 import matplotlib.image
@@ -33,6 +32,7 @@ from ps_ray.store.checkpoint import latest as latest_checkpoint
 from ps_ray.store.layout import SweepLayout
 from ps_ray.store.stages import stage_state
 from ps_ray.tracking import TRIAL_KEY_TAG
+from tests.conftest import wait_until_serving
 
 SMOKE = Path(__file__).resolve().parents[1] / "sweeps" / "smoke.yaml"
 FIGURES = {
@@ -403,14 +403,7 @@ def test_mlflow_ui_lists_the_runs_and_the_report_artifact(smoke, visible_text):
     )
     try:
         base = f"http://127.0.0.1:{port}"
-        deadline = time.time() + 120
-        while True:
-            try:
-                with urllib.request.urlopen(f"{base}/health", timeout=2):
-                    break
-            except OSError:
-                assert server.poll() is None and time.time() < deadline, "mlflow ui did not start"
-                time.sleep(0.5)
+        wait_until_serving(base, server, "mlflow ui")
         client = mlflow.MlflowClient(f"sqlite:///{root / 'mlflow.db'}")
         experiment = client.get_experiment_by_name("smoke").experiment_id
         runs = client.search_runs([experiment])

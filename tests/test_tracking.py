@@ -8,8 +8,6 @@ import signal
 import socket
 import subprocess
 import sys
-import time
-import urllib.request
 from pathlib import Path
 from urllib.parse import urlparse
 
@@ -32,6 +30,7 @@ from ps_ray.tracking import (
     ensure_experiment,
     git_commit,
 )
+from tests.conftest import wait_until_serving
 
 
 @pytest.fixture(scope="module")
@@ -109,14 +108,7 @@ def test_a_tracking_server_as_docs_cluster_md_starts_it_takes_a_sweeps_runs(tmp_
     )
     try:
         uri = f"http://127.0.0.1:{port}"
-        deadline = time.time() + 120
-        while True:
-            try:
-                with urllib.request.urlopen(f"{uri}/health", timeout=2):
-                    break
-            except OSError:
-                assert server.poll() is None and time.time() < deadline, "mlflow server did not start"
-                time.sleep(0.5)
+        wait_until_serving(uri, server, "mlflow server")
         check_tracking_uri(uri)  # accepted, no error
         sweep = tmp_path / "storage" / "big"
         exp_id = ensure_experiment(uri, "big", sweep / "mlartifacts")

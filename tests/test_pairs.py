@@ -69,6 +69,14 @@ def test_a_pair_survives_the_tune_config_and_the_csv_row(tmp_path, translation):
     write_atomic_csv(table_of([(pair, {"success_mean": 0.5})]), path)
     assert pairs_from_table(path) == [pair]
     assert pd.read_csv(path)["task_from_path"].tolist() == ["/sweep/tune/a/policy.safetensors"]
+    # written by a sweep in /sweep: its files relative to it, found again wherever it was copied
+    moved = tmp_path / "downloaded" / "zero_shot.csv"
+    moved.parent.mkdir()
+    write_atomic_csv(table_of([(pair, {"success_mean": 0.5})], Path("/sweep")), moved)
+    assert pd.read_csv(moved)["task_from_path"].tolist() == ["tune/a/policy.safetensors"]
+    (found,) = pairs_from_table(moved)
+    assert found.task_from_path == str(moved.parent / "tune/a/policy.safetensors")
+    assert found.controls["robot_source"].path == str(moved.parent / "tune/b/policy.safetensors")
 
 
 @pytest.fixture

@@ -74,7 +74,10 @@ def test_zero_shot_matrix_of_a_sweep(trained_matrix):
         "task_source_path",
         "oracle_path",
     ):
-        assert all(Path(path).is_file() for path in written[column])
+        # inside the sweep folder, relative to it: a copied sweep folder still finds its files
+        assert all(
+            not Path(path).is_absolute() and (sweep_dir(spec) / path).is_file() for path in written[column]
+        )
     assert written["robot_source_path"].tolist() == written["robot_from_path"].tolist()
     assert pairs_from_table(sweep_dir(spec) / "zero_shot.csv") == found
 

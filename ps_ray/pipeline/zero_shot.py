@@ -190,7 +190,7 @@ def run_zero_shot(
     missing = [key for key in by_key if key not in rows]
     if missing:  # every batch finished, so each of its pairs reported: a bug, never bad input
         raise RuntimeError(f"{len(missing)} pairs have no result row, e.g. {missing[0]}")
-    table = table_of([(pair, rows[pair.key]) for pair in trials])
+    table = table_of([(pair, rows[pair.key]) for pair in trials], root)
     write_atomic_csv(table, layout(spec).zero_shot_table)
     return table
 
@@ -207,14 +207,14 @@ def _tags(client, experiment_id: str, pair: StitchedPair) -> dict:
     return source_tags(client, experiment_id, pair.task_from, pair.robot_from, pair.task_from_path)
 
 
-def table_of(results: list[tuple[StitchedPair, dict[str, Any]]]) -> pd.DataFrame:
+def table_of(results: list[tuple[StitchedPair, dict[str, Any]]], root: Path | None = None) -> pd.DataFrame:
     """One row per stitched pair from (pair, metrics), in the given (the matrix's) order: the
     pair's record (:meth:`StitchedPair.to_row`: its sources' and controls' keys and files), its
     success and touching, each control's success (``<role>_success``, NaN where the role does not
     apply), ``best_unstitched`` and ``transfer_gain``."""
     keys = (*RESULT_KEYS, *CONTROL_KEYS)
     return pd.DataFrame(
-        [{**pair.to_row(), **{k: metrics.get(k, np.nan) for k in keys}} for pair, metrics in results]
+        [{**pair.to_row(root), **{k: metrics.get(k, np.nan) for k in keys}} for pair, metrics in results]
     )
 
 

@@ -24,6 +24,8 @@ EnvPart = str | Mapping[str, Any]  # a robot or task as make() takes it
 ENV_FIELDS = ("robot", "task", "task_from_robot", "robot_from_robot", "robot_from_task")
 # a pair's fields as MLflow params and as they were before the record carried paths and envs:
 # a run's params must not change (the tracker refuses a run whose params differ)
+# the files a row names: the two sources' and each control's
+PATH_FIELDS = ("task_from_path", "robot_from_path", *(f"{role}_path" for role in CONTROL_ROLES))
 SHOWN = ("method", "translation", "pairing", "seed", "robot_seed", "label", "task_from", "robot_from")
 
 
@@ -76,28 +78,38 @@ class StitchedPair:
         controls = {role: Control(**c) for role, c in data["controls"].items()}
         return cls(**{**data, "controls": controls})
 
-    def to_row(self) -> dict[str, Any]:
+    def to_row(self, root: Path | None = None) -> dict[str, Any]:
         """A flat CSV row: robots and tasks as :func:`spec_text`, each control role as its
-        source key (``<role>``) and file (``<role>_path``), empty where the role does not apply."""
+        source key (``<role>``) and file (``<role>_path``), empty where the role does not apply;
+        files inside ``root`` (the sweep folder) relative to it, so that a sweep folder copied
+        elsewhere (``ray rsync-down``) still finds them."""
         row = {f.name: getattr(self, f.name) for f in dataclasses.fields(self) if f.name != "controls"}
         row.update({k: spec_text(row[k]) for k in ENV_FIELDS})
         for role in CONTROL_ROLES:
             control = self.controls.get(role)
             row[role], row[f"{role}_path"] = (control.source, control.path) if control else ("", "")
+        for key in PATH_FIELDS:
+            if row[key] and root is not None and Path(row[key]).is_relative_to(root):
+                row[key] = str(Path(row[key]).relative_to(root))
         return row
 
     @classmethod
-    def from_row(cls, row: Mapping[str, Any]) -> StitchedPair:
-        """The record of a :meth:`to_row` row, also as read back from CSV (every cell text)."""
-        text = {f.name: _text(row[f.name]) for f in dataclasses.fields(cls) if f.name != "controls"}
+    def from_row(cls, row: Mapping[str, Any], root: Path | None = None) -> StitchedPair:
+        """The record of a :meth:`to_row` row, also as read back from CSV (every cell text);
+        relative files are taken inside ``root``."""
+        names = [f.name for f in dataclasses.fields(cls) if f.name != "controls"]
+        text = {k: _text(row[k]) for k in names} | {k: _text(row.get(k)) for k in PATH_FIELDS}
+        for key in PATH_FIELDS if root is not None else ():
+            if text[key] and not Path(text[key]).is_absolute():
+                text[key] = str(Path(root) / text[key])
         controls = {
-            role: Control(_text(row[role]), _text(row[f"{role}_path"]))
+            role: Control(_text(row[role]), text[f"{role}_path"])
             for role in CONTROL_ROLES
             if _text(row.get(role))
         }
         return cls(
             **{
-                **text,
+                **{k: text[k] for k in names},
                 **{k: parse_spec_text(text[k]) for k in ENV_FIELDS},
                 "seed": int(text["seed"]),
                 "robot_seed": int(text["robot_seed"]),
@@ -168,7 +180,7 @@ def pairs_from_table(path: Path) -> list[StitchedPair] | None:
     if not rows or any(name not in rows[0] for name in needed):
         return None
     try:
-        return [StitchedPair.from_row(row) for row in rows]
+        return [StitchedPair.from_row(row, path.parent) for row in rows]
     except (KeyError, ValueError) as e:  # a damaged table: one line naming it
         raise UserError(f"{path}: unreadable pair row ({e})") from None
 

@@ -60,7 +60,7 @@ def _train_parser(sub) -> None:
     for f in dataclasses.fields(TrainSpec):
         help = f"{f.metadata['help']} (default {getattr(defaults, f.name)})"
         if f.name in ("robot", "task"):
-            p.add_argument(f"--{f.name}", default=getattr(defaults, f.name), help=help)
+            p.add_argument(f"--{f.name}", default=getattr(defaults, f.name).text, help=help)
             continue
         kind = next((t for t in (float, int, str) if t.__name__ in str(f.type)), str)
         p.add_argument(

@@ -32,7 +32,7 @@ from torch import nn
 
 from ps_ray.envs import make
 from ps_ray.errors import UserError
-from ps_ray.names import short_name
+from ps_ray.names import EnvPart
 from ps_ray.nets.modular import Actor, NetDims
 from ps_ray.nets.obs import dims_from_spaces
 from ps_ray.nets.sac import SACNets
@@ -196,11 +196,12 @@ def evaluate(
     for name, value in (("episodes", episodes), ("repeats", repeats), ("num_envs", num_envs)):
         if not isinstance(value, int) or value < 1:
             raise UserError(f"{name} must be a positive integer, got {value!r}")
+    robot, task = EnvPart(robot), EnvPart(task)
     act, dims = as_action_fn(policy, fast)
     seeds = [seed + r * episodes + j for r in range(repeats) for j in range(episodes)]
     repeat_of = lambda s: (s - seed) // episodes  # noqa: E731
     started, envs = time.perf_counter(), []
-    label = f"{short_name(task)}/{short_name(robot)}"
+    label = f"{task.short}/{robot.short}"
     try:
         for _ in range(min(num_envs, len(seeds))):
             envs.append(make(robot, task))
@@ -221,8 +222,8 @@ def evaluate(
         for env in envs:
             env.close()
     return {
-        "robot": short_name(robot),
-        "task": short_name(task),
+        "robot": robot.short,
+        "task": task.short,
         "episodes": episodes,
         "repeats": repeats,
         "seed": seed,

@@ -1,11 +1,12 @@
-"""Names: a robot or task as a mapping, as an exact string and as a short one, and a trial's key
-(its run folder, MLflow run and zoo entry). The one place that converts between them."""
+"""Names: a robot or task as one normalised type (:class:`EnvPart`), as an exact string and as a
+short one, and a trial's key (its run folder, MLflow run and zoo entry). The one place that
+converts between them."""
 
 from __future__ import annotations
 
 import hashlib
 import json
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 from typing import Any
 
 from ps_ray.defaults import INTERFACE_DIM
@@ -17,31 +18,100 @@ TRANSLATIONS = ("orthogonal", "affine")
 CONTROL_ROLES = ("robot_source", "task_source", "oracle")
 
 
-def as_mapping(value: str | Mapping) -> dict:
-    """A robot or task as a mapping: a name ``n`` becomes ``{"name": n}``."""
-    return {"name": value} if isinstance(value, str) else dict(value)
+class EnvPart(Mapping[str, Any]):
+    """A robot or a task as a spec names it: a built-in name, or a mapping of a name and the options
+    that override its preset (``{"name": "reach", "goal_region": "q2"}``; a robot mapping may give
+    its fields without a name). Specs turn whatever was written into this one type when they load,
+    so everything after them handles one thing.
+
+    Immutable and hashable. A mapping holding only a name is that name, and a part equals its own
+    spelling, so ``part == "panda"`` and ``{"panda": ...}[part]`` read as written. Its
+    :attr:`spelling` is what JSON files hold (trial digests and policy files do not change) and its
+    :attr:`text` one exact string (a name, or sorted JSON) for CSV cells and command lines.
+    """
+
+    def __init__(self, value: str | Mapping[str, Any]) -> None:
+        if isinstance(value, EnvPart):
+            items: dict[str, Any] = dict(value._items)
+        elif isinstance(value, str):
+            items = {"name": value}
+        elif isinstance(value, Mapping):
+            try:  # a deep copy in JSON's own types: tuples become lists, as in the files
+                items = json.loads(json.dumps(dict(value)))
+            except (TypeError, ValueError) as e:
+                raise UserError(f"robot or task {dict(value)!r} is not plain data ({e})") from None
+        else:
+            raise UserError(f"a robot or task is a name or a mapping, got {value!r}")
+        self._items = items
+        only_name = set(items) == {"name"} and isinstance(items["name"], str)
+        self.text: str = items["name"] if only_name else json.dumps(items, sort_keys=True)
+
+    @property
+    def name(self) -> str | None:
+        """The built-in it starts from (None for a robot mapping without a name)."""
+        return self._items.get("name")
+
+    @property
+    def options(self) -> dict[str, Any]:
+        """The settings beside the name."""
+        return {k: v for k, v in self._items.items() if k != "name"}
+
+    @property
+    def spelling(self) -> str | dict[str, Any]:
+        """The name alone, or the mapping (a copy): what a JSON file holds."""
+        return self.text if set(self._items) == {"name"} else json.loads(json.dumps(self._items))
+
+    @property
+    def short(self) -> str:
+        """The name a run folder, a table and a plot show (:func:`short_name`)."""
+        return short_name(self)
+
+    def __getitem__(self, key: str) -> Any:
+        return self._items[key]
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._items)
+
+    def __len__(self) -> int:
+        return len(self._items)
+
+    def __eq__(self, other: object) -> bool:
+        if isinstance(other, (str, Mapping)):
+            try:
+                return self.text == EnvPart(other).text
+            except UserError:
+                return False
+        return NotImplemented
+
+    def __hash__(self) -> int:
+        return hash(self.text)
+
+    def __repr__(self) -> str:
+        return f"EnvPart({self.spelling!r})"
+
+    def __str__(self) -> str:
+        return self.text
 
 
-def canonical(value: str | Mapping) -> str | dict:
-    """A robot or task in one spelling, applied when a spec loads: a mapping that holds only a
-    name is that name."""
-    if isinstance(value, Mapping):
-        return value["name"] if set(value) == {"name"} else dict(value)
-    return value
+def plain_json(value: Any) -> Any:
+    """``json.dumps``'s ``default``: a robot or task as its spelling (specs and records hold them)."""
+    if isinstance(value, EnvPart):
+        return value.spelling
+    raise TypeError(f"{type(value).__name__} is not JSON data")
 
 
 def spec_text(value: str | Mapping) -> str:
     """A robot or task as one exact string (its name, or its mapping as sorted JSON), to key
-    dicts by and to pass on a command line; :func:`parse_spec_text` gives the value back."""
-    return value if isinstance(value, str) else json.dumps(value, sort_keys=True)
+    dicts by and to pass on a command line; :func:`parse_spec_text` gives the part back."""
+    return EnvPart(value).text
 
 
-def parse_spec_text(text: str) -> str | dict:
+def parse_spec_text(text: str) -> EnvPart:
     """The robot or task a :func:`spec_text` string (or a ``--robot/--task`` flag) stands for."""
     if not text.strip().startswith("{"):
-        return text
+        return EnvPart(text)
     try:
-        return json.loads(text)
+        return EnvPart(json.loads(text))
     except json.JSONDecodeError as e:
         raise UserError(f"{text!r} is neither a name nor a JSON mapping ({e})") from None
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import subprocess
 import sys
 from pathlib import Path
@@ -276,11 +277,37 @@ def test_a_bad_json_robot_flag_is_one_line_but_a_bug_keeps_its_traceback(tmp_pat
 
 
 @pytest.mark.parametrize(
-    "value", ["push_slippery", {"name": "reach", "goal_region": "q2"}, {"base": "panda"}]
+    "value",
+    ["push_slippery", {"name": "reach", "goal_region": "q2"}, {"base": "panda", "locked_joints": (2,)}],
 )
-def test_a_robot_or_task_survives_its_text_form_and_becomes_a_mapping(value):
-    from ps_ray.names import as_mapping, parse_spec_text, spec_text
+def test_a_robot_or_task_is_one_type_whatever_its_spelling(value):
+    from ps_ray.names import EnvPart, parse_spec_text, spec_text
 
-    assert parse_spec_text(spec_text(value)) == value
+    part = EnvPart(value)
+    assert parse_spec_text(spec_text(value)) == part == value  # text round trip; equal to what was written
+    assert EnvPart(part) == part and hash(EnvPart(json.loads(json.dumps(part.spelling)))) == hash(part)
+    assert dict(part) == ({"name": value} if isinstance(value, str) else json.loads(json.dumps(value)))
     assert spec_text({"b": 1, "a": 2}) == spec_text({"a": 2, "b": 1})  # one text per value
-    assert as_mapping(value) == ({"name": value} if isinstance(value, str) else value)
+    # a spec normalises whatever was written, and writes the same JSON as before the type existed
+    field = "task" if part.name in ("push_slippery", "reach") else "robot"
+    spec = TrainSpec(**{field: value})
+    assert type(getattr(spec, field)) is EnvPart and getattr(spec, field) == value
+    written = spec.to_dict()[field]
+    assert written == (value if isinstance(value, str) else json.loads(json.dumps(value)))
+    assert TrainSpec.from_mapping(spec.to_dict()) == spec
+
+
+def test_a_mapping_holding_only_a_name_is_that_name():
+    from ps_ray.names import EnvPart
+
+    part = EnvPart({"name": "panda"})
+    assert part == "panda" and part.spelling == "panda" and str(part) == "panda" and part.options == {}
+    assert {"panda": 1}[part] == 1  # keys a dict written with the name
+    assert EnvPart({"name": "panda", "gripper": True}) != "panda"
+    assert TrainSpec(robot={"name": "panda"}).to_dict()["robot"] == "panda"
+
+
+@pytest.mark.parametrize("field", ["robot", "task"])
+def test_a_robot_or_task_of_another_type_is_refused_naming_the_field(field):
+    with pytest.raises(SpecError, match=rf"^{field} must be a name or a mapping, got 5$"):
+        TrainSpec(**{field: 5})

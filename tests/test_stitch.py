@@ -22,6 +22,7 @@ from ps_ray import cli
 from ps_ray.envs import make
 from ps_ray.envs.core import effective_gripper
 from ps_ray.errors import UserError
+from ps_ray.names import EnvPart
 from ps_ray.nets.modular import NetDims, update_normalizers
 from ps_ray.nets.obs import dims_from_spaces
 from ps_ray.nets.sac import NET_NAMES, SACNets, build_sac_nets
@@ -99,11 +100,12 @@ def make_nets(
     return nets, signature_of(nets, method, interface_dim, hidden)
 
 
-def spec(method: str, robot, task: str, seed: int = 1, interface_dim: int = K) -> dict:
+def spec(method: str, robot, task, seed: int = 1, interface_dim: int = K) -> dict:
+    """A trial's spec.json as TrainSpec writes it (robot and task as spelled in JSON)."""
     return {
         "method": method,
-        "robot": robot,
-        "task": task,
+        "robot": EnvPart(robot).spelling,
+        "task": EnvPart(task).spelling,
         "seed": seed,
         "interface_dim": interface_dim,
         "hidden": 16,
@@ -445,7 +447,7 @@ def test_env_dims_match_real_envs():
 
 def test_combos_is_the_valid_matrix(sweep):
     zoo = ModuleZoo.from_sweep(sweep)
-    found = {(c.label, json.dumps(c.robot), c.task) for c in combos(zoo, "ps", 1)}
+    found = {(c.label, json.dumps(c.robot.spelling), c.task) for c in combos(zoo, "ps", 1)}
     gripper = json.dumps(PANDA_L3_GRIPPER)
     assert found == {
         # pick robot modules drive the gripper-enabled robot on push

@@ -21,7 +21,7 @@ import numpy as np
 import pandas as pd
 
 from ps_ray.errors import UserError
-from ps_ray.names import as_mapping
+from ps_ray.names import EnvPart
 
 QUADRANTS = ("q1", "q2", "q3", "q4")  # goal x/y signs (+,+), (-,+), (-,-), (+,-), as reach regions
 COMPARISONS = {"seeds": "seed", "robots": "robot"}  # comparison -> the field that varies
@@ -36,7 +36,7 @@ class Probes:
     labels: np.ndarray  # (N,) str, one of QUADRANTS
 
 
-def probe_states(task: str | Mapping, per_group: int = 250, seed: int = 0) -> Probes:
+def probe_states(task: EnvPart, per_group: int = 250, seed: int = 0) -> Probes:
     """Task inputs at reset of the real env, ``per_group`` per goal quadrant.
 
     Reach (any goal region): goals drawn in each of the four quadrant discs (the paper's four
@@ -47,10 +47,10 @@ def probe_states(task: str | Mapping, per_group: int = 250, seed: int = 0) -> Pr
     from ps_ray.envs.goals import task_input
     from ps_ray.envs.tasks import resolve_task
 
-    states, labels = [], []
+    task, states, labels = EnvPart(task), [], []
     if hasattr(resolve_task(task).options, "goal_region"):  # a task whose goals can be placed
         for index, quadrant in enumerate(QUADRANTS):
-            env = make("panda", {**as_mapping(task), "goal_region": quadrant})
+            env = make("panda", {**task, "goal_region": quadrant})
             for i in range(per_group):
                 obs, _ = env.reset(seed=seed + index * per_group + i)
                 states.append(task_input(obs))
@@ -107,7 +107,7 @@ class Dump:
     values: np.ndarray  # (N, K)
 
 
-def dump_interfaces(entries: Iterable, probes_for: Callable[[str | Mapping], Probes]) -> list[Dump]:
+def dump_interfaces(entries: Iterable, probes_for: Callable[[EnvPart], Probes]) -> list[Dump]:
     """Dumps of every modular zoo entry; ``probes_for(task)`` gives the probe states of a task."""
     from ps_ray.specs.methods import method_spec
 

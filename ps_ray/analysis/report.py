@@ -24,7 +24,7 @@ from ps_ray.analysis.page import Report, Section, render_html
 from ps_ray.analysis.report_run import REPORT_RUN, log_report
 from ps_ray.analysis.summary import cost_section, summary_section
 from ps_ray.errors import UserError
-from ps_ray.names import as_mapping, parse_spec_text, short_name
+from ps_ray.names import parse_spec_text, short_name
 from ps_ray.specs.sweep import SweepSpec
 from ps_ray.store.atomic import fsync_dir, write_text
 from ps_ray.store.layout import SweepLayout
@@ -329,7 +329,7 @@ def _has_object(tasks: pd.Series) -> bool:
     state beyond the goal."""
     from ps_ray.envs.tasks import resolve_task
 
-    names = {as_mapping(parse_spec_text(str(t)))["name"].split("{")[0].split("#")[0] for t in tasks.unique()}
+    names = {str(parse_spec_text(str(t)).name).split("{")[0].split("#")[0] for t in tasks.unique()}
     return any(resolve_task(name).has_object for name in names)
 
 

@@ -14,7 +14,6 @@ from functools import partial
 from pathlib import Path
 from typing import Any
 
-from ps_ray.names import spec_text
 from ps_ray.specs.methods import uses_anchors
 from ps_ray.specs.sweep import SweepSpec, anchor_sources, task_input_dim
 from ps_ray.specs.train import TrainSpec, require_same
@@ -70,7 +69,7 @@ def prepare_sweep_anchors(
                 policy = None
                 if spec.anchors.policy == "plain":
                     policy = GreedyPolicy.from_file(plain_policies[source.label()])
-                states[spec_text(source.task)] = collect_task_states(
+                states[source.task.text] = collect_task_states(
                     lambda source=source: make(source.robot, source.task),
                     episodes=spec.anchors.episodes,
                     steps=spec.anchors.steps,
@@ -83,7 +82,7 @@ def prepare_sweep_anchors(
                 seed=spec.anchors.seed,
                 extra_provenance={
                     "policy": spec.anchors.policy,
-                    "robot": spec.anchors.robot,
+                    "robot": spec.anchors.robot.spelling,
                     "steps": list(spec.anchors.steps),
                     "episodes": spec.anchors.episodes,
                     "checkpoints": {s: str(p) for s, p in (plain_policies or {}).items()},
@@ -156,7 +155,7 @@ def check_inputs(spec: SweepSpec) -> None:
     if spec.anchors.file and not Path(spec.anchors.file).is_file():
         raise UserError(f"anchors.file: {spec.anchors.file}: no such file")
     starts = {  # one check per distinct (policy file, what it must fit)
-        (t.init_policy, t.method, t.interface_dim, t.hidden, spec_text(t.robot), spec_text(t.task)): t
+        (t.init_policy, t.method, t.interface_dim, t.hidden, t.robot, t.task): t
         for t in spec.trials()
         if t.init_policy is not None
     }

@@ -14,7 +14,7 @@ from ps_ray.defaults import INTERFACE_DIM
 from ps_ray.envs.robots import resolve_robot
 from ps_ray.envs.tasks import resolve_task
 from ps_ray.errors import UserError
-from ps_ray.names import TRANSLATIONS, canonical, parse_spec_text, spec_text
+from ps_ray.names import TRANSLATIONS, EnvPart, plain_json
 from ps_ray.specs.methods import method_key, uses_anchors
 from ps_ray.specs.resources import ResourcesSpec
 from ps_ray.specs.train import SpecError, TrainSpec, check_keys, check_types
@@ -22,6 +22,12 @@ from ps_ray.specs.train import SpecError, TrainSpec, check_keys, check_types
 ANCHOR_POLICIES = ("plain", "random")
 # Pipeline stages in order; "train" covers plain sources, anchors and the grid (ps_ray.pipeline.sweep).
 STAGES = ("train", "zero_shot", "few_shot", "report")
+
+
+def _part(key: str, value: Any) -> Any:
+    """A robot or task of the grid as one type (a value of another type is left for the trial's
+    TrainSpec to name)."""
+    return EnvPart(value) if isinstance(value, (str, Mapping)) else value
 
 
 def _method_keys(where: str, methods: Any) -> Any:
@@ -41,7 +47,7 @@ class AnchorSpec:
 
     file: str | None = None  # anchor set (.npz) or task-state array; overrides rollouts
     source_tasks: tuple[str, ...] = ()  # tasks whose states are pooled (default: the sweep's tasks)
-    robot: str | Mapping = "panda"  # the robot of the rollouts (task states do not depend on it)
+    robot: EnvPart = EnvPart("panda")  # the robot of the rollouts (task states do not depend on it)
     episodes: int = 200
     steps: tuple[int, ...] = (5, 6, 7, 8, 9)
     seed: int = 0
@@ -50,6 +56,9 @@ class AnchorSpec:
     def __post_init__(self) -> None:
         check_types(self, "anchors")
         _unique("anchors", source_tasks=self.source_tasks, steps=self.steps)
+        if not isinstance(self.robot, (str, Mapping)):
+            raise SpecError(f"anchors.robot must be a name or a mapping, got {self.robot!r}")
+        object.__setattr__(self, "robot", EnvPart(self.robot))
         try:
             resolve_robot(self.robot)
         except (ValueError, TypeError) as e:
@@ -206,8 +215,8 @@ class SweepSpec:
 
     name: str
     methods: tuple[str, ...]
-    robots: tuple[str | Mapping, ...]
-    tasks: tuple[str | Mapping, ...]
+    robots: tuple[EnvPart, ...]
+    tasks: tuple[EnvPart, ...]
     seeds: tuple[int, ...]
     stages: tuple[str, ...] = ("train",)
     interface_dims: tuple[int, ...] = (INTERFACE_DIM,)
@@ -236,7 +245,7 @@ class SweepSpec:
             if stage not in STAGES:
                 raise SpecError(f"unknown stage {stage!r}; valid stages: {', '.join(STAGES)}")
         for key in ("robots", "tasks"):
-            object.__setattr__(self, key, tuple(canonical(v) for v in getattr(self, key)))
+            object.__setattr__(self, key, tuple(_part(key, v) for v in getattr(self, key)))
         object.__setattr__(self, "methods", _method_keys("methods", self.methods))
         for key in ("methods", "robots", "tasks", "seeds", "interface_dims", "stages"):
             if not getattr(self, key) and key != "stages":
@@ -244,7 +253,11 @@ class SweepSpec:
             values = getattr(self, key)
             same = [_identity(key, v) for v in values]
             repeated = sorted(
-                {json.dumps(v, sort_keys=True) for v, i in zip(values, same) if same.count(i) > 1}
+                {
+                    json.dumps(v, sort_keys=True, default=plain_json)
+                    for v, i in zip(values, same)
+                    if same.count(i) > 1
+                }
             )
             if repeated:  # the same trial twice: one run folder, MLflow run and zoo key, or wasted work
                 raise SpecError(f"{key}: duplicate entries {', '.join(repeated)}; list each once")
@@ -259,7 +272,7 @@ class SweepSpec:
 
     def to_dict(self) -> dict[str, Any]:
         """Plain JSON-able data (tuples as lists)."""
-        return json.loads(json.dumps(dataclasses.asdict(self)))
+        return json.loads(json.dumps(dataclasses.asdict(self), default=plain_json))
 
     def training_identity(self) -> dict[str, Any]:
         """What the training stage's outputs depend on (a resumed sweep must keep it)."""
@@ -311,7 +324,7 @@ def _identity(key: str, value: Any) -> Any:
             return resolve_task(value)
     except (ValueError, TypeError):
         pass  # an unknown robot or task fails later, naming the choices
-    return json.dumps(value, sort_keys=True)
+    return json.dumps(value, sort_keys=True, default=plain_json)
 
 
 def _sub_spec(cls, data: Any, where: str):
@@ -366,14 +379,14 @@ def seed_pairs(seeds: tuple[int, ...], pairing: str) -> list[tuple[str, int, int
 def anchor_sources(spec: SweepSpec) -> list[TrainSpec]:
     """The plain trials whose greedy rollouts give the anchor states (policy: plain)."""
     ps = [t for t in spec.trials() if uses_anchors(t.method)]
-    tasks = list(spec.anchors.source_tasks) or list(dict.fromkeys(spec_text(t.task) for t in ps))
+    tasks = [EnvPart(t) for t in spec.anchors.source_tasks] or list(dict.fromkeys(t.task for t in ps))
     return [
         TrainSpec.from_mapping(
             {
                 **t.to_dict(),
                 "method": "plain",
                 "robot": spec.anchors.robot,
-                "task": parse_spec_text(task),
+                "task": task,
                 "seed": spec.seeds[0],
             }
         )

@@ -16,7 +16,7 @@ from ps_ray.defaults import HIDDEN, INTERFACE_DIM, MAX_WIDTH
 from ps_ray.envs.robots import resolve_robot
 from ps_ray.envs.tasks import resolve_task
 from ps_ray.errors import UserError
-from ps_ray.names import canonical, trial_key
+from ps_ray.names import EnvPart, plain_json, trial_key
 from ps_ray.specs.methods import OPTIONS, PRESETS, method_key
 
 POINT_TASK = "point"  # the physics-free PointGoalEnv (robot is ignored), for fast checks
@@ -102,8 +102,8 @@ class TrainSpec:
     """One SAC + HER training run of one (robot, task, method, seed). Every field is a flag of
     ``ps-ray train`` and a key of a sweep's ``train:`` block; its help text is its doc."""
 
-    robot: str | Mapping = setting("panda", "built-in robot name or a JSON mapping")
-    task: str | Mapping = setting("reach", "built-in task name or a JSON mapping")
+    robot: EnvPart = setting(EnvPart("panda"), "built-in robot name or a JSON mapping")
+    task: EnvPart = setting(EnvPart("reach"), "built-in task name or a JSON mapping")
     method: str = setting(
         "ps",
         "a preset (" + ", ".join(PRESETS) + ") with +option=value overrides, e.g. ps+norm=layer; "
@@ -139,8 +139,10 @@ class TrainSpec:
     init_policy: str | None = setting(None, "start from these weights (a stitched policy: few-shot)")
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "robot", canonical(self.robot))
-        object.__setattr__(self, "task", canonical(self.task))
+        for name in ("robot", "task"):  # a name or a mapping, as written, becomes one type
+            if not isinstance(getattr(self, name), (str, Mapping)):
+                raise SpecError(f"{name} must be a name or a mapping, got {getattr(self, name)!r}")
+            object.__setattr__(self, name, EnvPart(getattr(self, name)))
         try:
             object.__setattr__(self, "method", method_key(self.method))
         except UserError as e:
@@ -195,13 +197,13 @@ class TrainSpec:
         return cls(**data)
 
     def to_dict(self) -> dict[str, Any]:
-        return json.loads(json.dumps(dataclasses.asdict(self)))
+        return json.loads(json.dumps(dataclasses.asdict(self), default=plain_json))
 
     @property
     def env_config(self) -> dict[str, Any]:
         if self.task == POINT_TASK:
             return {}
-        return {"robot": _plain(self.robot), "task": _plain(self.task)}
+        return {"robot": self.robot.spelling, "task": self.task.spelling}
 
     @property
     def env_name(self) -> str:
@@ -217,7 +219,3 @@ class TrainSpec:
     def slug(self) -> str:
         """The label as a directory name."""
         return re.sub(r"[^\w.-]+", "-", self.label()).strip("-")
-
-
-def _plain(value: Any) -> Any:
-    return dict(value) if isinstance(value, Mapping) else value

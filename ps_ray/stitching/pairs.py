@@ -9,18 +9,18 @@ from __future__ import annotations
 
 import csv
 import dataclasses
+import json
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from ps_ray.errors import UserError
-from ps_ray.names import CONTROL_ROLES, parse_spec_text, short_name, spec_text
+from ps_ray.names import CONTROL_ROLES, EnvPart, parse_spec_text, plain_json
 from ps_ray.specs.sweep import SweepSpec, seed_pairs
 from ps_ray.store.layout import SweepLayout, sweep_dir
 
-EnvPart = str | Mapping[str, Any]  # a robot or task as make() takes it
-# fields that are a robot or task: a name, or a mapping written as spec_text in a row
+# fields that are a robot or task (an EnvPart; its text in a row)
 ENV_FIELDS = ("robot", "task", "task_from_robot", "robot_from_robot", "robot_from_task")
 # a pair's fields as MLflow params and as they were before the record carried paths and envs:
 # a run's params must not change (the tracker refuses a run whose params differ)
@@ -60,6 +60,10 @@ class StitchedPair:
     robot_from_task: EnvPart
     controls: Mapping[str, Control]
 
+    def __post_init__(self) -> None:
+        for name in ENV_FIELDS:
+            object.__setattr__(self, name, EnvPart(getattr(self, name)))
+
     @property
     def fit_tasks(self) -> tuple[EnvPart, EnvPart]:
         """The tasks a latent translation is fit on: the task source's and the robot source's."""
@@ -67,11 +71,15 @@ class StitchedPair:
 
     def shown(self) -> dict[str, str]:
         """MLflow params: no paths, no controls; robot and task by short name."""
-        return {k: short_name(getattr(self, k)) for k in (*SHOWN, "robot", "task")}
+        return {
+            **{k: str(getattr(self, k)) for k in SHOWN},
+            "robot": self.robot.short,
+            "task": self.task.short,
+        }
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-able, for a Tune config; :meth:`from_dict` gives the record back."""
-        return dataclasses.asdict(self)
+        return json.loads(json.dumps(dataclasses.asdict(self), default=plain_json))
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any]) -> StitchedPair:
@@ -79,12 +87,12 @@ class StitchedPair:
         return cls(**{**data, "controls": controls})
 
     def to_row(self, root: Path | None = None) -> dict[str, Any]:
-        """A flat CSV row: robots and tasks as :func:`spec_text`, each control role as its
+        """A flat CSV row: robots and tasks as their text, each control role as its
         source key (``<role>``) and file (``<role>_path``), empty where the role does not apply;
         files inside ``root`` (the sweep folder) relative to it, so that a sweep folder copied
         elsewhere (``ray rsync-down``) still finds them."""
         row = {f.name: getattr(self, f.name) for f in dataclasses.fields(self) if f.name != "controls"}
-        row.update({k: spec_text(row[k]) for k in ENV_FIELDS})
+        row.update({k: row[k].text for k in ENV_FIELDS})
         for role in CONTROL_ROLES:
             control = self.controls.get(role)
             row[role], row[f"{role}_path"] = (control.source, control.path) if control else ("", "")

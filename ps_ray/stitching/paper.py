@@ -7,7 +7,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 
 from ps_ray.defaults import INTERFACE_DIM
-from ps_ray.names import trial_key
+from ps_ray.names import EnvPart, trial_key
 
 PANDA_L3_GRIPPER = {"name": "panda_l3", "gripper": True}  # R2 with the gripper, on push (Push-v4)
 PAPER_TASKS = {
@@ -22,8 +22,12 @@ PAPER_ROBOTS = {"R1": "panda", "R2": "panda_l3", "R3": "panda_l5"}
 
 @dataclass(frozen=True)
 class Source:
-    task: str
-    robot: str | Mapping  # a name, or a mapping such as PANDA_L3_GRIPPER
+    task: EnvPart
+    robot: EnvPart  # a name, or a mapping such as PANDA_L3_GRIPPER
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "task", EnvPart(self.task))
+        object.__setattr__(self, "robot", EnvPart(self.robot))
 
 
 @dataclass(frozen=True)

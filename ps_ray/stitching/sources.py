@@ -10,6 +10,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from ps_ray.errors import UserError
+from ps_ray.names import EnvPart
 from ps_ray.stitching.stitch import EnvSpec, default_target
 from ps_ray.stitching.zoo import ModuleZoo
 from ps_ray.store.run_layout import POLICY_FILE, SPEC_FILE
@@ -49,8 +50,8 @@ def resolve_source(ref: str, zoo: ModuleZoo | None = None) -> Resolved:
 def resolve_target(
     task_src: Resolved,
     robot_src: Resolved,
-    robot: str | Mapping | None = None,
-    task: str | Mapping | None = None,
+    robot: EnvPart | None = None,
+    task: EnvPart | None = None,
 ) -> EnvSpec:
     """The target env: the given robot/task, else :func:`default_target`'s choice."""
     needs = [
@@ -61,7 +62,7 @@ def resolve_target(
     if needs:
         src, what = needs[0]
         raise UserError(f"{src.path}: no spec.json beside it to tell the target {what}; give --{what}")
-    task = task_src.spec["task"] if task is None else task
+    task = EnvPart(task_src.spec["task"] if task is None else task)
     if robot is None:
         robot = default_target({"task": task}, robot_src.spec)[0]
-    return robot, task
+    return EnvPart(robot), task

@@ -37,7 +37,7 @@ from ps_ray.envs.core import effective_gripper, env_widths
 from ps_ray.envs.robots import arm
 from ps_ray.envs.tasks import resolve_task
 from ps_ray.errors import UserError
-from ps_ray.names import short_name
+from ps_ray.names import EnvPart
 from ps_ray.nets.modular import NetDims
 from ps_ray.nets.sac import NET_NAMES, SACNets, build_sac_nets
 from ps_ray.nets.translation import LatentTranslation, check_kind
@@ -45,32 +45,28 @@ from ps_ray.stitching.zoo import ModuleZoo, ZooEntry
 from ps_ray.weights import Signature, load_policy, signature_of
 
 PolicySource = str | Path | ZooEntry | tuple[SACNets, Signature]
-EnvSpec = tuple[str | Mapping, str | Mapping]  # (robot, task) as make() takes them
+EnvSpec = tuple[EnvPart, EnvPart]  # (robot, task)
 
 
 # -- target envs ----------------------------------------------------------------------------------
-def env_dims(robot: str | Mapping, task: str | Mapping) -> NetDims:
+def env_dims(robot: EnvPart, task: EnvPart) -> NetDims:
     """The network dims of ``make(robot, task)``, without building it."""
     return NetDims(*env_widths(robot, task))
 
 
-def same_robot(
-    robot: str | Mapping, trained_task: str | Mapping, target_task: str | Mapping
-) -> str | Mapping:
+def same_robot(robot: EnvPart, trained_task: EnvPart, target_task: EnvPart) -> EnvPart:
     """``robot`` as trained on ``trained_task``, for ``target_task``: the gripper setting is pinned
     when the two tasks' defaults differ (pick-trained panda_l3 on push -> gripper-enabled)."""
     gripper = effective_gripper(robot, trained_task)
     if gripper == effective_gripper(robot, target_task):
         return robot
-    if isinstance(robot, str):
-        return {"name": robot, "gripper": gripper}
-    return {**robot, "gripper": gripper}
+    return EnvPart({**robot, "gripper": gripper})
 
 
 def default_target(task_spec: Mapping, robot_spec: Mapping) -> EnvSpec:
     """(robot, task) of the target env from the two sources' training specs."""
-    task = task_spec["task"]
-    return same_robot(robot_spec["robot"], robot_spec["task"], task), task
+    task = EnvPart(task_spec["task"])
+    return same_robot(EnvPart(robot_spec["robot"]), EnvPart(robot_spec["task"]), task), task
 
 
 # -- checks ---------------------------------------------------------------------------------------
@@ -109,8 +105,8 @@ def stitch_problems(sig_task: Signature, sig_robot: Signature, target: EnvSpec |
 
 def target_problems(signature: Signature, target: EnvSpec) -> list[str]:
     """Reasons a policy with ``signature`` cannot run the target env (robot, task)."""
-    robot, task = target
-    name = f"target env ({short_name(robot)}, {short_name(task)})"
+    robot, task = EnvPart(target[0]), EnvPart(target[1])
+    name = f"target env ({robot.short}, {task.short})"
     try:
         dims = env_dims(robot, task)
         needs_gripper = resolve_task(task).family.default_gripper
@@ -127,7 +123,7 @@ def target_problems(signature: Signature, target: EnvSpec) -> list[str]:
     ]
     if needs_gripper and not effective_gripper(robot, task):
         problems.append(
-            f"{name}: {short_name(task)} needs the gripper; use a robot module "
+            f"{name}: {task.short} needs the gripper; use a robot module "
             f'trained with it, e.g. robot {{"name": ..., "gripper": true}}'
         )
     return problems
@@ -240,8 +236,8 @@ class Combo:
 
     task_from: ZooEntry
     robot_from: ZooEntry
-    robot: str | Mapping  # target env
-    task: str | Mapping
+    robot: EnvPart  # target env
+    task: EnvPart
 
     @property
     def label(self) -> str:

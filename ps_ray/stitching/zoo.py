@@ -22,7 +22,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from ps_ray.errors import UserError
-from ps_ray.names import short_name, trial_key
+from ps_ray.names import EnvPart, short_name, trial_key
 from ps_ray.specs.methods import method_key
 from ps_ray.store.layout import SweepLayout
 from ps_ray.store.run_layout import POLICY_FILE, SPEC_FILE
@@ -65,13 +65,13 @@ class ZooEntry:
     stage: str  # "train", "plain_source" or "run"
 
     @property
-    def robot(self) -> str | Mapping:
-        """The robot as trained (a name or a mapping), for making its env."""
-        return self.spec["robot"]
+    def robot(self) -> EnvPart:
+        """The robot as trained, for making its env."""
+        return EnvPart(self.spec["robot"])
 
     @property
-    def task(self) -> str | Mapping:
-        return self.spec["task"]
+    def task(self) -> EnvPart:
+        return EnvPart(self.spec["task"])
 
 
 def key_of(spec: Mapping[str, Any]) -> ZooKey:

@@ -24,12 +24,6 @@ ANCHOR_POLICIES = ("plain", "random")
 STAGES = ("train", "zero_shot", "few_shot", "report")
 
 
-def _part(key: str, value: Any) -> Any:
-    """A robot or task of the grid as one type (a value of another type is left for the trial's
-    TrainSpec to name)."""
-    return EnvPart(value) if isinstance(value, (str, Mapping)) else value
-
-
 def _method_keys(where: str, methods: Any) -> Any:
     """Each method (a preset, preset+options or a {preset: ...} mapping) as its canonical key."""
     if not isinstance(methods, (list, tuple)):
@@ -244,8 +238,9 @@ class SweepSpec:
         for stage in self.stages:
             if stage not in STAGES:
                 raise SpecError(f"unknown stage {stage!r}; valid stages: {', '.join(STAGES)}")
-        for key in ("robots", "tasks"):
-            object.__setattr__(self, key, tuple(_part(key, v) for v in getattr(self, key)))
+        for key in ("robots", "tasks"):  # one type; a value of another type is named by the trials' specs
+            parts = (EnvPart(v) if isinstance(v, (str, Mapping)) else v for v in getattr(self, key))
+            object.__setattr__(self, key, tuple(parts))
         object.__setattr__(self, "methods", _method_keys("methods", self.methods))
         for key in ("methods", "robots", "tasks", "seeds", "interface_dims", "stages"):
             if not getattr(self, key) and key != "stages":

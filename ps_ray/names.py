@@ -16,6 +16,8 @@ from ps_ray.errors import UserError
 # The latent translations a stitch may fit (ps_ray.nets.translation), by name.
 TRANSLATIONS = ("orthogonal", "affine")
 CONTROL_ROLES = ("robot_source", "task_source", "oracle")
+# The desired goals of anchor states (ps_ray.data.collect): their own, or hindsight-relabelled.
+ANCHOR_GOALS = ("real", "relabelled")
 
 
 class EnvPart(Mapping[str, Any]):

@@ -61,7 +61,8 @@ def prepare_anchors(spec: TrainSpec, run_dir: Path, given=None):
     (:func:`read_inputs`: the init policy's or the anchors file's), else k-means over
     random-policy rollouts; saved into the run folder."""
     from ps_ray.data.anchor_file import load_anchor_set, save_anchor_set
-    from ps_ray.data.anchors import AnchorSet, collect_task_states, select_anchors
+    from ps_ray.data.anchors import AnchorSet, select_anchors
+    from ps_ray.data.collect import collect_task_states
 
     path = run_dir / ANCHORS_FILE
     if path.exists():

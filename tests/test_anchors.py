@@ -20,11 +20,11 @@ from ps_ray.data.anchor_file import anchors_from_file, load_anchor_set, save_anc
 from ps_ray.data.anchors import (
     AnchorSet,
     anchor_hash,
-    collect_task_states,
     make_anchor_set,
     select_anchor_indices,
     select_anchors,
 )
+from ps_ray.data.collect import collect_task_states
 from ps_ray.envs.point import PointGoalEnv
 
 
@@ -439,6 +439,35 @@ def test_collect_errors():
         collect_task_states(PointGoalEnv, episodes=1, steps=[5, 5])
     with pytest.raises(ValueError, match="non-negative"):
         collect_task_states(PointGoalEnv, episodes=1, steps=[-1])
+
+
+def test_relabelled_goals_are_later_achieved_goals_of_the_same_episode():
+    """On the marker family every real desired goal is the zero offset; relabelled ones are what
+    hindsight relabelling feeds the task module: achieved goals of later steps."""
+    from ps_ray.envs import make
+
+    markers = lambda: make("panda", "reach_red")  # noqa: E731
+    real = collect_task_states(markers, episodes=3, seed=7)
+    relabelled = collect_task_states(markers, episodes=3, seed=7, goals="relabelled")
+    np.testing.assert_array_equal(real[:, -3:], 0.0)
+    np.testing.assert_array_equal(relabelled[:, :-3], real[:, :-3])  # the scene is kept
+    for ep in range(3):  # replay each episode with the same seeds and collect its achieved goals
+        env = make("panda", "reach_red")
+        obs, _ = env.reset(seed=7 + ep)
+        env.action_space.seed(7 + ep)
+        achieved, done = [obs["achieved_goal"]], False
+        while not done:
+            obs, _, terminated, truncated, _ = env.step(env.action_space.sample())
+            achieved.append(obs["achieved_goal"])
+            done = terminated or truncated
+        env.close()
+        for row, step in zip(relabelled[5 * ep : 5 * ep + 5], range(5, 10)):
+            assert any(np.array_equal(row[-3:], goal) for goal in achieved[step + 1 :])
+            assert np.linalg.norm(row[-3:]) > 0.05  # nowhere near the real goal
+    again = collect_task_states(markers, episodes=3, seed=7, goals="relabelled")
+    np.testing.assert_array_equal(again, relabelled)
+    with pytest.raises(ValueError, match="^unknown goals 'future'; valid goals: real, relabelled$"):
+        collect_task_states(PointGoalEnv, episodes=1, goals="future")
 
 
 def test_collect_then_select_end_to_end(tmp_path):

@@ -14,8 +14,8 @@ What the authors do (docs/authors_code.md §4, ``permutation_measure`` and
 
 Here:
 
-- :func:`collect_task_states` is step 1 (it stops each episode after the last recorded step,
-  since later observations are never used; every episode is reset with its own seed).
+- :func:`ps_ray.data.collect.collect_task_states` is step 1 (every episode is reset with its
+  own seed).
 - :func:`select_anchor_indices` / :func:`select_anchors` are steps 2-3. ``n_init`` defaults to
   10 explicitly (sklearn >= 1.4 defaults to ``"auto"``, i.e. 1 run for k-means++).
   ``distinct=True`` (the default) makes the anchors pairwise distinct rows: when two
@@ -36,8 +36,7 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
-import operator
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -48,7 +47,6 @@ from ps_ray.errors import UserError
 __all__ = [
     "AnchorSet",
     "anchor_hash",
-    "collect_task_states",
     "make_anchor_set",
     "select_anchor_indices",
     "select_anchors",
@@ -57,98 +55,6 @@ __all__ = [
 log = logging.getLogger(__name__)
 
 _HASH_DOMAIN = b"ps_ray.anchors.v1\x00"  # a format constant: never renamed with the module
-
-Policy = Callable[[dict[str, np.ndarray]], Any]
-
-
-# --------------------------------------------------------------------------- collection
-
-
-def _task_input(obs: Mapping[str, Any]) -> np.ndarray:
-    """The task input (:func:`ps_ray.envs.goals.task_input`) of one observation, flat float32."""
-    from ps_ray.envs.goals import TASK_KEYS, task_input  # lazily: the envs package loads PyBullet
-
-    return task_input({key: np.asarray(obs[key], np.float32).reshape(-1) for key in TASK_KEYS})
-
-
-def _check_steps(steps: Sequence[int]) -> list[int]:
-    try:
-        out = [operator.index(s) for s in steps]
-    except TypeError:
-        raise UserError(f"steps must be integers, got {list(steps)}") from None
-    if not out or min(out) < 0:
-        raise UserError(f"steps must be one or more non-negative integers, got {out}")
-    if len(set(out)) != len(out):
-        raise UserError(f"steps must be distinct, got {out}")
-    return sorted(out)
-
-
-def collect_task_states(
-    make_env: Callable[[], Any],
-    *,
-    episodes: int,
-    steps: Sequence[int] = range(5, 10),
-    policy: Policy | None = None,
-    seed: int = 0,
-) -> np.ndarray:
-    """Roll out ``episodes`` episodes and record the task input at the given time steps.
-
-    Episode ``i`` starts with ``env.reset(seed=seed + i)``; with ``policy=None`` its actions
-    are uniform random from ``env.action_space`` seeded with ``seed + i``, so each episode is
-    reproducible on its own. ``policy`` gets the observation batched to a leading dimension of
-    1 (``{key: array[None]}``) and returns actions of shape ``(1, A)``.
-
-    Step ``t`` is the observation before the ``t``-th action (``t = 0``: the reset
-    observation), as in the authors' loop. Each episode stops after the last recorded step;
-    an episode that ends earlier is an error.
-
-    Returns an ``(episodes * len(steps), task_dim)`` float32 array, episode-major, steps in
-    ascending order within an episode.
-    """
-    if int(episodes) != episodes or episodes < 1:
-        raise UserError(f"episodes must be a positive integer, got {episodes!r}")
-    episodes = int(episodes)
-    wanted = _check_steps(steps)
-    wanted_set, last = set(wanted), wanted[-1]
-    report_every = max(1, episodes // 10) if episodes >= 100 else 0
-
-    rows: list[np.ndarray] = []
-    env = make_env()
-    try:
-        for ep in range(episodes):
-            obs, _ = env.reset(seed=seed + ep)
-            if policy is None:
-                env.action_space.seed(seed + ep)
-            for t in range(last + 1):
-                if t in wanted_set:
-                    rows.append(_task_input(obs))
-                if t == last:
-                    break
-                if policy is None:
-                    action = env.action_space.sample()
-                else:
-                    batched = {key: np.asarray(val)[None] for key, val in obs.items()}
-                    action = np.asarray(policy(batched))
-                    if action.ndim != 2 or action.shape[0] != 1:
-                        raise ValueError(
-                            f"policy must return actions of shape (1, A) for a batch of one "
-                            f"observation, got shape {action.shape}"
-                        )
-                    action = action[0]
-                obs, _, terminated, truncated, _ = env.step(action)
-                if (terminated or truncated) and t + 1 <= last:
-                    raise ValueError(
-                        f"episode {ep} ended after {t + 1} steps, before the last recorded step {last}"
-                    )
-            if report_every and (ep + 1) % report_every == 0:
-                log.info("collect_task_states: %d/%d episodes", ep + 1, episodes)
-    finally:
-        close = getattr(env, "close", None)
-        if close is not None:
-            close()
-    out = np.stack(rows).astype(np.float32, copy=False)
-    return np.ascontiguousarray(out)
-
 
 # --------------------------------------------------------------------------- selection
 

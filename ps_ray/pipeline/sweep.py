@@ -48,7 +48,8 @@ def prepare_sweep_anchors(
     (policy: plain, after stage 1) or from random-action rollouts (policy: random).
     """
     from ps_ray.data.anchor_file import anchors_from_file, save_anchor_set
-    from ps_ray.data.anchors import collect_task_states, make_anchor_set
+    from ps_ray.data.anchors import make_anchor_set
+    from ps_ray.data.collect import collect_task_states
     from ps_ray.envs import make
     from ps_ray.policy import GreedyPolicy
 
@@ -75,6 +76,7 @@ def prepare_sweep_anchors(
                     steps=spec.anchors.steps,
                     policy=policy,
                     seed=spec.anchors.seed,
+                    goals=spec.anchors.goals,
                 )
             anchor_set = make_anchor_set(
                 states,
@@ -82,6 +84,7 @@ def prepare_sweep_anchors(
                 seed=spec.anchors.seed,
                 extra_provenance={
                     "policy": spec.anchors.policy,
+                    "goals": spec.anchors.goals,
                     "robot": spec.anchors.robot.spelling,
                     "steps": list(spec.anchors.steps),
                     "episodes": spec.anchors.episodes,

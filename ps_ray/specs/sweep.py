@@ -14,7 +14,7 @@ from ps_ray.defaults import INTERFACE_DIM
 from ps_ray.envs.robots import resolve_robot
 from ps_ray.envs.tasks import resolve_task
 from ps_ray.errors import UserError
-from ps_ray.names import TRANSLATIONS, EnvPart, plain_json
+from ps_ray.names import ANCHOR_GOALS, TRANSLATIONS, EnvPart, plain_json
 from ps_ray.specs.methods import method_key, uses_anchors
 from ps_ray.specs.resources import ResourcesSpec
 from ps_ray.specs.train import SpecError, TrainSpec, check_keys, check_types
@@ -46,6 +46,7 @@ class AnchorSpec:
     steps: tuple[int, ...] = (5, 6, 7, 8, 9)
     seed: int = 0
     policy: str = "plain"  # roll out trained plain policies (paper) or "random"
+    goals: str = "real"  # the states' desired goals: their own (paper) or "relabelled" (ps_ray.data.collect)
 
     def __post_init__(self) -> None:
         check_types(self, "anchors")
@@ -57,8 +58,9 @@ class AnchorSpec:
             resolve_robot(self.robot)
         except (ValueError, TypeError) as e:
             raise SpecError(f"anchors.robot: {e}") from None
-        if self.policy not in ANCHOR_POLICIES:
-            raise SpecError(f"unknown anchors.policy {self.policy!r}; valid: {', '.join(ANCHOR_POLICIES)}")
+        for key, valid in (("policy", ANCHOR_POLICIES), ("goals", ANCHOR_GOALS)):
+            if getattr(self, key) not in valid:
+                raise SpecError(f"unknown anchors.{key} {getattr(self, key)!r}; valid: {', '.join(valid)}")
         for task in self.source_tasks:
             try:
                 resolve_task(task)

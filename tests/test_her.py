@@ -118,6 +118,26 @@ def test_future_index_covers_t_plus_1_to_T_uniformly() -> None:
     assert counts[:, T].sum() > 0 and (counts.sum(1) > 0).all()
 
 
+def test_relabelled_steps_are_the_goals_training_reads() -> None:
+    """What the normalisers see: every step 0..T-1 of the new episodes, each other key as stored,
+    the goal a later achieved goal of the same episode with probability relabel_prob."""
+    buf = make()
+    obs, _ = batch(range(ID0, ID0 + 400))
+    steps = buf.relabelled(obs)
+    assert {k: v.shape for k, v in steps.items()} == {k: (400 * T, *s) for k, (s, _) in SPEC.items()}
+    assert all(v.dtype == np.float32 for v in steps.values())
+    for key in ("robot_state", "task_state", "achieved_goal"):
+        np.testing.assert_array_equal(steps[key], obs[key][:, :T].reshape(steps[key].shape))
+    ep, t = steps["robot_state"][:, 0], steps["robot_state"][:, 1]
+    goal = steps["desired_goal"]
+    relabelled = goal[:, 2] == 1.0  # an achieved goal (eid, t', 1), else the real one (eid, -1, 2)
+    np.testing.assert_array_equal(goal[:, 0], ep)  # always from its own episode
+    assert (goal[relabelled, 1] > t[relabelled]).all() and (goal[relabelled, 1] <= T).all()
+    assert (goal[~relabelled, 1] == -1).all()
+    assert abs(relabelled.mean() - 0.8) < 0.02
+    assert len(buf) == 0  # nothing was stored
+
+
 def test_ring_wraps_overwriting_oldest_and_samples_only_filled_slots() -> None:
     buf = make(capacity=5)
     buf.add_episodes(*batch([ID0, ID0 + 1, ID0 + 2]))

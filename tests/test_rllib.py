@@ -177,6 +177,54 @@ def test_training_episodes_get_fresh_goals_and_evaluations_fixed_ones(ray_local)
         algo.stop()
 
 
+def test_the_final_evaluation_reads_episodes_the_stopping_rule_never_read(ray_local):
+    """The periodic evaluations (what the stopping rule reads) repeat one set of episodes; the
+    final evaluation, twice as many, repeats another set that shares no episode with it."""
+    spec = TrainSpec(method="ablation", **{**SMALL, "learning_starts": 10**6, "eval_every": 10**6})
+    algo = algo_config(spec).build_algo()
+
+    def goals(n: int, **final) -> set[tuple[float, ...]]:
+        episodes = algo.collect_episodes(explore=False, random=False, n=n, **final)
+        return {tuple(ep.get_observations()["desired_goal"][0].round(6)) for ep in episodes}
+
+    try:
+        periodic, final = goals(4), goals(8, final=True)
+        assert len(periodic) == 4 and len(final) == 8
+        assert not periodic & final
+        assert goals(8, final=True) == final and goals(4) == periodic
+    finally:
+        algo.stop()
+
+
+def test_the_task_normaliser_sees_the_hindsight_goals_training_reads(ray_local):
+    """On the marker family every real goal is the zero offset; the goals training reads are
+    mostly later achieved goals (~0.2 m away). The learner's task normaliser must cover them: after
+    20 episodes, under 1% of training samples have a clipped goal component (97% did when the
+    normaliser saw real goals only)."""
+    from ps_ray.envs.goals import GOAL_DIM
+
+    spec = TrainSpec(
+        method="ps",
+        **{**SMALL, "task": "reach_red", "learning_starts": 10**6, "eval_every": 10**6},
+    )
+    anchors = np.random.default_rng(0).uniform(-0.1, 0.2, (16, 9)).astype(np.float32)
+    algo = algo_config(spec, anchors).build_algo()
+    try:
+        for _ in range(5):
+            algo.train()
+        assert algo.replay.num_episodes == 20
+        batch = train_batch(algo.replay.sample(4096))
+        norm = _learner_module(algo).actor.task.norm
+        with torch.no_grad():
+            goal = norm(batch["task_in"])[:, -GOAL_DIM:]
+        clipped = (goal.abs() >= norm.clip).any(dim=1).float().mean().item()
+        assert clipped < 0.01, clipped
+        real = algo.replay.episodes(0, 20)["obs/desired_goal"]
+        assert np.abs(real).max() == 0.0  # what the normaliser would otherwise have seen
+    finally:
+        algo.stop()
+
+
 def _run_state(spec: TrainSpec, iterations: int) -> tuple[dict[str, torch.Tensor], np.ndarray]:
     algo = algo_config(spec).build_algo()
     try:

@@ -84,7 +84,7 @@ class BareTrainer:
             self.replay.add_episodes(obs, actions)
             steps = actions.shape[0] * actions.shape[1]
             self.env_steps += steps
-            task_in, robot_in = split_obs({k: v.reshape(steps + len(actions), -1) for k, v in obs.items()})
+            task_in, robot_in = split_obs(self.replay.relabelled(obs))
             update_normalizers(self.nets, task_in, robot_in)
             n_updates = max(1, round(steps * spec.updates_per_step))
             batch = train_batch(self.replay.sample_many(n_updates, spec.batch_size))

@@ -179,6 +179,28 @@ class HindsightReplay:
         out["rewards"] = np.ascontiguousarray(rewards, dtype=np.float32).reshape(B)
         return out
 
+    def relabelled(self, obs: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
+        """Every step 0..T-1 of N episodes obs[k] (N, T+1, *shape) as training reads it: (N*T, *shape)
+        per key, the goal relabelled as :meth:`sample` relabels it (probability ``relabel_prob``,
+        an achieved goal t' ~ U{t+1..T} of the same episode), drawn from this buffer's RNG.
+
+        What the input normalisers must be updated from: their statistics then cover the goals the
+        learner trains on, as the reference HER code feeds its normaliser relabelled transitions
+        (docs/authors_code.md §5). Real goals alone can be far narrower (zero on the marker family).
+        """
+        arrays = {k: np.asarray(v) for k, v in obs.items()}
+        goal, achieved = arrays[self.goal_key], arrays[self.achieved_key]
+        n, T, rng = goal.shape[0], goal.shape[1] - 1, self._rng
+        t = np.broadcast_to(np.arange(T), (n, T))
+        relabel = rng.random((n, T)) < self.relabel_prob
+        t_future = rng.integers(t + 1, T + 1)
+        goals = np.where(
+            relabel[..., None], np.take_along_axis(achieved, t_future[..., None], axis=1), goal[:, :T]
+        )
+        out = {k: a[:, :T].reshape(n * T, *a.shape[2:]) for k, a in arrays.items()}
+        out[self.goal_key] = goals.reshape(n * T, *goal.shape[2:]).astype(goal.dtype)
+        return out
+
     def sample_many(self, n_batches: int, batch_size: int) -> dict[str, np.ndarray]:
         """``n_batches * batch_size`` i.i.d. rows in one gather (K minibatches, batch-major)."""
         return self.sample(int(n_batches) * int(batch_size))

@@ -55,7 +55,8 @@ from ps_ray.weights import (
 )
 
 LEARNER_FILE = "learner.safetensors"
-EVAL_SEED_OFFSET = 500_000
+EVAL_SEED_OFFSET = 500_000  # the periodic evaluations, which the stopping rule reads
+FINAL_EVAL_SEED_OFFSET = 700_000  # the final evaluation: episodes the stopping rule never read
 REPLAY_FILE = "replay.npz"
 
 
@@ -193,16 +194,18 @@ class ModularSAC(SAC):
         save_policy(path, nets, signature, extra)
         return signature
 
-    def evaluate_greedy(self, episodes: int) -> dict[str, float]:
-        return episode_stats(self.collect_episodes(explore=False, random=False, n=episodes))
+    def evaluate_greedy(self, episodes: int, *, final: bool = False) -> dict[str, float]:
+        """Greedy success on the periodic evaluations' episodes, or with ``final`` on episodes of
+        their own, which the stopping rule (it reads the periodic ones) never saw."""
+        return episode_stats(self.collect_episodes(explore=False, random=False, n=episodes, final=final))
 
-    def collect_episodes(self, *, explore: bool, random: bool, n: int) -> list:
+    def collect_episodes(self, *, explore: bool, random: bool, n: int, final: bool = False) -> list:
         """n whole episodes per env runner. Training episodes get fresh reset seeds (derived from
         the run's seed and episode count, so a resumed run does not replay old goals); greedy
-        evaluations reuse one fixed seed, so every evaluation sees the same episodes."""
-        seed = (self.config.seed or 0) * 1_000_003 + (
-            self.counters["episodes"] if explore else EVAL_SEED_OFFSET
-        )
+        evaluations reuse one fixed seed, so every evaluation sees the same episodes; the final
+        evaluation (``final``) another fixed seed, so its episodes are none of those."""
+        offset = FINAL_EVAL_SEED_OFFSET if final else EVAL_SEED_OFFSET
+        seed = (self.config.seed or 0) * 1_000_003 + (self.counters["episodes"] if explore else offset)
 
         def sample(runner):
             # RLlib re-seeds the envs with its config seed on every num_episodes call, which
@@ -228,10 +231,10 @@ class ModularSAC(SAC):
         self.counters["episodes"] += actions.shape[0]
         self._log_episode_stats("train", episodes)
 
-        task_in = task_input(obs)
-        task_in = task_in.reshape(-1, task_in.shape[-1])
-        robot_in = obs[ROBOT_KEY].reshape(-1, obs[ROBOT_KEY].shape[-1])
-        task_t, robot_t = torch.from_numpy(task_in), torch.from_numpy(robot_in)
+        # The normalisers see the new steps as training reads them: hindsight goals included.
+        steps_seen = self.replay.relabelled(obs)
+        task_t = torch.from_numpy(task_input(steps_seen))
+        robot_t = torch.from_numpy(steps_seen[ROBOT_KEY])
         self.learner_group.foreach_learner(
             lambda learner: update_normalizers(learner.module[DEFAULT_MODULE_ID], task_t, robot_t)
         )

@@ -159,6 +159,7 @@ def cmd_zero_shot(args: argparse.Namespace) -> int:
         "label",
         "success_mean",
         "best_unstitched",
+        "chance_success",
         "oracle_success",
         "transfer_gain",
     ]

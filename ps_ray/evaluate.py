@@ -131,8 +131,11 @@ def _stack(obs: Sequence[Obs]) -> Obs:
 def _run_batch(
     envs: Sequence, seeds: Sequence[int], act: ActionFn, repeat_of: Callable[[int], int]
 ) -> list[EpisodeRecord]:
-    """One episode per env, in lockstep: one batched forward per step."""
+    """One episode per env, in lockstep: one batched forward per step. A scripted policy (the
+    chance control, :mod:`ps_ray.stitching.chance`) is told the reset envs and seeds first."""
     resets = [env.reset(seed=s) for env, s in zip(envs, seeds)]
+    if hasattr(act, "begin"):
+        act.begin(envs, seeds)
     obs = [o for o, _ in resets]
     touched = [info["touching"] for _, info in resets]
     contact = [info["contact"] for _, info in resets]

@@ -173,8 +173,9 @@ def test_steps_to_target_counts_unreached_runs_at_their_last_step():
 
 
 def test_transfer_table_pairs_each_stitched_cell_with_its_controls():
-    """Transfer gain per seed = mean over the seed's pairs of stitched - best unstitched; the
-    controls' columns are their own means; a role that does not apply stays out of the best."""
+    """Transfer gain per seed = mean over the seed's pairs of stitched - the best of the unstitched
+    sources and chance; the controls' columns are their own means; a role that does not apply
+    stays out of the best."""
     from ps_ray.analysis.transfer import controls_met, transfer_numbers, transfer_text
     from ps_ray.pipeline.zero_shot import gain
 
@@ -186,6 +187,7 @@ def test_transfer_table_pairs_each_stitched_cell_with_its_controls():
                 "robot_source_success": 0.05,
                 "task_source_success": np.nan if label == "b" else 0.1,
                 "oracle_success": 0.95,
+                "chance_success": 0.08,
             }
             rows.append(
                 {"method": "ablation", "pairing": "same_seed", "seed": seed, "label": label}
@@ -194,10 +196,18 @@ def test_transfer_table_pairs_each_stitched_cell_with_its_controls():
             )
     table = pd.DataFrame(rows)
     assert table.loc[1, "best_unstitched"] == 0.05  # label b: only the robot source applies
+    assert table.loc[1, "best_control"] == 0.08  # ... and chance is above it
     numbers = transfer_numbers(table).iloc[0]
-    assert numbers["gain_diff"] == pytest.approx(np.mean([0.5, 0.6, 0.4]) - np.mean([0.1, 0.05]))
+    assert numbers["gain_diff"] == pytest.approx(np.mean([0.5, 0.6, 0.4]) - np.mean([0.1, 0.08]))
     assert (numbers["gain_wins"], numbers["seeds"], numbers["cells"]) == (3, 3, 6)
-    assert numbers["pairs_beating_both"] == 6 and numbers["oracle_success"] == pytest.approx(0.95)
+    assert numbers["pairs_above_every_control"] == 6 and numbers["oracle_success"] == pytest.approx(0.95)
+    assert numbers["chance_success"] == pytest.approx(0.08)
+    # a table from before the chance control: the gain over the unstitched sources, chance "–"
+    older = table.drop(columns=["chance_success", "best_control"])
+    older["transfer_gain"] = older["success_mean"] - older["best_unstitched"]
+    old = transfer_numbers(older).iloc[0]
+    assert old["gain_diff"] == pytest.approx(np.mean([0.5, 0.6, 0.4]) - np.mean([0.1, 0.05]))
+    assert transfer_text(transfer_numbers(older)).iloc[0]["chance (no task knowledge)"] == "–"
     met = controls_met(transfer_numbers(table)).iloc[0]
     assert met["unstitched fail"] and met["oracle learns"]
     shown = transfer_text(transfer_numbers(table))

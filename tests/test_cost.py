@@ -67,8 +67,9 @@ def test_the_workload_of_the_smoke_sweep_is_counted_from_its_spec():
     # per method and seed, each of the 4 task modules (half X, Ra) meets the one robot module of
     # (the other half, the other arm): 4 pairs; 16 pairs run as 2 trials of 8
     assert len(loads["zero_shot"].trials) == 2
-    # each pair evaluated with its three controls (robot source, task source, oracle)
-    assert loads["zero_shot"].eval_steps == 16 * 4 * 10 * 2 * 50 and loads["zero_shot"].updates == 0
+    # each pair evaluated with its three controls (robot source, task source, oracle), and chance
+    # (two policies) once on each of the 4 target envs (2 arms x 2 halves)
+    assert loads["zero_shot"].eval_steps == (16 * 4 + 4 * 2) * 10 * 2 * 50 and loads["zero_shot"].updates == 0
     # max_pairs 1 per method, plus one from-scratch run per target
     # and one unstitched start (the pair's robot source as it is) per pair
     assert len(loads["few_shot"].trials) == 2 * 3 and loads["few_shot"].env_steps == 6 * 1000

@@ -1,4 +1,5 @@
-"""The RLlib path: round trips of checkpoints and policy files, learning on a trivial goal env."""
+"""The RLlib path: round trips of checkpoints and policy files, the normaliser's inputs, the evaluation
+episodes, learning to reach."""
 
 from __future__ import annotations
 
@@ -135,24 +136,26 @@ def test_policy_file_round_trip_keeps_actions_q_and_targets(trained, tmp_path):
 
 
 @pytest.mark.slow
-def test_sac_her_learns_the_point_goal_env(ray_local):
-    spec = TrainSpec(method="ablation", updates_per_step=0.5, lr=1e-3, **SMALL)
+def test_sac_her_learns_to_reach_with_the_panda(ray_local):
+    """Real PyBullet physics, the real RLlib learner, hindsight goals in the normaliser: within 6k
+    env steps the greedy policy reaches most goals of the paper's reach task on fresh episodes
+    (a one-core run took ~2 min; one saw 0.65 at 5k where the untrained policy reaches none)."""
+    spec = TrainSpec(
+        method="ablation", task="reach", hidden=64, interface_dim=16, eval_every=10**6, learning_starts=1000
+    )
     algo = algo_config(spec).build_algo()
     try:
-        untrained = algo.evaluate_greedy(40)
+        untrained = algo.evaluate_greedy(40, final=True)
         evaluations = []
-        for budget in (6000, 8000, 10000):
+        for budget in (4000, 5000, 6000):
             while algo.counters["env_steps"] < budget:
                 algo.train()
-            evaluations.append(algo.evaluate_greedy(40)["success"])
+            evaluations.append(algo.evaluate_greedy(40, final=True)["success"])
     finally:
         algo.stop()
-    # Goals are drawn from [-0.5, 0.5]^2 and must be reached within 5 cm: an untrained policy
-    # essentially never does; within 10k env steps the best greedy checkpoint (what `ps-ray
-    # train` keeps as best_policy) ends most episodes on the goal. Runs differ (a CI run saw
-    # 0.45 at 8k where others saw 0.93-0.98), hence the best of three checkpoints.
+    # Runs differ, hence the best of three checkpoints (what `ps-ray train` keeps as best_policy).
     assert untrained["success"] <= 0.1, untrained
-    assert max(evaluations) >= 0.6, evaluations
+    assert max(evaluations) >= 0.5, evaluations
 
 
 def test_training_episodes_get_fresh_goals_and_evaluations_fixed_ones(ray_local):

@@ -64,7 +64,10 @@ def test_zero_shot_matrix_of_a_sweep(trained_matrix):
         assert row["oracle"] == "/".join([robot_key[0], robot_key[1], task_key[2], *robot_key[3:]])
         best = max(row["robot_source_success"], row["task_source_success"])
         assert row["best_unstitched"] == best
-        assert row["transfer_gain"] == pytest.approx(row["success_mean"] - best)
+        # chance: the target env's own figure, the same for every pair on that env
+        assert row["best_control"] == max(best, row["chance_success"])
+        assert row["transfer_gain"] == pytest.approx(row["success_mean"] - row["best_control"])
+    assert table.groupby(["robot", "task"])["chance_success"].nunique().eq(1).all()
     # the table keeps each pair's record: its sources' and controls' files, which few-shot reads
     written = pd.read_csv(sweep_dir(spec) / "zero_shot.csv")
     for column in (
@@ -95,7 +98,7 @@ def test_zero_shot_matrix_of_a_sweep(trained_matrix):
     }
     for run in (r for r in found_runs if r.data.tags["ps_ray.stage"] == "zero_shot"):
         tags = run.data.tags
-        assert {"oracle_success", "transfer_gain"} <= set(run.data.metrics)
+        assert {"oracle_success", "chance_success", "transfer_gain"} <= set(run.data.metrics)
         assert tags["ps_ray.task_module_run"] == train_runs[tags["ps_ray.task_module"]]
         assert tags["ps_ray.robot_module_run"] == train_runs[tags["ps_ray.robot_module"]]
         assert tags["ps_ray.task_module"] != tags["ps_ray.robot_module"]

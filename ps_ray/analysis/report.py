@@ -301,8 +301,10 @@ def _transfer(report: Report, table: pd.DataFrame) -> None:
         "Transfer: stitching against its controls",
         "Each stitched pair (task module of (X, Ra), robot module of (Y, Rb), run on (X, Rb)) beside "
         "its robot source run unstitched on (X, Rb), its task source run on robot Rb, and the "
-        "oracle trained on (X, Rb), all on the pair's evaluation episodes. Transfer gain: stitched "
-        "success minus the better unstitched source, averaged per seed; mean with a t interval over "
+        "oracle trained on (X, Rb), and chance: the better of two policies with no task knowledge "
+        "(the end effector driven to a random point of the task's target region; random actions), "
+        "all on the pair's evaluation episodes. Transfer gain: stitched success minus the best of "
+        "the unstitched sources and chance, averaged per seed; mean with a t interval over "
         "seeds (df = n - 1) and an exact sign-flip p-value. Same-seed pairs join modules of one "
         "training seed, cross-seed pairs modules of two.",
         first=True,

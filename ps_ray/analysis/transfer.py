@@ -1,6 +1,7 @@
 """Stitching against its controls: per method and pairing, the stitched success beside the
-unstitched sources and the oracle on the same episodes, and the transfer gain (stitched minus the
-better unstitched source) as a paired comparison over seeds (docs/transfer.md)."""
+unstitched sources, chance and the oracle on the same episodes, and the transfer gain (stitched
+minus the best of the unstitched sources and chance) as a paired comparison over seeds
+(docs/transfer.md). Tables from before the chance control: the gain over the unstitched sources."""
 
 from __future__ import annotations
 
@@ -14,8 +15,14 @@ from ps_ray.names import CONTROL_ROLES
 CONTROL_COLUMNS = {
     "robot_source_success": "robot source unstitched",
     "task_source_success": "task source unstitched",
+    "chance_success": "chance (no task knowledge)",
     "oracle_success": "oracle (trained on the target)",
 }
+
+
+def best_control_column(table: pd.DataFrame) -> str:
+    """What the gain is taken over: the best control with chance, or (older tables) without."""
+    return "best_control" if "best_control" in table.columns else "best_unstitched"
 
 
 def has_controls(table: pd.DataFrame) -> bool:
@@ -31,17 +38,18 @@ def transfer_numbers(table: pd.DataFrame) -> pd.DataFrame:
         seeds = part["seed"].to_numpy()
         row = {"method": method, "pairing": pairing, "cells": len(part), "seeds": len(np.unique(seeds))}
         for column in ("success_mean", *CONTROL_COLUMNS):
-            cells = part.dropna(subset=[column])
+            cells = part.dropna(subset=[column]) if column in part.columns else part.iloc[:0]
             if cells.empty:
                 row[column], row[f"{column}_lo"], row[f"{column}_hi"] = np.nan, np.nan, np.nan
                 continue
             e = estimate(cells[column].to_numpy(), cells["seed"].to_numpy())
             row[column], row[f"{column}_lo"], row[f"{column}_hi"] = e.mean, e.mean_lo, e.mean_hi
-        cells = part.dropna(subset=["best_unstitched"])
-        gain = paired(cells["success_mean"], cells["best_unstitched"], cells["seed"]) if len(cells) else None
+        best = best_control_column(part)
+        cells = part.dropna(subset=[best])
+        gain = paired(cells["success_mean"], cells[best], cells["seed"]) if len(cells) else None
         for field in ("diff", "lo", "hi", "p", "wins", "losses"):
             row[f"gain_{field}"] = np.nan if gain is None else getattr(gain, field)
-        row["pairs_beating_both"] = int((cells["transfer_gain"] > 0).sum())
+        row["pairs_above_every_control"] = int((cells["transfer_gain"] > 0).sum())
         rows.append(row)
     out = pd.DataFrame(rows)
     if out.empty:
@@ -67,8 +75,8 @@ def transfer_text(numbers: pd.DataFrame) -> pd.DataFrame:
         f"{int(r['gain_wins'])}/{int(r['seeds'])} seeds up"
         for _, r in numbers.iterrows()
     ]
-    out["pairs above both unstitched"] = [
-        f"{int(r['pairs_beating_both'])}/{int(r['cells'])}" for _, r in numbers.iterrows()
+    out["pairs above every control"] = [
+        f"{int(r['pairs_above_every_control'])}/{int(r['cells'])}" for _, r in numbers.iterrows()
     ]
     return out
 

@@ -12,6 +12,7 @@ from ps_ray.names import CONTROL_ROLES
 from ps_ray.specs.methods import uses_anchors
 from ps_ray.specs.sweep import SweepSpec
 from ps_ray.specs.train import TrainSpec
+from ps_ray.stitching.chance import CHANCE_POLICIES
 
 
 @dataclass(frozen=True)
@@ -72,13 +73,13 @@ def workload(spec: SweepSpec) -> list[StageLoad]:
     if "zero_shot" in spec.stages:
         methods = list(spec.zero_shot.methods) or list(spec.methods)
         pairing = spec.zero_shot.pairs
-        n = sum(
-            len(stitch_pairs(spec, m, pairing)) * (1 + len(spec.zero_shot.translations(m))) for m in methods
-        )
-        # each trial evaluates its pair and up to three controls (ps_ray.stitching.stitch.controls)
-        steps = (
-            n * (1 + len(CONTROL_ROLES)) * spec.zero_shot.episodes * spec.zero_shot.repeats * EPISODE_STEPS
-        )
+        found = {m: stitch_pairs(spec, m, pairing) for m in methods}
+        n = sum(len(found[m]) * (1 + len(spec.zero_shot.translations(m))) for m in methods)
+        # each trial evaluates its pair and up to three controls (ps_ray.stitching.stitch.controls);
+        # chance, once per target env (the task source's task on the robot source's robot)
+        targets = {(r.robot, t.task) for pairs in found.values() for t, r in pairs}
+        evaluations = n * (1 + len(CONTROL_ROLES)) + len(targets) * len(CHANCE_POLICIES)
+        steps = evaluations * spec.zero_shot.episodes * spec.zero_shot.repeats * EPISODE_STEPS
         batches = len(spec.zero_shot.batch_sizes(n, spec.max_concurrent))  # trials of several pairs
         loads.append(StageLoad("zero_shot", [None] * batches, 0, 0, steps))
     if "few_shot" in spec.stages:

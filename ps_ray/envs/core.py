@@ -128,6 +128,15 @@ class RobotTaskEnv(gym.Env[Obs, np.ndarray]):
     def close(self) -> None:
         self.sim.close()
 
+    # -- for scripted policies (the chance-level control, ps_ray.stitching.chance) ---------------
+    def target_region(self) -> tuple[np.ndarray, np.ndarray]:
+        """The box (world frame, low and high corners) the task draws its targets from."""
+        return self.task.target_region()
+
+    def action_toward(self, point: np.ndarray) -> np.ndarray:
+        """An action that moves the end effector toward a world point (inverse kinematics)."""
+        return self.robot.action_toward(point)
+
     # -- internals ----------------------------------------------------------------------------
     def _observe(self) -> tuple[Obs, np.float32]:
         self._ee = self.robot.ee_position()

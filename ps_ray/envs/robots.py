@@ -185,6 +185,19 @@ class Panda:
             physicsClientId=self.sim.client,
         )
 
+    def action_toward(self, point: np.ndarray) -> np.ndarray:
+        """The action that moves the end effector toward a world point: each free joint's step to
+        PyBullet's inverse-kinematics solution from the current pose, clipped to [-1, 1]; the
+        fingers hold. Reading the pose and solving move nothing."""
+        solution = p.calculateInverseKinematics(
+            self.body, EE_LINK, [float(x) for x in point], maxNumIterations=50, physicsClientId=self.sim.client
+        )
+        now = self._positions()
+        action = np.zeros(self.action_dim)
+        n = len(self._free)  # IK answers every movable joint in control order: free arm joints first
+        action[:n] = (np.asarray(solution[:n]) - np.asarray(now[:n])) / ARM_STEP
+        return np.clip(action, -1.0, 1.0)
+
     def ee_position(self) -> np.ndarray:
         return np.array(
             p.getLinkState(

@@ -4,7 +4,9 @@ Every valid (task module, robot module) pair of each method (see `stitch.combos`
 with ``zero_shot.pairs``, across seeds, is stitched, evaluated on fixed seeds (episodes x
 repeats), then the pair's controls are evaluated as they are on the same episodes (its robot source, its
 task source, the oracle: `stitch.controls`, docs/transfer.md), so that every method and control is
-scored on identical episodes. The table, one row per pair (its record, :meth:`StitchedPair.to_row`:
+scored on identical episodes; beside them, the chance level of the target env on those episodes
+(:mod:`ps_ray.stitching.chance`: a policy with no task knowledge, measured once per target env
+before the trials start). The table, one row per pair (its record, :meth:`StitchedPair.to_row`:
 the sources' and controls' keys and files) with its controls' figures and transfer gain, goes to
 <sweep>/zero_shot.csv, and to MLflow (stage zero_shot, one run per pair). Pairs run in
 batches (``zero_shot.pairs_per_trial`` per Tune trial), so that a trial's start is paid once per
@@ -35,8 +37,15 @@ RESULT_KEYS = (
     "contact_mean",
     "episodes_per_s",
 )
-# each control's success on the pair's episodes (ps_ray.stitching.stitch.controls), and the gain over them
-CONTROL_KEYS = (*(f"{role}_success" for role in CONTROL_ROLES), "best_unstitched", "transfer_gain")
+# each control's success on the pair's episodes (ps_ray.stitching.stitch.controls), chance on them,
+# the better unstitched source, the best of those and chance, and the gain over that best
+CONTROL_KEYS = (
+    *(f"{role}_success" for role in CONTROL_ROLES),
+    "chance_success",
+    "best_unstitched",
+    "best_control",
+    "transfer_gain",
+)
 
 
 def fit_states(tasks: list, per_quadrant: int, seed: int) -> np.ndarray:
@@ -90,13 +99,42 @@ def zero_shot_trial(config: dict[str, Any]) -> None:
 
     batch = config["batch"]
     for i, pair in enumerate(map(StitchedPair.from_dict, batch)):
-        metrics = evaluate_pair(pair, config["eval"], config["fit_states_per_quadrant"], source)
+        chance = config["chance"][target_key(pair)]
+        metrics = evaluate_pair(pair, config["eval"], config["fit_states_per_quadrant"], source, chance)
         tune.report({**metrics, PAIR_KEY: pair.key, **({FINISHED: True} if i == len(batch) - 1 else {})})
 
 
-def evaluate_pair(pair: StitchedPair, settings: dict[str, Any], per_quadrant: int, source) -> dict:
+def target_key(pair: StitchedPair) -> str:
+    """The pair's target env, as the chance figures are keyed."""
+    return f"{pair.robot.text} {pair.task.text}"
+
+
+def chance_levels(trials: list[StitchedPair], settings: dict[str, Any], progress: bool) -> dict[str, dict]:
+    """The chance control (:func:`ps_ray.stitching.chance.chance`) of every target env the pairs
+    run on, on the stage's episodes: it depends on nothing else, so it is measured once."""
+    from ps_ray.stitching.chance import chance
+
+    levels = {}
+    for pair in trials:
+        key = target_key(pair)
+        if key not in levels:
+            levels[key] = chance(pair.robot, pair.task, settings)
+            if progress:
+                found = levels[key]
+                print(
+                    f"[zero_shot] chance on {pair.task.short}/{pair.robot.short}: "
+                    f"{found['chance_success']:.3f} ({found['chance_policy']})",
+                    flush=True,
+                )
+    return levels
+
+
+def evaluate_pair(
+    pair: StitchedPair, settings: dict[str, Any], per_quadrant: int, source, chance: dict[str, Any]
+) -> dict:
     """Stitch one pair (translated, if the pair says so), evaluate it, then each of its controls
-    as it is, all on the stage's fixed episodes; ``source(path)`` gives a loaded policy file."""
+    as it is, all on the stage's fixed episodes; ``source(path)`` gives a loaded policy file,
+    ``chance`` the chance level of the pair's target env on those episodes (:func:`chance_levels`)."""
     from ps_ray.evaluate import evaluate
     from ps_ray.stitching.stitch import stitch_policies
 
@@ -115,15 +153,28 @@ def evaluate_pair(pair: StitchedPair, settings: dict[str, Any], per_quadrant: in
         if unstitched["episodes_digest"] != result["episodes_digest"]:  # a bug, never bad input
             raise RuntimeError(f"{pair.key}: its {role} control ran on other episodes")
         metrics[f"{role}_success"] = unstitched["success_mean"]
+    if chance["episodes_digest"] != result["episodes_digest"]:  # a bug, never bad input
+        raise RuntimeError(f"{pair.key}: its chance level was measured on other episodes")
+    metrics["chance_success"] = chance["chance_success"]
     return {**metrics, **gain(metrics)}
 
 
 def gain(metrics: dict[str, Any]) -> dict[str, float]:
-    """``best_unstitched`` (the better of the two unstitched controls that apply) and
-    ``transfer_gain`` (stitched success minus it); NaN when neither applies."""
-    unstitched = [metrics.get(f"{role}_success") for role in ("robot_source", "task_source")]
-    best = max((v for v in unstitched if v is not None and v == v), default=np.nan)
-    return {"best_unstitched": best, "transfer_gain": metrics["success_mean"] - best}
+    """``best_unstitched`` (the better of the two unstitched controls that apply), ``best_control``
+    (the best of those and chance) and ``transfer_gain`` (stitched success minus ``best_control``);
+    NaN when none applies."""
+
+    def best(keys) -> float:
+        values = [metrics.get(f"{key}_success") for key in keys]
+        return max((v for v in values if v is not None and v == v), default=np.nan)
+
+    unstitched = best(("robot_source", "task_source"))
+    control = best(("robot_source", "task_source", "chance"))
+    return {
+        "best_unstitched": unstitched,
+        "best_control": control,
+        "transfer_gain": metrics["success_mean"] - control,
+    }
 
 
 def run_zero_shot(
@@ -153,6 +204,8 @@ def run_zero_shot(
     done = rows_naming(folder, PAIR_KEY) if resume else {}
     todo = [pair.to_dict() for pair in trials if pair.key not in done]
     evaluated = {"episodes": settings.episodes, "repeats": settings.repeats}
+    episodes = {"episodes": settings.episodes, "repeats": settings.repeats, "seed": settings.seed}
+    chance = chance_levels(trials, episodes, progress)
     tracking_uri, experiment_id = connect(spec)
     callback = RowRunsCallback(
         tracking_uri,
@@ -181,7 +234,8 @@ def run_zero_shot(
         max_failures=spec.max_failures,
         resources=spec.resources.zero_shot,
         constants={
-            "eval": {"episodes": settings.episodes, "repeats": settings.repeats, "seed": settings.seed},
+            "eval": episodes,
+            "chance": chance,
             "fit_states_per_quadrant": settings.fit_states_per_quadrant,
         },
     )
@@ -211,7 +265,7 @@ def table_of(results: list[tuple[StitchedPair, dict[str, Any]]], root: Path | No
     """One row per stitched pair from (pair, metrics), in the given (the matrix's) order: the
     pair's record (:meth:`StitchedPair.to_row`: its sources' and controls' keys and files), its
     success and touching, each control's success (``<role>_success``, NaN where the role does not
-    apply), ``best_unstitched`` and ``transfer_gain``."""
+    apply), ``chance_success``, ``best_unstitched``, ``best_control`` and ``transfer_gain``."""
     keys = (*RESULT_KEYS, *CONTROL_KEYS)
     return pd.DataFrame(
         [{**pair.to_row(root), **{k: metrics.get(k, np.nan) for k in keys}} for pair, metrics in results]
@@ -228,6 +282,7 @@ def summary(table: pd.DataFrame) -> pd.DataFrame:
             "success": grouped["success_mean"].mean(),
             "touching": grouped["touching_mean"].mean(),
             "best unstitched": grouped["best_unstitched"].mean(),
+            "chance": grouped["chance_success"].mean(),
             "oracle": grouped["oracle_success"].mean(),
             "transfer gain": grouped["transfer_gain"].mean(),
         }

@@ -78,6 +78,11 @@ class Task(ABC):
         self.sim.move(self._marker, self.target_position)
 
     @abstractmethod
+    def target_region(self) -> tuple[np.ndarray, np.ndarray]:
+        """The axis-aligned box (world frame: low and high corners) that holds every target this
+        task draws: what a policy that knows the task's kind but not its meaning aims at."""
+
+    @abstractmethod
     def _reset(self, rng: np.random.Generator) -> None:
         """Sample ``self.goal`` and (re-)create the moving bodies."""
 

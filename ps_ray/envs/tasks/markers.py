@@ -80,6 +80,10 @@ class Markers(Task):
         """Where the end effector must go: the named marker plus the desired offset."""
         return self.positions[self.options.target] + self.goal
 
+    def target_region(self) -> tuple[np.ndarray, np.ndarray]:
+        """The marker box: every marker, the named one too, is drawn in it."""
+        return np.asarray(self.options.marker_low, float), np.asarray(self.options.marker_high, float)
+
     def _reset(self, rng: np.random.Generator) -> None:
         o = self.options
         placed: list[np.ndarray] = []

@@ -43,6 +43,13 @@ class ObjectTask(Task):
             return p.GEOM_BOX, tuple(self.options.object_half_extents)
         return super()._marker_shape()
 
+    def target_region(self) -> tuple[np.ndarray, np.ndarray]:
+        o, z = self.options, self.options.object_half_extents[2]
+        return (
+            np.array([-o.goal_xy_range / 2, -o.goal_xy_range / 2, z]),
+            np.array([o.goal_xy_range / 2, o.goal_xy_range / 2, z + o.goal_z_range]),
+        )
+
     def _reset(self, rng: np.random.Generator) -> None:
         o = self.options
         half = np.asarray(o.object_half_extents, dtype=float)

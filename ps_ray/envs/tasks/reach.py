@@ -62,6 +62,12 @@ class Reach(Task):
         super().__init__(sim, options)
         self._region = resolve_region(options.goal_region)
 
+    def target_region(self) -> tuple[np.ndarray, np.ndarray]:
+        if self._region is None:
+            return np.asarray(self.options.goal_low, float), np.asarray(self.options.goal_high, float)
+        center, radius = self._region  # the disc's bounding box
+        return center - (radius, radius, 0.0), center + (radius, radius, 0.0)
+
     def _reset(self, rng: np.random.Generator) -> None:
         o = self.options
         if self._region is None:

@@ -1,0 +1,53 @@
+"""The chance-level control (ps_ray.stitching.chance): policies with no task knowledge, scored on
+the pair's own episodes, that still move the target robot on purpose."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from ps_ray.envs import make
+from ps_ray.evaluate import evaluate
+from ps_ray.stitching.chance import RandomPoint, chance
+
+EPISODES = {"episodes": 30, "repeats": 1, "seed": 7}
+
+
+@pytest.mark.parametrize("robot", ["panda", "panda_far"])
+def test_the_arm_reaches_a_named_point_by_inverse_kinematics(robot):
+    """What the random-point policy relies on: aimed at the env's own target, it reaches it."""
+    env = make(robot, "reach_red")
+    wins = []
+    for seed in range(3):
+        env.reset(seed=seed)
+        for _ in range(50):
+            _, _, _, _, info = env.step(env.action_toward(env.task.target_position))
+        wins.append(info["is_success"])
+    env.close()
+    assert wins == [True] * 3
+
+
+def test_random_points_lie_in_the_task_s_target_region_and_follow_the_episode_seed():
+    env = make("panda", "reach_red")
+    low, high = env.target_region()
+    np.testing.assert_array_equal(low, env.task.options.marker_low)
+    policy, again = RandomPoint(), RandomPoint()
+    policy.begin([env] * 50, list(range(50)))
+    again.begin([env] * 50, list(range(50)))
+    points = np.stack(policy.points)
+    assert ((points >= low) & (points <= high)).all()
+    np.testing.assert_array_equal(points, np.stack(again.points))
+    assert len(np.unique(points.round(6), axis=0)) == 50
+    env.close()
+
+
+def test_chance_on_the_marker_family_is_scored_on_the_pair_s_episodes():
+    """On the pair's episodes (same digest as any policy's evaluation with those settings), the
+    best of the two chance policies; a random point in the marker box reaches the named marker
+    now and then (about 8% of the time over many episodes), never as a trained policy does."""
+    found = chance("panda", "reach_blue", EPISODES)
+    other = evaluate(lambda obs: np.zeros((len(obs["robot_state"]), 7)), "panda", "reach_blue", **EPISODES)
+    assert found["episodes_digest"] == other["episodes_digest"]
+    assert found["chance_success"] == max(found["random_point_success"], found["random_actions_success"])
+    assert found["chance_policy"] in ("random_point", "random_actions")
+    assert found["random_point_success"] <= 0.25 and found["random_actions_success"] <= 0.25

@@ -119,8 +119,8 @@ def summary_section(report: Report, spec: SweepSpec, target: float) -> None:
         "Summary",
         budget + "Zero-shot: stitched pairs in their target env, no "
         "training; 95% t intervals over per-seed means (fewer than two seeds: n/a). Transfer gain: "
-        "stitched success minus the best of the unstitched sources and chance on the same episodes. MRR: retrieval of "
-        "the same probe state across networks (1 = perfect; chance with "
+        "stitched success minus the best of the unstitched sources and chance on the same episodes. "
+        "MRR: retrieval of the same probe state across networks (1 = perfect; chance with "
         f"{probes} probes: {chance_mrr(probes):.3f}; a collapsed interface cannot score).",
     )
     frame = pd.DataFrame.from_dict(rows, orient="index").fillna("–")

@@ -190,7 +190,11 @@ class Panda:
         PyBullet's inverse-kinematics solution from the current pose, clipped to [-1, 1]; the
         fingers hold. Reading the pose and solving move nothing."""
         solution = p.calculateInverseKinematics(
-            self.body, EE_LINK, [float(x) for x in point], maxNumIterations=50, physicsClientId=self.sim.client
+            self.body,
+            EE_LINK,
+            [float(x) for x in point],
+            maxNumIterations=50,
+            physicsClientId=self.sim.client,
         )
         now = self._positions()
         action = np.zeros(self.action_dim)

@@ -30,7 +30,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from ps_ray.envs import make
+from ps_ray.envs import make, task_input
 from ps_ray.errors import UserError
 from ps_ray.names import EnvPart
 from ps_ray.nets.modular import Actor, NetDims
@@ -54,6 +54,8 @@ class EpisodeRecord:
     initially_successful: bool
     goal: tuple[float, ...]  # desired goal at reset
     start: tuple[float, ...]  # achieved goal at reset (the object; the end effector for reach)
+    task_input: tuple[float, ...]  # the task module's input at reset (task state, then goal)
+    end_effector: tuple[float, ...]  # the end effector's final position (world frame)
 
 
 # -- the policy -----------------------------------------------------------------------------------
@@ -159,6 +161,8 @@ def _run_batch(
             bool(info["initially_successful"]),
             tuple(map(float, o["desired_goal"])),
             tuple(map(float, o["achieved_goal"])),
+            tuple(map(float, task_input(o))),
+            tuple(map(float, envs[i].ee_position)),
         )
         for i, (s, (o, info)) in enumerate(zip(seeds, resets))
     ]

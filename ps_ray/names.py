@@ -12,12 +12,27 @@ from typing import Any
 from ps_ray.defaults import INTERFACE_DIM
 from ps_ray.errors import UserError
 
-# The unstitched controls and the oracle scored beside every stitched pair (ps_ray.stitching.stitch.controls)
 # The latent translations a stitch may fit (ps_ray.nets.translation), by name.
 TRANSLATIONS = ("orthogonal", "affine")
+# What a translation is fitted on, other than the same task states through both task modules
+# (ps_ray.stitching.outcomes): scenes matched by the outcome of each task's own policy, the same
+# pairs shuffled (a control), or the known correspondence of the marker family (an upper bound).
+# Spelt "<translation>@<fit>", e.g. "affine@outcome".
+TRANSLATION_FITS = ("outcome", "shuffled", "swapped")
+# The unstitched controls and the oracle scored beside every stitched pair (ps_ray.stitching.stitch.controls)
 CONTROL_ROLES = ("robot_source", "task_source", "oracle")
 # The desired goals of anchor states (ps_ray.data.collect): their own, or hindsight-relabelled.
 ANCHOR_GOALS = ("real", "relabelled")
+
+
+def split_translation(name: str) -> tuple[str, str]:
+    """``"affine@outcome"`` -> ``("affine", "outcome")``; ``"affine"`` -> ``("affine", "")``;
+    UserError naming the valid choices for anything else."""
+    kind, _, fit = name.partition("@")
+    if kind not in TRANSLATIONS or fit not in ("", *TRANSLATION_FITS):
+        choices = [*TRANSLATIONS, *(f"{k}@{f}" for k in TRANSLATIONS for f in TRANSLATION_FITS)]
+        raise UserError(f"unknown translation {name!r}; valid: {', '.join(choices)}")
+    return kind, fit
 
 
 class EnvPart(Mapping[str, Any]):

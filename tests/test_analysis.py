@@ -212,3 +212,34 @@ def test_transfer_table_pairs_each_stitched_cell_with_its_controls():
     assert met["unstitched fail"] and met["oracle learns"]
     shown = transfer_text(transfer_numbers(table))
     assert shown.iloc[0]["transfer gain (paired over seeds)"].endswith("p 0.25, 3/3 seeds up")
+
+
+def test_few_shot_table_pairs_each_start_with_scratch_on_steps_and_area():
+    """Per start: env steps to 0.8 and the area under the success curve, each paired with scratch
+    on the same target and seed; a run that never reaches 0.8 counts at its last step."""
+    from ps_ray.analysis.transfer import curve_area, few_shot_steps
+
+    rows = []
+    for seed in (1, 2, 3):
+        for kind, curve in (
+            ("stitched", [0.5, 0.9, 1.0, 1.0]),
+            ("robot_module", [0.0, 0.2, 0.8, 1.0]),
+            ("scratch", [0.0, 0.0, 0.4, 0.6]),
+        ):
+            for step, success in zip((1000, 2000, 3000, 4000), curve):
+                rows.append(
+                    {"run": f"{kind}/{seed}", "kind": kind, "method": "ablation", "robot": "panda"}
+                    | {"task": "reach_red", "seed": seed, "env_steps": step, "success": success}
+                )
+    curves = pd.DataFrame(rows)
+    assert curve_area(curves[curves["run"] == "stitched/1"]) == pytest.approx(
+        (0.7 + 0.95 + 1.0) * 1000 / 3000
+    )
+    table = few_shot_steps(curves, 0.8)
+    stitched, half, scratch = (table.loc[(k, "ablation")] for k in ("stitched", "robot_module", "scratch"))
+    assert stitched["reached 0.8"] == "3/3" and scratch["reached 0.8"] == "0/3"
+    assert stitched["env steps to 0.8 [95% CI]"].startswith("2000")
+    assert scratch["env steps to 0.8 [95% CI]"].startswith("4000")  # never reached: its last step
+    assert stitched["env steps to 0.8: minus scratch (paired over seeds)"].startswith("-2000")
+    assert half["area under curve: minus scratch (paired over seeds)"].startswith("+0.27")
+    assert scratch["area under curve: minus scratch (paired over seeds)"] == "–"

@@ -52,7 +52,7 @@ def reference_rollouts(seeds: list[int]) -> list[tuple[bool, bool, bool]]:
 def record(
     repeat: int, success: bool, touched: bool, initially: bool, contact: bool = False
 ) -> EpisodeRecord:
-    return EpisodeRecord(repeat, 0, success, touched, contact, initially, (0.0,) * 3, (0.0,) * 3)
+    return EpisodeRecord(repeat, 0, success, touched, contact, initially, *((0.0,) * 3,) * 4)
 
 
 def test_summary_excludes_initially_successful_episodes_from_touching():

@@ -697,3 +697,34 @@ def test_a_signature_claiming_huge_nets_is_refused_before_they_are_built(tmp_pat
     done = subprocess.run(argv, capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr[-2000:]
     assert done.stdout.startswith(f"{path}: tensors do not match the signature"), done.stdout
+
+
+@pytest.mark.parametrize("method", ["ps", "ablation", "ps_distilled"])
+def test_a_half_stitch_keeps_one_half_bit_for_bit_and_starts_the_other_fresh(method):
+    """Few-shot's halves: the kept half is its source's module (weights and normaliser statistics),
+    the other half is what a fresh build from the pair's seed holds (empty statistics, the
+    target task's anchors), and the fresh half follows the seed."""
+    from ps_ray.stitching.halves import half_stitch
+
+    task_from, robot_from = make_nets(method, seed=1), make_nets(method, seed=2)
+    keeps_robot = half_stitch(task_from, robot_from, "robot_module", seed=5)[0]
+    keeps_task, signature = half_stitch(task_from, robot_from, "task_module", seed=5)
+    assert signature == check_stitchable(task_from[1], robot_from[1])
+    for name in NET_NAMES:
+        kept_r, kept_t = getattr(keeps_robot, name), getattr(keeps_task, name)
+        for key, value in getattr(robot_from[0], name).robot.state_dict().items():
+            assert torch.equal(kept_r.robot.state_dict()[key], value), (name, key)
+        for key, value in getattr(task_from[0], name).task.state_dict().items():
+            assert torch.equal(kept_t.task.state_dict()[key], value), (name, key)
+        for norm in (m for m in (kept_r.task, kept_t.robot) for m in m.modules()):
+            if hasattr(norm, "count") and hasattr(norm, "clip"):
+                assert norm.count.item() == 0  # a fresh half's normaliser has seen nothing
+    if uses_anchors(method):
+        assert torch.equal(keeps_robot.actor.anchors, task_from[0].actor.anchors)
+    same = half_stitch(task_from, robot_from, "robot_module", seed=5)[0]
+    other = half_stitch(task_from, robot_from, "robot_module", seed=6)[0]
+    first = next(keeps_robot.actor.task.parameters())
+    assert torch.equal(next(same.actor.task.parameters()), first)
+    assert not torch.equal(next(other.actor.task.parameters()), first)
+    with pytest.raises(ValueError, match="keep must be one of"):
+        half_stitch(task_from, robot_from, "both", seed=5)

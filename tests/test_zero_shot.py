@@ -8,6 +8,7 @@ from pathlib import Path
 import mlflow
 import pandas as pd
 import pytest
+import torch
 import yaml
 
 from ps_ray.pipeline.few_shot import curves, run_few_shot
@@ -15,7 +16,7 @@ from ps_ray.pipeline.sweep import run_sweep, sweep_dir
 from ps_ray.pipeline.zero_shot import run_zero_shot, summary
 from ps_ray.specs.sweep import load_sweep
 from ps_ray.stitching.pairs import pairs, pairs_from_table
-from ps_ray.weights import read_signature
+from ps_ray.weights import load_policy, read_signature
 
 
 @pytest.fixture(scope="module")
@@ -172,15 +173,31 @@ def test_a_sweep_with_a_damaged_policy_file_is_refused_before_any_trial_starts(t
 def test_few_shot_trials_start_from_stitched_weights_beside_unstitched_and_scratch_runs(trained_matrix):
     spec = trained_matrix
     results = run_few_shot(
-        spec, env_steps=300, collect_steps=200, max_pairs=1, critic_warmup_updates=20, progress=False
+        spec,
+        env_steps=300,
+        collect_steps=200,
+        max_pairs=1,
+        critic_warmup_updates=20,
+        halves=True,
+        progress=False,
     )
     assert not any(r.error for r in results)
     by_kind = {r.config["trial"]["kind"]: r.config["trial"] for r in results}
-    assert sorted(by_kind) == ["scratch", "stitched", "unstitched"]
+    assert sorted(by_kind) == ["robot_module", "scratch", "stitched", "task_module", "unstitched"]
     first = pairs(spec)[0]
     start = by_kind["stitched"]["spec"]["init_policy"]
     assert start and Path(start).exists()
     assert read_signature(start)[1]["task_from"] == first.task_from
+    # the halves: one module of the pair kept as it is, the other fresh, in the same target env
+    stitched = load_policy(start)[0].actor
+    for kind, kept, fresh in (("robot_module", "robot", "task"), ("task_module", "task", "robot")):
+        trial = by_kind[kind]
+        assert trial["spec"]["task"] == by_kind["stitched"]["spec"]["task"]
+        assert read_signature(trial["spec"]["init_policy"])[1]["start"] == kind
+        half = load_policy(trial["spec"]["init_policy"])[0].actor
+        ours, theirs = getattr(half, kept).state_dict(), getattr(stitched, kept).state_dict()
+        assert all(torch.equal(ours[k], theirs[k]) for k in theirs)
+        assert not torch.equal(*(next(getattr(a, fresh).parameters()) for a in (half, stitched)))
     # the unstitched start is the pair's robot source as it is, in the same target env
     assert by_kind["unstitched"]["spec"]["init_policy"] == first.robot_from_path
     assert by_kind["unstitched"]["spec"]["task"] == by_kind["stitched"]["spec"]["task"]

@@ -343,7 +343,10 @@ def _few_shot(report: Report, root: Path, say) -> None:
         "Few-shot fine-tuning",
         "Stitched policies fine-tuned in their target env (after a collection phase without updates, "
         "then critic-only updates with the actor frozen) beside each pair's robot source fine-tuned "
-        "as it is (unstitched) and the same env trained from scratch: greedy success vs env steps.",
+        "as it is (unstitched) and the same env trained from scratch: greedy success vs env steps. "
+        "Where the sweep asks for the halves (few_shot.halves): the pair's robot module under a "
+        "fresh task module (robot_module) and its task module over a fresh robot module "
+        "(task_module).",
     )
     frame["target"] = frame["robot"] + " / " + frame["task"]
     frame["line"] = frame["kind"] + ": " + frame["method"]

@@ -96,11 +96,21 @@ def controls_met(numbers: pd.DataFrame, unstitched_max: float = 0.1, oracle_min:
     )
 
 
+def curve_area(part: pd.DataFrame) -> float:
+    """The area under one run's greedy-success curve over the env steps it spans, divided by that
+    span: its mean success over the budget (1 = solved from the first evaluation on)."""
+    part = part.sort_values("env_steps")
+    steps, success = part["env_steps"].to_numpy(float), part["success"].to_numpy(float)
+    span = steps[-1] - steps[0]
+    return float(success[0]) if span <= 0 else float(np.trapezoid(success, steps) / span)
+
+
 def few_shot_steps(curves: pd.DataFrame, threshold: float = 0.8) -> pd.DataFrame:
-    """Env steps to ``threshold`` greedy success per start kind (stitched, unstitched, scratch) and
-    method: mean over runs (a run that never got there counts at its last step, so the mean is a
-    lower bound) with a t interval over seeds, runs that reached it, and each kind's paired
-    difference from scratch on the same target env and seed."""
+    """Per start kind (stitched, its halves, unstitched, scratch) and method: env steps to
+    ``threshold`` greedy success (mean over runs; a run that never got there counts at its last
+    step, so the mean is a lower bound) and the area under the success curve (its mean success
+    over the budget), each with a t interval over seeds and its paired difference from scratch on
+    the same target env and seed; and the runs that reached the threshold."""
     from ps_ray.analysis.tables import steps_to_target
 
     per_run = []
@@ -108,6 +118,8 @@ def few_shot_steps(curves: pd.DataFrame, threshold: float = 0.8) -> pd.DataFrame
         steps = steps_to_target(part, threshold).merge(
             part[["run", "robot", "task"]].drop_duplicates("run"), on="run"
         )
+        areas = part.groupby("run").apply(curve_area, include_groups=False).rename("area")
+        steps = steps.merge(areas, left_on="run", right_index=True)
         steps["kind"] = kind
         steps["censored"] = steps["steps"].isna()
         steps["steps"] = steps["steps"].fillna(steps["last_step"])
@@ -115,24 +127,27 @@ def few_shot_steps(curves: pd.DataFrame, threshold: float = 0.8) -> pd.DataFrame
     if not per_run:
         return pd.DataFrame()
     runs = pd.concat(per_run, ignore_index=True)
-    cell = runs.groupby(["kind", "method", "robot", "task", "seed"], as_index=False)["steps"].mean()
+    cell = runs.groupby(["kind", "method", "robot", "task", "seed"], as_index=False)[["steps", "area"]].mean()
     rows = []
     for (kind, method), part in cell.groupby(["kind", "method"], sort=False):
-        e = estimate(part["steps"].to_numpy(), part["seed"].to_numpy())
         mine = runs[(runs["kind"] == kind) & (runs["method"] == method)]
         row = {
             "start": kind,
             "method": method,
             "runs": len(mine),
             f"reached {threshold}": f"{int((~mine['censored']).sum())}/{len(mine)}",
-            f"env steps to {threshold} [95% CI]": e.text(digits=0),
         }
         scratch = cell[(cell["kind"] == "scratch") & (cell["method"] == method)]
         both = part.merge(scratch, on=["robot", "task", "seed"], suffixes=("", "_scratch"))
-        if kind != "scratch" and len(both):
-            row["minus scratch (paired over seeds)"] = paired(
-                both["steps"], both["steps_scratch"], both["seed"]
-            ).text(digits=0)
+        for column, name, digits in (
+            ("steps", f"env steps to {threshold}", 0),
+            ("area", "area under curve", 2),
+        ):
+            e = estimate(part[column].to_numpy(), part["seed"].to_numpy())
+            row[f"{name} [95% CI]"] = e.text(digits=digits)
+            if kind != "scratch" and len(both):
+                diff = paired(both[column], both[f"{column}_scratch"], both["seed"])
+                row[f"{name}: minus scratch (paired over seeds)"] = diff.text(digits=digits)
         rows.append(row)
     return pd.DataFrame(rows).set_index(["start", "method"]).fillna("–")
 
@@ -140,6 +155,7 @@ def few_shot_steps(curves: pd.DataFrame, threshold: float = 0.8) -> pd.DataFrame
 __all__ = [
     "CONTROL_ROLES",
     "controls_met",
+    "curve_area",
     "few_shot_steps",
     "has_controls",
     "transfer_numbers",

@@ -78,8 +78,19 @@ def workload(spec: SweepSpec) -> list[StageLoad]:
         # each trial evaluates its pair and up to three controls (ps_ray.stitching.stitch.controls);
         # chance, once per target env (the task source's task on the robot source's robot)
         targets = {(r.robot, t.task) for pairs in found.values() for t, r in pairs}
-        evaluations = n * (1 + len(CONTROL_ROLES)) + len(targets) * len(CHANCE_POLICIES)
+        # (a pair's translated stitches share its controls' evaluations)
+        base = sum(len(pairs) for pairs in found.values())
+        evaluations = n + base * len(CONTROL_ROLES) + len(targets) * len(CHANCE_POLICIES)
         steps = evaluations * spec.zero_shot.episodes * spec.zero_shot.repeats * EPISODE_STEPS
+        # a translation fitted on matched pairs rolls each source out once (ps_ray.stitching.outcomes)
+        matched = {
+            src
+            for m in methods
+            if any("@" in k for k in spec.zero_shot.translations(m))
+            for pair in found[m]
+            for src in pair
+        }
+        steps += len(matched) * spec.zero_shot.outcome_scenes * EPISODE_STEPS
         batches = len(spec.zero_shot.batch_sizes(n, spec.max_concurrent))  # trials of several pairs
         loads.append(StageLoad("zero_shot", [None] * batches, 0, 0, steps))
     if "few_shot" in spec.stages:
@@ -106,6 +117,8 @@ def workload(spec: SweepSpec) -> list[StageLoad]:
                     }
                 )
                 runs.append(run)  # fine-tuning a stitched start
+                if few.halves:  # and each half of it beside a fresh other half
+                    runs += [run, run]
                 key = json.dumps(run.to_dict(), sort_keys=True, default=str)
                 targets.setdefault(key, run)
                 if few.unstitched and task_input_dim(r.task) == task_input_dim(t.task):

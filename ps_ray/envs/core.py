@@ -137,6 +137,12 @@ class RobotTaskEnv(gym.Env[Obs, np.ndarray]):
         """An action that moves the end effector toward a world point (inverse kinematics)."""
         return self.robot.action_toward(point)
 
+    @property
+    def ee_position(self) -> np.ndarray:
+        """The end effector's position (world frame) at the last observation: where a policy
+        went, read without the task's target (outcome matching, ps_ray.stitching.outcomes)."""
+        return self._ee.copy()
+
     # -- internals ----------------------------------------------------------------------------
     def _observe(self) -> tuple[Obs, np.float32]:
         self._ee = self.robot.ee_position()

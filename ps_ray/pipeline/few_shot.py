@@ -5,7 +5,9 @@ For each stitched pair of one seed without a translation, of the methods named (
 :func:`ps_ray.stitching.pairs.evaluated_pairs`), the stitched actor, critics and target critics
 are saved and a training trial starts from them: first `collect_steps` of data collection
 without updates (the paper: 10 epochs), then training. The same target env trained
-from scratch runs beside it, so MLflow holds both learning curves (success vs env steps).
+from scratch runs beside it, so MLflow holds both learning curves (success vs env steps), and,
+with ``few_shot.halves``, each half of the stitch beside a fresh other half
+(:mod:`ps_ray.stitching.halves`), which takes the stitched start's head start apart.
 """
 
 from __future__ import annotations
@@ -13,6 +15,7 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 from collections import Counter
+from pathlib import Path
 from typing import Any
 
 from ps_ray.errors import UserError
@@ -40,21 +43,17 @@ def selected_pairs(spec: SweepSpec, settings: FewShotSpec) -> list[StitchedPair]
 
 
 def few_shot_trials(spec: SweepSpec, settings: FewShotSpec) -> list[dict[str, Any]]:
-    """Trial configs for `sweep_trial`: stitched starts (:func:`selected_pairs`), each pair's
-    robot source fine-tuned as it is (unstitched), and from-scratch baselines. Starts from
+    """Trial configs for `sweep_trial`: stitched starts (:func:`selected_pairs`), with
+    ``halves`` each half of the stitch beside a fresh other half, each pair's robot source
+    fine-tuned as it is (unstitched), and from-scratch baselines. Starts from
     trained weights fit their critics alone for ``critic_warmup_updates`` updates first."""
-    from ps_ray.stitching.stitch import stitch_policies
-    from ps_ray.weights import save_policy
+    from ps_ray.stitching.halves import HALVES
+    from ps_ray.weights import read_signature
 
     trials, targets, seen = [], {}, set()
     for pair in selected_pairs(spec, settings):
-        nets, signature = stitch_policies(pair.task_from_path, pair.robot_from_path)
-        digest = hashlib.sha256(f"{pair.task_from}|{pair.robot_from}".encode()).hexdigest()
-        path = layout(spec).stitched / f"{digest[:16]}.safetensors"
-        if not path.exists():  # a resumed stage keeps the files its trials started from
-            save_policy(
-                path, nets, signature, extra={"task_from": pair.task_from, "robot_from": pair.robot_from}
-            )
+        path = _start_file(spec, pair, "stitched")
+        signature = read_signature(path)[0]
         base = TrainSpec.from_mapping(
             {
                 **dict(spec.train),
@@ -79,6 +78,19 @@ def few_shot_trials(spec: SweepSpec, settings: FewShotSpec) -> list[dict[str, An
                 "kind": "stitched",
             }
         )
+        for kind in HALVES if settings.halves else ():  # one half of the stitch, the other fresh
+            start = TrainSpec.from_mapping(
+                {**base.to_dict(), **warm, "init_policy": str(_start_file(spec, pair, kind))}
+            )
+            trials.append(
+                {
+                    "spec": start.to_dict(),
+                    "anchors": None,
+                    "key": f"{kind}/{pair.label}/{trial_key(base.to_dict())}",
+                    "label": pair.label,
+                    "kind": kind,
+                }
+            )
         own = pair.controls.get("robot_source")
         if settings.unstitched and own is not None:  # the robot source as it is, fine-tuned
             unstitched = TrainSpec.from_mapping({**base.to_dict(), **warm, "init_policy": own.path})
@@ -107,6 +119,26 @@ def few_shot_trials(spec: SweepSpec, settings: FewShotSpec) -> list[dict[str, An
             for key, base in targets.items()
         ]
     return trials
+
+
+def _start_file(spec: SweepSpec, pair: StitchedPair, kind: str) -> Path:
+    """The policy file a start of the pair begins from: its stitch, or (``kind`` one of
+    :data:`HALVES`) the stitch with one half fresh, drawn from the pair's seed; written once, so a
+    resumed stage keeps the files its trials started from."""
+    from ps_ray.stitching.halves import half_stitch
+    from ps_ray.stitching.stitch import stitch_policies
+    from ps_ray.weights import save_policy
+
+    name = f"{pair.task_from}|{pair.robot_from}" + ("" if kind == "stitched" else f"|{kind}")
+    path = layout(spec).stitched / f"{hashlib.sha256(name.encode()).hexdigest()[:16]}.safetensors"
+    if not path.exists():
+        if kind == "stitched":
+            nets, signature = stitch_policies(pair.task_from_path, pair.robot_from_path)
+        else:
+            nets, signature = half_stitch(pair.task_from_path, pair.robot_from_path, kind, pair.seed)
+        extra = {"task_from": pair.task_from, "robot_from": pair.robot_from, "start": kind}
+        save_policy(path, nets, signature, extra=extra)
+    return path
 
 
 def run_few_shot(spec: SweepSpec, *, resume: bool = False, progress: bool = True, **overrides: Any):

@@ -23,7 +23,7 @@ import numpy as np
 import pandas as pd
 
 from ps_ray.errors import UserError
-from ps_ray.names import CONTROL_ROLES
+from ps_ray.names import CONTROL_ROLES, split_translation
 from ps_ray.pipeline.sweep import layout, raise_on_errors, sweep_dir
 from ps_ray.specs.sweep import SweepSpec
 from ps_ray.stitching.pairs import StitchedPair, pairs
@@ -91,6 +91,7 @@ def zero_shot_trial(config: dict[str, Any]) -> None:
     from ps_ray.weights import load_policy
 
     loaded: dict[str, Any] = {}
+    scored: dict[tuple, dict] = {}  # the controls' evaluations, shared by a pair's translations
 
     def source(path: str):
         if path not in loaded:
@@ -100,7 +101,9 @@ def zero_shot_trial(config: dict[str, Any]) -> None:
     batch = config["batch"]
     for i, pair in enumerate(map(StitchedPair.from_dict, batch)):
         chance = config["chance"][target_key(pair)]
-        metrics = evaluate_pair(pair, config["eval"], config["fit_states_per_quadrant"], source, chance)
+        metrics = evaluate_pair(
+            pair, config["eval"], config["fit_states_per_quadrant"], source, chance, config["outcome"], scored
+        )
         tune.report({**metrics, PAIR_KEY: pair.key, **({FINISHED: True} if i == len(batch) - 1 else {})})
 
 
@@ -130,26 +133,50 @@ def chance_levels(trials: list[StitchedPair], settings: dict[str, Any], progress
 
 
 def evaluate_pair(
-    pair: StitchedPair, settings: dict[str, Any], per_quadrant: int, source, chance: dict[str, Any]
+    pair: StitchedPair,
+    settings: dict[str, Any],
+    per_quadrant: int,
+    source,
+    chance: dict[str, Any],
+    outcome: dict[str, Any] | None = None,
+    scored: dict[tuple, dict] | None = None,
 ) -> dict:
     """Stitch one pair (translated, if the pair says so), evaluate it, then each of its controls
     as it is, all on the stage's fixed episodes; ``source(path)`` gives a loaded policy file,
-    ``chance`` the chance level of the pair's target env on those episodes (:func:`chance_levels`)."""
+    ``chance`` the chance level of the pair's target env on those episodes (:func:`chance_levels`),
+    ``outcome`` the scenes, reference points and cache folder of a translation fitted on matched
+    pairs, ``scored`` the controls' evaluations so far (by file and target env), to reuse."""
+    scored = {} if scored is None else scored
     from ps_ray.evaluate import evaluate
+    from ps_ray.stitching.outcomes import fit_pairs
     from ps_ray.stitching.stitch import stitch_policies
 
-    translation = pair.translation or None
-    states = fit_states(list(pair.fit_tasks), per_quadrant, settings["seed"]) if translation else None
+    kind, fit = split_translation(pair.translation) if pair.translation else (None, "")
+    if fit:  # matched pairs of states (ps_ray.stitching.outcomes)
+        states = fit_pairs(
+            fit,
+            (pair.task_from_path, pair.task_from_robot, pair.task),
+            (pair.robot_from_path, pair.robot_from_robot, pair.robot_from_task),
+            outcome["scenes"],
+            outcome["points"],
+            settings["seed"],
+            outcome.get("cache"),
+        )
+    else:
+        states = fit_states(list(pair.fit_tasks), per_quadrant, settings["seed"]) if kind else None
     stitched = stitch_policies(
         source(pair.task_from_path),
         source(pair.robot_from_path),
-        translation=translation,
+        translation=kind,
         fit_states=states,
     )
     result = evaluate(stitched, pair.robot, pair.task, **settings)
     metrics = {k: result[k] for k in RESULT_KEYS}
     for role, control in pair.controls.items():
-        unstitched = evaluate(source(control.path), pair.robot, pair.task, **settings)
+        key = (control.path, pair.robot.text, pair.task.text)
+        if key not in scored:  # the translated stitches of a pair share its controls
+            scored[key] = evaluate(source(control.path), pair.robot, pair.task, **settings)
+        unstitched = scored[key]
         if unstitched["episodes_digest"] != result["episodes_digest"]:  # a bug, never bad input
             raise RuntimeError(f"{pair.key}: its {role} control ran on other episodes")
         metrics[f"{role}_success"] = unstitched["success_mean"]
@@ -237,6 +264,11 @@ def run_zero_shot(
             "eval": episodes,
             "chance": chance,
             "fit_states_per_quadrant": settings.fit_states_per_quadrant,
+            "outcome": {
+                "scenes": settings.outcome_scenes,
+                "points": settings.outcome_points,
+                "cache": str(layout(spec).outcomes),
+            },
         },
     )
     raise_on_errors(results, "zero-shot batches")

@@ -14,7 +14,7 @@ from ps_ray.defaults import INTERFACE_DIM
 from ps_ray.envs.robots import resolve_robot
 from ps_ray.envs.tasks import resolve_task
 from ps_ray.errors import UserError
-from ps_ray.names import ANCHOR_GOALS, TRANSLATIONS, EnvPart, plain_json
+from ps_ray.names import ANCHOR_GOALS, TRANSLATIONS, EnvPart, plain_json, split_translation
 from ps_ray.specs.methods import method_key, uses_anchors
 from ps_ray.specs.resources import ResourcesSpec
 from ps_ray.specs.train import SpecError, TrainSpec, check_keys, check_types
@@ -96,9 +96,12 @@ class ZeroShotSpec:
     seed: int = 0  # first evaluation seed
     methods: tuple[str, ...] = ()  # default: the sweep's methods
     # method -> latent translations also evaluated for its pairs, e.g. {ablation: [affine]};
-    # shown as rows "ablation+affine" (ps_ray.nets.translation)
+    # shown as rows "ablation+affine" (ps_ray.nets.translation); "affine@outcome" fits it on
+    # scenes matched by outcome instead (ps_ray.stitching.outcomes; also @shuffled, @swapped)
     translate: Mapping[str, tuple[str, ...]] = dataclasses.field(default_factory=dict)
     fit_states_per_quadrant: int = 128  # reset task states per goal quadrant and source task
+    outcome_scenes: int = 600  # per source: scenes its policy is rolled out on, for "@" fits
+    outcome_points: int = 300  # reference points (k-means over the outcomes): matched pairs
     # which modules meet: of one training seed, of two seeds (seed i's task modules with seed
     # i+1's robot modules, cyclically: separate training runs), or both
     pairs: str = "same_seed"
@@ -121,6 +124,8 @@ class ZeroShotSpec:
             repeats=self.repeats,
             fit_states_per_quadrant=self.fit_states_per_quadrant,
             pairs_per_trial=self.pairs_per_trial,
+            outcome_scenes=self.outcome_scenes,
+            outcome_points=self.outcome_points,
         )
         if not isinstance(self.translate, Mapping):
             raise SpecError(f"zero_shot.translate must map methods to translations, got {self.translate!r}")
@@ -132,11 +137,10 @@ class ZeroShotSpec:
                     f"got {kinds!r}; valid: {', '.join(TRANSLATIONS)}"
                 )
             for kind in kinds:
-                if kind not in TRANSLATIONS:
-                    raise SpecError(
-                        f"zero_shot.translate.{method}: unknown translation {kind!r}; "
-                        f"valid: {', '.join(TRANSLATIONS)}"
-                    )
+                try:
+                    split_translation(kind if isinstance(kind, str) else repr(kind))
+                except UserError as e:
+                    raise SpecError(f"zero_shot.translate.{method}: {e}") from None
             if len(set(kinds)) != len(kinds):
                 raise SpecError(f"zero_shot.translate.{method}: duplicate translation in {list(kinds)}")
 
@@ -165,6 +169,9 @@ class FewShotSpec:
     methods: tuple[str, ...] = ()  # default: the sweep's methods
     scratch: bool = True  # also train each target env from scratch
     unstitched: bool = True  # also fine-tune each pair's robot source as it is (where widths fit)
+    # also start from each half of the stitch beside a fresh other half (ps_ray.stitching.halves):
+    # the pair's robot module under a fresh task module, its task module over a fresh robot module
+    halves: bool = False
     # the first updates of a start from trained weights fit the critics alone (actor frozen): a
     # stitched start's critics join halves of two networks and say nothing sound of its actor yet
     critic_warmup_updates: int = 500

@@ -157,15 +157,16 @@ def stitch_policies(
     *,
     target: EnvSpec | None = None,
     translation: str | None = None,
-    fit_states: np.ndarray | None = None,
+    fit_states: np.ndarray | tuple[np.ndarray, np.ndarray] | None = None,
 ) -> tuple[SACNets, Signature]:
     """New nets: every net's task module from ``task_from``, its robot module from ``robot_from``.
 
     The results own copies of the tensors (normaliser statistics and anchors included); target
     critics are stitched from the sources' target critics. Stitching a policy with itself gives
     back exactly that policy. ``translation`` ("orthogonal" or "affine") fits a latent map per net
-    on ``fit_states`` (task inputs, N x task_dim) between the two policies' task modules
-    (:mod:`ps_ray.nets.translation`); the signature names it.
+    on ``fit_states`` between the two policies' task modules (:mod:`ps_ray.nets.translation`):
+    task inputs (N x task_dim) through both, or matched pairs (states of ``task_from``'s task,
+    states of ``robot_from``'s own task: :mod:`ps_ray.stitching.outcomes`); the signature names it.
     """
     nets_t, sig_t = load_source(task_from)
     nets_r, sig_r = load_source(robot_from)
@@ -176,7 +177,7 @@ def stitch_policies(
         check_kind(translation)
         if fit_states is None:
             raise UserError("a translated stitch needs fit_states (task inputs for the fit)")
-        if sig_t.task_dim != sig_r.task_dim:
+        if sig_t.task_dim != sig_r.task_dim and not isinstance(fit_states, tuple):
             raise UserError(
                 f"cannot translate: the robot module's own task module takes "
                 f"{sig_r.task_dim}-D task inputs, the target task has {sig_t.task_dim}"
@@ -208,15 +209,25 @@ def stitch_policies(
 
 @torch.no_grad()
 def fit_net_translation(
-    net_t: nn.Module, net_r: nn.Module, states: np.ndarray, kind: str, seed: int = 0
+    net_t: nn.Module,
+    net_r: nn.Module,
+    states: np.ndarray | tuple[np.ndarray, np.ndarray],
+    kind: str,
+    seed: int = 0,
 ) -> LatentTranslation:
-    """The map from ``net_t``'s task-module latent to ``net_r``'s on the same inputs.
+    """The map from ``net_t``'s task-module latent to ``net_r``'s on the same inputs, or on
+    matched pairs of inputs (``states`` = (``net_t``'s, ``net_r``'s), row for row).
 
     Modular task modules see task inputs only. Plain's bottom half also sees the robot state (and,
     in a critic, the action): those are drawn from the robot source's own normaliser statistics
     (its Gaussian approximation of the robot states it was trained on) and uniform actions, the
     same draw for both sides."""
-    task_in = torch.as_tensor(np.asarray(states, np.float32))
+    paired = states if isinstance(states, tuple) else (states, states)
+    task_in, task_in_r = (torch.as_tensor(np.asarray(s, np.float32)) for s in paired)
+    if len(task_in) != len(task_in_r):
+        raise ValueError(
+            f"matched pairs need as many rows on each side, got {len(task_in)} and {len(task_in_r)}"
+        )
     robot_in = action = None
     if not net_r.spec.modular:
         g = torch.Generator().manual_seed(seed)
@@ -225,7 +236,8 @@ def fit_net_translation(
         robot_in = mean + std * torch.randn(len(task_in), len(mean), generator=g)
         if net_r.task.sees_action:
             action = torch.rand(len(task_in), net_r.dims.action_dim, generator=g) * 2 - 1
-    src, dst = (net.task(task_in, robot_in, action).double().numpy() for net in (net_t, net_r))
+    src = net_t.task(task_in, robot_in, action).double().numpy()
+    dst = net_r.task(task_in_r, robot_in, action).double().numpy()
     return LatentTranslation.fitted(src, dst, kind)
 
 

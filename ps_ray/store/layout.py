@@ -69,6 +69,12 @@ class SweepLayout:
         return self.root / "zero_shot.csv"
 
     @property
+    def outcomes(self) -> Path:
+        """Outcome rollouts of the sources, for translations fitted on matched pairs
+        (ps_ray.stitching.outcomes): one .npz per source, env and scene count."""
+        return self.root / "outcomes"
+
+    @property
     def few_shot(self) -> Path:
         return self.root / "few_shot"
 

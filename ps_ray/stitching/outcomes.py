@@ -1,0 +1,136 @@
+"""Pairs of task states matched by meaning, to fit a latent translation on (docs/transfer.md,
+"Translations fitted on matched pairs").
+
+A translation fitted on the *same* task states through two task modules makes one task's module
+read a scene as the other task reads it: on the marker family, exactly the difference the target
+needs. Relative representations and latent translation (Maiorca et al. 2023) assume *parallel*
+data instead: inputs that mean the same in both spaces. Three ways to pair a task-X scene with a
+task-Y scene, each spelt as a translation's fit (``affine@outcome``):
+
+- ``outcome``: roll out each task's own trained source on scenes disjoint from evaluation
+  (:data:`OUTCOME_SEED`), keep the successful episodes, describe each by where its end effector
+  ended (world frame; the env's target is never read), pick reference points by k-means over the
+  pooled end points, and pair, per point, the X scene and the Y scene whose end points are nearest;
+- ``shuffled``: the same pairs with the Y side permuted (a control: as many pairs, no meaning);
+- ``swapped``: the known correspondence of the marker family, each X scene with the scene whose
+  two tasks' markers trade places (an upper bound no outcome matching can beat).
+"""
+
+from __future__ import annotations
+
+import hashlib
+from dataclasses import dataclass
+from functools import lru_cache
+from pathlib import Path
+
+import numpy as np
+
+from ps_ray.envs.tasks import resolve_task
+from ps_ray.envs.tasks.markers import Markers
+from ps_ray.errors import UserError
+from ps_ray.names import EnvPart, parse_spec_text
+from ps_ray.store.atomic import atomic_file
+from ps_ray.store.npz import read_npz
+
+OUTCOME_SEED = 3_000_000  # first reset seed of the outcome rollouts: far from every evaluation's
+
+
+@dataclass(frozen=True)
+class Outcomes:
+    """The successful greedy episodes of one policy in its own env."""
+
+    task_in: np.ndarray  # (N, task_dim): the task input at reset
+    end: np.ndarray  # (N, 3): where the end effector ended, world frame
+
+
+def outcomes(policy, robot, task, scenes: int) -> Outcomes:
+    """Greedy rollouts of a policy (anything :func:`ps_ray.evaluate.evaluate` takes) in its own
+    env from ``scenes`` reset seeds starting at :data:`OUTCOME_SEED`: the successful ones, each
+    described by its first task input and where the end effector ended (the env's target is never
+    read: success only decides which episodes are kept)."""
+    from ps_ray.evaluate import evaluate
+
+    result = evaluate(policy, robot, task, episodes=scenes, repeats=1, seed=OUTCOME_SEED)
+    won = [r for r in result["records"] if r["success"]]
+    if len(won) < 2:
+        raise UserError(f"{policy}: {len(won)} of {scenes} outcome rollouts succeeded; too few to match")
+    return Outcomes(
+        np.array([r["task_input"] for r in won], np.float32), np.array([r["end_effector"] for r in won])
+    )
+
+
+@lru_cache(maxsize=16)
+def _source_outcomes(path: str, robot: str, task: str, scenes: int, cache: str | None) -> Outcomes:
+    """:func:`outcomes` of a policy file in its env (spec texts), cached per process (the pairs
+    of a zero-shot batch share their sources) and, given a ``cache`` folder, on disk, keyed by the
+    file's bytes, its env and the scenes (every batch of a stage reads the same sources)."""
+    if cache is None:
+        return outcomes(path, parse_spec_text(robot), parse_spec_text(task), scenes)
+    key = hashlib.sha256(Path(path).read_bytes())
+    key.update(f"|{robot}|{task}|{scenes}|{OUTCOME_SEED}".encode())
+    file = Path(cache) / f"{key.hexdigest()[:20]}.npz"
+    if file.is_file():
+        arrays = read_npz(file)
+        return Outcomes(arrays["task_in"], arrays["end"])
+    found = outcomes(path, parse_spec_text(robot), parse_spec_text(task), scenes)
+    file.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_file(file) as f:
+        np.savez(f, task_in=found.task_in, end=found.end)
+    return found
+
+
+def matched_pairs(a: Outcomes, b: Outcomes, points: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """(X states, Y states), row i of each the scene whose end point is nearest reference point i
+    (k-means over the pooled end points; at most as many points as the smaller side has)."""
+    from sklearn.cluster import KMeans
+
+    pooled = np.concatenate([a.end, b.end])
+    k = min(points, len(a.end), len(b.end))
+    centres = KMeans(n_clusters=k, n_init=4, random_state=seed).fit(pooled).cluster_centers_
+
+    def nearest(side: Outcomes) -> np.ndarray:
+        distance = np.linalg.norm(side.end[None, :, :] - centres[:, None, :], axis=-1)
+        return side.task_in[distance.argmin(axis=1)]
+
+    return nearest(a), nearest(b)
+
+
+def colour_swapped(states: np.ndarray, task_from: EnvPart, task_to: EnvPart) -> np.ndarray:
+    """Task inputs of ``task_from`` (a marker task) with its marker and ``task_to``'s trading
+    places: the scene in which ``task_to`` means what ``task_from`` means in the original."""
+    spec_from, spec_to = resolve_task(task_from), resolve_task(task_to)
+    if not (issubclass(spec_from.family, Markers) and issubclass(spec_to.family, Markers)):
+        raise UserError(
+            f"swapped pairs need two tasks of the marker family, got {task_from.short} and {task_to.short}"
+        )
+    a, b = spec_from.options.target, spec_to.options.target
+    out = np.array(states, np.float32, copy=True)
+    out[:, 3 * a : 3 * a + 3], out[:, 3 * b : 3 * b + 3] = (
+        states[:, 3 * b : 3 * b + 3],
+        states[:, 3 * a : 3 * a + 3],
+    )
+    return out
+
+
+def fit_pairs(
+    fit: str,
+    task_source: tuple[str, EnvPart, EnvPart],
+    robot_source: tuple[str, EnvPart, EnvPart],
+    scenes: int,
+    points: int,
+    seed: int = 0,
+    cache: str | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The (task module's states, robot source's task module's states) a translation of the
+    given ``fit`` is fitted on; each source given as (policy file, its robot, its task); their
+    rollouts kept in ``cache`` (a folder), if given."""
+    mine = _source_outcomes(task_source[0], task_source[1].text, task_source[2].text, scenes, cache)
+    theirs = _source_outcomes(robot_source[0], robot_source[1].text, robot_source[2].text, scenes, cache)
+    states_t, states_r = matched_pairs(mine, theirs, points, seed)
+    if fit == "shuffled":
+        states_r = states_r[np.random.default_rng(seed).permutation(len(states_r))]
+    elif fit == "swapped":
+        states_r = colour_swapped(states_t, task_source[2], robot_source[2])
+    elif fit != "outcome":
+        raise ValueError(f"unknown fit {fit!r}")
+    return states_t, states_r

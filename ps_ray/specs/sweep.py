@@ -100,8 +100,8 @@ class ZeroShotSpec:
     # scenes matched by outcome instead (ps_ray.stitching.outcomes; also @shuffled, @swapped)
     translate: Mapping[str, tuple[str, ...]] = dataclasses.field(default_factory=dict)
     fit_states_per_quadrant: int = 128  # reset task states per goal quadrant and source task
-    outcome_scenes: int = 600  # per source: scenes its policy is rolled out on, for "@" fits
-    outcome_points: int = 300  # reference points (k-means over the outcomes): matched pairs
+    outcome_scenes: int = 400  # per source: scenes its policy is rolled out on, for "@" fits
+    outcome_points: int = 256  # reference points (k-means over the outcomes): matched pairs
     # which modules meet: of one training seed, of two seeds (seed i's task modules with seed
     # i+1's robot modules, cyclically: separate training runs), or both
     pairs: str = "same_seed"

@@ -241,6 +241,9 @@ def cmd_render(args: argparse.Namespace) -> int:
         if problems:  # a policy used on another env
             raise UserError(f"{args.policy}: cannot run here: " + "; ".join(problems))
         policy = GreedyPolicy.from_file(args.policy)
+    for flag, path in (("png", args.png), ("gif", args.gif)):
+        if path is not None and Path(path).suffix.lower() != f".{flag}":
+            raise UserError(f"--{flag} {path}: the image is written as {flag}; valid file names end in .{flag}")
     for path in (args.png, args.gif):
         if path:
             _output_file(path)

@@ -101,6 +101,8 @@ CASES = [  # (arguments, with {f} the input folder and {out} a path that must no
     ("run {f}/bad_start.yaml", "garbage.safetensors: not a ps_ray policy file"),
     ("render --robot pandaa --png {out}/x.png", "unknown robot 'pandaa'; valid robots: panda, panda_l3"),
     ("render --png {f}/reach.safetensors/x.png", "reach.safetensors is a file, not a folder"),
+    ("render --png {out}/out.txt", "out.txt: the image is written as png; valid file names end in .png"),
+    ("render --gif {out}/clip.png", "clip.png: the image is written as gif; valid file names end in .gif"),
     (
         "stitch --task-from {f}/reach.safetensors --robot-from {f}/reach.safetensors --repeats 0 "
         "--save {out}/s.safetensors",

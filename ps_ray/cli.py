@@ -243,7 +243,9 @@ def cmd_render(args: argparse.Namespace) -> int:
         policy = GreedyPolicy.from_file(args.policy)
     for flag, path in (("png", args.png), ("gif", args.gif)):
         if path is not None and Path(path).suffix.lower() != f".{flag}":
-            raise UserError(f"--{flag} {path}: the image is written as {flag}; valid file names end in .{flag}")
+            raise UserError(
+                f"--{flag} {path}: the image is written as {flag}; valid file names end in .{flag}"
+            )
     for path in (args.png, args.gif):
         if path:
             _output_file(path)
@@ -341,7 +343,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
 def main(argv: list[str] | None = None) -> int:
     args = build_parser(__doc__).parse_args(argv)
     if getattr(args, "verbose", False):
-        from ps_ray.pipeline.progress import VERBOSE_ENV
+        from ps_ray.terminal import VERBOSE_ENV
 
         os.environ[VERBOSE_ENV] = "1"  # Tune's tables and Ray's warnings on the terminal
     try:

@@ -77,6 +77,11 @@ def _train_parser(sub) -> None:
     )
     p.add_argument("--quiet", action="store_true")
     p.add_argument(
+        "--verbose",
+        action="store_true",
+        help="Ray's and RLlib's messages on the terminal (default: <run dir>/logs/ray.log)",
+    )
+    p.add_argument(
         "--compile",
         action="store_true",
         help="compile the learner's forward pass (torch.compile; measured slower on CPU cores, docs/cost.md)",

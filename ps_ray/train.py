@@ -29,6 +29,7 @@ from ps_ray.specs.methods import method_spec, spec_json, uses_anchors
 from ps_ray.specs.train import POINT_TASK, TrainSpec, require_same
 from ps_ray.store import checkpoint
 from ps_ray.store.atomic import write_text
+from ps_ray.store.layout import LOG_FOLDER
 from ps_ray.store.lock import folder_lock
 from ps_ray.store.run_folder import best_so_far, latest_checkpoint, metrics_up_to, save_atomically
 from ps_ray.store.run_layout import (
@@ -41,6 +42,7 @@ from ps_ray.store.run_layout import (
     SIGNATURE_FILE,
     SPEC_FILE,
 )
+from ps_ray.terminal import others_to
 
 # early-stop streak, best so far and consolidation figures: a resumed run goes on as it would have
 PROGRESS_FILE = "progress.json"
@@ -294,15 +296,16 @@ def _train(spec: TrainSpec, run_dir: Path, given, progress: bool, compile: bool)
     import ray
 
     anchor_set = prepare_anchors(spec, run_dir, given) if uses_anchors(spec.method) else None
-    if not ray.is_initialized():
-        ray.init(
-            address="local",
-            num_cpus=max(1, os.cpu_count() or 1),
-            include_dashboard=False,
-            log_to_driver=False,
-            configure_logging=False,
-        )
-    run = TrainingRun(spec, anchor_set, compile=compile, replay_store=run_dir / REPLAY_FOLDER)  # loads
+    with others_to(run_dir / LOG_FOLDER / "ray.log"):  # Ray's and RLlib's start-up messages
+        if not ray.is_initialized():
+            ray.init(
+                address="local",
+                num_cpus=max(1, os.cpu_count() or 1),
+                include_dashboard=False,
+                log_to_driver=False,
+                configure_logging=False,
+            )
+        run = TrainingRun(spec, anchor_set, compile=compile, replay_store=run_dir / REPLAY_FOLDER)  # loads
     _check_run_dir(spec, run_dir)  # --init-policy: a bad one fails before spec.json
     resume_from = latest_checkpoint(run_dir)
     if resume_from is not None:

@@ -51,6 +51,9 @@ def test_a_killed_run_refuses_a_second_writer_while_alive_and_resumes_from_its_c
     third = subprocess.run(train_cmd(run_dir, saved + 400), capture_output=True, text=True, timeout=300)
     assert third.returncode == 0, third.stdout[-2000:] + third.stderr[-2000:]
     assert f"resumed at {saved} env steps" in third.stdout
+    # only ps_ray's own lines on the terminal: Ray's and RLlib's notices went to logs/ray.log
+    assert third.stderr == "" and all(line.startswith("[") for line in third.stdout.splitlines())
+    assert "on the new API stack" in (run_dir / "logs" / "ray.log").read_text()
     metrics = pd.read_csv(run_dir / "metrics.csv")
     assert metrics["env_steps"].iloc[-1] >= saved + 400
     steps = metrics["env_steps"]

@@ -9,8 +9,6 @@ with no control codes.
 from __future__ import annotations
 
 import contextlib
-import logging
-import os
 import sys
 import time
 from collections.abc import Iterator
@@ -20,12 +18,9 @@ from typing import IO, Any
 from ray.tune import Callback
 from tqdm import tqdm
 
+from ps_ray.terminal import others_to
+
 PLAIN_EVERY_S = 30.0
-VERBOSE_ENV = "PS_RAY_VERBOSE"
-
-
-def verbose() -> bool:
-    return os.environ.get(VERBOSE_ENV, "") not in ("", "0")
 
 
 class StageProgress(Callback):
@@ -134,26 +129,11 @@ def _clock(seconds: float) -> str:
 
 @contextlib.contextmanager
 def quiet_tune(log_path: Path) -> Iterator[IO[str]]:
-    """Send Tune's printed tables and the ``ray`` loggers' messages to ``log_path`` for the
-    block; yields the real stdout, for the live view."""
-    real_stdout = sys.stdout
-    if verbose():
-        yield real_stdout
-        return
-    _VIEW_STREAM.append(real_stdout)
-    log_path.parent.mkdir(parents=True, exist_ok=True)
-    with open(log_path, "a", buffering=1) as log:
-        handlers = [
-            h
-            for name in ("ray", "ray.tune", "ray.rllib")
-            for h in logging.getLogger(name).handlers
-            if isinstance(h, logging.StreamHandler)
-        ]
-        streams = [h.setStream(log) for h in handlers]
+    """Send Tune's printed tables and the noisy loggers' messages to ``log_path`` for the block
+    (:func:`ps_ray.terminal.others_to`); yields the real stdout, for the live view."""
+    with others_to(log_path) as real_stdout:
+        _VIEW_STREAM.append(real_stdout)
         try:
-            with contextlib.redirect_stdout(log), contextlib.redirect_stderr(log):
-                yield real_stdout
+            yield real_stdout
         finally:
             _VIEW_STREAM.pop()
-            for handler, stream in zip(handlers, streams):
-                handler.setStream(stream)

@@ -247,18 +247,21 @@ def connect(spec: SweepSpec) -> tuple[str, str]:
     The driver creates the store and experiment once, before any trial could race for it."""
     import ray
 
+    from ps_ray.store.layout import LOG_FOLDER
+    from ps_ray.terminal import others_to
     from ps_ray.tracking import default_tracking_uri, ensure_experiment
 
-    if not ray.is_initialized():
-        ray.init(
-            address=os.environ.get("RAY_ADDRESS", "local"),
-            include_dashboard=False,
-            log_to_driver=False,
-            configure_logging=False,
-        )
     where = layout(spec)
-    tracking_uri = spec.tracking_uri or default_tracking_uri(where.root)
-    return tracking_uri, ensure_experiment(tracking_uri, spec.name, where.artifacts)
+    with others_to(where.root / LOG_FOLDER / "driver.log"):  # Ray's and MLflow's start-up messages
+        if not ray.is_initialized():
+            ray.init(
+                address=os.environ.get("RAY_ADDRESS", "local"),
+                include_dashboard=False,
+                log_to_driver=False,
+                configure_logging=False,
+            )
+        tracking_uri = spec.tracking_uri or default_tracking_uri(where.root)
+        return tracking_uri, ensure_experiment(tracking_uri, spec.name, where.artifacts)
 
 
 def _anchor_paths(spec: SweepSpec) -> list[Path]:

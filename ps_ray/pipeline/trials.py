@@ -40,7 +40,8 @@ def run_trials(
     trial continues from its checkpoint, and preemptions do not use up ``max_failures``."""
     from ray import tune
 
-    from ps_ray.pipeline.progress import StageProgress, quiet_tune, verbose
+    from ps_ray.pipeline.progress import StageProgress, quiet_tune
+    from ps_ray.terminal import verbose
 
     ((key, trials),) = grid.items()
     path, name, root = Path(folder), Path(folder).name, Path(folder).parent

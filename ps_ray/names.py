@@ -35,6 +35,18 @@ def split_translation(name: str) -> tuple[str, str]:
     return kind, fit
 
 
+def translations_problem(kinds: Any) -> str | None:
+    """What is wrong with a list of translation names (None: nothing)."""
+    if not isinstance(kinds, (list, tuple)) or not kinds:
+        return f"expected a list of translations, got {kinds!r}; valid: {', '.join(TRANSLATIONS)}"
+    for kind in kinds:
+        try:
+            split_translation(kind if isinstance(kind, str) else repr(kind))
+        except UserError as e:
+            return str(e)
+    return f"duplicate translation in {list(kinds)}" if len(set(kinds)) != len(kinds) else None
+
+
 class EnvPart(Mapping[str, Any]):
     """A robot or a task as a spec names it: a built-in name, or a mapping of a name and the options
     that override its preset (``{"name": "reach", "goal_region": "q2"}``; a robot mapping may give

@@ -179,7 +179,13 @@ seeds: [1]
         ),
         (
             GOOD.replace("[ps]", "[ps, ablation]") + "zero_shot: {translate: {ablation: [warp]}}\n",
-            "zero_shot.translate.ablation: unknown translation 'warp'; valid: orthogonal, affine",
+            "zero_shot.translate.ablation: unknown translation 'warp'; valid: orthogonal, affine, "
+            "orthogonal@outcome",
+        ),
+        (
+            GOOD.replace("[ps]", "[ps, ablation]") + "zero_shot: {translate: {ablation: [affine@guess]}}\n",
+            "unknown translation 'affine@guess'; valid: orthogonal, affine, orthogonal@outcome, "
+            "orthogonal@shuffled, orthogonal@swapped, affine@outcome",
         ),
         (
             GOOD + "zero_shot: {translate: {plain: [affine]}}\n",

@@ -14,7 +14,7 @@ from ps_ray.defaults import INTERFACE_DIM
 from ps_ray.envs.robots import resolve_robot
 from ps_ray.envs.tasks import resolve_task
 from ps_ray.errors import UserError
-from ps_ray.names import ANCHOR_GOALS, TRANSLATIONS, EnvPart, plain_json, split_translation
+from ps_ray.names import ANCHOR_GOALS, EnvPart, plain_json, translations_problem
 from ps_ray.specs.methods import method_key, uses_anchors
 from ps_ray.specs.resources import ResourcesSpec
 from ps_ray.specs.train import SpecError, TrainSpec, check_keys, check_types
@@ -130,19 +130,9 @@ class ZeroShotSpec:
         if not isinstance(self.translate, Mapping):
             raise SpecError(f"zero_shot.translate must map methods to translations, got {self.translate!r}")
         for method, kinds in self.translate.items():
-            kinds = [kinds] if isinstance(kinds, str) else kinds
-            if not isinstance(kinds, (list, tuple)) or not kinds:
-                raise SpecError(
-                    f"zero_shot.translate.{method}: expected a list of translations, "
-                    f"got {kinds!r}; valid: {', '.join(TRANSLATIONS)}"
-                )
-            for kind in kinds:
-                try:
-                    split_translation(kind if isinstance(kind, str) else repr(kind))
-                except UserError as e:
-                    raise SpecError(f"zero_shot.translate.{method}: {e}") from None
-            if len(set(kinds)) != len(kinds):
-                raise SpecError(f"zero_shot.translate.{method}: duplicate translation in {list(kinds)}")
+            problem = translations_problem([kinds] if isinstance(kinds, str) else kinds)
+            if problem:
+                raise SpecError(f"zero_shot.translate.{method}: {problem}")
 
     def batch_sizes(self, pairs: int, slots: int | None) -> list[int]:
         """How many pairs each Tune trial of the stage evaluates: at most ``pairs_per_trial``, as

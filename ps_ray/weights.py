@@ -176,7 +176,7 @@ def nets_from_state(state: dict[str, torch.Tensor], signature: Signature, source
     if (anchor_hash(anchors.numpy()) if anchors is not None else "") != signature.anchor_hash:
         raise UserError(f"{source}: anchors do not match the signature's anchor hash")
     with torch.device("meta"):
-        expected = _shapes(_build(signature, anchors, source))
+        expected = _shapes(build_nets(signature, anchors, source))
     found = {k: tuple(v.shape) for k, v in state.items()}
     missing, unexpected = sorted(expected.keys() - found.keys()), sorted(found.keys() - expected.keys())
     wrong_shape = [k for k in expected.keys() & found.keys() if expected[k] != found[k]]
@@ -185,12 +185,13 @@ def nets_from_state(state: dict[str, torch.Tensor], signature: Signature, source
             f"{source}: tensors do not match the signature (missing {missing[:3]}, "
             f"unexpected {unexpected[:3]}, wrong shape {wrong_shape[:3]})"
         )
-    nets = _build(signature, anchors, source)
+    nets = build_nets(signature, anchors, source)
     load_nets_state(nets, state)
     return nets
 
 
-def _build(signature: Signature, anchors: torch.Tensor | None, source: str) -> SACNets:
+def build_nets(signature: Signature, anchors: torch.Tensor | None, source: str = "nets") -> SACNets:
+    """Untrained nets of a signature (its resolved method, widths, dims; the given anchors)."""
     try:
         nets = build_sac_nets(
             signature.spec,

@@ -12,9 +12,9 @@ from __future__ import annotations
 
 import torch
 
-from ps_ray.nets.sac import SACNets, build_sac_nets
+from ps_ray.nets.sac import SACNets
 from ps_ray.stitching.stitch import PolicySource, check_stitchable, load_source, stitch_policies
-from ps_ray.weights import Signature
+from ps_ray.weights import Signature, build_nets
 
 HALVES = ("robot_module", "task_module")  # which half of the pair a start keeps
 
@@ -31,13 +31,7 @@ def half_stitch(
     anchors = nets_t.actor.anchors
     with torch.random.fork_rng(devices=[]):  # the caller's torch RNG stays where it was
         torch.manual_seed(seed)
-        fresh = build_sac_nets(
-            signature.spec,
-            signature.dims,
-            interface_dim=signature.interface_dim,
-            hidden=signature.hidden,
-            anchors=None if anchors is None else anchors.detach().cpu().numpy(),
-        )
+        fresh = build_nets(signature, None if anchors is None else anchors.detach().cpu())
     if fresh.actor.task.projection_off and not signature.projection_off:
         fresh.actor.task.switch_relative_on()  # a deferred projection: on, as in the sources it meets
     if keep == "robot_module":

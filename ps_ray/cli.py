@@ -234,8 +234,8 @@ def cmd_render(args: argparse.Namespace) -> int:
     resolve_robot(robot), resolve_task(task)  # bad names fail before any folder is made
     policy = None
     if args.policy:
-        from ps_ray.stitching.stitch import target_problems
-        from ps_ray.weights import read_signature
+        from ps_ray.stitching.rule import target_problems
+        from ps_ray.store.signature import read_signature
 
         problems = target_problems(read_signature(args.policy)[0], (robot, task))
         if problems:  # a policy used on another env

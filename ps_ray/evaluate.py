@@ -37,7 +37,7 @@ from ps_ray.nets.modular import Actor, NetDims
 from ps_ray.nets.obs import dims_from_spaces
 from ps_ray.nets.sac import SACNets
 from ps_ray.policy import GreedyPolicy
-from ps_ray.weights import Signature
+from ps_ray.store.signature import Signature
 
 Obs = dict[str, np.ndarray]
 ActionFn = Callable[[Obs], np.ndarray]  # batched Dict obs (leading axis) -> actions (B, A)

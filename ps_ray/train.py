@@ -130,7 +130,7 @@ class TrainingRun:
         ``replay_store``: the folder of this run's replay segments, kept across checkpoints and
         attempts (:mod:`ps_ray.store.replay`; None: every checkpoint holds the whole buffer)."""
         from ps_ray.rllib.algo import algo_config
-        from ps_ray.weights import Signature
+        from ps_ray.store.signature import Signature
 
         torch.set_num_threads(threads)
         self.spec = spec
@@ -269,7 +269,7 @@ def read_inputs(spec: TrainSpec):
     ``init_policy`` must fit the spec's method, sizes and env; ``anchors`` must give an anchor
     set of K = interface_dim. Returns the anchor set they give (None: none given)."""
     if spec.init_policy is not None:
-        from ps_ray.stitching.stitch import target_problems
+        from ps_ray.stitching.rule import target_problems
         from ps_ray.weights import load_policy, policy_anchor_set
 
         _, signature = load_policy(spec.init_policy)

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-from dataclasses import dataclass
 from pathlib import Path
 
 import torch
@@ -19,52 +18,13 @@ from safetensors.torch import save_file
 from torch import nn
 
 from ps_ray.data.anchors import AnchorSet, anchor_hash
-from ps_ray.defaults import MAX_WIDTH
 from ps_ray.errors import UserError
-from ps_ray.nets.modular import NetDims
 from ps_ray.nets.sac import NET_NAMES, SACNets, build_sac_nets
-from ps_ray.specs.methods import MethodSpec, method_spec, spec_from_dict, spec_json
+from ps_ray.specs.methods import method_spec, spec_json
 from ps_ray.store.atomic import atomic_path
+from ps_ray.store.signature import FORMAT, Signature, read_signature
 
-FORMAT = "ps_ray.policy/1"
 ANCHORS_KEY = "actor.task.relative.anchors"
-
-
-@dataclass(frozen=True)
-class Signature:
-    """What must agree for two modules to be stitched."""
-
-    method: str  # the method's key (ps_ray.specs.methods)
-    interface_dim: int
-    hidden: int
-    anchor_hash: str  # "" for methods without anchors
-    task_dim: int
-    robot_dim: int
-    action_dim: int
-    translation: str = ""  # a stitched policy's fitted latent translation ("" none, or its kind)
-    # a deferred relative projection (MethodSpec.defer_relative) still off: the cut is the raw
-    # latent until the run finishes, so no other source's robot module reads it
-    projection_off: bool = False
-    # the resolved method, every setting (JSON): the nets are built from it, not from the menu,
-    # so a file keeps its meaning whatever the presets become. "" in files written before it
-    # existed (they name a preset or an old row, resolved when read: :func:`read_signature`)
-    settings: str = ""
-
-    @property
-    def dims(self) -> NetDims:
-        return NetDims(self.task_dim, self.robot_dim, self.action_dim)
-
-    @property
-    def spec(self) -> MethodSpec:
-        return spec_from_dict(json.loads(self.settings)) if self.settings else method_spec(self.method)
-
-    def mismatches(self, other: Signature, fields: tuple[str, ...] | None = None) -> list[str]:
-        names = fields or tuple(f.name for f in dataclasses.fields(self))
-        return [
-            f"{n}: {getattr(self, n)!r} vs {getattr(other, n)!r}"
-            for n in names
-            if getattr(self, n) != getattr(other, n)
-        ]
 
 
 def signature_of(
@@ -116,56 +76,6 @@ def save_policy(
     with atomic_path(path) as tmp:
         save_file(nets_state(nets), str(tmp), metadata=metadata)
     return path
-
-
-def read_signature(path: str | Path) -> tuple[Signature, dict[str, str]]:
-    """The signature and metadata of a policy file, without loading its tensors."""
-    path = Path(path)
-    try:
-        with safe_open(str(path), framework="pt") as f:
-            metadata = f.metadata() or {}
-    except (SafetensorError, OSError, ValueError) as e:
-        raise UserError(f"{path}: not a ps_ray policy file ({e})") from None
-    if metadata.get("format") != FORMAT:
-        raise UserError(
-            f"{path}: not a ps_ray policy file (format {metadata.get('format')!r}, expected {FORMAT!r})"
-        )
-    try:
-        signature = Signature(**json.loads(metadata["signature"]))
-    except (KeyError, TypeError, json.JSONDecodeError) as e:
-        raise UserError(f"{path}: corrupt policy signature ({e})") from None
-    problem = signature_problem(signature)
-    if problem:
-        raise UserError(f"{path}: bad policy signature: {problem}")
-    if not signature.settings:  # written before the resolved method was stored: resolve its name
-        spec = method_spec(signature.method)
-        signature = dataclasses.replace(signature, method=spec.name, settings=spec_json(spec))
-    return signature, metadata
-
-
-def signature_problem(signature: Signature) -> str | None:
-    """What makes a signature unusable (wrong types, absurd sizes, unknown names), or None."""
-    from ps_ray.names import TRANSLATIONS
-
-    if not isinstance(signature.method, str) or not isinstance(signature.settings, str):
-        return f"method and settings must be strings, got {signature.method!r} and {signature.settings!r}"
-    try:
-        spec = signature.spec
-    except (UserError, ValueError, json.JSONDecodeError) as e:
-        return str(e)
-    if signature.settings and spec.name != signature.method:
-        return f"method {signature.method!r} disagrees with its settings (named {spec.name!r})"
-    for name in ("interface_dim", "hidden", "task_dim", "robot_dim", "action_dim"):
-        value = getattr(signature, name)
-        if isinstance(value, bool) or not isinstance(value, int) or not 0 < value <= MAX_WIDTH:
-            return f"{name} must be an integer in 1..{MAX_WIDTH}, got {value!r}"
-    if not isinstance(signature.anchor_hash, str):
-        return f"anchor_hash must be a string, got {signature.anchor_hash!r}"
-    if signature.translation not in ("", *TRANSLATIONS):
-        return f"unknown translation {signature.translation!r}; valid: none, {', '.join(TRANSLATIONS)}"
-    if not isinstance(signature.projection_off, bool):
-        return f"projection_off must be true or false, got {signature.projection_off!r}"
-    return None
 
 
 def nets_from_state(state: dict[str, torch.Tensor], signature: Signature, source: str = "state") -> SACNets:

@@ -17,7 +17,8 @@ from ps_ray.specs.methods import LEGACY, PRESETS, MethodSpec, method_key, method
 from ps_ray.specs.sweep import SweepSpec
 from ps_ray.specs.train import SpecError
 from ps_ray.stitching.stitch import stitch_policies
-from ps_ray.weights import load_policy, read_signature, save_policy, signature_of
+from ps_ray.store.signature import read_signature
+from ps_ray.weights import load_policy, save_policy, signature_of
 
 torch.set_num_threads(1)
 OLD = Path(__file__).parent / "data" / "policies_v1"  # written by the code before the menu

@@ -15,7 +15,8 @@ from ps_ray.rllib.algo import algo_config
 from ps_ray.rllib.episodes import train_batch
 from ps_ray.specs.methods import method_spec, spec_json
 from ps_ray.specs.train import TrainSpec
-from ps_ray.weights import Signature, load_policy, read_signature
+from ps_ray.store.signature import Signature, read_signature
+from ps_ray.weights import load_policy
 from tests.code_paths import PS_CONSOLIDATED
 
 SMALL = dict(

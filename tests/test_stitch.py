@@ -28,18 +28,13 @@ from ps_ray.nets.obs import dims_from_spaces
 from ps_ray.nets.sac import NET_NAMES, SACNets, build_sac_nets
 from ps_ray.specs.methods import method_spec, uses_anchors
 from ps_ray.stitching.paper import PANDA_L3_GRIPPER, PAPER_COMBOS
-from ps_ray.stitching.stitch import (
-    check_stitchable,
-    combos,
-    controls,
-    default_target,
-    env_dims,
-    stitch_policies,
-)
+from ps_ray.stitching.rule import check_stitchable, default_target
+from ps_ray.stitching.stitch import combos, controls, env_dims, stitch_policies
 from ps_ray.stitching.zoo import ModuleZoo, read_entry
 from ps_ray.store.attempts import FINISHED, PARAMS_FILE, RESULT_FILE
 from ps_ray.store.checkpoint import STATE_FILE, seal
-from ps_ray.weights import Signature, load_policy, nets_state, save_policy, signature_of
+from ps_ray.store.signature import Signature
+from ps_ray.weights import load_policy, nets_state, save_policy, signature_of
 from tests.code_paths import CODE_PATHS
 
 torch.set_num_threads(1)

@@ -9,7 +9,6 @@ from dataclasses import dataclass
 
 from ps_ray.envs import EPISODE_STEPS
 from ps_ray.names import CONTROL_ROLES
-from ps_ray.specs.methods import uses_anchors
 from ps_ray.specs.sweep import SweepSpec
 from ps_ray.specs.train import TrainSpec
 from ps_ray.stitching.chance import CHANCE_POLICIES
@@ -39,24 +38,21 @@ def train_load(stage: str, specs: list[TrainSpec]) -> StageLoad:
 def stitch_pairs(
     spec: SweepSpec, method: str, pairing: str = "same_seed"
 ) -> list[tuple[TrainSpec, TrainSpec]]:
-    """(task source, robot source) pairs the stitching stages will build for one method, by the
-    rule of :func:`ps_ray.stitching.stitch.combos`: another task, another arm, the same interface, for
-    relative methods the same anchor set (the same task-input width), and the seeds that
-    ``pairing`` joins (:func:`ps_ray.specs.sweep.seed_pairs`)."""
-    from ps_ray.envs.robots import arm
-    from ps_ray.specs.sweep import seed_pairs, task_input_dim
+    """(task source, robot source) pairs the stitching stages will build for one method: the
+    seeds that ``pairing`` joins (:func:`ps_ray.specs.sweep.seed_pairs`), then the one pairing
+    rule of the stitching stages (:func:`ps_ray.stitching.stitch.stitchable`) on the signatures
+    the trials' policy files will carry."""
+    from ps_ray.specs.sweep import seed_pairs
+    from ps_ray.stitching.rule import expected_signature, stitchable
 
-    cells = [t for t in spec.trials() if t.method == method]
+    cells = [(t, t.to_dict()) for t in spec.trials() if t.method == method]
+    signatures = [expected_signature(d) for _, d in cells]
     joined = {(task_seed, robot_seed) for _, task_seed, robot_seed in seed_pairs(spec.seeds, pairing)}
     return [
         (t, r)
-        for t in cells
-        for r in cells
-        if (t.seed, r.seed) in joined
-        and t.interface_dim == r.interface_dim
-        and t.task != r.task
-        and arm(t.robot) != arm(r.robot)
-        and (not uses_anchors(t.method) or task_input_dim(t.task) == task_input_dim(r.task))
+        for (t, td), st in zip(cells, signatures)
+        for (r, rd), sr in zip(cells, signatures)
+        if (t.seed, r.seed) in joined and stitchable(td, rd, st, sr) is not None
     ]
 
 

@@ -48,7 +48,7 @@ def few_shot_trials(spec: SweepSpec, settings: FewShotSpec) -> list[dict[str, An
     fine-tuned as it is (unstitched), and from-scratch baselines. Starts from
     trained weights fit their critics alone for ``critic_warmup_updates`` updates first."""
     from ps_ray.stitching.halves import HALVES
-    from ps_ray.weights import read_signature
+    from ps_ray.store.signature import read_signature
 
     trials, targets, seen = [], {}, set()
     for pair in selected_pairs(spec, settings):
@@ -169,8 +169,8 @@ def run_few_shot(spec: SweepSpec, *, resume: bool = False, progress: bool = True
 
 def _source_tags(trial: dict, client, experiment_id: str) -> dict[str, str]:
     """A fine-tuning run of a stitched start names its two sources (their runs) and anchor set."""
+    from ps_ray.store.signature import read_signature
     from ps_ray.tracking import source_tags
-    from ps_ray.weights import read_signature
 
     start = trial["spec"].get("init_policy")
     if trial["kind"] != "stitched" or not start:

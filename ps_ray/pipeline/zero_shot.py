@@ -62,7 +62,7 @@ def fit_states(tasks: list, per_quadrant: int, seed: int) -> np.ndarray:
 def check_sources(trials: list[StitchedPair]) -> None:
     """Every policy file the pairs read loads, and every pair stitches, before a trial starts: a
     damaged or unfinished file is one line naming it, not a failing trial retried per pair."""
-    from ps_ray.stitching.stitch import check_stitchable
+    from ps_ray.stitching.rule import check_stitchable
     from ps_ray.weights import load_policy
 
     signatures = {}

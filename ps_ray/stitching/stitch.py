@@ -5,27 +5,14 @@ robot, the robot module from the policy trained with the *target robot* on anoth
 nets are stitched (actor, both critics and both target critics), so a stitched policy can start
 few-shot training; zero-shot evaluation uses the actor alone (:mod:`ps_ray.evaluate`).
 
-What must agree (:func:`check_stitchable`): method, latent width at the cut (the interface dim;
-devin's is fixed at 16, plain's is ``hidden``), hidden width and anchor set (PS); a deferred
-relative projection (ps_distilled) must be switched on in both. Dims: the task
-module brings the task-input width, the robot module the robot-state and action widths, so a push
-task module (7-D actions) can meet a pick robot module (8-D). Plain is one MLP cut in the middle:
-its bottom half also sees the robot state (and, in a critic, the action), so both halves must
-agree on every dim. Given a target env, the stitched dims must be the env's.
-
-Target env (:func:`default_target`): the task of the task module, run by the same physical robot
-as the robot module, i.e. with the gripper setting that robot module was trained with. A robot
-module trained on pick (gripper on, 8-D actions) therefore drives a gripper-enabled push robot
-(docs/authors_code.md §1, Push-v4), ``{"name": "panda_l3", "gripper": true}`` on push; a robot module trained
-without the gripper cannot run a pick task (refused). So that a *push* robot module can serve a
-pick target (E5), it must have been trained with the gripper: list ``{name: panda_l3, gripper:
-true}`` among the sweep's robots, as ``sweeps/few_shot.yaml`` does.
+Which pairs meet and what must agree for them live in :mod:`ps_ray.stitching.rule` (torch-free,
+so the cost model asks the same rule); here the nets are built, translated and the matrix of a
+sweep's zoo is listed.
 """
 
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -33,112 +20,29 @@ import numpy as np
 import torch
 from torch import nn
 
-from ps_ray.envs.core import effective_gripper, env_widths
-from ps_ray.envs.robots import arm
-from ps_ray.envs.tasks import resolve_task
+from ps_ray.envs.core import env_widths
 from ps_ray.errors import UserError
 from ps_ray.names import EnvPart
 from ps_ray.nets.modular import NetDims
 from ps_ray.nets.sac import NET_NAMES, SACNets, build_sac_nets
 from ps_ray.nets.translation import LatentTranslation, check_kind
+from ps_ray.stitching.rule import (
+    EnvSpec,
+    check_stitchable,
+    stitchable,
+    target_problems,
+)
 from ps_ray.stitching.zoo import ModuleZoo, ZooEntry
-from ps_ray.weights import Signature, load_policy, signature_of
+from ps_ray.store.signature import Signature
+from ps_ray.weights import load_policy, signature_of
 
 PolicySource = str | Path | ZooEntry | tuple[SACNets, Signature]
-EnvSpec = tuple[EnvPart, EnvPart]  # (robot, task)
 
 
 # -- target envs ----------------------------------------------------------------------------------
 def env_dims(robot: EnvPart, task: EnvPart) -> NetDims:
     """The network dims of ``make(robot, task)``, without building it."""
     return NetDims(*env_widths(robot, task))
-
-
-def same_robot(robot: EnvPart, trained_task: EnvPart, target_task: EnvPart) -> EnvPart:
-    """``robot`` as trained on ``trained_task``, for ``target_task``: the gripper setting is pinned
-    when the two tasks' defaults differ (pick-trained panda_l3 on push -> gripper-enabled)."""
-    gripper = effective_gripper(robot, trained_task)
-    if gripper == effective_gripper(robot, target_task):
-        return robot
-    return EnvPart({**robot, "gripper": gripper})
-
-
-def default_target(task_spec: Mapping, robot_spec: Mapping) -> EnvSpec:
-    """(robot, task) of the target env from the two sources' training specs."""
-    task = EnvPart(task_spec["task"])
-    return same_robot(EnvPart(robot_spec["robot"]), EnvPart(robot_spec["task"]), task), task
-
-
-# -- checks ---------------------------------------------------------------------------------------
-def stitch_problems(sig_task: Signature, sig_robot: Signature, target: EnvSpec | None = None) -> list[str]:
-    """Every reason the task modules of ``sig_task`` and robot modules of ``sig_robot`` cannot be
-    stitched (into a policy for ``target``, if given); empty if they can."""
-    problems = []
-    pair = lambda a, b: f"task module {a!r} vs robot module {b!r}"  # noqa: E731
-    if sig_task.settings != sig_robot.settings:
-        problems.append(f"method: {pair(sig_task.method, sig_robot.method)}")
-    else:
-        spec = sig_task.spec
-        latents = [spec.latent_dim(s.interface_dim, s.hidden) for s in (sig_task, sig_robot)]
-        if spec.modular and latents[0] != latents[1]:  # plain's latent is `hidden`, checked below
-            problems.append(f"interface dim: {pair(*latents)}")
-        if not spec.modular:  # plain: the bottom half sees the robot state and (critic) action
-            for dim in ("robot_dim", "action_dim"):
-                a, b = getattr(sig_task, dim), getattr(sig_robot, dim)
-                if a != b:
-                    problems.append(f"{dim.replace('_', ' ')} (plain needs equal dims): {pair(a, b)}")
-    for role, sig in (("task module", sig_task), ("robot module", sig_robot)):
-        if sig.projection_off:
-            problems.append(
-                f"the {role}'s policy is from before its method {sig.method!r} switched to the "
-                f"relative interface (at its run's end): stitch a finished run's policy.safetensors"
-            )
-    if sig_task.hidden != sig_robot.hidden:
-        problems.append(f"hidden: {pair(sig_task.hidden, sig_robot.hidden)}")
-    if sig_task.anchor_hash != sig_robot.anchor_hash:
-        short = lambda h: h[:12] or "none"  # noqa: E731
-        problems.append(f"anchor set: {pair(short(sig_task.anchor_hash), short(sig_robot.anchor_hash))}")
-    if target is not None:
-        problems += target_problems(_stitched_signature(sig_task, sig_robot), target)
-    return problems
-
-
-def target_problems(signature: Signature, target: EnvSpec) -> list[str]:
-    """Reasons a policy with ``signature`` cannot run the target env (robot, task)."""
-    robot, task = EnvPart(target[0]), EnvPart(target[1])
-    name = f"target env ({robot.short}, {task.short})"
-    try:
-        dims = env_dims(robot, task)
-        needs_gripper = resolve_task(task).family.default_gripper
-    except (ValueError, TypeError) as e:
-        return [f"{name}: {e}"]
-    problems = [
-        f"{what}: policy {getattr(signature, field)} vs {name} {getattr(dims, field)}"
-        for what, field in (
-            ("task dim", "task_dim"),
-            ("robot dim", "robot_dim"),
-            ("action dim", "action_dim"),
-        )
-        if getattr(signature, field) != getattr(dims, field)
-    ]
-    if needs_gripper and not effective_gripper(robot, task):
-        problems.append(
-            f"{name}: {task.short} needs the gripper; use a robot module "
-            f'trained with it, e.g. robot {{"name": ..., "gripper": true}}'
-        )
-    return problems
-
-
-def check_stitchable(sig_task: Signature, sig_robot: Signature, target: EnvSpec | None = None) -> Signature:
-    """The stitched policy's signature, or one ValueError naming every mismatch."""
-    problems = stitch_problems(sig_task, sig_robot, target)
-    if problems:
-        raise UserError("cannot stitch: " + "; ".join(problems))
-    return _stitched_signature(sig_task, sig_robot)
-
-
-def _stitched_signature(sig_task: Signature, sig_robot: Signature) -> Signature:
-    return dataclasses.replace(sig_task, robot_dim=sig_robot.robot_dim, action_dim=sig_robot.action_dim)
 
 
 # -- stitching ------------------------------------------------------------------------------------
@@ -278,10 +182,8 @@ def combos(
     found = []
     for t in tasks:
         for r in robots:
-            if t.key.task == r.key.task or arm(t.robot) == arm(r.robot):
-                continue
-            target = default_target(t.spec, r.spec)
-            if not stitch_problems(t.signature, r.signature, target):
+            target = stitchable(t.spec, r.spec, t.signature, r.signature)
+            if target is not None:
                 found.append(Combo(t, r, *target))
     return found
 

@@ -26,7 +26,7 @@ from ps_ray.names import EnvPart, short_name, trial_key
 from ps_ray.specs.methods import method_key
 from ps_ray.store.layout import SweepLayout
 from ps_ray.store.run_layout import POLICY_FILE, SPEC_FILE
-from ps_ray.weights import Signature, read_signature
+from ps_ray.store.signature import Signature, read_signature
 
 if TYPE_CHECKING:
     pass

@@ -84,7 +84,7 @@ def metrics_up_to(run_dir: Path, env_steps: int) -> None:
 
 def best_so_far(run_dir: Path) -> float:
     """The greedy success of ``best_policy.safetensors`` (stored in its metadata), -1 if none."""
-    from ps_ray.weights import read_signature
+    from ps_ray.store.signature import read_signature
 
     path = run_dir / BEST_POLICY_FILE
     if not path.exists():

@@ -461,6 +461,33 @@ def test_combos_is_the_valid_matrix(sweep):
     assert len(combos(zoo, "ablation", 1)) == 2
 
 
+def test_the_cost_model_counts_the_pairs_the_zoo_stitches(sweep):
+    """One pairing rule: the pairs the cost model counts from a sweep's spec, before training, are
+    the zoo's matrix after it; a pick task module never meets a robot module without a gripper."""
+    from ps_ray.analysis.workload import stitch_pairs
+    from ps_ray.specs.sweep import SweepSpec
+
+    grid = SweepSpec(
+        name="fake",
+        methods=("ablation",),
+        robots=("panda", "panda_l3"),
+        tasks=("push", "pick_cube"),
+        seeds=(1,),
+        interface_dims=(K,),
+        train={"hidden": 16},
+    )
+    counted = {
+        (str(t.robot.short), str(t.task.short), str(r.robot.short), str(r.task.short))
+        for t, r in stitch_pairs(grid, "ablation")
+    }
+    stitched = {
+        (c.task_from.key.robot, c.task_from.key.task, c.robot_from.key.robot, c.robot_from.key.task)
+        for c in combos(ModuleZoo.from_sweep(sweep), "ablation", 1)
+    }
+    assert counted == stitched and len(counted) == 2
+    assert ("panda_l3", "pick_cube", "panda", "push") not in counted  # pick needs the gripper
+
+
 def test_cross_seed_pairs_join_only_modules_whose_signatures_allow_it(tmp_path):
     """Seed 1's task modules with seed 2's robot modules (one anchor set); seed 3 trained with
     another anchor set, so no PS pair joins it. Each pair names its controls on its target."""

@@ -32,12 +32,14 @@ def others_to(log_path: Path) -> Iterator[IO[str]]:
         return
     log_path.parent.mkdir(parents=True, exist_ok=True)
     with open(log_path, "a", buffering=1) as log:
-        handlers = [
-            h
-            for name in NOISY_LOGGERS
-            for h in logging.getLogger(name).handlers
-            if isinstance(h, logging.StreamHandler)
-        ]
+        handlers = list(  # each once: a handler on two loggers must get its own stream back
+            dict.fromkeys(
+                h
+                for name in NOISY_LOGGERS
+                for h in logging.getLogger(name).handlers
+                if isinstance(h, logging.StreamHandler)
+            )
+        )
         streams = [h.setStream(log) for h in handlers]
         for stream in (sys.stdout, sys.stderr):
             stream.flush()

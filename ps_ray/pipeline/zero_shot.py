@@ -146,10 +146,11 @@ def evaluate_pair(
     ``chance`` the chance level of the pair's target env on those episodes (:func:`chance_levels`),
     ``outcome`` the scenes, reference points and cache folder of a translation fitted on matched
     pairs, ``scored`` the controls' evaluations so far (by file and target env), to reuse."""
-    scored = {} if scored is None else scored
     from ps_ray.evaluate import evaluate
     from ps_ray.stitching.outcomes import fit_pairs
     from ps_ray.stitching.stitch import stitch_policies
+
+    scored = {} if scored is None else scored
 
     kind, fit = split_translation(pair.translation) if pair.translation else (None, "")
     if fit:  # matched pairs of states (ps_ray.stitching.outcomes)

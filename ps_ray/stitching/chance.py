@@ -23,7 +23,6 @@ from typing import Any
 
 import numpy as np
 
-CHANCE_POLICIES = ("random_point", "random_actions")
 _STREAM = 0x5EED_C4A7  # keeps these draws apart from the env's own use of the episode seed
 
 
@@ -54,6 +53,7 @@ class RandomActions:
 
 
 POLICIES: dict[str, Callable[[], Any]] = {"random_point": RandomPoint, "random_actions": RandomActions}
+CHANCE_POLICIES = tuple(POLICIES)
 
 
 def chance(robot, task, settings: Mapping[str, Any]) -> dict[str, Any]:

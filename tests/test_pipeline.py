@@ -224,7 +224,9 @@ def test_the_terminal_gets_a_compact_view_and_the_log_keeps_tunes_tables(smoke):
     # Ray's and MLflow's start-up notices went to the driver's log, not the terminal
     for notice in ("Token authentication is enabled", "on the new API stack", "MLflow database tables"):
         assert notice not in out, notice
-    assert "Token authentication is enabled" in (root / "logs" / "driver.log").read_text()
+    # the log keeps them (Ray's token notice is printed only where no token exists yet, so MLflow's
+    # database set-up, printed on every fresh store, is the notice checked)
+    assert "MLflow database tables" in (root / "logs" / "driver.log").read_text()
     assert any(line.startswith("  zero_shot: ") and " done, " in line for line in lines)
     assert any(line.startswith("  few_shot: 6 done, 0 running, 0 failed, 0 pending") for line in lines)
     assert "Trial status" in (root / "logs" / "tune_zero_shot.log").read_text()

@@ -15,7 +15,8 @@ from ps_ray.analysis.hardware import (
     update_factor,
 )
 from ps_ray.analysis.workload import StageLoad, train_load
-from ps_ray.specs.resources import STAGES_WITH_TRIALS, StageResources
+from ps_ray.specs.resources import StageResources
+from ps_ray.specs.stages import STAGES_WITH_TRIALS
 from ps_ray.specs.sweep import SweepSpec
 from ps_ray.specs.train import TrainSpec
 

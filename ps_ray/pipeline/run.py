@@ -1,6 +1,6 @@
 """`ps-ray run`: every stage of a sweep in order, skipping finished ones, resuming a killed one.
 
-Stages (``SweepSpec.stages``, run in the order of ``specs.sweep.STAGES``):
+Stages (``SweepSpec.stages``, run in the order of ``specs.stages.STAGES``):
   train      plain sources -> anchors -> the grid's trials (ps_ray.pipeline.sweep)
   zero_shot  every stitched pair evaluated (ps_ray.pipeline.zero_shot)
   few_shot   stitched starts fine-tuned beside from-scratch runs (ps_ray.pipeline.few_shot)
@@ -19,7 +19,8 @@ import time
 from collections.abc import Callable
 
 from ps_ray.pipeline.sweep import layout, raise_on_errors, require_same_sweep
-from ps_ray.specs.sweep import STAGES, SweepSpec
+from ps_ray.specs.stages import STAGES
+from ps_ray.specs.sweep import SweepSpec
 from ps_ray.store.stages import finished_summary, mark_finished, mark_started, stage_state
 
 

@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from ps_ray.specs.methods import uses_anchors
+from ps_ray.specs.stages import stage as stage_record
 from ps_ray.specs.sweep import SweepSpec, anchor_sources, task_input_dim
 from ps_ray.specs.train import TrainSpec, require_same
 from ps_ray.store.atomic import write_text
@@ -298,7 +299,7 @@ def run_tune(
     from ps_ray.specs.resources import device_tags
     from ps_ray.tracking import git_commit
 
-    resources = spec.resources.few_shot if stage == "few_shot" else spec.resources.train
+    resources = getattr(spec.resources, stage_record(stage).name)
     callback = MLflowTuneCallback(
         *tracking,
         metric_keys=METRIC_KEYS + ("final_success", "final_touching"),

@@ -21,8 +21,7 @@ import math
 from dataclasses import dataclass
 
 from ps_ray.errors import UserError
-
-STAGES_WITH_TRIALS = ("train", "zero_shot", "few_shot")
+from ps_ray.specs.stages import STAGES_WITH_TRIALS
 
 
 @dataclass(frozen=True)

@@ -17,11 +17,10 @@ from ps_ray.errors import UserError
 from ps_ray.names import ANCHOR_GOALS, EnvPart, plain_json, translations_problem
 from ps_ray.specs.methods import method_key, uses_anchors
 from ps_ray.specs.resources import ResourcesSpec
+from ps_ray.specs.stages import NOT_TRAINING, STAGES
 from ps_ray.specs.train import SpecError, TrainSpec, check_keys, check_types
 
 ANCHOR_POLICIES = ("plain", "random")
-# Pipeline stages in order; "train" covers plain sources, anchors and the grid (ps_ray.pipeline.sweep).
-STAGES = ("train", "zero_shot", "few_shot", "report")
 
 
 def _method_keys(where: str, methods: Any) -> Any:
@@ -198,8 +197,6 @@ SUB_SPECS = {
     "report": ReportSpec,
     "resources": ResourcesSpec,
 }
-# Settings that do not change what the training stage produces (a resumed sweep may change them).
-NOT_TRAINING = ("stages", "zero_shot", "few_shot", "report", "resources", "max_concurrent", "max_failures")
 
 
 @dataclass(frozen=True)

@@ -7,6 +7,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
+from ps_ray.specs.stages import STAGE_RECORDS
+
 LOG_FOLDER = "logs"  # beside a stage's Tune folder: Tune's own output, one log per stage
 
 
@@ -54,15 +56,15 @@ class SweepLayout:
 
     @property
     def tune_plain(self) -> Path:
-        return self.root / "tune_plain"
+        return self.stage_folders()["anchors_plain"]
 
     @property
     def tune_train(self) -> Path:
-        return self.root / "tune"
+        return self.stage_folders()["train"]
 
     @property
     def tune_zero_shot(self) -> Path:
-        return self.root / "tune_zero_shot"
+        return self.stage_folders()["zero_shot"]
 
     @property
     def zero_shot_table(self) -> Path:
@@ -80,7 +82,7 @@ class SweepLayout:
 
     @property
     def tune_few_shot(self) -> Path:
-        return self.few_shot / "tune_few_shot"
+        return self.stage_folders()["few_shot"]
 
     @property
     def stitched(self) -> Path:
@@ -95,13 +97,9 @@ class SweepLayout:
         return self.root / "stages"
 
     def stage_folders(self) -> dict[str, Path]:
-        """Each Tune stage's experiment folder."""
-        return {
-            "anchors_plain": self.tune_plain,
-            "train": self.tune_train,
-            "zero_shot": self.tune_zero_shot,
-            "few_shot": self.tune_few_shot,
-        }
+        """Each Tune experiment's folder, by the name its trials are tagged and costed under
+        (:data:`ps_ray.specs.stages.STAGE_RECORDS`)."""
+        return {label: self.root / folder for s in STAGE_RECORDS for label, folder in s.tune_folders.items()}
 
 
 def sweep_dir(spec) -> Path:

@@ -12,21 +12,19 @@ import hashlib
 import json
 from pathlib import Path
 
-from ps_ray.specs.sweep import STAGES, SweepSpec
+from ps_ray.specs.stages import earlier_and
+from ps_ray.specs.sweep import SweepSpec
 from ps_ray.store.atomic import write_text
 from ps_ray.store.layout import SweepLayout
-
-# The settings each stage's outputs depend on, besides those of the earlier stages.
-STAGE_SETTINGS = {"train": None, "zero_shot": "zero_shot", "few_shot": "few_shot", "report": "report"}
 
 
 def fingerprint(spec: SweepSpec, stage: str) -> str:
     """Hash of what ``stage``'s outputs depend on: training settings and every stage up to it."""
     data = spec.to_dict()
     parts = {"train": spec.training_identity()}
-    for name in STAGES[1 : STAGES.index(stage) + 1]:
-        if name in spec.stages:
-            parts[name] = data[STAGE_SETTINGS[name]]
+    for record in earlier_and(stage):
+        if record.settings and not record.changes_training and record.name in spec.stages:
+            parts[record.name] = data[record.settings]
     text = json.dumps(parts, sort_keys=True)
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 

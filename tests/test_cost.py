@@ -12,15 +12,17 @@ from pathlib import Path
 import pytest
 import yaml
 
-from ps_ray.analysis.cost import DEFAULT_RATES, Rates, describe, load_rates, project, workload
+from ps_ray.analysis.cost import describe, load_rates, project, workload
 from ps_ray.analysis.hardware import (
     CLUSTERS,
     CPU_CLUSTER,
     DEFAULT_GPU_RATES,
+    DEFAULT_RATES,
     GPU_CLUSTER,
     HT_WORTH,
     PARALLEL_FRACTION,
     NodeKind,
+    Rates,
 )
 from ps_ray.specs.resources import ResourcesSpec, StageResources
 from ps_ray.specs.sweep import SweepSpec, load_sweep

@@ -18,20 +18,12 @@ def _module(path: Path) -> str:
 
 
 def _imports(path: Path, modules: set[str]) -> set[str]:
-    """Every ps_ray module ``path`` imports, at the top or inside a function; imports under
-    ``if TYPE_CHECKING:`` are for annotations only and run never."""
+    """Every ps_ray module ``path`` imports, at the top, inside a function or under ``if
+    TYPE_CHECKING:`` (an import for annotations only still ties the two modules together)."""
     tree = ast.parse(path.read_text())
-    skipped = {
-        id(node)
-        for block in ast.walk(tree)
-        if isinstance(block, ast.If) and "TYPE_CHECKING" in ast.unparse(block.test)
-        for node in ast.walk(block)
-    }
     package = _module(path) if path.name == "__init__.py" else _module(path).rpartition(".")[0]
     found = set()
     for node in ast.walk(tree):
-        if id(node) in skipped:
-            continue
         if isinstance(node, ast.Import):
             names = [alias.name for alias in node.names]
         elif isinstance(node, ast.ImportFrom):

@@ -19,53 +19,20 @@ import socket
 from dataclasses import dataclass
 from pathlib import Path
 
-from ps_ray.analysis.hardware import CLUSTERS, DEFAULT_GPU_RATES, GpuRates, NodeKind, this_machine
+from ps_ray.analysis.hardware import (
+    CLUSTERS,
+    DEFAULT_GPU_RATES,
+    DEFAULT_RATES,
+    GpuRates,
+    NodeKind,
+    Rates,
+    this_machine,
+)
 from ps_ray.analysis.placement import OnKind, on_kind
 from ps_ray.analysis.workload import StageLoad, train_load, workload
-from ps_ray.specs.methods import uses_anchors
 from ps_ray.specs.sweep import SweepSpec
 from ps_ray.specs.train import SpecError, TrainSpec
 from ps_ray.store.layout import SweepLayout
-
-
-@dataclass(frozen=True)
-class Rates:
-    """Per-core seconds. ``update_s`` is a gradient update of all five SAC nets at batch 256 as
-    ``fixed + per_unit * batch * hidden**2 / 256**3``; relative methods multiply updates by
-    ``relative_factor`` (they re-embed the anchors in every forward pass)."""
-
-    trial_s: float  # starting a trial: Ray worker, envs, RLlib build
-    stage_s: float  # starting a stage: Ray and Tune
-    env_step_s: float  # one collected env step (physics + acting)
-    eval_step_s: float  # one greedy evaluation step
-    update_fixed_s: float
-    update_per_unit_s: float
-    relative_factor: float
-    source: str
-
-    @staticmethod
-    def size_unit(spec: TrainSpec) -> float:
-        return spec.batch_size * spec.hidden**2 / 256**3
-
-    def method_factor(self, spec: TrainSpec) -> float:
-        return self.relative_factor if uses_anchors(spec.method) else 1.0
-
-    def update_s(self, spec: TrainSpec) -> float:
-        per_update = self.update_fixed_s + self.update_per_unit_s * self.size_unit(spec)
-        return per_update * self.method_factor(spec)
-
-
-# Measured for hidden 256 on a 2-core machine (docs/cost.md), rounded up by about 1.5x.
-DEFAULT_RATES = Rates(
-    trial_s=20.0,
-    stage_s=15.0,
-    env_step_s=0.006,
-    eval_step_s=0.004,
-    update_fixed_s=0.01,
-    update_per_unit_s=0.05,
-    relative_factor=1.5,
-    source="conservative defaults (run `ps-ray bench rates` to measure this machine)",
-)
 
 
 def rates_path() -> Path:

@@ -5,12 +5,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 from ps_ray.analysis.hardware import (
     GPU_LAYOUT,
     GpuRates,
     NodeKind,
+    Rates,
     cpu_factor,
     update_factor,
 )
@@ -19,9 +19,6 @@ from ps_ray.specs.resources import StageResources
 from ps_ray.specs.stages import STAGES_WITH_TRIALS
 from ps_ray.specs.sweep import SweepSpec
 from ps_ray.specs.train import TrainSpec
-
-if TYPE_CHECKING:
-    from ps_ray.analysis.cost import Rates
 
 
 @dataclass(frozen=True)

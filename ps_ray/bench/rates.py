@@ -23,7 +23,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from ps_ray.analysis.cost import DEFAULT_RATES, Rates, rates_path
+from ps_ray.analysis.cost import rates_path
+from ps_ray.analysis.hardware import DEFAULT_RATES, Rates
 from ps_ray.cli_parsers import Parser, positive_int
 from ps_ray.envs import EPISODE_STEPS
 from ps_ray.specs.train import TrainSpec

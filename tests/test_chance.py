@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from ps_ray.envs import make
-from ps_ray.evaluate import evaluate
 from ps_ray.stitching.chance import RandomPoint, chance
+from ps_ray.stitching.evaluate import evaluate
 
 EPISODES = {"episodes": 30, "repeats": 1, "seed": 7}
 

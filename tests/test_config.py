@@ -266,7 +266,7 @@ def test_a_binary_sweep_file_is_refused_in_one_line(tmp_path):
 
 
 def test_a_bad_json_robot_flag_is_one_line_but_a_bug_keeps_its_traceback(tmp_path, monkeypatch, capsys):
-    from ps_ray import cli
+    from ps_ray.cli import commands as cli
 
     run_dir = tmp_path / "run"
     assert cli.main(["train", "--robot", '{"name": "panda",', "--run-dir", str(run_dir)]) == 2
@@ -288,7 +288,7 @@ def test_a_bad_json_robot_flag_is_one_line_but_a_bug_keeps_its_traceback(tmp_pat
     ["push_slippery", {"name": "reach", "goal_region": "q2"}, {"base": "panda", "locked_joints": (2,)}],
 )
 def test_a_robot_or_task_is_one_type_whatever_its_spelling(value):
-    from ps_ray.names import EnvPart, parse_spec_text, spec_text
+    from ps_ray.specs.names import EnvPart, parse_spec_text, spec_text
 
     part = EnvPart(value)
     assert parse_spec_text(spec_text(value)) == part == value  # text round trip; equal to what was written
@@ -305,7 +305,7 @@ def test_a_robot_or_task_is_one_type_whatever_its_spelling(value):
 
 
 def test_a_mapping_holding_only_a_name_is_that_name():
-    from ps_ray.names import EnvPart
+    from ps_ray.specs.names import EnvPart
 
     part = EnvPart({"name": "panda"})
     assert part == "panda" and part.spelling == "panda" and str(part) == "panda" and part.options == {}

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from ps_ray.errors import UserError
-from ps_ray.evaluate import evaluate
-from ps_ray.names import EnvPart
+from ps_ray.specs.names import EnvPart
+from ps_ray.stitching.evaluate import evaluate
 from ps_ray.stitching.outcomes import colour_swapped, matched_pairs, outcomes
 
 RED, BLUE = slice(0, 3), slice(3, 6)  # the marker task state: red's position, then blue's

@@ -26,12 +26,12 @@ import pytest
 
 from ps_ray.analysis.browser import find_chromium
 from ps_ray.analysis.cost import workload
-from ps_ray.names import trial_key
+from ps_ray.specs.names import trial_key
 from ps_ray.specs.sweep import load_sweep
 from ps_ray.store.checkpoint import latest as latest_checkpoint
 from ps_ray.store.layout import SweepLayout
 from ps_ray.store.stages import stage_state
-from ps_ray.tracking import TRIAL_KEY_TAG
+from ps_ray.store.tracking import TRIAL_KEY_TAG
 from tests.conftest import wait_until_serving
 
 SMOKE = Path(__file__).resolve().parents[1] / "sweeps" / "smoke.yaml"
@@ -445,7 +445,7 @@ def test_no_entry_point_runs_the_pickles_planted_in_the_sweep_folder(smoke, cli,
     folder, trial folder and checkpoint, and the anchors): every command that reads it succeeds
     and none loads them. (`run` and `sweep --resume` are checked by the fixture and test_sweep,
     `report` by the rebuilt fixture.)"""
-    from ps_ray.names import spec_text
+    from ps_ray.specs.names import spec_text
     from ps_ray.stitching.zoo import ModuleZoo
 
     spec, root, _ = smoke

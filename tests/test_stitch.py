@@ -18,15 +18,15 @@ import torch
 import yaml
 from safetensors.torch import save_file
 
-from ps_ray import cli
+from ps_ray.cli import commands as cli
 from ps_ray.envs import make
 from ps_ray.envs.core import effective_gripper
 from ps_ray.errors import UserError
-from ps_ray.names import EnvPart
 from ps_ray.nets.modular import NetDims, update_normalizers
 from ps_ray.nets.obs import dims_from_spaces
 from ps_ray.nets.sac import NET_NAMES, SACNets, build_sac_nets
 from ps_ray.specs.methods import method_spec, uses_anchors
+from ps_ray.specs.names import EnvPart
 from ps_ray.stitching.paper import PANDA_L3_GRIPPER, PAPER_COMBOS
 from ps_ray.stitching.rule import check_stitchable, default_target
 from ps_ray.stitching.stitch import combos, controls, env_dims, stitch_policies
@@ -269,7 +269,7 @@ def test_zoo_from_a_real_tiny_sweep(tmp_path, ray_local, tiny_train):
     a, b = zoo.get("ps/panda/reach/1/i8"), zoo.get("ps/panda_l3/reach/1/i8")
     assert a.signature.anchor_hash == b.signature.anchor_hash  # one anchor set per sweep
     nets, signature = stitch_policies(a, b)
-    from ps_ray.evaluate import evaluate
+    from ps_ray.stitching.evaluate import evaluate
 
     result = evaluate((nets, signature), "panda_l3", "reach", episodes=2, repeats=1, num_envs=2)
     assert result["success_mean"] in (0.0, 0.5, 1.0)  # two fixed episodes

@@ -1,4 +1,4 @@
-"""ps_ray.tracking against a real sqlite MLflow store and a real (local) Tune."""
+"""ps_ray.store.tracking against a real sqlite MLflow store and a real (local) Tune."""
 
 from __future__ import annotations
 
@@ -22,7 +22,7 @@ from ps_ray.pipeline.tune_tracking import (
     lookup,
     spec_key,
 )
-from ps_ray.tracking import (
+from ps_ray.store.tracking import (
     TRIAL_KEY_TAG,
     TrialTracker,
     check_tracking_uri,

@@ -6,7 +6,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-from ps_ray.names import short_name
+from ps_ray.specs.names import short_name
 from ps_ray.specs.sweep import SweepSpec
 from ps_ray.stitching.pairs import StitchedPair, evaluated_pairs
 
@@ -30,7 +30,7 @@ class Clip:
 def _clip(policy_file_or_nets, robot, task, path: Path, method: str, role: str) -> Clip:
     from ps_ray.envs import make
     from ps_ray.envs.render import rollout, save_gif
-    from ps_ray.policy import GreedyPolicy
+    from ps_ray.nets.policy import GreedyPolicy
 
     actor = policy_file_or_nets.actor if hasattr(policy_file_or_nets, "actor") else None
     policy = GreedyPolicy(actor) if actor is not None else GreedyPolicy.from_file(policy_file_or_nets)

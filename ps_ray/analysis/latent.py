@@ -21,7 +21,7 @@ import numpy as np
 import pandas as pd
 
 from ps_ray.errors import UserError
-from ps_ray.names import EnvPart
+from ps_ray.specs.names import EnvPart
 
 QUADRANTS = ("q1", "q2", "q3", "q4")  # goal x/y signs (+,+), (-,+), (-,-), (+,-), as reach regions
 COMPARISONS = {"seeds": "seed", "robots": "robot"}  # comparison -> the field that varies

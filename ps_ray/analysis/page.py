@@ -12,7 +12,7 @@ from pathlib import Path
 import pandas as pd
 
 from ps_ray.analysis import clips
-from ps_ray.names import short_name
+from ps_ray.specs.names import short_name
 from ps_ray.specs.sweep import SweepSpec
 
 
@@ -70,7 +70,7 @@ img { max-width: 100%; display: block; margin: 1em 0; } .meta td { text-align: l
 
 def render_html(spec: SweepSpec, report: Report) -> str:
     """One page, figures embedded as data URIs, so the file opens anywhere without its folder."""
-    from ps_ray.tracking import git_commit
+    from ps_ray.store.tracking import git_commit
 
     esc = html.escape
     meta = {

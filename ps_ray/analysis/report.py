@@ -24,7 +24,7 @@ from ps_ray.analysis.page import Report, Section, render_html
 from ps_ray.analysis.report_run import REPORT_RUN, log_report
 from ps_ray.analysis.summary import cost_section, summary_section
 from ps_ray.errors import UserError
-from ps_ray.names import parse_spec_text, short_name
+from ps_ray.specs.names import parse_spec_text, short_name
 from ps_ray.specs.sweep import SweepSpec
 from ps_ray.store.atomic import fsync_dir, write_text
 from ps_ray.store.layout import SweepLayout

@@ -16,7 +16,7 @@ def log_report(spec: SweepSpec, report_dir: Path, metrics: dict[str, float]) -> 
     """One run per sweep (found again by its key), holding the report folder and headline
     numbers; a rebuild overwrites the same artifacts. Returns the run id."""
     from ps_ray.store.layout import sweep_dir
-    from ps_ray.tracking import (
+    from ps_ray.store.tracking import (
         STAGE_TAG,
         TrialTracker,
         default_tracking_uri,
@@ -46,7 +46,7 @@ def log_report(spec: SweepSpec, report_dir: Path, metrics: dict[str, float]) -> 
 def _run_index(client, experiment_id: str, report_run: str) -> dict[str, dict[str, dict[str, str]]]:
     """Every run the report summarises, by stage and trial key: its run id, and for a stitched
     policy the runs of its two sources (``runs.json`` in the report run)."""
-    from ps_ray.tracking import ROBOT_SOURCE_RUN_TAG, STAGE_TAG, TASK_SOURCE_RUN_TAG, TRIAL_KEY_TAG
+    from ps_ray.store.tracking import ROBOT_SOURCE_RUN_TAG, STAGE_TAG, TASK_SOURCE_RUN_TAG, TRIAL_KEY_TAG
 
     index: dict[str, dict[str, dict[str, str]]] = {}
     for run in client.search_runs([experiment_id], max_results=50_000):

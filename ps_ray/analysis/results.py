@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from ps_ray.names import short_name, trial_key
+from ps_ray.specs.names import short_name, trial_key
 from ps_ray.store.attempts import PARAMS_FILE, attempts, merged_rows
 
 CURVE_COLUMNS = [

@@ -6,8 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from ps_ray.names import short_name
 from ps_ray.specs.methods import table_order
+from ps_ray.specs.names import short_name
 
 
 def pm(mean: float, std: float, digits: int = 2) -> str:

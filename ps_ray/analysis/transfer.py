@@ -10,7 +10,7 @@ import pandas as pd
 
 from ps_ray.analysis.stats import estimate, paired
 from ps_ray.analysis.tables import ci, method_order
-from ps_ray.names import CONTROL_ROLES
+from ps_ray.specs.names import CONTROL_ROLES
 
 CONTROL_COLUMNS = {
     "robot_source_success": "robot source unstitched",

@@ -8,7 +8,7 @@ import json
 from dataclasses import dataclass
 
 from ps_ray.envs import EPISODE_STEPS
-from ps_ray.names import CONTROL_ROLES
+from ps_ray.specs.names import CONTROL_ROLES
 from ps_ray.specs.sweep import SweepSpec
 from ps_ray.specs.train import TrainSpec
 from ps_ray.stitching.chance import CHANCE_POLICIES

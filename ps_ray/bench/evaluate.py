@@ -19,13 +19,13 @@ from collections.abc import Sequence
 import numpy as np
 import torch
 
-from ps_ray.cli_parsers import Parser, positive_int
-from ps_ray.defaults import HIDDEN, INTERFACE_DIM
+from ps_ray.cli.parsers import Parser, positive_int
 from ps_ray.envs import make, task_input
-from ps_ray.evaluate import evaluate
 from ps_ray.nets.obs import dims_from_spaces
 from ps_ray.nets.sac import build_sac_nets
+from ps_ray.specs.defaults import HIDDEN, INTERFACE_DIM
 from ps_ray.specs.methods import uses_anchors
+from ps_ray.stitching.evaluate import evaluate
 
 
 def env_rate(robot: str, task: str, steps: int, seed: int = 0) -> float:

@@ -25,7 +25,7 @@ import numpy as np
 import pandas as pd
 
 from ps_ray.analysis.stats import estimate, ratio_of_means
-from ps_ray.cli_parsers import Parser, positive_int
+from ps_ray.cli.parsers import Parser, positive_int
 from ps_ray.specs.train import TrainSpec
 from ps_ray.train import train
 

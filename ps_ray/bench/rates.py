@@ -25,7 +25,7 @@ import pandas as pd
 
 from ps_ray.analysis.cost import rates_path
 from ps_ray.analysis.hardware import DEFAULT_RATES, Rates
-from ps_ray.cli_parsers import Parser, positive_int
+from ps_ray.cli.parsers import Parser, positive_int
 from ps_ray.envs import EPISODE_STEPS
 from ps_ray.specs.train import TrainSpec
 from ps_ray.store.atomic import write_text
@@ -77,7 +77,7 @@ def process_start_s(root: Path) -> float:
 
 
 def measure(env_steps: int, learning_starts: int, root: Path) -> tuple[Rates, list[dict]]:
-    from ps_ray.evaluate import evaluate
+    from ps_ray.stitching.evaluate import evaluate
 
     grid = [(method, hidden) for method in ("ablation", "ps") for hidden in (64, 256)]
     runs = [measure_run(method, hidden, env_steps, learning_starts, root) for method, hidden in grid]

@@ -16,7 +16,7 @@ import time
 import numpy as np
 import torch
 
-from ps_ray.cli_parsers import Parser, positive_int
+from ps_ray.cli.parsers import Parser, positive_int
 from ps_ray.nets.modular import NetDims
 from ps_ray.nets.obs import dims_from_spaces
 from ps_ray.nets.sac import SACHyper, build_sac_nets, sac_forward, sac_losses

@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 
 from ps_ray.errors import UserError, choice_error
-from ps_ray.names import ANCHOR_GOALS
+from ps_ray.specs.names import ANCHOR_GOALS
 
 log = logging.getLogger(__name__)
 

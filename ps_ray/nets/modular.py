@@ -25,11 +25,11 @@ from typing import TypeVar
 import torch
 from torch import Tensor, nn
 
-from ps_ray.defaults import HIDDEN, INTERFACE_DIM
 from ps_ray.errors import UserError
 from ps_ray.nets.mlp import mlp
 from ps_ray.nets.normalize import RunningNorm
 from ps_ray.nets.relative import RelativeProjection
+from ps_ray.specs.defaults import HIDDEN, INTERFACE_DIM
 from ps_ray.specs.methods import MethodSpec, RelativeSpec, method_spec
 
 LOG_STD_MIN, LOG_STD_MAX = -9.0, 2.0

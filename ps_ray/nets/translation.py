@@ -20,7 +20,7 @@ import torch
 from torch import Tensor, nn
 
 from ps_ray.errors import UserError
-from ps_ray.names import TRANSLATIONS
+from ps_ray.specs.names import TRANSLATIONS
 
 SCALE_EPS = 1e-8
 

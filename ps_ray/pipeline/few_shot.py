@@ -19,8 +19,8 @@ from pathlib import Path
 from typing import Any
 
 from ps_ray.errors import UserError
-from ps_ray.names import trial_key
 from ps_ray.pipeline.sweep import anchor_file, layout, sweep_dir
+from ps_ray.specs.names import trial_key
 from ps_ray.specs.sweep import FewShotSpec, SweepSpec
 from ps_ray.specs.train import TrainSpec
 from ps_ray.stitching.pairs import StitchedPair, evaluated_pairs
@@ -170,7 +170,7 @@ def run_few_shot(spec: SweepSpec, *, resume: bool = False, progress: bool = True
 def _source_tags(trial: dict, client, experiment_id: str) -> dict[str, str]:
     """A fine-tuning run of a stitched start names its two sources (their runs) and anchor set."""
     from ps_ray.store.signature import read_signature
-    from ps_ray.tracking import source_tags
+    from ps_ray.store.tracking import source_tags
 
     start = trial["spec"].get("init_policy")
     if trial["kind"] != "stitched" or not start:

@@ -52,7 +52,7 @@ def prepare_sweep_anchors(
     from ps_ray.data.anchors import make_anchor_set
     from ps_ray.data.collect import collect_task_states
     from ps_ray.envs import make
-    from ps_ray.policy import GreedyPolicy
+    from ps_ray.nets.policy import GreedyPolicy
 
     ps = [t for t in spec.trials() if uses_anchors(t.method)]
     sources = anchor_sources(spec) if ps else []
@@ -249,8 +249,8 @@ def connect(spec: SweepSpec) -> tuple[str, str]:
     import ray
 
     from ps_ray.store.layout import LOG_FOLDER
+    from ps_ray.store.tracking import default_tracking_uri, ensure_experiment
     from ps_ray.terminal import others_to
-    from ps_ray.tracking import default_tracking_uri, ensure_experiment
 
     where = layout(spec)
     with others_to(where.root / LOG_FOLDER / "driver.log"):  # Ray's and MLflow's start-up messages
@@ -297,7 +297,7 @@ def run_tune(
     from ps_ray.pipeline.trials import run_trials
     from ps_ray.pipeline.tune_tracking import MLflowTuneCallback
     from ps_ray.specs.resources import device_tags
-    from ps_ray.tracking import git_commit
+    from ps_ray.store.tracking import git_commit
 
     resources = getattr(spec.resources, stage_record(stage).name)
     callback = MLflowTuneCallback(

@@ -1,4 +1,4 @@
-"""The driver-side Tune callback that logs every trial to MLflow (:mod:`ps_ray.tracking`):
+"""The driver-side Tune callback that logs every trial to MLflow (:mod:`ps_ray.store.tracking`):
 one run per trial key, metrics in batches, artifacts and status at the end."""
 
 from __future__ import annotations
@@ -11,8 +11,8 @@ from typing import TYPE_CHECKING, Any
 
 from ray.tune import Callback
 
-from ps_ray.names import trial_key
-from ps_ray.tracking import (
+from ps_ray.specs.names import trial_key
+from ps_ray.store.tracking import (
     GIT_COMMIT_TAG,
     TrialTracker,
     _client,

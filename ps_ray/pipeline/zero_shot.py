@@ -23,8 +23,8 @@ import numpy as np
 import pandas as pd
 
 from ps_ray.errors import UserError
-from ps_ray.names import CONTROL_ROLES, split_translation
 from ps_ray.pipeline.sweep import layout, raise_on_errors, sweep_dir
+from ps_ray.specs.names import CONTROL_ROLES, split_translation
 from ps_ray.specs.sweep import SweepSpec
 from ps_ray.stitching.pairs import StitchedPair, pairs
 from ps_ray.store.atomic import atomic_path
@@ -146,7 +146,7 @@ def evaluate_pair(
     ``chance`` the chance level of the pair's target env on those episodes (:func:`chance_levels`),
     ``outcome`` the scenes, reference points and cache folder of a translation fitted on matched
     pairs, ``scored`` the controls' evaluations so far (by file and target env), to reuse."""
-    from ps_ray.evaluate import evaluate
+    from ps_ray.stitching.evaluate import evaluate
     from ps_ray.stitching.outcomes import fit_pairs
     from ps_ray.stitching.stitch import stitch_policies
 
@@ -218,7 +218,7 @@ def run_zero_shot(
     from ps_ray.pipeline.tune_tracking import RowRunsCallback
     from ps_ray.specs.resources import device_tags
     from ps_ray.store.attempts import require_fresh, rows_naming
-    from ps_ray.tracking import git_commit
+    from ps_ray.store.tracking import git_commit
 
     settings = dataclasses.replace(spec.zero_shot, **overrides)
     root, folder = sweep_dir(spec), layout(spec).tune_zero_shot
@@ -289,7 +289,7 @@ def _batches(pairs: list, sizes: list[int]) -> list[list]:
 
 
 def _tags(client, experiment_id: str, pair: StitchedPair) -> dict:
-    from ps_ray.tracking import source_tags
+    from ps_ray.store.tracking import source_tags
 
     return source_tags(client, experiment_id, pair.task_from, pair.robot_from, pair.task_from_path)
 

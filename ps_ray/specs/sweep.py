@@ -10,12 +10,12 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from ps_ray.defaults import INTERFACE_DIM
 from ps_ray.envs.robots import resolve_robot
 from ps_ray.envs.tasks import resolve_task
 from ps_ray.errors import UserError
-from ps_ray.names import ANCHOR_GOALS, EnvPart, plain_json, translations_problem
+from ps_ray.specs.defaults import INTERFACE_DIM
 from ps_ray.specs.methods import method_key, uses_anchors
+from ps_ray.specs.names import ANCHOR_GOALS, EnvPart, plain_json, translations_problem
 from ps_ray.specs.resources import ResourcesSpec
 from ps_ray.specs.stages import NOT_TRAINING, STAGES
 from ps_ray.specs.train import SpecError, TrainSpec, check_keys, check_types

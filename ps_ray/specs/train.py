@@ -12,12 +12,12 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from ps_ray.defaults import HIDDEN, INTERFACE_DIM, MAX_WIDTH
 from ps_ray.envs.robots import resolve_robot
 from ps_ray.envs.tasks import resolve_task
 from ps_ray.errors import UserError
-from ps_ray.names import EnvPart, plain_json, trial_key
+from ps_ray.specs.defaults import HIDDEN, INTERFACE_DIM, MAX_WIDTH
 from ps_ray.specs.methods import OPTIONS, PRESETS, method_key
+from ps_ray.specs.names import EnvPart, plain_json, trial_key
 
 POINT_TASK = "point"  # the physics-free PointGoalEnv (robot is ignored), for fast checks
 

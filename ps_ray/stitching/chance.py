@@ -30,7 +30,7 @@ class RandomPoint:
     """Each episode: one target point ~ U(target region); every step moves toward it."""
 
     def begin(self, envs: Sequence, seeds: Sequence[int]) -> None:
-        """Called by :func:`ps_ray.evaluate.evaluate` once the batch's envs are reset."""
+        """Called by :func:`ps_ray.stitching.evaluate.evaluate` once the batch's envs are reset."""
         self.envs = list(envs)
         self.points = []
         for env, seed in zip(envs, seeds):
@@ -59,8 +59,8 @@ CHANCE_POLICIES = tuple(POLICIES)
 def chance(robot, task, settings: Mapping[str, Any]) -> dict[str, Any]:
     """Each chance policy's success on the episodes ``settings`` (``evaluate``'s episodes, repeats,
     seed) name, ``chance_success`` (the higher), ``chance_policy`` (which) and the episodes'
-    digest (:func:`ps_ray.evaluate.episodes_digest`), to check a pair ran on the same ones."""
-    from ps_ray.evaluate import evaluate
+    digest (:func:`ps_ray.stitching.evaluate.episodes_digest`), to check a pair ran on the same ones."""
+    from ps_ray.stitching.evaluate import evaluate
 
     out: dict[str, Any] = {}
     for name in CHANCE_POLICIES:

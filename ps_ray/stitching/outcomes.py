@@ -28,7 +28,7 @@ import numpy as np
 from ps_ray.envs.tasks import resolve_task
 from ps_ray.envs.tasks.markers import Markers
 from ps_ray.errors import UserError
-from ps_ray.names import EnvPart, parse_spec_text
+from ps_ray.specs.names import EnvPart, parse_spec_text
 from ps_ray.store.atomic import atomic_file
 from ps_ray.store.npz import read_npz
 
@@ -44,11 +44,11 @@ class Outcomes:
 
 
 def outcomes(policy, robot, task, scenes: int) -> Outcomes:
-    """Greedy rollouts of a policy (anything :func:`ps_ray.evaluate.evaluate` takes) in its own
+    """Greedy rollouts of a policy (anything :func:`ps_ray.stitching.evaluate.evaluate` takes) in its own
     env from ``scenes`` reset seeds starting at :data:`OUTCOME_SEED`: the successful ones, each
     described by its first task input and where the end effector ended (the env's target is never
     read: success only decides which episodes are kept)."""
-    from ps_ray.evaluate import evaluate
+    from ps_ray.stitching.evaluate import evaluate
 
     result = evaluate(policy, robot, task, episodes=scenes, repeats=1, seed=OUTCOME_SEED)
     won = [r for r in result["records"] if r["success"]]

@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from ps_ray.errors import UserError
-from ps_ray.names import CONTROL_ROLES, EnvPart, parse_spec_text, plain_json
+from ps_ray.specs.names import CONTROL_ROLES, EnvPart, parse_spec_text, plain_json
 from ps_ray.specs.sweep import SweepSpec, seed_pairs
 from ps_ray.store.layout import SweepLayout, sweep_dir
 

@@ -6,8 +6,8 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import dataclass
 
-from ps_ray.defaults import INTERFACE_DIM
-from ps_ray.names import EnvPart, trial_key
+from ps_ray.specs.defaults import INTERFACE_DIM
+from ps_ray.specs.names import EnvPart, trial_key
 
 PANDA_L3_GRIPPER = {"name": "panda_l3", "gripper": True}  # R2 with the gripper, on push (Push-v4)
 PAPER_TASKS = {

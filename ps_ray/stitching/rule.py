@@ -29,7 +29,7 @@ from ps_ray.envs.core import effective_gripper, env_widths
 from ps_ray.envs.robots import arm
 from ps_ray.envs.tasks import resolve_task
 from ps_ray.errors import UserError
-from ps_ray.names import EnvPart
+from ps_ray.specs.names import EnvPart
 from ps_ray.store.signature import Signature
 
 EnvSpec = tuple[EnvPart, EnvPart]  # (robot, task)

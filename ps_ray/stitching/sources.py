@@ -10,7 +10,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from ps_ray.errors import UserError
-from ps_ray.names import EnvPart
+from ps_ray.specs.names import EnvPart
 from ps_ray.stitching.rule import EnvSpec, default_target
 from ps_ray.stitching.zoo import ModuleZoo
 from ps_ray.store.run_layout import POLICY_FILE, SPEC_FILE

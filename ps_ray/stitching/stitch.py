@@ -3,7 +3,7 @@
 docs/authors_code.md §6: the task module comes from the policy trained on the *target task* with another
 robot, the robot module from the policy trained with the *target robot* on another task. All five
 nets are stitched (actor, both critics and both target critics), so a stitched policy can start
-few-shot training; zero-shot evaluation uses the actor alone (:mod:`ps_ray.evaluate`).
+few-shot training; zero-shot evaluation uses the actor alone (:mod:`ps_ray.stitching.evaluate`).
 
 Which pairs meet and what must agree for them live in :mod:`ps_ray.stitching.rule` (torch-free,
 so the cost model asks the same rule); here the nets are built, translated and the matrix of a
@@ -22,10 +22,10 @@ from torch import nn
 
 from ps_ray.envs.core import env_widths
 from ps_ray.errors import UserError
-from ps_ray.names import EnvPart
 from ps_ray.nets.modular import NetDims
 from ps_ray.nets.sac import NET_NAMES, SACNets, build_sac_nets
 from ps_ray.nets.translation import LatentTranslation, check_kind
+from ps_ray.specs.names import EnvPart
 from ps_ray.stitching.rule import (
     EnvSpec,
     check_stitchable,

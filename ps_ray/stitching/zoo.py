@@ -1,8 +1,8 @@
 """Module zoo: every trained policy of one or more sweeps, indexed for stitching.
 
 A key is (method, robot, task, seed, interface_dim); robots and tasks are rendered by
-:func:`ps_ray.names.short_name` (a name, or ``base{json}`` for a mapping). As a string a key is
-the trial key (:func:`ps_ray.names.trial_key`, also the MLflow run name): ``ps/panda/push/101``,
+:func:`ps_ray.specs.names.short_name` (a name, or ``base{json}`` for a mapping). As a string a key is
+the trial key (:func:`ps_ray.specs.names.trial_key`, also the MLflow run name): ``ps/panda/push/101``,
 with ``/i<dim>`` appended off the default interface dim (``ps/panda/push/101/i16``).
 
 Sweep layout read (see :mod:`ps_ray.pipeline.sweep`): ``<sweep>/tune/<trial>/checkpoint_N/`` (stage
@@ -22,8 +22,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from ps_ray.errors import UserError
-from ps_ray.names import EnvPart, short_name, trial_key
 from ps_ray.specs.methods import method_key
+from ps_ray.specs.names import EnvPart, short_name, trial_key
 from ps_ray.store.layout import SweepLayout
 from ps_ray.store.run_layout import POLICY_FILE, SPEC_FILE
 from ps_ray.store.signature import Signature, read_signature

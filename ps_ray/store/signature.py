@@ -12,8 +12,8 @@ from pathlib import Path
 
 from safetensors import SafetensorError, safe_open
 
-from ps_ray.defaults import MAX_WIDTH
 from ps_ray.errors import UserError
+from ps_ray.specs.defaults import MAX_WIDTH
 from ps_ray.specs.methods import MethodSpec, method_spec, spec_from_dict, spec_json
 
 FORMAT = "ps_ray.policy/1"
@@ -86,7 +86,7 @@ def read_signature(path: str | Path) -> tuple[Signature, dict[str, str]]:
 
 def signature_problem(signature: Signature) -> str | None:
     """What makes a signature unusable (wrong types, absurd sizes, unknown names), or None."""
-    from ps_ray.names import TRANSLATIONS
+    from ps_ray.specs.names import TRANSLATIONS
 
     if not isinstance(signature.method, str) or not isinstance(signature.settings, str):
         return f"method and settings must be strings, got {signature.method!r} and {signature.settings!r}"

@@ -12,10 +12,10 @@ import tempfile
 import time
 from pathlib import Path
 
-from ps_ray.cli_parsers import build_parser
+from ps_ray.cli.parsers import build_parser
 from ps_ray.errors import UserError
-from ps_ray.names import parse_spec_text
 from ps_ray.pipeline.sweep import StageError
+from ps_ray.specs.names import parse_spec_text
 from ps_ray.specs.train import POINT_TASK, TrainSpec
 from ps_ray.store.layout import SweepLayout
 from ps_ray.store.lock import folder_lock
@@ -103,7 +103,7 @@ def _load(args: argparse.Namespace):
     }
     spec = dataclasses.replace(spec, **overrides) if overrides else spec
     if spec.tracking_uri:  # a store MLflow cannot use is refused before any folder is made
-        from ps_ray.tracking import check_tracking_uri
+        from ps_ray.store.tracking import check_tracking_uri
 
         check_tracking_uri(spec.tracking_uri)
     return spec
@@ -183,7 +183,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     from ps_ray.analysis.cost import budget_note, project
     from ps_ray.pipeline.run import run_pipeline
     from ps_ray.pipeline.sweep import check_inputs, sweep_dir
-    from ps_ray.tracking import default_tracking_uri
+    from ps_ray.store.tracking import default_tracking_uri
 
     spec = _load(args)
     check_inputs(spec)  # the files it starts from, before any folder is made
@@ -226,7 +226,7 @@ def cmd_render(args: argparse.Namespace) -> int:
     from ps_ray.envs.render import record
     from ps_ray.envs.robots import resolve_robot
     from ps_ray.envs.tasks import resolve_task
-    from ps_ray.policy import GreedyPolicy
+    from ps_ray.nets.policy import GreedyPolicy
 
     if args.png is None and args.gif is None:
         raise UserError("nothing to write: give --png and/or --gif")
@@ -283,7 +283,7 @@ def _output_file(path: str) -> Path:
 
 
 def cmd_stitch(args: argparse.Namespace) -> int:
-    from ps_ray.evaluate import evaluate, format_result
+    from ps_ray.stitching.evaluate import evaluate, format_result
     from ps_ray.stitching.sources import resolve_source, resolve_target
     from ps_ray.stitching.stitch import stitch_metadata, stitch_policies
     from ps_ray.stitching.zoo import ModuleZoo
@@ -370,7 +370,3 @@ def main(argv: list[str] | None = None) -> int:
             file=sys.stderr,
         )
         return 1
-
-
-if __name__ == "__main__":
-    sys.exit(main())

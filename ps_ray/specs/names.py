@@ -9,8 +9,8 @@ import json
 from collections.abc import Iterator, Mapping
 from typing import Any
 
-from ps_ray.defaults import INTERFACE_DIM
 from ps_ray.errors import UserError
+from ps_ray.specs.defaults import INTERFACE_DIM
 
 # The latent translations a stitch may fit (ps_ray.nets.translation), by name.
 TRANSLATIONS = ("orthogonal", "affine")

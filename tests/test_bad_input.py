@@ -9,9 +9,10 @@ import sys
 
 import pytest
 
+from ps_ray.nets.from_signature import signature_of
+from ps_ray.nets.policy_file import save_policy
 from ps_ray.nets.sac import build_sac_nets
 from ps_ray.stitching.stitch import env_dims
-from ps_ray.weights import save_policy, signature_of
 
 
 class _Evil:

@@ -133,8 +133,8 @@ def test_fast_actions_match_the_actor(method, translation):
         nets.actor.task.switch_relative_on()
         translation = None
     if translation:  # a translated stitch of the policy with another seed of it
+        from ps_ray.nets.from_signature import signature_of
         from ps_ray.stitching.stitch import stitch_policies
-        from ps_ray.weights import signature_of
 
         sig = signature_of(nets, method, 8, 16)
         other = nets_for(method, seed=0)

@@ -104,4 +104,8 @@ def test_the_report_module_and_a_sweep_check_load_neither_ray_nor_torch():
     assert _loaded_after("import ps_ray.analysis.report") == set()
     check = "from ps_ray import cli\nassert cli.main(['sweep', 'sweeps/transfer.yaml', '--check']) == 0"
     assert _loaded_after(check) == set()
-    assert _loaded_after("import ps_ray.weights") == {"torch"}  # the probe sees what is loaded
+    assert _loaded_after("import ps_ray.nets.policy_file") == {"torch"}  # the probe sees what is loaded
+
+
+def test_every_module_but_the_errors_lives_in_the_package_of_its_floor():
+    assert sorted(p.name for p in PACKAGE.glob("*.py")) == ["__init__.py", "errors.py"]

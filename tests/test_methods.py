@@ -11,14 +11,15 @@ import torch
 from safetensors.torch import load_file
 
 from ps_ray.errors import UserError
+from ps_ray.nets.from_signature import signature_of
 from ps_ray.nets.modular import NetDims
+from ps_ray.nets.policy_file import load_policy, save_policy
 from ps_ray.nets.sac import build_sac_nets
 from ps_ray.specs.methods import LEGACY, PRESETS, MethodSpec, method_key, method_spec
 from ps_ray.specs.sweep import SweepSpec
 from ps_ray.specs.train import SpecError
 from ps_ray.stitching.stitch import stitch_policies
 from ps_ray.store.signature import read_signature
-from ps_ray.weights import load_policy, save_policy, signature_of
 
 torch.set_num_threads(1)
 OLD = Path(__file__).parent / "data" / "policies_v1"  # written by the code before the menu

@@ -127,7 +127,7 @@ def test_a_compiled_learner_compiles_its_module_and_trains(ray_local):
     import torch
     from torch._dynamo.utils import counters
 
-    from ps_ray.train import TrainingRun
+    from ps_ray.rllib.loop import TrainingRun
 
     spec = TrainSpec(
         method="ablation",

@@ -10,13 +10,13 @@ import pytest
 import torch
 
 from ps_ray.data.anchors import anchor_hash
+from ps_ray.nets.policy_file import load_policy
 from ps_ray.nets.sac import NET_NAMES
 from ps_ray.rllib.algo import algo_config
 from ps_ray.rllib.episodes import train_batch
 from ps_ray.specs.methods import method_spec, spec_json
 from ps_ray.specs.train import TrainSpec
 from ps_ray.store.signature import Signature, read_signature
-from ps_ray.weights import load_policy
 from tests.code_paths import PS_CONSOLIDATED
 
 SMALL = dict(
@@ -256,10 +256,11 @@ def test_a_seed_repeats_its_run_bit_for_bit(ray_local):
 
 def test_a_run_can_start_from_given_weights(ray_local, tmp_path):
     """Few-shot fine-tuning starts from the stitched weights, not a fresh initialisation."""
+    from ps_ray.nets.from_signature import nets_state
     from ps_ray.nets.modular import NetDims
+    from ps_ray.nets.policy_file import save_policy
     from ps_ray.nets.sac import build_sac_nets
-    from ps_ray.train import TrainingRun, prepare_anchors, read_inputs
-    from ps_ray.weights import nets_state, save_policy
+    from ps_ray.rllib.loop import TrainingRun, prepare_anchors, read_inputs
 
     anchors = np.random.default_rng(1).uniform(-0.5, 0.5, (16, 2)).astype(np.float32)
     nets = build_sac_nets("ps", NetDims(2, 2, 2), interface_dim=16, hidden=64, anchors=anchors)
@@ -406,8 +407,8 @@ def _log_alpha(algo) -> float:
 def test_a_checkpoint_holding_the_whole_replay_buffer_restores_into_a_run_with_segments(ray_local, tmp_path):
     """Checkpoints written before replay segments (replay.npz inside) resume; the next checkpoint
     names segments instead, and a run restored from either samples the same transitions."""
+    from ps_ray.rllib.loop import TrainingRun
     from ps_ray.store import replay
-    from ps_ray.train import TrainingRun
 
     spec = TrainSpec(method="ablation", **SMALL)
     whole, segmented, again = (

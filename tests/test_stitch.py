@@ -22,8 +22,10 @@ from ps_ray.cli import commands as cli
 from ps_ray.envs import make
 from ps_ray.envs.core import effective_gripper
 from ps_ray.errors import UserError
+from ps_ray.nets.from_signature import nets_state, signature_of
 from ps_ray.nets.modular import NetDims, update_normalizers
 from ps_ray.nets.obs import dims_from_spaces
+from ps_ray.nets.policy_file import load_policy, save_policy
 from ps_ray.nets.sac import NET_NAMES, SACNets, build_sac_nets
 from ps_ray.specs.methods import method_spec, uses_anchors
 from ps_ray.specs.names import EnvPart
@@ -34,7 +36,6 @@ from ps_ray.stitching.zoo import ModuleZoo, read_entry
 from ps_ray.store.attempts import FINISHED, PARAMS_FILE, RESULT_FILE
 from ps_ray.store.checkpoint import STATE_FILE, seal
 from ps_ray.store.signature import Signature
-from ps_ray.weights import load_policy, nets_state, save_policy, signature_of
 from tests.code_paths import CODE_PATHS
 
 torch.set_num_threads(1)
@@ -712,7 +713,7 @@ def test_a_signature_claiming_huge_nets_is_refused_before_they_are_built(tmp_pat
         save_file(tensors, str(path), metadata=metadata)
     code = (
         "import resource, sys; resource.setrlimit(resource.RLIMIT_AS, (3 << 30, 3 << 30))\n"
-        "from ps_ray.weights import load_policy\n"
+        "from ps_ray.nets.policy_file import load_policy\n"
         "try:\n    load_policy(sys.argv[1])\nexcept ValueError as e:\n    print(e)"
     )
     argv = [sys.executable, "-c", code, str(path)]

@@ -12,10 +12,10 @@ import mlflow
 import pytest
 import yaml
 
+from ps_ray.nets.policy_file import load_policy
 from ps_ray.pipeline.sweep import sweep_dir
 from ps_ray.specs.sweep import load_sweep
 from ps_ray.store.checkpoint import latest as latest_checkpoint
-from ps_ray.weights import load_policy
 
 
 def write_sweep(

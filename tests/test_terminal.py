@@ -1,11 +1,11 @@
-"""What reaches the terminal (ps_ray.terminal): Ray's and MLflow's notices go to a log file."""
+"""What reaches the terminal (ps_ray.store.terminal): Ray's and MLflow's notices go to a log file."""
 
 from __future__ import annotations
 
 import io
 import logging
 
-from ps_ray.terminal import VERBOSE_ENV, others_to
+from ps_ray.store.terminal import VERBOSE_ENV, others_to
 
 
 def test_notices_go_to_the_log_and_every_handler_gets_its_stream_back(tmp_path, monkeypatch):

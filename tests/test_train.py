@@ -14,8 +14,8 @@ import pytest
 import torch
 from safetensors.torch import load_file
 
+from ps_ray.nets.policy_file import load_policy
 from ps_ray.store.signature import read_signature
-from ps_ray.weights import load_policy
 from tests.code_paths import PS_CONSOLIDATED
 
 

@@ -11,13 +11,13 @@ import pytest
 import torch
 import yaml
 
+from ps_ray.nets.policy_file import load_policy
 from ps_ray.pipeline.few_shot import curves, run_few_shot
 from ps_ray.pipeline.sweep import run_sweep, sweep_dir
 from ps_ray.pipeline.zero_shot import run_zero_shot, summary
 from ps_ray.specs.sweep import load_sweep
 from ps_ray.stitching.pairs import pairs, pairs_from_table
 from ps_ray.store.signature import read_signature
-from ps_ray.weights import load_policy
 
 
 @pytest.fixture(scope="module")

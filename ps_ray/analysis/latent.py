@@ -85,7 +85,7 @@ def interface_of(policy_path: str | Path, states: np.ndarray) -> np.ndarray:
     """The actor task module's interface on ``states`` (N, K) for a modular policy file."""
     import torch
 
-    from ps_ray.weights import load_policy
+    from ps_ray.nets.policy_file import load_policy
 
     nets, signature = load_policy(policy_path)
     if not signature.spec.modular:

@@ -26,8 +26,8 @@ import pandas as pd
 
 from ps_ray.analysis.stats import estimate, ratio_of_means
 from ps_ray.cli.parsers import Parser, positive_int
+from ps_ray.rllib.train import train
 from ps_ray.specs.train import TrainSpec
-from ps_ray.train import train
 
 
 def steps_to(curve: pd.DataFrame, target: float) -> int | None:

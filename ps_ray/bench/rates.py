@@ -37,7 +37,7 @@ def _slope(x: pd.Series, y: pd.Series) -> float:
 
 def measure_run(method: str, hidden: int, env_steps: int, learning_starts: int, root: Path) -> dict:
     """One real training run; seconds per env step, per update, and outside the loop."""
-    from ps_ray.train import train
+    from ps_ray.rllib.train import train
 
     spec = TrainSpec(
         task="reach",

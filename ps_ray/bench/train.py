@@ -21,8 +21,8 @@ from ps_ray.nets.modular import update_normalizers
 from ps_ray.nets.obs import dims_from_spaces, split_obs
 from ps_ray.nets.sac import SACHyper, build_sac_nets, polyak, sac_forward, sac_losses, squashed_sample
 from ps_ray.rllib.episodes import train_batch
+from ps_ray.rllib.loop import make_env
 from ps_ray.specs.train import TrainSpec
-from ps_ray.train import make_env
 
 
 class BareTrainer:

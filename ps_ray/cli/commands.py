@@ -22,7 +22,7 @@ from ps_ray.store.lock import folder_lock
 
 
 def cmd_train(args: argparse.Namespace) -> int:
-    from ps_ray.train import train
+    from ps_ray.rllib.train import train
 
     fields = {f.name: getattr(args, f.name) for f in dataclasses.fields(TrainSpec)}
     from ps_ray.envs.robots import resolve_robot
@@ -283,11 +283,11 @@ def _output_file(path: str) -> Path:
 
 
 def cmd_stitch(args: argparse.Namespace) -> int:
+    from ps_ray.nets.policy_file import save_policy
     from ps_ray.stitching.evaluate import evaluate, format_result
     from ps_ray.stitching.sources import resolve_source, resolve_target
     from ps_ray.stitching.stitch import stitch_metadata, stitch_policies
     from ps_ray.stitching.zoo import ModuleZoo
-    from ps_ray.weights import save_policy
 
     if args.episodes < 0:
         raise UserError(f"--episodes must be >= 0, got {args.episodes}")
@@ -343,7 +343,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
 def main(argv: list[str] | None = None) -> int:
     args = build_parser(__doc__).parse_args(argv)
     if getattr(args, "verbose", False):
-        from ps_ray.terminal import VERBOSE_ENV
+        from ps_ray.store.terminal import VERBOSE_ENV
 
         os.environ[VERBOSE_ENV] = "1"  # Tune's tables and Ray's warnings on the terminal
     try:

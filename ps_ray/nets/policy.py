@@ -73,7 +73,7 @@ class GreedyPolicy:
 
     @classmethod
     def from_file(cls, path: str | Path, fast: bool = False) -> GreedyPolicy:
-        from ps_ray.weights import load_policy
+        from ps_ray.nets.policy_file import load_policy
 
         nets, _ = load_policy(path)
         return cls(nets.actor, fast)

@@ -125,9 +125,9 @@ def _start_file(spec: SweepSpec, pair: StitchedPair, kind: str) -> Path:
     """The policy file a start of the pair begins from: its stitch, or (``kind`` one of
     :data:`HALVES`) the stitch with one half fresh, drawn from the pair's seed; written once, so a
     resumed stage keeps the files its trials started from."""
+    from ps_ray.nets.policy_file import save_policy
     from ps_ray.stitching.halves import half_stitch
     from ps_ray.stitching.stitch import stitch_policies
-    from ps_ray.weights import save_policy
 
     name = f"{pair.task_from}|{pair.robot_from}" + ("" if kind == "stitched" else f"|{kind}")
     path = layout(spec).stitched / f"{hashlib.sha256(name.encode()).hexdigest()[:16]}.safetensors"

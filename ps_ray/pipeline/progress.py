@@ -18,7 +18,7 @@ from typing import IO, Any
 from ray.tune import Callback
 from tqdm import tqdm
 
-from ps_ray.terminal import others_to
+from ps_ray.store.terminal import others_to
 
 PLAIN_EVERY_S = 30.0
 
@@ -130,7 +130,7 @@ def _clock(seconds: float) -> str:
 @contextlib.contextmanager
 def quiet_tune(log_path: Path) -> Iterator[IO[str]]:
     """Send Tune's printed tables and the noisy loggers' messages to ``log_path`` for the block
-    (:func:`ps_ray.terminal.others_to`); yields the real stdout, for the live view."""
+    (:func:`ps_ray.store.terminal.others_to`); yields the real stdout, for the live view."""
     with others_to(log_path) as real_stdout:
         _VIEW_STREAM.append(real_stdout)
         try:

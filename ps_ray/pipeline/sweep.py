@@ -106,9 +106,9 @@ def sweep_trial(config: dict[str, Any]) -> None:
     from ray import tune
 
     from ps_ray.data.anchor_file import load_anchor_set
+    from ps_ray.nets.policy_file import policy_anchor_set
+    from ps_ray.rllib.loop import TrainingRun
     from ps_ray.store.attempts import FINISHED, earlier_checkpoint, replay_store
-    from ps_ray.train import TrainingRun
-    from ps_ray.weights import policy_anchor_set
 
     trial = config["trial"]
     spec = TrainSpec.from_mapping(trial["spec"])
@@ -164,7 +164,7 @@ def check_inputs(spec: SweepSpec) -> None:
         if t.init_policy is not None
     }
     if starts:  # reading policy files needs torch; a sweep without them is checked without it
-        from ps_ray.train import read_inputs
+        from ps_ray.rllib.loop import read_inputs
 
         for trial in starts.values():
             read_inputs(dataclasses.replace(trial, anchors=None))
@@ -249,8 +249,8 @@ def connect(spec: SweepSpec) -> tuple[str, str]:
     import ray
 
     from ps_ray.store.layout import LOG_FOLDER
+    from ps_ray.store.terminal import others_to
     from ps_ray.store.tracking import default_tracking_uri, ensure_experiment
-    from ps_ray.terminal import others_to
 
     where = layout(spec)
     with others_to(where.root / LOG_FOLDER / "driver.log"):  # Ray's and MLflow's start-up messages

@@ -41,7 +41,7 @@ def run_trials(
     from ray import tune
 
     from ps_ray.pipeline.progress import StageProgress, quiet_tune
-    from ps_ray.terminal import verbose
+    from ps_ray.store.terminal import verbose
 
     ((key, trials),) = grid.items()
     path, name, root = Path(folder), Path(folder).name, Path(folder).parent

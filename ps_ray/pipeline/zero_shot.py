@@ -62,8 +62,8 @@ def fit_states(tasks: list, per_quadrant: int, seed: int) -> np.ndarray:
 def check_sources(trials: list[StitchedPair]) -> None:
     """Every policy file the pairs read loads, and every pair stitches, before a trial starts: a
     damaged or unfinished file is one line naming it, not a failing trial retried per pair."""
+    from ps_ray.nets.policy_file import load_policy
     from ps_ray.stitching.rule import check_stitchable
-    from ps_ray.weights import load_policy
 
     signatures = {}
     for pair in trials:
@@ -87,8 +87,8 @@ def zero_shot_trial(config: dict[str, Any]) -> None:
     share is read once."""
     from ray import tune
 
+    from ps_ray.nets.policy_file import load_policy
     from ps_ray.store.attempts import FINISHED
-    from ps_ray.weights import load_policy
 
     loaded: dict[str, Any] = {}
     scored: dict[tuple, dict] = {}  # the controls' evaluations, shared by a pair's translations

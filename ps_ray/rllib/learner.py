@@ -10,9 +10,9 @@ from ray.rllib.algorithms.sac.torch.sac_torch_learner import SACTorchLearner
 from ray.rllib.core import DEFAULT_MODULE_ID
 from ray.rllib.core.rl_module.torch.torch_compile_config import TorchCompileConfig
 
+from ps_ray.nets.from_signature import load_nets_state, nets_state
 from ps_ray.nets.sac import SACHyper, polyak, sac_losses
 from ps_ray.rllib.private import after_update_without_target_sync, gradients_in_one_backward, learner_module
-from ps_ray.weights import load_nets_state, nets_state
 
 OPTIMIZER_PREFIX = "optimizer."
 LOG_ALPHA = "log_alpha"

@@ -31,8 +31,10 @@ from ps_ray.data.her import HindsightReplay
 from ps_ray.envs.goals import ROBOT_KEY, task_input
 from ps_ray.errors import UserError
 from ps_ray.nets.consolidate import consolidate
+from ps_ray.nets.from_signature import load_nets_state, nets_from_state, nets_state
 from ps_ray.nets.modular import update_normalizers
 from ps_ray.nets.obs import dims_from_spaces
+from ps_ray.nets.policy_file import save_policy
 from ps_ray.rllib.episodes import episode_stats, episodes_to_arrays, train_batch
 from ps_ray.rllib.learner import ModularSACLearner
 from ps_ray.rllib.module import ModularSACModule
@@ -46,13 +48,7 @@ from ps_ray.specs.methods import ConsolidateSpec, spec_json
 from ps_ray.specs.train import TrainSpec
 from ps_ray.store import replay as replay_segments
 from ps_ray.store.checkpoint import STATE_FILE
-from ps_ray.weights import (
-    Signature,
-    load_nets_state,
-    nets_from_state,
-    nets_state,
-    save_policy,
-)
+from ps_ray.store.signature import Signature
 
 LEARNER_FILE = "learner.safetensors"
 EVAL_SEED_OFFSET = 500_000  # the periodic evaluations, which the stopping rule reads
@@ -145,7 +141,7 @@ class ModularSAC(SAC):
 
     def load_policy_weights(self, path) -> None:
         """Start from a policy file (e.g. a stitched one): actor, critics and targets, strictly."""
-        from ps_ray.weights import load_policy
+        from ps_ray.nets.policy_file import load_policy
 
         nets, signature = load_policy(path)
         if signature.translation:

@@ -1,5 +1,5 @@
 """A policy file's signature: what must agree for two modules to be stitched, stored in the
-safetensors metadata of the file (``ps_ray.weights`` writes and loads the tensors). Read here
+safetensors metadata of the file (``ps_ray.nets.policy_file`` writes and loads the tensors). Read here
 without torch: the metadata alone, never a tensor, never a pickle.
 """
 

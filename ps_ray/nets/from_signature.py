@@ -1,28 +1,18 @@
-"""Policy weights as safetensors, with the interface signature that stitching checks.
-
-One file holds the actor, both critics and both target critics (normaliser statistics and PS
-anchors included, as buffers). The signature travels in the safetensors metadata. Loading never
-unpickles and refuses any file whose metadata or tensor names do not match what the signature
-builds, with one line naming the file and the problem.
-"""
+"""The nets a policy signature describes, and the signature of given nets: untrained nets built
+from a signature, a state loaded into them strictly (shapes checked first on the meta device),
+and the five SAC nets' state as one flat dict of tensors (the policy file's tensors,
+:mod:`ps_ray.nets.policy_file`)."""
 
 from __future__ import annotations
 
-import dataclasses
-import json
-from pathlib import Path
-
 import torch
-from safetensors import SafetensorError, safe_open
-from safetensors.torch import save_file
 from torch import nn
 
-from ps_ray.data.anchors import AnchorSet, anchor_hash
+from ps_ray.data.anchors import anchor_hash
 from ps_ray.errors import UserError
 from ps_ray.nets.sac import NET_NAMES, SACNets, build_sac_nets
 from ps_ray.specs.methods import method_spec, spec_json
-from ps_ray.store.atomic import atomic_path
-from ps_ray.store.signature import FORMAT, Signature, read_signature
+from ps_ray.store.signature import Signature
 
 ANCHORS_KEY = "actor.task.relative.anchors"
 
@@ -62,20 +52,6 @@ def nets_state(nets: nn.Module) -> dict[str, torch.Tensor]:
         for name in NET_NAMES
         for k, v in getattr(nets, name).state_dict().items()
     }
-
-
-def save_policy(
-    path: str | Path, nets: nn.Module, signature: Signature, extra: dict[str, str] | None = None
-) -> Path:
-    """Write atomically: a crash leaves either the old file or the new one, never half of one."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    if not signature.settings:  # every file written names its resolved method
-        signature = dataclasses.replace(signature, settings=spec_json(signature.spec))
-    metadata = {"format": FORMAT, "signature": json.dumps(dataclasses.asdict(signature)), **(extra or {})}
-    with atomic_path(path) as tmp:
-        save_file(nets_state(nets), str(tmp), metadata=metadata)
-    return path
 
 
 def nets_from_state(state: dict[str, torch.Tensor], signature: Signature, source: str = "state") -> SACNets:
@@ -138,27 +114,3 @@ def load_nets_state(nets: nn.Module, state: dict[str, torch.Tensor]) -> None:
         getattr(nets, name).load_state_dict(
             {k[len(prefix) :]: v for k, v in state.items() if k.startswith(prefix)}, strict=True
         )
-
-
-def policy_anchor_set(path: str | Path) -> AnchorSet:
-    """The anchor set stored in a PS policy file (e.g. a stitched start for few-shot)."""
-    signature, _ = read_signature(path)
-    with safe_open(str(path), framework="pt") as f:
-        if ANCHORS_KEY not in f.keys():
-            raise UserError(f"{path}: a {signature.method!r} policy has no anchors")
-        return AnchorSet.of(f.get_tensor(ANCHORS_KEY).numpy(), {"source": str(path)})
-
-
-def load_policy(path: str | Path) -> tuple[SACNets, Signature]:
-    """Rebuild the nets a policy file describes and load every tensor, targets included."""
-    path = Path(path)
-    signature, _ = read_signature(path)
-    try:
-        with safe_open(str(path), framework="pt") as f:
-            state = {k: f.get_tensor(k) for k in f.keys()}
-    except (SafetensorError, OSError, ValueError) as e:
-        raise UserError(f"{path}: unreadable tensors ({e})") from None
-    nets = nets_from_state(state, signature, str(path))
-    if nets.actor.task.projection_off != signature.projection_off:
-        raise UserError(f"{path}: the relative projection's switch disagrees with the signature")
-    return nets, signature

@@ -299,6 +299,7 @@ def test_a_deferred_relative_policy_is_stitched_only_once_switched_on(tmp_path):
     early, sig_early = make_nets("ps_distilled", seed=1, finished=False)
     done, sig_done = make_nets("ps_distilled", seed=2)
     assert (sig_early.projection_off, sig_done.projection_off) == (True, False)
+    assert (sig_early.stitchable, sig_done.stitchable) == (False, True)
     path_early = save_policy(tmp_path / "early.safetensors", early, sig_early)
     path_done = save_policy(tmp_path / "done.safetensors", done, sig_done)
     assert load_policy(path_done)[0].actor.task.projection is not None

@@ -152,9 +152,9 @@ def _latent(report: Report, spec: SweepSpec, root: Path, say) -> None:
         section.intro = "No trained modules yet."
         return
     entries = [e for e in zoo if e.stage == "train"]
-    unswitched = [str(e.key) for e in entries if e.signature.projection_off]
+    unswitched = [str(e.key) for e in entries if not e.signature.stitchable]
     if unswitched:  # their cut is still the raw latent: not comparable with the finished sources'
-        entries = [e for e in entries if not e.signature.projection_off]
+        entries = [e for e in entries if e.signature.stitchable]
         section.intro += (
             f" Left out: {', '.join(unswitched)}, whose runs did not finish, so their relative "
             f"projection (deferred until a run's end) was never switched on."

@@ -70,7 +70,7 @@ def stitch_problems(sig_task: Signature, sig_robot: Signature, target: EnvSpec |
                 if a != b:
                     problems.append(f"{dim.replace('_', ' ')} (plain needs equal dims): {pair(a, b)}")
     for role, sig in (("task module", sig_task), ("robot module", sig_robot)):
-        if sig.projection_off:
+        if not sig.stitchable:
             problems.append(
                 f"the {role}'s policy is from before its method {sig.method!r} switched to the "
                 f"relative interface (at its run's end): stitch a finished run's policy.safetensors"

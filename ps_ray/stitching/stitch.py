@@ -200,12 +200,12 @@ def controls(zoo: ModuleZoo, combo: Combo) -> dict[str, ZooEntry]:
     found = {
         role: entry
         for role, entry in (("robot_source", combo.robot_from), ("task_source", combo.task_from))
-        if not entry.signature.projection_off and not target_problems(entry.signature, target)
+        if entry.signature.stitchable and not target_problems(entry.signature, target)
     }
     r = combo.robot_from.key
     for entry in zoo.select(method=r.method, seed=r.seed, interface_dim=r.interface_dim):
         if (entry.key.robot, entry.key.task) == (r.robot, combo.task_from.key.task):
-            if not entry.signature.projection_off and not target_problems(entry.signature, target):
+            if entry.signature.stitchable and not target_problems(entry.signature, target):
                 found["oracle"] = entry
     return found
 

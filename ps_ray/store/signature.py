@@ -40,6 +40,12 @@ class Signature:
     settings: str = ""
 
     @property
+    def stitchable(self) -> bool:
+        """Whether its modules may meet another source's: its interface is its method's final one
+        (the one question stitching, the controls and the report ask of a policy file)."""
+        return not self.projection_off
+
+    @property
     def dims(self):
         """The nets' :class:`ps_ray.nets.modular.NetDims` (imported here: this module is torch-free)."""
         from ps_ray.nets.modular import NetDims

@@ -11,11 +11,12 @@ import torch
 
 from ps_ray.analysis.alignment import chance_mrr, collapsed, retrieval, spread
 from ps_ray.nets.from_signature import signature_of
-from ps_ray.nets.modular import NetDims, build_actor, update_normalizers
+from ps_ray.nets.modular import build_actor, update_normalizers
 from ps_ray.nets.policy_file import load_policy, save_policy
 from ps_ray.nets.relative import RelativeProjection, input_reference
 from ps_ray.nets.sac import NET_NAMES, build_sac_nets
 from ps_ray.nets.translation import fit_translation
+from ps_ray.specs.dims import NetDims
 from ps_ray.specs.methods import PRESETS, RelativeSpec, method_spec, uses_anchors
 from ps_ray.stitching.stitch import stitch_policies
 from tests.code_paths import CODE_PATHS

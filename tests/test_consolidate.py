@@ -11,8 +11,9 @@ import torch
 
 from ps_ray.errors import UserError
 from ps_ray.nets.consolidate import consolidate
-from ps_ray.nets.modular import NetDims, update_normalizers
+from ps_ray.nets.modular import update_normalizers
 from ps_ray.nets.sac import build_sac_nets
+from ps_ray.specs.dims import NetDims
 from ps_ray.specs.methods import PRESETS, ConsolidateSpec, RelativeSpec, method_spec
 from tests.code_paths import PS_CONSOLIDATED
 

@@ -9,9 +9,9 @@ import pytest
 import torch
 
 from ps_ray.nets.consolidate import consolidate
-from ps_ray.nets.modular import NetDims
 from ps_ray.nets.normalize import RunningNorm
 from ps_ray.nets.sac import SACHyper, build_sac_nets, sac_forward, sac_losses
+from ps_ray.specs.dims import NetDims
 from ps_ray.specs.methods import ConsolidateSpec
 from tests.code_paths import CODE_PATHS
 

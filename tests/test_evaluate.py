@@ -9,10 +9,10 @@ import pytest
 import torch
 
 from ps_ray.envs import make
-from ps_ray.nets.modular import NetDims
 from ps_ray.nets.obs import split_obs
 from ps_ray.nets.policy import GreedyPolicy
 from ps_ray.nets.sac import build_sac_nets
+from ps_ray.specs.dims import NetDims
 from ps_ray.specs.methods import uses_anchors
 from ps_ray.stitching.evaluate import EpisodeRecord, evaluate, summarize
 

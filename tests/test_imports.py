@@ -109,3 +109,44 @@ def test_the_report_module_and_a_sweep_check_load_neither_ray_nor_torch():
 
 def test_every_module_but_the_errors_lives_in_the_package_of_its_floor():
     assert sorted(p.name for p in PACKAGE.glob("*.py")) == ["__init__.py", "errors.py"]
+
+
+# The floors of the house, from the ground up (docs/reference.md, "Package layout"): a module may
+# import its own package and the floors below, never a floor above or a package beside it.
+FLOORS = {
+    "errors": 0,
+    "envs": 1,
+    "specs": 2,
+    "store": 3,
+    "data": 4,
+    "nets": 5,
+    "stitching": 6,
+    "analysis": 7,
+    "rllib": 7,
+    "pipeline": 8,
+    "cli": 9,
+    "bench": 10,
+}
+
+
+def _package(module: str) -> str:
+    return module.split(".")[1] if module.count(".") else ""
+
+
+def _upward(graph: dict[str, set[str]]) -> list[str]:
+    return sorted(
+        f"{name} -> {target}"
+        for name, imported in graph.items()
+        for target in imported
+        if _package(name) and _package(target) and _package(name) != _package(target)
+        if FLOORS[_package(target)] >= FLOORS[_package(name)]
+    )
+
+
+def test_every_import_points_down_the_floors():
+    graph = _graph()
+    assert not _upward(graph), _upward(graph)
+    assert set(FLOORS) == {_package(m) for m in graph if _package(m)}
+    # the check finds one: the envs importing the store (a floor above) is refused
+    planted = {**graph, "ps_ray.envs.urdf": graph["ps_ray.envs.urdf"] | {"ps_ray.store.atomic"}}
+    assert _upward(planted) == ["ps_ray.envs.urdf -> ps_ray.store.atomic"]

@@ -12,9 +12,9 @@ from safetensors.torch import load_file
 
 from ps_ray.errors import UserError
 from ps_ray.nets.from_signature import signature_of
-from ps_ray.nets.modular import NetDims
 from ps_ray.nets.policy_file import load_policy, save_policy
 from ps_ray.nets.sac import build_sac_nets
+from ps_ray.specs.dims import NetDims
 from ps_ray.specs.methods import LEGACY, PRESETS, MethodSpec, method_key, method_spec
 from ps_ray.specs.sweep import SweepSpec
 from ps_ray.specs.train import SpecError

@@ -257,10 +257,10 @@ def test_a_seed_repeats_its_run_bit_for_bit(ray_local):
 def test_a_run_can_start_from_given_weights(ray_local, tmp_path):
     """Few-shot fine-tuning starts from the stitched weights, not a fresh initialisation."""
     from ps_ray.nets.from_signature import nets_state
-    from ps_ray.nets.modular import NetDims
     from ps_ray.nets.policy_file import save_policy
     from ps_ray.nets.sac import build_sac_nets
     from ps_ray.rllib.loop import TrainingRun, prepare_anchors, read_inputs
+    from ps_ray.specs.dims import NetDims
 
     anchors = np.random.default_rng(1).uniform(-0.5, 0.5, (16, 2)).astype(np.float32)
     nets = build_sac_nets("ps", NetDims(2, 2, 2), interface_dim=16, hidden=64, anchors=anchors)

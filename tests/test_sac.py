@@ -9,8 +9,8 @@ import pytest
 import torch
 from torch.distributions import Normal, TanhTransform, TransformedDistribution
 
-from ps_ray.nets.modular import NetDims
 from ps_ray.nets.sac import SACHyper, build_sac_nets, polyak, sac_forward, sac_losses, squashed_sample
+from ps_ray.specs.dims import NetDims
 
 DIMS = NetDims(task_dim=6, robot_dim=8, action_dim=7)
 GAMMA = 0.98

@@ -23,10 +23,11 @@ from ps_ray.envs import make
 from ps_ray.envs.core import effective_gripper
 from ps_ray.errors import UserError
 from ps_ray.nets.from_signature import nets_state, signature_of
-from ps_ray.nets.modular import NetDims, update_normalizers
+from ps_ray.nets.modular import update_normalizers
 from ps_ray.nets.obs import dims_from_spaces
 from ps_ray.nets.policy_file import load_policy, save_policy
 from ps_ray.nets.sac import NET_NAMES, SACNets, build_sac_nets
+from ps_ray.specs.dims import NetDims
 from ps_ray.specs.methods import method_spec, uses_anchors
 from ps_ray.specs.names import EnvPart
 from ps_ray.stitching.paper import PANDA_L3_GRIPPER, PAPER_COMBOS

@@ -17,10 +17,10 @@ import numpy as np
 import torch
 
 from ps_ray.cli.parsers import Parser, positive_int
-from ps_ray.nets.modular import NetDims
 from ps_ray.nets.obs import dims_from_spaces
 from ps_ray.nets.sac import SACHyper, build_sac_nets, sac_forward, sac_losses
 from ps_ray.rllib.loop import make_env
+from ps_ray.specs.dims import NetDims
 from ps_ray.specs.methods import method_spec, uses_anchors
 from ps_ray.specs.train import TrainSpec
 

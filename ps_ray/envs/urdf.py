@@ -13,8 +13,6 @@ from pathlib import Path
 import numpy as np
 import pybullet_data
 
-from ps_ray.store.atomic import write_text
-
 PANDA_URDF = os.path.join(pybullet_data.getDataPath(), "franka_panda", "panda.urdf")
 CACHE_DIR = Path(tempfile.gettempdir()) / "ps_ray_urdf"
 
@@ -23,8 +21,13 @@ def cached_urdf(text: str, stem: str) -> str:
     """Write ``text`` once to ``CACHE_DIR/<stem>-<hash>.urdf`` (atomic, safe across processes)."""
     digest = hashlib.sha256(text.encode()).hexdigest()[:16]
     path = CACHE_DIR / f"{stem}-{digest}.urdf"
-    if not path.exists():
-        write_text(path, text)
+    if not path.exists():  # a whole file or none: written beside it, then renamed over it (the
+        # envs package stays free of ps_ray's store, as it is of torch and Ray; a cache in the
+        # temp folder needs no fsync)
+        CACHE_DIR.mkdir(parents=True, exist_ok=True)
+        with tempfile.NamedTemporaryFile("w", dir=CACHE_DIR, suffix=".part", delete=False) as part:
+            part.write(text)
+        os.replace(part.name, path)
     return str(path)
 
 

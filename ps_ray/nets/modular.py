@@ -19,7 +19,6 @@ Architecture (hidden = 256, latent D):
 from __future__ import annotations
 
 import dataclasses
-from dataclasses import dataclass
 from typing import TypeVar
 
 import torch
@@ -30,16 +29,10 @@ from ps_ray.nets.mlp import mlp
 from ps_ray.nets.normalize import RunningNorm
 from ps_ray.nets.relative import RelativeProjection
 from ps_ray.specs.defaults import HIDDEN, INTERFACE_DIM
+from ps_ray.specs.dims import NetDims
 from ps_ray.specs.methods import MethodSpec, RelativeSpec, method_spec
 
 LOG_STD_MIN, LOG_STD_MAX = -9.0, 2.0
-
-
-@dataclass(frozen=True)
-class NetDims:
-    task_dim: int  # task state (+ desired goal)
-    robot_dim: int  # joint angles + finger width
-    action_dim: int
 
 
 class TaskModule(nn.Module):

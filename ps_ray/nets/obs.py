@@ -6,7 +6,7 @@ import numpy as np
 import torch
 
 from ps_ray.envs.goals import ROBOT_KEY, TASK_KEYS
-from ps_ray.nets.modular import NetDims
+from ps_ray.specs.dims import NetDims
 
 
 def dims_from_spaces(observation_space, action_space) -> NetDims:

@@ -15,9 +15,10 @@ import numpy as np
 import torch
 from torch import nn
 
-from ps_ray.nets.modular import Actor, NetDims
+from ps_ray.nets.modular import Actor
 from ps_ray.nets.obs import split_obs
 from ps_ray.nets.relative import AnchorReference
+from ps_ray.specs.dims import NetDims
 
 
 class _GreedyNet(nn.Module):

@@ -20,8 +20,9 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
-from ps_ray.nets.modular import Actor, Critic, NetDims, build_actor, build_critic
+from ps_ray.nets.modular import Actor, Critic, build_actor, build_critic
 from ps_ray.specs.defaults import HIDDEN, INTERFACE_DIM
+from ps_ray.specs.dims import NetDims
 from ps_ray.specs.methods import MethodSpec
 
 LOG_2 = math.log(2.0)

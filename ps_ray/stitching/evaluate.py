@@ -32,10 +32,11 @@ from torch import nn
 
 from ps_ray.envs import make, task_input
 from ps_ray.errors import UserError
-from ps_ray.nets.modular import Actor, NetDims
+from ps_ray.nets.modular import Actor
 from ps_ray.nets.obs import dims_from_spaces
 from ps_ray.nets.policy import GreedyPolicy
 from ps_ray.nets.sac import SACNets
+from ps_ray.specs.dims import NetDims
 from ps_ray.specs.names import EnvPart
 from ps_ray.store.signature import Signature
 

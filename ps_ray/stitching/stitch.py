@@ -23,10 +23,10 @@ from torch import nn
 from ps_ray.envs.core import env_widths
 from ps_ray.errors import UserError
 from ps_ray.nets.from_signature import signature_of
-from ps_ray.nets.modular import NetDims
 from ps_ray.nets.policy_file import load_policy
 from ps_ray.nets.sac import NET_NAMES, SACNets, build_sac_nets
 from ps_ray.nets.translation import LatentTranslation, check_kind
+from ps_ray.specs.dims import NetDims
 from ps_ray.specs.names import EnvPart
 from ps_ray.stitching.rule import (
     EnvSpec,

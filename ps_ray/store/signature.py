@@ -14,6 +14,7 @@ from safetensors import SafetensorError, safe_open
 
 from ps_ray.errors import UserError
 from ps_ray.specs.defaults import MAX_WIDTH
+from ps_ray.specs.dims import NetDims
 from ps_ray.specs.methods import MethodSpec, method_spec, spec_from_dict, spec_json
 
 FORMAT = "ps_ray.policy/1"
@@ -46,10 +47,8 @@ class Signature:
         return not self.projection_off
 
     @property
-    def dims(self):
-        """The nets' :class:`ps_ray.nets.modular.NetDims` (imported here: this module is torch-free)."""
-        from ps_ray.nets.modular import NetDims
-
+    def dims(self) -> NetDims:
+        """The widths the nets are built from."""
         return NetDims(self.task_dim, self.robot_dim, self.action_dim)
 
     @property

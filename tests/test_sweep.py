@@ -181,7 +181,8 @@ def test_trials_spread_over_two_nodes(tmp_path, tiny_train, two_node_cluster):
 @pytest.mark.parametrize("entry", ["sweep", "sweep --resume", "run"])
 def test_a_sweep_with_other_training_settings_is_refused_before_anything_runs(tmp_path, entry):
     from ps_ray.pipeline.run import run_pipeline
-    from ps_ray.pipeline.sweep import require_same_sweep, run_sweep
+    from ps_ray.pipeline.stage import require_same_sweep
+    from ps_ray.pipeline.sweep import run_sweep
     from ps_ray.specs.train import SpecError
     from ps_ray.store.layout import SweepLayout
 

@@ -14,7 +14,7 @@ from pathlib import Path
 
 from ps_ray.cli.parsers import build_parser
 from ps_ray.errors import UserError
-from ps_ray.pipeline.sweep import StageError
+from ps_ray.pipeline.stage import StageError
 from ps_ray.specs.names import parse_spec_text
 from ps_ray.specs.train import POINT_TASK, TrainSpec
 from ps_ray.store.layout import SweepLayout

@@ -19,11 +19,13 @@ from pathlib import Path
 from typing import Any
 
 from ps_ray.errors import UserError
-from ps_ray.pipeline.sweep import anchor_file, layout, sweep_dir
+from ps_ray.pipeline.stage import layout
+from ps_ray.pipeline.sweep import anchor_file
 from ps_ray.specs.names import trial_key
 from ps_ray.specs.sweep import FewShotSpec, SweepSpec
 from ps_ray.specs.train import TrainSpec
 from ps_ray.stitching.pairs import StitchedPair, evaluated_pairs
+from ps_ray.store.layout import sweep_dir
 
 
 def selected_pairs(spec: SweepSpec, settings: FewShotSpec) -> list[StitchedPair]:
@@ -143,7 +145,8 @@ def _start_file(spec: SweepSpec, pair: StitchedPair, kind: str) -> Path:
 
 def run_few_shot(spec: SweepSpec, *, resume: bool = False, progress: bool = True, **overrides: Any):
     """Settings from ``spec.few_shot`` (``overrides`` replace fields); returns the ResultGrid."""
-    from ps_ray.pipeline.sweep import connect, run_tune
+    from ps_ray.pipeline.stage import connect
+    from ps_ray.pipeline.sweep import run_tune
     from ps_ray.store.attempts import require_fresh
 
     settings = dataclasses.replace(spec.few_shot, **overrides)

@@ -18,7 +18,7 @@ import shutil
 import time
 from collections.abc import Callable
 
-from ps_ray.pipeline.sweep import layout, raise_on_errors, require_same_sweep
+from ps_ray.pipeline.stage import layout, raise_on_errors, require_same_sweep
 from ps_ray.specs.stages import STAGES
 from ps_ray.specs.sweep import SweepSpec
 from ps_ray.store.stages import finished_summary, mark_finished, mark_started, stage_state

@@ -8,26 +8,22 @@ Where each goes: :class:`ps_ray.store.layout.SweepLayout`.
 from __future__ import annotations
 
 import dataclasses
-import os
 import tempfile
 from functools import partial
 from pathlib import Path
 from typing import Any
 
+from ps_ray.pipeline.stage import connect, layout, raise_on_errors, require_same_sweep
 from ps_ray.specs.methods import uses_anchors
 from ps_ray.specs.stages import stage as stage_record
 from ps_ray.specs.sweep import SweepSpec, anchor_sources, task_input_dim
-from ps_ray.specs.train import TrainSpec, require_same
+from ps_ray.specs.train import TrainSpec
 from ps_ray.store.atomic import write_text
 from ps_ray.store.layout import SweepLayout, sweep_dir
 from ps_ray.store.run_layout import METRIC_FIELDS, POLICY_FILE, SIGNATURE_FILE, SPEC_FILE
 
 # What each training result sends to MLflow: the metrics.csv columns but the step and the clock.
 METRIC_KEYS = tuple(k for k in METRIC_FIELDS if k not in ("iteration", "wall_s"))
-
-
-def layout(spec: SweepSpec) -> SweepLayout:
-    return SweepLayout.of(spec.storage, spec.name)
 
 
 # -- anchors -------------------------------------------------------------------------------------
@@ -170,31 +166,6 @@ def check_inputs(spec: SweepSpec) -> None:
             read_inputs(dataclasses.replace(trial, anchors=None))
 
 
-def require_same_sweep(spec: SweepSpec) -> None:
-    """A folder that holds a sweep's work keeps it: a spec with other training settings is refused
-    before anything is written, resumed or not, so two experiments never mix. A folder that holds
-    only the spec of a start that failed early (no trial, no anchor set) takes the new spec."""
-    import yaml
-
-    from ps_ray.store.attempts import attempts
-
-    layout = SweepLayout(sweep_dir(spec))
-    spec_file = layout.spec_file
-    holds_work = (
-        attempts(layout.tune_train, "trial")
-        or attempts(layout.tune_plain, "trial")
-        or any(layout.anchors.glob("*.npz"))
-    )
-    if spec_file.exists() and holds_work:
-        stored = SweepSpec.from_mapping(yaml.safe_load(spec_file.read_text()) or {}, where=str(spec_file))
-        require_same(
-            stored.training_identity(),
-            spec.training_identity(),
-            f"{sweep_dir(spec)} was trained from a different sweep spec",
-            "resume with the same training settings, or give the sweep another name or storage",
-        )
-
-
 def run_sweep(spec: SweepSpec, *, resume: bool = False, progress: bool = True):
     """Run (or resume) the sweep's stages; returns the training stage's Tune ResultGrid.
 
@@ -242,42 +213,8 @@ def run_sweep(spec: SweepSpec, *, resume: bool = False, progress: bool = True):
     return run_tune(trials, folder=SweepLayout(root).tune_train, stage="train", **tune_args)
 
 
-def connect(spec: SweepSpec) -> tuple[str, str]:
-    """Join (or start) Ray and open the sweep's MLflow experiment: (tracking URI, experiment id).
-
-    The driver creates the store and experiment once, before any trial could race for it."""
-    import ray
-
-    from ps_ray.store.layout import LOG_FOLDER
-    from ps_ray.store.terminal import others_to
-    from ps_ray.store.tracking import default_tracking_uri, ensure_experiment
-
-    where = layout(spec)
-    with others_to(where.root / LOG_FOLDER / "driver.log"):  # Ray's and MLflow's start-up messages
-        if not ray.is_initialized():
-            ray.init(
-                address=os.environ.get("RAY_ADDRESS", "local"),
-                include_dashboard=False,
-                log_to_driver=False,
-                configure_logging=False,
-            )
-        tracking_uri = spec.tracking_uri or default_tracking_uri(where.root)
-        return tracking_uri, ensure_experiment(tracking_uri, spec.name, where.artifacts)
-
-
 def _anchor_paths(spec: SweepSpec) -> list[Path]:
     return [Path(path) for path in map(partial(anchor_file, spec), spec.trials()) if path is not None]
-
-
-class StageError(RuntimeError):
-    """Trials of a stage failed; the message names how many and the first error."""
-
-
-def raise_on_errors(grid, what: str) -> None:
-    """StageError if any trial of a Tune ResultGrid failed."""
-    errors = [r for r in grid if r.error]
-    if errors:
-        raise StageError(f"{len(errors)} of {len(grid)} {what} failed: {errors[0].error}")
 
 
 def run_tune(

@@ -23,11 +23,12 @@ import numpy as np
 import pandas as pd
 
 from ps_ray.errors import UserError
-from ps_ray.pipeline.sweep import layout, raise_on_errors, sweep_dir
+from ps_ray.pipeline.stage import layout, raise_on_errors
 from ps_ray.specs.names import CONTROL_ROLES, split_translation
 from ps_ray.specs.sweep import SweepSpec
 from ps_ray.stitching.pairs import StitchedPair, pairs
 from ps_ray.store.atomic import atomic_path
+from ps_ray.store.layout import sweep_dir
 
 RESULT_KEYS = (
     "success_mean",
@@ -213,7 +214,7 @@ def run_zero_shot(
 
     ``resume`` finishes an interrupted matrix: pairs with a result row in ``tune_zero_shot`` are
     kept, whatever batch they ran in; the others run in new batches."""
-    from ps_ray.pipeline.sweep import connect
+    from ps_ray.pipeline.stage import connect
     from ps_ray.pipeline.trials import run_trials
     from ps_ray.pipeline.tune_tracking import RowRunsCallback
     from ps_ray.specs.resources import device_tags

@@ -30,9 +30,10 @@ from ps_ray.nets.sac import NET_NAMES, SACNets, build_sac_nets
 from ps_ray.specs.dims import NetDims
 from ps_ray.specs.methods import method_spec, uses_anchors
 from ps_ray.specs.names import EnvPart
+from ps_ray.stitching.matrix import combos, controls
 from ps_ray.stitching.paper import PANDA_L3_GRIPPER, PAPER_COMBOS
 from ps_ray.stitching.rule import check_stitchable, default_target
-from ps_ray.stitching.stitch import combos, controls, env_dims, stitch_policies
+from ps_ray.stitching.stitch import env_dims, stitch_policies
 from ps_ray.stitching.zoo import ModuleZoo, read_entry
 from ps_ray.store.attempts import FINISHED, PARAMS_FILE, RESULT_FILE
 from ps_ray.store.checkpoint import STATE_FILE, seal

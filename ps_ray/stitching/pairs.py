@@ -139,7 +139,7 @@ def pairs(
     (:func:`ps_ray.stitching.stitch.controls`); with ``translate``, also one per latent
     translation that ``spec.zero_shot.translate`` names for the method (its method shown as
     ``<method>+<translation>``, right after the untranslated pair)."""
-    from ps_ray.stitching.stitch import combos, controls
+    from ps_ray.stitching.matrix import combos, controls
     from ps_ray.stitching.zoo import ModuleZoo
 
     zoo = ModuleZoo.from_sweep(sweep_dir(spec))

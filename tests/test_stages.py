@@ -64,3 +64,18 @@ def test_a_stage_s_settings_change_its_marker_and_the_later_ones_only():
     # the training grid's settings change every marker
     trained = dataclasses.replace(spec, seeds=(*spec.seeds, 999))
     assert all(fingerprint(trained, s) != before[s] for s in STAGES)
+
+
+def test_a_training_trial_s_config_is_plain_json_and_reads_back():
+    from ps_ray.specs.names import trial_key
+    from ps_ray.specs.trial import TrainTrial
+
+    spec = load_sweep(SMOKE).trials()[0]
+    grid = TrainTrial(spec, "anchors.npz")
+    # a grid trial's config is what the train stage always wrote: a resumed sweep finds its trials
+    assert grid.config() == {"spec": spec.to_dict(), "anchors": "anchors.npz"}
+    assert TrainTrial.of(grid.config()) == grid and grid.run_name == grid.row == trial_key(spec.to_dict())
+    start = TrainTrial(spec, key="scratch/x", label="x", kind="scratch")
+    assert TrainTrial.of(start.config()) == start and (start.run_name, start.row) == ("scratch/x", "x")
+    with pytest.raises(ValueError, match="unknown trial kind 'toy'; kinds: train, stitched"):
+        TrainTrial(spec, kind="toy")

@@ -24,6 +24,7 @@ from ps_ray.pipeline.sweep import anchor_file
 from ps_ray.specs.names import trial_key
 from ps_ray.specs.sweep import FewShotSpec, SweepSpec
 from ps_ray.specs.train import TrainSpec
+from ps_ray.specs.trial import TrainTrial
 from ps_ray.stitching.pairs import StitchedPair, evaluated_pairs
 from ps_ray.store.layout import sweep_dir
 
@@ -44,8 +45,8 @@ def selected_pairs(spec: SweepSpec, settings: FewShotSpec) -> list[StitchedPair]
     return selected
 
 
-def few_shot_trials(spec: SweepSpec, settings: FewShotSpec) -> list[dict[str, Any]]:
-    """Trial configs for `sweep_trial`: stitched starts (:func:`selected_pairs`), with
+def few_shot_trials(spec: SweepSpec, settings: FewShotSpec) -> list[TrainTrial]:
+    """The trials of `sweep_trial`: stitched starts (:func:`selected_pairs`), with
     ``halves`` each half of the stitch beside a fresh other half, each pair's robot source
     fine-tuned as it is (unstitched), and from-scratch baselines. Starts from
     trained weights fit their critics alone for ``critic_warmup_updates`` updates first."""
@@ -72,26 +73,21 @@ def few_shot_trials(spec: SweepSpec, settings: FewShotSpec) -> list[dict[str, An
         warm = {"critic_warmup_updates": settings.critic_warmup_updates}
         stitched = TrainSpec.from_mapping({**base.to_dict(), **warm, "init_policy": str(path)})
         trials.append(
-            {
-                "spec": stitched.to_dict(),
-                "anchors": None,
-                "key": f"few_shot/{pair.label}/{trial_key(base.to_dict())}",
-                "label": pair.label,
-                "kind": "stitched",
-            }
+            TrainTrial(
+                stitched,
+                key=f"few_shot/{pair.label}/{trial_key(base.to_dict())}",
+                label=pair.label,
+                kind="stitched",
+            )
         )
         for kind in HALVES if settings.halves else ():  # one half of the stitch, the other fresh
             start = TrainSpec.from_mapping(
                 {**base.to_dict(), **warm, "init_policy": str(_start_file(spec, pair, kind))}
             )
             trials.append(
-                {
-                    "spec": start.to_dict(),
-                    "anchors": None,
-                    "key": f"{kind}/{pair.label}/{trial_key(base.to_dict())}",
-                    "label": pair.label,
-                    "kind": kind,
-                }
+                TrainTrial(
+                    start, key=f"{kind}/{pair.label}/{trial_key(base.to_dict())}", label=pair.label, kind=kind
+                )
             )
         own = pair.controls.get("robot_source")
         if settings.unstitched and own is not None:  # the robot source as it is, fine-tuned
@@ -99,25 +95,11 @@ def few_shot_trials(spec: SweepSpec, settings: FewShotSpec) -> list[dict[str, An
             key = f"unstitched/{own.source}/{trial_key(base.to_dict())}"
             if key not in seen:
                 seen.add(key)
-                trials.append(
-                    {
-                        "spec": unstitched.to_dict(),
-                        "anchors": None,
-                        "key": key,
-                        "label": key,
-                        "kind": "unstitched",
-                    }
-                )
+                trials.append(TrainTrial(unstitched, key=key, label=key, kind="unstitched"))
         targets.setdefault(trial_key(base.to_dict()), base)
     if settings.scratch:  # PS from scratch uses the sweep's anchor set, as its stitched sources
         trials += [
-            {
-                "spec": base.to_dict(),
-                "key": f"scratch/{key}",
-                "label": key,
-                "kind": "scratch",
-                "anchors": anchor_file(spec, base),
-            }
+            TrainTrial(base, anchor_file(spec, base), key=f"scratch/{key}", label=key, kind="scratch")
             for key, base in targets.items()
         ]
     return trials
@@ -165,18 +147,18 @@ def run_few_shot(spec: SweepSpec, *, resume: bool = False, progress: bool = True
         tracking=tracking,
         resume=resume,
         progress=progress,
-        key_fn=lambda trial: trial.config["trial"]["key"],
-        tags_fn=lambda trial, client: _source_tags(trial.config["trial"], client, tracking[1]),
+        key_fn=lambda trial: TrainTrial.of(trial.config["trial"]).run_name,
+        tags_fn=lambda trial, client: _source_tags(TrainTrial.of(trial.config["trial"]), client, tracking[1]),
     )
 
 
-def _source_tags(trial: dict, client, experiment_id: str) -> dict[str, str]:
+def _source_tags(trial: TrainTrial, client, experiment_id: str) -> dict[str, str]:
     """A fine-tuning run of a stitched start names its two sources (their runs) and anchor set."""
     from ps_ray.store.signature import read_signature
     from ps_ray.store.tracking import source_tags
 
-    start = trial["spec"].get("init_policy")
-    if trial["kind"] != "stitched" or not start:
+    start = trial.spec.init_policy
+    if trial.kind != "stitched" or not start:
         return {}
     meta = read_signature(start)[1]
     return source_tags(client, experiment_id, meta["task_from"], meta["robot_from"], start)
@@ -185,7 +167,7 @@ def _source_tags(trial: dict, client, experiment_id: str) -> dict[str, str]:
 def curves(results) -> dict[str, list[tuple[int, float]]]:
     """Greedy success vs env steps per trial key, from the stage's trial outcomes."""
     return {
-        result.config["trial"]["key"]: [
+        TrainTrial.of(result.config["trial"]).run_name: [
             (int(row["env_steps"]), row["eval_success"])
             for row in result.rows
             if row.get("eval_success") is not None

@@ -18,6 +18,7 @@ from ps_ray.specs.methods import uses_anchors
 from ps_ray.specs.stages import stage as stage_record
 from ps_ray.specs.sweep import SweepSpec, anchor_sources, task_input_dim
 from ps_ray.specs.train import TrainSpec
+from ps_ray.specs.trial import TrainTrial
 from ps_ray.store.atomic import write_text
 from ps_ray.store.layout import SweepLayout, sweep_dir
 from ps_ray.store.run_layout import METRIC_FIELDS, POLICY_FILE, SIGNATURE_FILE, SPEC_FILE
@@ -106,10 +107,10 @@ def sweep_trial(config: dict[str, Any]) -> None:
     from ps_ray.rllib.loop import TrainingRun
     from ps_ray.store.attempts import FINISHED, earlier_checkpoint, replay_store
 
-    trial = config["trial"]
-    spec = TrainSpec.from_mapping(trial["spec"])
-    if trial["anchors"]:
-        anchor_set = load_anchor_set(trial["anchors"])
+    trial = TrainTrial.of(config["trial"])
+    spec = trial.spec
+    if trial.anchors:
+        anchor_set = load_anchor_set(trial.anchors)
     elif spec.init_policy is not None and uses_anchors(spec.method):  # anchors inside the policy file
         anchor_set = policy_anchor_set(spec.init_policy)
     else:
@@ -196,7 +197,7 @@ def run_sweep(spec: SweepSpec, *, resume: bool = False, progress: bool = True):
     if spec.anchors.policy == "plain" and needs_anchors and not spec.anchors.file:
         sources = anchor_sources(spec)
         grid = run_tune(
-            [{"spec": s.to_dict(), "anchors": None} for s in sources],
+            [TrainTrial(s) for s in sources],
             folder=SweepLayout(root).tune_plain,
             stage="anchors_plain",
             # its own runs: the same plain spec may also be a trial of the grid
@@ -205,11 +206,10 @@ def run_sweep(spec: SweepSpec, *, resume: bool = False, progress: bool = True):
         )
         raise_on_errors(grid, "plain source policies")
         plain_policies = {
-            TrainSpec.from_mapping(r.config["trial"]["spec"]).label(): r.checkpoint / "policy.safetensors"
-            for r in grid
+            TrainTrial.of(r.config["trial"]).spec.label(): r.checkpoint / "policy.safetensors" for r in grid
         }
     prepare_sweep_anchors(spec, plain_policies)
-    trials = [{"spec": t.to_dict(), "anchors": anchor_file(spec, t)} for t in spec.trials()]
+    trials = [TrainTrial(t, anchor_file(spec, t)) for t in spec.trials()]
     return run_tune(trials, folder=SweepLayout(root).tune_train, stage="train", **tune_args)
 
 
@@ -218,7 +218,7 @@ def _anchor_paths(spec: SweepSpec) -> list[Path]:
 
 
 def run_tune(
-    trials: list[dict],
+    trials: list[TrainTrial],
     *,
     folder: Path,
     stage: str,
@@ -257,7 +257,7 @@ def run_tune(
     )
     return run_trials(
         sweep_trial,
-        {"trial": trials},
+        {"trial": [t.config() for t in trials]},
         folder=folder,
         stage=stage,
         callback=callback,
@@ -275,7 +275,7 @@ def _trial_artifacts(trial) -> list[Path]:
     paths = []
     if trial.checkpoint is not None:
         paths += [Path(trial.checkpoint.path) / name for name in (POLICY_FILE, SIGNATURE_FILE, SPEC_FILE)]
-    anchors = trial.config["trial"].get("anchors")
+    anchors = TrainTrial.of(trial.config["trial"]).anchors
     if anchors:
         paths.append(Path(anchors))
     return [p for p in paths if p.exists()]

@@ -1,0 +1,55 @@
+"""One training trial as the stages hand it to Tune and read it back: the :class:`TrainTrial`
+record. Its Tune config is plain JSON (``TrainTrial.config``), the same a stage wrote before the
+record existed, so a resumed stage finds its trials and stored ``params.json`` files still read
+(``TrainTrial.of``)."""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+from ps_ray.specs.names import trial_key
+from ps_ray.specs.train import TrainSpec
+
+# What a training trial is: a source of the grid or of the anchors, or a few-shot start
+# (ps_ray.pipeline.few_shot): the stitched pair, one half of it beside a fresh other half, the
+# pair's robot source as it is, or the target env from scratch.
+KINDS = ("train", "stitched", "robot_module", "task_module", "unstitched", "scratch")
+
+
+@dataclass(frozen=True)
+class TrainTrial:
+    spec: TrainSpec
+    anchors: str | None = None  # the anchor-set file of a PS trial (None: none, or the init policy's)
+    key: str = ""  # its MLflow run name ("": the spec's trial key)
+    label: str = ""  # the row a table puts it in ("": its key)
+    kind: str = "train"
+
+    def __post_init__(self) -> None:
+        if self.kind not in KINDS:
+            raise ValueError(f"unknown trial kind {self.kind!r}; kinds: {', '.join(KINDS)}")
+
+    @property
+    def run_name(self) -> str:
+        return self.key or trial_key(self.spec.to_dict())
+
+    @property
+    def row(self) -> str:
+        return self.label or self.run_name
+
+    def config(self) -> dict[str, Any]:
+        """The Tune config: spec and anchors, and key, label and kind where they are not the
+        defaults (a grid trial's config is ``{"spec", "anchors"}``, as it always was)."""
+        config: dict[str, Any] = {"spec": self.spec.to_dict(), "anchors": self.anchors}
+        if (self.key, self.label, self.kind) != ("", "", "train"):
+            config.update(key=self.key, label=self.label, kind=self.kind)
+        return config
+
+    @classmethod
+    def of(cls, config: Mapping[str, Any]) -> TrainTrial:
+        """The record of a Tune config or a stored ``params.json`` trial."""
+        fields = {f.name for f in dataclasses.fields(cls)}
+        given = {k: v for k, v in config.items() if k in fields and k != "spec"}
+        return cls(spec=TrainSpec.from_mapping(config["spec"]), **given)

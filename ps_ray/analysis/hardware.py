@@ -9,7 +9,6 @@ import os
 from dataclasses import dataclass
 from pathlib import Path
 
-from ps_ray.specs.methods import uses_anchors
 from ps_ray.specs.resources import StageResources
 from ps_ray.specs.train import TrainSpec
 
@@ -143,7 +142,7 @@ class Rates:
         return spec.batch_size * spec.hidden**2 / 256**3
 
     def method_factor(self, spec: TrainSpec) -> float:
-        return self.relative_factor if uses_anchors(spec.method) else 1.0
+        return self.relative_factor if spec.resolved.uses_anchors else 1.0
 
     def update_s(self, spec: TrainSpec) -> float:
         per_update = self.update_fixed_s + self.update_per_unit_s * self.size_unit(spec)

@@ -14,7 +14,6 @@ from pathlib import Path
 from typing import Any
 
 from ps_ray.pipeline.stage import connect, layout, raise_on_errors, require_same_sweep
-from ps_ray.specs.methods import uses_anchors
 from ps_ray.specs.stages import stage as stage_record
 from ps_ray.specs.sweep import SweepSpec, anchor_sources, task_input_dim
 from ps_ray.specs.train import TrainSpec
@@ -32,7 +31,7 @@ def anchor_file(spec: SweepSpec, trial: TrainSpec) -> str | None:
     """The one place that decides where a PS trial of this sweep (train, few-shot scratch) gets
     its anchors: the sweep's anchor set for the trial's task-input width and K. None for methods
     without anchors. (A stitched start carries its anchors in its policy file.)"""
-    if not uses_anchors(trial.method):
+    if not trial.resolved.uses_anchors:
         return None
     return str(layout(spec).anchor_set(task_input_dim(trial.task), trial.interface_dim))
 
@@ -51,7 +50,7 @@ def prepare_sweep_anchors(
     from ps_ray.envs import make
     from ps_ray.nets.policy import GreedyPolicy
 
-    ps = [t for t in spec.trials() if uses_anchors(t.method)]
+    ps = [t for t in spec.trials() if t.resolved.uses_anchors]
     sources = anchor_sources(spec) if ps else []
     paths: dict[tuple[int, int], str] = {}
     for t in ps:
@@ -111,7 +110,7 @@ def sweep_trial(config: dict[str, Any]) -> None:
     spec = trial.spec
     if trial.anchors:
         anchor_set = load_anchor_set(trial.anchors)
-    elif spec.init_policy is not None and uses_anchors(spec.method):  # anchors inside the policy file
+    elif spec.init_policy is not None and spec.resolved.uses_anchors:  # anchors inside the policy file
         anchor_set = policy_anchor_set(spec.init_policy)
     else:
         anchor_set = None

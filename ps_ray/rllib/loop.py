@@ -15,7 +15,7 @@ import numpy as np
 import torch
 
 from ps_ray.errors import UserError
-from ps_ray.specs.methods import method_spec, spec_json, uses_anchors
+from ps_ray.specs.methods import spec_json
 from ps_ray.specs.train import POINT_TASK, TrainSpec
 from ps_ray.store import checkpoint
 from ps_ray.store.run_layout import (
@@ -105,7 +105,7 @@ class TrainingRun:
         self.algo.replay_store = self.replay_store = replay_store
         self.signature = Signature(
             method=spec.method,
-            settings=spec_json(method_spec(spec.method)),
+            settings=spec_json(spec.resolved),
             interface_dim=spec.interface_dim,
             hidden=spec.hidden,
             anchor_hash="" if anchor_set is None else anchor_set.hash,
@@ -114,7 +114,7 @@ class TrainingRun:
         self.start, self.start_steps = time.time(), 0
         self.streak = 0  # evaluations in a row at or above spec.target_success
         self.best: float | None = None  # the best greedy success so far (kept across resumes)
-        self.consolidation = method_spec(spec.method).consolidate
+        self.consolidation = spec.resolved.consolidate
         self.consolidated: dict[str, float] = {}  # figures of the consolidation after the last step
         if spec.init_policy is not None:
             self.algo.load_policy_weights(spec.init_policy)
@@ -193,7 +193,7 @@ class TrainingRun:
             self.streak = int(state.get("streak", 0))
             self.best = None if state.get("best") is None else float(state["best"])
             self.consolidated = {k: float(v) for k, v in (state.get("consolidated") or {}).items()}
-        if self.consolidated and not self.done and method_spec(self.spec.method).defer_relative:
+        if self.consolidated and not self.done and self.spec.resolved.defer_relative:
             raise UserError(
                 f"{directory}: this {self.spec.method} run finished at {self.env_steps} env steps "
                 f"and switched its actor to the relative interface, so more training "
@@ -238,8 +238,8 @@ def read_inputs(spec: TrainSpec):
             )
         if problems:
             raise UserError(f"{spec.init_policy}: cannot start this run: " + "; ".join(problems))
-        return policy_anchor_set(spec.init_policy) if uses_anchors(spec.method) else None
-    if spec.anchors is not None and uses_anchors(spec.method):
+        return policy_anchor_set(spec.init_policy) if spec.resolved.uses_anchors else None
+    if spec.anchors is not None and spec.resolved.uses_anchors:
         from ps_ray.data.anchor_file import anchors_from_file
 
         return anchors_from_file(spec.anchors, spec.interface_dim, seed=0)

@@ -21,7 +21,6 @@ from typing import Any
 
 from ps_ray.errors import UserError
 from ps_ray.rllib.loop import TrainingRun, format_figure, prepare_anchors, read_inputs
-from ps_ray.specs.methods import uses_anchors
 from ps_ray.specs.train import TrainSpec, require_same
 from ps_ray.store.atomic import write_text
 from ps_ray.store.layout import LOG_FOLDER
@@ -69,7 +68,7 @@ def _check_run_dir(spec: TrainSpec, run_dir: Path) -> None:
 def _train(spec: TrainSpec, run_dir: Path, given, progress: bool, compile: bool) -> dict[str, Any]:
     import ray
 
-    anchor_set = prepare_anchors(spec, run_dir, given) if uses_anchors(spec.method) else None
+    anchor_set = prepare_anchors(spec, run_dir, given) if spec.resolved.uses_anchors else None
     with others_to(run_dir / LOG_FOLDER / "ray.log"):  # Ray's and RLlib's start-up messages
         if not ray.is_initialized():
             ray.init(

@@ -4,6 +4,7 @@ strictly: unknown keys and bad values fail with one line naming them."""
 from __future__ import annotations
 
 import dataclasses
+import functools
 import json
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -14,7 +15,7 @@ from ps_ray.envs.robots import resolve_robot
 from ps_ray.envs.tasks import resolve_task
 from ps_ray.errors import UserError
 from ps_ray.specs.defaults import INTERFACE_DIM
-from ps_ray.specs.methods import method_key, uses_anchors
+from ps_ray.specs.methods import method_key
 from ps_ray.specs.names import ANCHOR_GOALS, EnvPart, plain_json, translations_problem
 from ps_ray.specs.resources import ResourcesSpec
 from ps_ray.specs.stages import NOT_TRAINING, STAGES
@@ -270,11 +271,16 @@ class SweepSpec:
         return {k: v for k, v in self.to_dict().items() if k not in NOT_TRAINING}
 
     def trials(self) -> list[TrainSpec]:
+        """Every training trial of the grid, validated (expanded once per spec)."""
+        return list(self._trials)
+
+    @functools.cached_property
+    def _trials(self) -> tuple[TrainSpec, ...]:
         overrides = dict(self.train)
         for key in ("method", "robot", "task", "seed", "interface_dim"):
             if key in overrides:
                 raise SpecError(f"train.{key} is set by the sweep grid; remove it from 'train'")
-        return [
+        return tuple(
             TrainSpec.from_mapping(
                 {**overrides, "method": m, "robot": r, "task": t, "seed": s, "interface_dim": d},
                 where="sweep 'train'",
@@ -284,7 +290,7 @@ class SweepSpec:
             for t in self.tasks
             for s in self.seeds
             for d in self.interface_dims
-        ]
+        )
 
     @classmethod
     def from_mapping(cls, data: Mapping[str, Any], where: str = "sweep") -> SweepSpec:
@@ -369,7 +375,7 @@ def seed_pairs(seeds: tuple[int, ...], pairing: str) -> list[tuple[str, int, int
 
 def anchor_sources(spec: SweepSpec) -> list[TrainSpec]:
     """The plain trials whose greedy rollouts give the anchor states (policy: plain)."""
-    ps = [t for t in spec.trials() if uses_anchors(t.method)]
+    ps = [t for t in spec.trials() if t.resolved.uses_anchors]
     tasks = [EnvPart(t) for t in spec.anchors.source_tasks] or list(dict.fromkeys(t.task for t in ps))
     return [
         TrainSpec.from_mapping(

@@ -4,6 +4,7 @@ line naming them. The sweep spec is in ``ps_ray.specs.sweep``."""
 from __future__ import annotations
 
 import dataclasses
+import functools
 import json
 import re
 import types
@@ -16,7 +17,7 @@ from ps_ray.envs.robots import resolve_robot
 from ps_ray.envs.tasks import resolve_task
 from ps_ray.errors import UserError
 from ps_ray.specs.defaults import HIDDEN, INTERFACE_DIM, MAX_WIDTH
-from ps_ray.specs.methods import OPTIONS, PRESETS, method_key
+from ps_ray.specs.methods import OPTIONS, PRESETS, MethodSpec, method_key, method_spec
 from ps_ray.specs.names import EnvPart, plain_json, trial_key
 
 POINT_TASK = "point"  # the physics-free PointGoalEnv (robot is ignored), for fast checks
@@ -204,6 +205,11 @@ class TrainSpec:
         if self.task == POINT_TASK:
             return {}
         return {"robot": self.robot.spelling, "task": self.task.spelling}
+
+    @functools.cached_property
+    def resolved(self) -> MethodSpec:
+        """The method's resolved settings (its key is parsed once per spec)."""
+        return method_spec(self.method)
 
     @property
     def env_name(self) -> str:

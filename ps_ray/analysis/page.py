@@ -25,13 +25,26 @@ class Section:
 
 
 @dataclass
+class Headline:
+    """The per-method figures the report's summary puts at the top, each filled by its section
+    (None where the sweep has no such section)."""
+
+    steps: pd.DataFrame | None = None  # env steps to the success target, per method
+    sources: pd.DataFrame | None = None  # each source's final success
+    collapsed: pd.Series | None = None  # collapsed interfaces per method
+    alignment: pd.DataFrame | None = None  # latent distances and retrieval scores
+    zero_shot: pd.DataFrame | None = None  # zero-shot success per method (and translation)
+    transfer: pd.DataFrame | None = None  # transfer gain against the controls and chance
+
+
+@dataclass
 class Report:
     """What the page shows, in order; files are written under ``root`` as they are added."""
 
     root: Path
     sections: list[Section] = field(default_factory=list)
     metrics: dict[str, float] = field(default_factory=dict)
-    headline: dict[str, pd.DataFrame] = field(default_factory=dict)  # per-method figures for the top
+    headline: Headline = field(default_factory=Headline)
 
     def section(self, title: str, intro: str = "", first: bool = False) -> Section:
         """A new section at the end of the page (``first``: at the top)."""

@@ -117,7 +117,7 @@ def _training(report: Report, root: Path, target: float, say) -> None:
         shown,
         numbers=numbers,
     )
-    report.headline["steps"] = numbers
+    report.headline.steps = numbers
     sources = final.set_index("run")[["method", "robot", "task", "seed", "env_steps", "success"]]
     sources = sources.assign(below_target=sources["success"] < target)
     report.table(
@@ -128,7 +128,7 @@ def _training(report: Report, root: Path, target: float, say) -> None:
         sources,
         numbers=sources,
     )
-    report.headline["sources"] = sources
+    report.headline.sources = sources
     say(
         f"report: training curves of {frame['run'].nunique()} runs "
         f"({int(sources['below_target'].sum())} below the {target:.2f} target)"
@@ -187,7 +187,7 @@ def _latent(report: Report, spec: SweepSpec, root: Path, say) -> None:
         spreads.round(4),
         numbers=spreads,
     )
-    report.headline["collapsed"] = spreads.groupby("method")["collapsed"].sum()
+    report.headline.collapsed = spreads.groupby("method")["collapsed"].sum()
     all_groups = {c: latent.groups(dumps, c) for c in latent.COMPARISONS}
     distances = latent.distance_table([g for gs in all_groups.values() for g in gs])
     if distances.empty:
@@ -200,7 +200,7 @@ def _latent(report: Report, spec: SweepSpec, root: Path, say) -> None:
         distances.round(5),
         numbers=distances,
     )
-    report.headline["alignment"] = distances
+    report.headline.alignment = distances
     for _, row in distances.iterrows():
         base = f"latent.{row['comparison']}.i{row['interface_dim']}.{row['method']}"
         for metric in latent.ALIGNMENT_METRICS:
@@ -261,7 +261,7 @@ def _zero_shot(report: Report, root: Path, target: float, say) -> None:
         tables.zero_shot_table(table),
         numbers=tables.pool_seeds(table),
     )
-    sources = report.headline.get("sources")
+    sources = report.headline.sources
     if sources is not None:
         weak = set(sources.index[sources["below_target"]])
         table = table.assign(weak_source=table["task_from"].isin(weak) | table["robot_from"].isin(weak))
@@ -281,7 +281,7 @@ def _zero_shot(report: Report, root: Path, target: float, say) -> None:
         tables.estimates_text(numbers),
         numbers=numbers,
     )
-    report.headline["zero_shot"] = numbers
+    report.headline.zero_shot = numbers
     for method, row in numbers.iterrows():
         for metric in ("success", "touching"):
             for stat in ("mean", "mean_lo", "mean_hi", "iqm"):
@@ -317,7 +317,7 @@ def _transfer(report: Report, table: pd.DataFrame) -> None:
         numbers=numbers,
     )
     report.figure(section, "transfer_gain", lambda p: plots.transfer_gain_bars(table, p))
-    report.headline["transfer"] = numbers
+    report.headline.transfer = numbers
     for _, row in numbers.iterrows():
         prefix = f"transfer.{row['method']}.{row['pairing']}"
         for column in ("success_mean", *transfer.CONTROL_COLUMNS, "gain_diff", "gain_p"):

@@ -51,10 +51,10 @@ def summary_section(report: Report, spec: SweepSpec, target: float) -> None:
     alignment and training success, with the budget in one sentence; put at the top."""
     h = report.headline
     rows = {}
-    translated = [] if h.get("zero_shot") is None else list(h["zero_shot"].index)
+    translated = [] if h.zero_shot is None else list(h.zero_shot.index)
     for method in tables.method_order([*spec.methods, *translated]):  # "ablation+affine" rows too
         row: dict[str, str] = {}
-        zs = h.get("zero_shot")
+        zs = h.zero_shot
         if zs is not None and method in zs.index:
             r = zs.loc[method]
             row["zero-shot success, mean [95% CI]"] = f"{r['success_mean']:.2f} " + tables.ci(
@@ -66,7 +66,7 @@ def summary_section(report: Report, spec: SweepSpec, target: float) -> None:
                     r["touching_mean_lo"], r["touching_mean_hi"]
                 )
             row["cells"] = str(int(r["success_cells"]))
-        tr = h.get("transfer")
+        tr = h.transfer
         if tr is not None:
             for _, r in tr[tr["method"] == method].iterrows():
                 if r["gain_diff"] == r["gain_diff"]:
@@ -75,22 +75,22 @@ def summary_section(report: Report, spec: SweepSpec, target: float) -> None:
                         + tables.ci(r["gain_lo"], r["gain_hi"])
                         + f", p {r['gain_p']:.2g}"
                     )
-        al = h.get("alignment")
+        al = h.alignment
         if al is not None:
             part = al[(al["method"] == method) & (al["comparison"] == "robots")]
             if len(part):
                 r = part.sort_values("interface_dim").iloc[-1]
                 row["across robots: MRR"] = f"{r['mrr_mean']:.3f}"
                 row["across robots: cosine dist."] = f"{r['cosine_mean']:.4f}"
-        if h.get("collapsed") is not None and method in h["collapsed"].index:
-            row["collapsed interfaces"] = str(int(h["collapsed"][method]))
-        steps = h.get("steps")
+        if h.collapsed is not None and method in h.collapsed.index:
+            row["collapsed interfaces"] = str(int(h.collapsed[method]))
+        steps = h.steps
         if steps is not None and method in steps.index:
             r = steps.loc[method]
             row[f"env steps to {target:.2f}"] = (
                 f"{r['steps_mean']:.0f} ({int(r['reached'])}/{int(r['runs'])} reached)"
             )
-        src = h.get("sources")
+        src = h.sources
         if src is not None and (src["method"] == method).any():
             mine = src[src["method"] == method]
             row["training success (mean)"] = f"{mine['success'].mean():.2f}"

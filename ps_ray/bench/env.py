@@ -6,7 +6,7 @@ every 50 steps it puts the joints and the object back in place (no observation, 
 So both loops simulate the same motions. They run in this process, interleaved in rounds, and each
 keeps its best round (robust to load from other processes).
 
-    python benchmarks/bench_env.py [--steps 2000] [--rounds 3] [--tasks push reach]
+    ps-ray bench env [--steps 2000] [--rounds 3] [--tasks push reach]
 """
 
 from __future__ import annotations

@@ -4,7 +4,7 @@ Prints add_episodes time per 100 episodes, sample(256) and sample_many(40, 256) 
 size and resident-memory growth, for buffers of 2,000 and 20,000 episodes (1e5 and 1e6
 transitions). For context: RLlib's episode replay costs 25-31 ms per 256-sample here.
 
-    .venv/bin/python benchmarks/bench_her.py [--capacities 2000 20000] [--repeats 300]
+    ps-ray bench her [--capacities 2000 20000] [--repeats 300]
 """
 
 from __future__ import annotations

@@ -55,7 +55,7 @@ def test_a_key_is_canonical_however_the_options_are_written():
     [
         ("psx", "unknown method 'psx'; valid presets: ps, ps_distilled, ablation, devin, devin_large, plain"),
         ("ps+nrom=layer", "method 'ps+nrom=layer': unknown option 'nrom'; valid: relative, center, norm"),
-        ("ps+scale=big", "method option scale: expected float, got 'big'"),
+        ("ps+scale=big", "method option scale: expected a number, got 'big'"),
         ("ps+scale", "method 'ps+scale': option 'scale' is not option=value"),
         ("ps+norm=batch", "method 'ps+norm=batch': unknown relative norm 'batch'"),
         ("plain+relative=true", "method 'plain+relative=true': a relative interface needs a modular network"),

@@ -29,7 +29,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from ps_ray.errors import UserError
+from ps_ray.errors import UserError, describe
 
 REL_NORMS = ("none", "layer")
 CENTERINGS = ("none", "mean", "standard")
@@ -241,7 +241,7 @@ def _parse(option: str, value: Any) -> Any:
             number = None
         if number is not None and (kind is float or number.is_integer()):
             return int(number) if kind is int else number
-    raise UserError(f"method option {option}: expected {kind.__name__}, got {value!r}")
+    raise UserError(f"method option {option}: expected {describe(kind)}, got {value!r}")
 
 
 def _options(spec: MethodSpec) -> dict[str, Any]:

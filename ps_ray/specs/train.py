@@ -7,7 +7,6 @@ import dataclasses
 import functools
 import json
 import re
-import types
 import typing
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -15,7 +14,7 @@ from typing import Any
 
 from ps_ray.envs.robots import resolve_robot
 from ps_ray.envs.tasks import resolve_task
-from ps_ray.errors import UserError
+from ps_ray.errors import UserError, describe, fits
 from ps_ray.specs.defaults import HIDDEN, INTERFACE_DIM, MAX_WIDTH
 from ps_ray.specs.methods import OPTIONS, PRESETS, MethodSpec, method_key, method_spec
 from ps_ray.specs.names import EnvPart, plain_json, trial_key
@@ -52,37 +51,8 @@ def check_types(spec: Any, where: str, skip: tuple[str, ...] = ()) -> None:
     hints = typing.get_type_hints(type(spec))
     for field in dataclasses.fields(spec):
         value = getattr(spec, field.name)
-        if field.name not in skip and not _matches(value, hints[field.name]):
-            raise SpecError(f"{where}.{field.name} must be {_describe(hints[field.name])}, got {value!r}")
-
-
-def _matches(value: Any, hint: Any) -> bool:
-    origin, args = typing.get_origin(hint), typing.get_args(hint)
-    if origin in (typing.Union, types.UnionType):
-        return any(_matches(value, a) for a in args)
-    if hint is type(None):
-        return value is None
-    if hint in (int, float, str, bool):
-        if isinstance(value, bool) and hint is not bool:
-            return False
-        return isinstance(value, (int, float) if hint is float else hint)
-    if origin is tuple:
-        return isinstance(value, (tuple, list)) and all(_matches(v, args[0]) for v in value)
-    if origin is not None and issubclass(origin, Mapping):
-        return isinstance(value, Mapping)
-    return True  # Any, and types checked by the spec itself
-
-
-def _describe(hint: Any) -> str:
-    origin, args = typing.get_origin(hint), typing.get_args(hint)
-    if origin in (typing.Union, types.UnionType):
-        return " or ".join(_describe(a) for a in args)
-    if origin is tuple:
-        return f"a list of {_describe(args[0]).removeprefix('a ').removeprefix('an ')}s"
-    if origin is not None and issubclass(origin, Mapping):
-        return "a mapping"
-    names = {int: "an integer", float: "a number", str: "a string", bool: "true or false", type(None): "null"}
-    return names.get(hint, str(hint))
+        if field.name not in skip and not fits(value, hints[field.name]):
+            raise SpecError(f"{where}.{field.name} must be {describe(hints[field.name])}, got {value!r}")
 
 
 def require_same(stored: Mapping[str, Any], current: Mapping[str, Any], what: str, advice: str) -> None:

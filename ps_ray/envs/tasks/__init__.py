@@ -8,13 +8,12 @@ the family's options dataclass (``Reach.Options``, ``Push.Options``, ``Pick.Opti
 from __future__ import annotations
 
 import dataclasses
-import types
 import typing
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from ps_ray.errors import UserError, choice_error
+from ps_ray.errors import UserError, choice_error, describe, fits
 
 from ..goals import GOAL_DIM
 from .base import Task, TaskOptions
@@ -74,39 +73,9 @@ def resolve_task(task: str | Mapping | TaskSpec, **options: Any) -> TaskSpec:
     for key, value in options.items():
         if key not in valid:
             raise UserError(f"unknown option {key!r} for task {task!r}; valid options: {', '.join(valid)}")
-        if not _fits(value, hints[key]):
-            raise UserError(f"task {task!r} option {key}: expected {_describe(hints[key])}, got {value!r}")
+        if not fits(value, hints[key]):
+            raise UserError(f"task {task!r} option {key}: expected {describe(hints[key])}, got {value!r}")
     return TaskSpec(task, family, family.Options(**{**preset, **options}))
-
-
-def _fits(value: Any, hint: Any) -> bool:
-    """Whether an option value has its field's type (numbers for floats, a list or tuple of the
-    right length for a tuple); a field of another kind checks its own values."""
-    origin, args = typing.get_origin(hint), typing.get_args(hint)
-    if origin in (typing.Union, types.UnionType):
-        return any(_fits(value, a) for a in args) or not all(a in _SCALARS or a is type(None) for a in args)
-    if hint is type(None):
-        return value is None
-    if hint is bool:
-        return isinstance(value, bool)
-    if hint in (int, float):
-        return isinstance(value, (int, float) if hint is float else int) and not isinstance(value, bool)
-    if hint is str:
-        return isinstance(value, str)
-    if origin is tuple:
-        if not isinstance(value, (list, tuple)):
-            return False
-        items = args[:1] * len(value) if len(args) == 2 and args[1] is Ellipsis else args
-        return len(items) == len(value) and all(_fits(v, a) for v, a in zip(value, items, strict=True))
-    return True
-
-
-_SCALARS = (bool, int, float, str)
-
-
-def _describe(hint: Any) -> str:
-    text = hint.__name__ if isinstance(hint, type) else str(hint)
-    return text.replace("typing.", "").replace("NoneType", "None")
 
 
 __all__ = [

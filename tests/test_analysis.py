@@ -243,3 +243,14 @@ def test_few_shot_table_pairs_each_start_with_scratch_on_steps_and_area():
     assert stitched["env steps to 0.8: minus scratch (paired over seeds)"].startswith("-2000")
     assert half["area under curve: minus scratch (paired over seeds)"].startswith("+0.27")
     assert scratch["area under curve: minus scratch (paired over seeds)"] == "–"
+
+
+def test_task_variants_are_named_as_a_reader_would_in_tables_and_plots():
+    from ps_ray.specs.names import readable
+
+    assert readable('t: reach{"goal_region":"q1"}-panda_l3 & r: reach{"goal_region":"q3"}-panda') == (
+        "t: reach q1-panda_l3 & r: reach q3-panda"
+    )
+    assert readable('push{"friction":0.1,"rocks":true}') == "push friction=0.1 rocks=true"
+    assert readable("ps/panda/reach_red/401") == "ps/panda/reach_red/401"  # no variant: unchanged
+    assert readable("x{not json}") == "x{not json}"

@@ -275,6 +275,8 @@ def test_report_embeds_every_figure_and_table(smoke):
         assert f">{section}</h2>" in page
     assert "Zero-shot results (Table 1 layout)" in page and "task module &amp; robot module" in page
     assert "near zero by design" in page  # the smoke budget says what it cannot show
+    # task variants are named as a reader would, not as JSON
+    assert "reach q1" in page and "goal_region" not in page
     # rollout clips: 2 stitched pairs x 2 methods x (stitched, task source, robot source), animated
     gifs = sorted((root / "report" / "clips").glob("*.gif"))
     assert len(gifs) == 12 and page.count("src='data:image/gif;base64,") == 12

@@ -12,7 +12,7 @@ from pathlib import Path
 import pandas as pd
 
 from ps_ray.analysis import clips
-from ps_ray.specs.names import short_name
+from ps_ray.specs.names import readable, short_name
 from ps_ray.specs.sweep import SweepSpec
 
 
@@ -88,8 +88,8 @@ def render_html(spec: SweepSpec, report: Report) -> str:
     esc = html.escape
     meta = {
         "methods": ", ".join(spec.methods),
-        "robots": ", ".join(map(short_name, spec.robots)),
-        "tasks": ", ".join(map(short_name, spec.tasks)),
+        "robots": ", ".join(readable(short_name(r)) for r in spec.robots),
+        "tasks": ", ".join(readable(short_name(t)) for t in spec.tasks),
         "seeds": ", ".join(map(str, spec.seeds)),
         "interface dims": ", ".join(map(str, spec.interface_dims)),
         "stages": ", ".join(spec.stages),
@@ -116,7 +116,7 @@ def render_html(spec: SweepSpec, report: Report) -> str:
                 parts.append(f"<img alt='{esc(item.stem)}' src='data:image/png;base64,{data}'>")
             elif kind == "clips":
                 label, row = item
-                parts.append(f"<h3>{esc(label)}</h3><table class='clips'><tr><th>method</th>")
+                parts.append(f"<h3>{esc(readable(label))}</h3><table class='clips'><tr><th>method</th>")
                 parts += [f"<th>{esc(role)}</th>" for role in clips.ROLES]
                 for method in dict.fromkeys(c.method for c in row):
                     parts.append(f"<tr><th>{esc(method)}</th>")
@@ -126,13 +126,19 @@ def render_html(spec: SweepSpec, report: Report) -> str:
                         verdict += f" (ended {100 * clip.distance:.1f} cm from it)"
                         parts.append(
                             f"<td><img alt='{esc(clip.path.stem)}' src='data:image/gif;base64,{data}'>"
-                            f"<div class='caption'>{esc(clip.env)}: {verdict}</div></td>"
+                            f"<div class='caption'>{esc(readable(clip.env))}: {verdict}</div></td>"
                         )
                     parts.append("</tr>")
                 parts.append("</table>")
             else:
                 caption, frame = item
-                head, rest = frame.to_html(border=0, na_rep="–").split(">", 1)
+                shown = frame.rename(index=_readable, columns=_readable).map(_readable)
+                head, rest = shown.to_html(border=0, na_rep="–").split(">", 1)
                 parts.append(f"{head}><caption>{esc(caption)}</caption>{rest}")
     parts.append("</body></html>")
     return "\n".join(parts)
+
+
+def _readable(value: object) -> object:
+    """A table cell or label as :func:`ps_ray.specs.names.readable` writes it (text only)."""
+    return readable(value) if isinstance(value, str) else value

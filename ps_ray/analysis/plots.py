@@ -17,6 +17,7 @@ import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
 from ps_ray.analysis.latent import QUADRANTS, Group, Probes, mean_matrix, shared_pca  # noqa: E402
+from ps_ray.specs.names import readable  # noqa: E402
 
 QUADRANT_COLOURS = dict(zip(QUADRANTS, ("tab:red", "tab:blue", "tab:green", "tab:orange")))
 METRIC_TITLES = {"cosine": "cosine distance", "l2": "L2 distance"}
@@ -115,9 +116,9 @@ def learning_curves(
         part = curves[curves[panel] == name]
         for label, lines in part.groupby(line, sort=True):
             stats = lines.groupby(x)[y].agg(["mean", "min", "max"])
-            ax.plot(stats.index, stats["mean"], label=f"{label} ({lines['run'].nunique()})")
+            ax.plot(stats.index, stats["mean"], label=f"{readable(str(label))} ({lines['run'].nunique()})")
             ax.fill_between(stats.index, stats["min"], stats["max"], alpha=0.2)
-        ax.set_title(str(name), fontsize=9)
+        ax.set_title(readable(str(name)), fontsize=9)
         ax.set_xlabel(x.replace("_", " "))
         ax.set_ylabel(ylabel)
         ax.set_ylim(-0.05, 1.05)
@@ -157,7 +158,7 @@ def zero_shot_bars(table: pd.DataFrame, path: Path) -> Path:
                 label=method,
                 capsize=2,
             )
-        ax.set_yticks(np.arange(len(labels)) + 0.4 - height / 2, labels, fontsize=7)
+        ax.set_yticks(np.arange(len(labels)) + 0.4 - height / 2, [readable(x) for x in labels], fontsize=7)
         ax.set_xlim(0, 1)
         ax.set_xlabel(f"zero-shot {metric} rate")
         ax.invert_yaxis()
@@ -196,7 +197,7 @@ def transfer_gain_bars(table: pd.DataFrame, path: Path) -> Path:
                 capsize=2,
             )
         ax.axvline(0.0, color="black", linewidth=0.8)
-        ax.set_yticks(np.arange(len(labels)) + 0.4 - height / 2, labels, fontsize=7)
+        ax.set_yticks(np.arange(len(labels)) + 0.4 - height / 2, [readable(x) for x in labels], fontsize=7)
         ax.set_xlim(-1.05, 1.05)
         ax.set_xlabel("transfer gain: stitched - best unstitched source")
         ax.set_title(pairing.replace("_", " "), fontsize=9)

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import re
 from collections.abc import Iterator, Mapping
 from typing import Any
 
@@ -166,3 +167,23 @@ def trial_key(spec: Mapping[str, Any]) -> str:
     key = "/".join(short_name(spec.get(k)) for k in ("method", "robot", "task", "seed"))
     dim = spec.get("interface_dim", INTERFACE_DIM)
     return key if dim == INTERFACE_DIM else f"{key}/i{dim}"
+
+
+_VARIANT = re.compile(r"(\w+)(\{[^{}]*\})")
+
+
+def readable(text: str) -> str:
+    """``text`` with every robot or task variant written as a reader would: a string option by
+    its value, another as ``key=value`` (``reach{"goal_region":"q1"}`` -> ``reach q1``,
+    ``push{"friction":0.1}`` -> ``push friction=0.1``). For tables, plots and captions only: keys,
+    file names and CSV cells keep the exact :func:`short_name`."""
+
+    def one(match: re.Match) -> str:
+        try:
+            options = json.loads(match.group(2))
+        except json.JSONDecodeError:
+            return match.group(0)
+        words = [v if isinstance(v, str) else f"{k}={json.dumps(v)}" for k, v in options.items()]
+        return " ".join([match.group(1), *words])
+
+    return _VARIANT.sub(one, text)

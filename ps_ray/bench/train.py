@@ -84,7 +84,8 @@ class BareTrainer:
             self.replay.add_episodes(obs, actions)
             steps = actions.shape[0] * actions.shape[1]
             self.env_steps += steps
-            task_in, robot_in = split_obs(self.replay.relabelled(obs))
+            seen = self.replay.relabelled(obs) if self.nets.actor.spec.hindsight_norm else obs
+            task_in, robot_in = split_obs(seen)
             update_normalizers(self.nets, task_in, robot_in)
             n_updates = max(1, round(steps * spec.updates_per_step))
             batch = train_batch(self.replay.sample_many(n_updates, spec.batch_size))

@@ -44,7 +44,7 @@ from ps_ray.rllib.private import (
     set_runner_seed,
     set_training_iteration,
 )
-from ps_ray.specs.methods import ConsolidateSpec, spec_json
+from ps_ray.specs.methods import ConsolidateSpec, method_spec, spec_json
 from ps_ray.specs.train import TrainSpec
 from ps_ray.store import replay as replay_segments
 from ps_ray.store.checkpoint import STATE_FILE
@@ -120,6 +120,7 @@ class ModularSAC(SAC):
             relabel_prob=cfg.relabel_prob,
             seed=cfg.seed,
         )
+        self.method = method_spec(cfg.model_config["method"])
         self.counters = {"env_steps": 0, "episodes": 0, "updates": 0}
         # Where replay segments go (ps_ray.store.replay); None: each checkpoint holds the whole buffer.
         self.replay_store: Path | None = None
@@ -227,8 +228,9 @@ class ModularSAC(SAC):
         self.counters["episodes"] += actions.shape[0]
         self._log_episode_stats("train", episodes)
 
-        # The normalisers see the new steps as training reads them: hindsight goals included.
-        steps_seen = self.replay.relabelled(obs)
+        # The normalisers see the new steps as training reads them: hindsight goals included
+        # (unless the method asks for the collected steps only: MethodSpec.hindsight_norm).
+        steps_seen = self.replay.relabelled(obs) if self.method.hindsight_norm else obs
         task_t = torch.from_numpy(task_input(steps_seen))
         robot_t = torch.from_numpy(steps_seen[ROBOT_KEY])
         self.learner_group.foreach_learner(

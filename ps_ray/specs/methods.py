@@ -127,6 +127,10 @@ class MethodSpec:
     # True: the actor trains on the raw latent (the ablation's network, step for step) and its
     # relative projection is switched on by consolidation, which distils the actor into it
     defer_relative: bool = False
+    # the task-input normaliser's statistics cover the goals training reads, hindsight ones
+    # included (docs/transfer.md, "The normaliser sees hindsight goals"); false: the collected
+    # steps only, as before that fix (`<preset>+hindsight_norm=false`, for before/after studies)
+    hindsight_norm: bool = True
 
     def __post_init__(self) -> None:
         if self.relative is not None and not self.modular:

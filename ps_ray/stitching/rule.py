@@ -57,7 +57,7 @@ def stitch_problems(sig_task: Signature, sig_robot: Signature, target: EnvSpec |
     stitched (into a policy for ``target``, if given); empty if they can."""
     problems = []
     pair = lambda a, b: f"task module {a!r} vs robot module {b!r}"  # noqa: E731
-    if sig_task.settings != sig_robot.settings:
+    if sig_task.spec != sig_robot.spec:  # resolved: a setting newer than one file reads as its default
         problems.append(f"method: {pair(sig_task.method, sig_robot.method)}")
     else:
         spec = sig_task.spec

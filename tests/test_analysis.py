@@ -243,6 +243,17 @@ def test_few_shot_table_pairs_each_start_with_scratch_on_steps_and_area():
     assert stitched["env steps to 0.8: minus scratch (paired over seeds)"].startswith("-2000")
     assert half["area under curve: minus scratch (paired over seeds)"].startswith("+0.27")
     assert scratch["area under curve: minus scratch (paired over seeds)"] == "–"
+    # a run stopped at its target (here after 2,000 steps at 1.0) keeps that success to the budget
+    early = curves[curves["run"] == "stitched/1"].iloc[:2].assign(success=[0.5, 1.0])
+    assert curve_area(early, 4000) == pytest.approx((0.75 * 1000 + 1.0 * 2000) / 3000)
+    stopped = pd.concat([curves[curves["run"] != "stitched/1"], early.assign(kind="stitched")])
+    assert (
+        few_shot_steps(stopped, 0.8)
+        .loc[("stitched", "ablation"), "area under curve [95% CI]"]
+        .startswith(
+            "0.89"  # (0.917 + 0.883 x 2) / 3: the stopped run counts 0.917 over the whole budget, not 0.75
+        )
+    )
 
 
 def test_task_variants_are_named_as_a_reader_would_in_tables_and_plots():

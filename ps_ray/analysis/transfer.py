@@ -96,11 +96,15 @@ def controls_met(numbers: pd.DataFrame, unstitched_max: float = 0.1, oracle_min:
     )
 
 
-def curve_area(part: pd.DataFrame) -> float:
-    """The area under one run's greedy-success curve over the env steps it spans, divided by that
-    span: its mean success over the budget (1 = solved from the first evaluation on)."""
+def curve_area(part: pd.DataFrame, budget: float | None = None) -> float:
+    """The area under one run's greedy-success curve from its first evaluation to ``budget``
+    (default: its last step), divided by that span: its mean success over the budget (1 = solved
+    from the first evaluation on). A run that stopped before the budget, its success target met,
+    keeps its last success to the budget, so stopping early is not read as a shorter, worse run."""
     part = part.sort_values("env_steps")
     steps, success = part["env_steps"].to_numpy(float), part["success"].to_numpy(float)
+    if budget is not None and budget > steps[-1]:
+        steps, success = np.append(steps, budget), np.append(success, success[-1])
     span = steps[-1] - steps[0]
     return float(success[0]) if span <= 0 else float(np.trapezoid(success, steps) / span)
 
@@ -109,16 +113,18 @@ def few_shot_steps(curves: pd.DataFrame, threshold: float = 0.8) -> pd.DataFrame
     """Per start kind (stitched, its halves, unstitched, scratch) and method: env steps to
     ``threshold`` greedy success (mean over runs; a run that never got there counts at its last
     step, so the mean is a lower bound) and the area under the success curve (its mean success
-    over the budget), each with a t interval over seeds and its paired difference from scratch on
+    over the budget, a run stopped early at its target holding its last success), each with a t
+    interval over seeds and its paired difference from scratch on
     the same target env and seed; and the runs that reached the threshold."""
     from ps_ray.analysis.tables import steps_to_target
 
     per_run = []
+    budget = curves["env_steps"].max() if len(curves) else None  # the stage's budget: its longest run
     for (kind, _method), part in curves.groupby(["kind", "method"], sort=False):
         steps = steps_to_target(part, threshold).merge(
             part[["run", "robot", "task"]].drop_duplicates("run"), on="run"
         )
-        areas = part.groupby("run").apply(curve_area, include_groups=False).rename("area")
+        areas = part.groupby("run").apply(curve_area, budget, include_groups=False).rename("area")
         steps = steps.merge(areas, left_on="run", right_index=True)
         steps["kind"] = kind
         steps["censored"] = steps["steps"].isna()

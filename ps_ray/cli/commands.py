@@ -45,6 +45,30 @@ def cmd_train(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_grid(args: argparse.Namespace) -> int:
+    from ps_ray.rllib.grid_train import train_grid
+    from ps_ray.specs.grid import GridSpec
+
+    fields = {f.name: getattr(args, f.name) for f in dataclasses.fields(TrainSpec) if hasattr(args, f.name)}
+    try:
+        base = TrainSpec.from_mapping(fields)
+    except UserError as e:  # name the flag the bad value came from
+        named = _flag_of(str(e), fields)
+        raise UserError(f"--{named.replace('_', '-')}: {e}" if named else str(e)) from None
+    parts = {}
+    for flag in ("robots", "tasks"):
+        try:
+            parts[flag] = [parse_spec_text(text) for text in getattr(args, flag)]
+        except UserError as e:
+            raise UserError(f"--{flag}: {e}") from None
+    try:
+        grid = GridSpec.of(base, parts["robots"], parts["tasks"], args.held_out)
+    except (ValueError, TypeError) as e:  # an unknown robot or task, named
+        raise UserError(str(e)) from None
+    train_grid(grid, Path(args.run_dir), progress=not args.quiet)
+    return 0
+
+
 def cmd_sweep(args: argparse.Namespace) -> int:
     from ps_ray.pipeline.sweep import check_inputs
 
@@ -349,6 +373,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return {
             "train": cmd_train,
+            "grid": cmd_grid,
             "sweep": cmd_sweep,
             "zero-shot": cmd_zero_shot,
             "few-shot": cmd_few_shot,

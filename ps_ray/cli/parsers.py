@@ -41,6 +41,7 @@ def build_parser(description: str | None) -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True)
     for add in (
         _train_parser,
+        _grid_parser,
         _sweep_parser,
         _zero_shot_parser,
         _few_shot_parser,
@@ -56,20 +57,7 @@ def build_parser(description: str | None) -> argparse.ArgumentParser:
 
 def _train_parser(sub) -> None:
     p = sub.add_parser("train", help="train one policy (SAC + HER on RLlib); re-running resumes")
-    defaults = TrainSpec()
-    for f in dataclasses.fields(TrainSpec):
-        help = f"{f.metadata['help']} (default {getattr(defaults, f.name)})"
-        if f.name in ("robot", "task"):
-            p.add_argument(f"--{f.name}", default=getattr(defaults, f.name).text, help=help)
-            continue
-        kind = next((t for t in (float, int, str) if t.__name__ in str(f.type)), str)
-        p.add_argument(
-            f"--{f.name.replace('_', '-')}",
-            dest=f.name,
-            type=kind,
-            default=getattr(defaults, f.name),
-            help=help,
-        )
+    _train_spec_flags(p)
     p.add_argument(
         "--run-dir",
         default=None,
@@ -86,6 +74,50 @@ def _train_parser(sub) -> None:
         action="store_true",
         help="compile the learner's forward pass (torch.compile; measured slower on CPU cores, docs/cost.md)",
     )
+
+
+def _grid_parser(sub) -> None:
+    p = sub.add_parser(
+        "grid",
+        help="co-train the task and robot modules of a robot x task grid (Devin et al.); re-running resumes",
+    )
+    p.add_argument("--robots", nargs="+", required=True, help="the grid's robots (names or JSON mappings)")
+    p.add_argument("--tasks", nargs="+", required=True, help="the grid's tasks (names or JSON mappings)")
+    p.add_argument(
+        "--held-out",
+        nargs="*",
+        default=[],
+        metavar="ROBOT/TASK",
+        help="cells never trained, to be stitched zero-shot (e.g. panda_far/reach_blue)",
+    )
+    _train_spec_flags(p, skip=("robot", "task", "init_policy", "anchors"))
+    p.add_argument("--run-dir", required=True, help="where checkpoints, cell policies and metrics go")
+    p.add_argument("--quiet", action="store_true")
+    p.add_argument(
+        "--verbose",
+        action="store_true",
+        help="Ray's and RLlib's messages on the terminal (default: <run dir>/logs/ray.log)",
+    )
+
+
+def _train_spec_flags(p, skip: tuple[str, ...] = ()) -> None:
+    """A flag per TrainSpec field (its help text is the field's doc), but ``skip``."""
+    defaults = TrainSpec()
+    for f in dataclasses.fields(TrainSpec):
+        if f.name in skip:
+            continue
+        help = f"{f.metadata['help']} (default {getattr(defaults, f.name)})"
+        if f.name in ("robot", "task"):
+            p.add_argument(f"--{f.name}", default=getattr(defaults, f.name).text, help=help)
+            continue
+        kind = next((t for t in (float, int, str) if t.__name__ in str(f.type)), str)
+        p.add_argument(
+            f"--{f.name.replace('_', '-')}",
+            dest=f.name,
+            type=kind,
+            default=getattr(defaults, f.name),
+            help=help,
+        )
 
 
 def _bench_parser(sub) -> None:

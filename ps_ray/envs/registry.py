@@ -18,6 +18,7 @@ from .core import RobotTaskEnv, make
 
 RLLIB_ENV = "ps_ray"
 RLLIB_POINT_ENV = "ps_ray_point"  # the physics-free PointGoalEnv, for fast learning checks
+RLLIB_GRID_ENV = "ps_ray_grid"  # the trained cells of a co-trained grid side by side (GridEnv)
 NAMESPACE = "ps_ray"
 
 
@@ -32,8 +33,8 @@ def create_env(env_config: Mapping[str, Any]) -> RobotTaskEnv:
 
 
 def register(rllib: bool = True) -> list[str]:
-    """Register the gymnasium ids (idempotent) and, if ``rllib``, the Tune envs ``"ps_ray"`` and
-    ``"ps_ray_point"``."""
+    """Register the gymnasium ids (idempotent) and, if ``rllib``, the Tune envs ``"ps_ray"``,
+    ``"ps_ray_point"`` and ``"ps_ray_grid"``."""
     ids = []
     for robot, task in BUILTIN_PAIRS:
         ids.append(env_id(robot, task))
@@ -42,8 +43,10 @@ def register(rllib: bool = True) -> list[str]:
     if rllib:
         from ray.tune.registry import register_env
 
+        from .grid import GridEnv
         from .point import PointGoalEnv
 
         register_env(RLLIB_ENV, create_env)
         register_env(RLLIB_POINT_ENV, lambda env_config: PointGoalEnv(**dict(env_config)))
+        register_env(RLLIB_GRID_ENV, lambda env_config: GridEnv(env_config["cells"]))
     return ids

@@ -66,12 +66,17 @@ def critic_pairs(nets: nn.Module) -> list[tuple[nn.Module, nn.Module]]:
     return [(nets.critic, nets.target_critic), (nets.critic_twin, nets.target_critic_twin)]
 
 
-@torch.no_grad()
 def polyak(nets: nn.Module, tau: float) -> None:
+    """target <- tau * online + (1 - tau) * target for the critics of ``nets``."""
+    polyak_pairs(critic_pairs(nets), tau)
+
+
+@torch.no_grad()
+def polyak_pairs(pairs: list[tuple[nn.Module, nn.Module]], tau: float) -> None:
     """target <- tau * online + (1 - tau) * target for parameters; buffers (normaliser statistics,
     anchors) are copied, as they are not trained."""
     targets, onlines = [], []
-    for online, target in critic_pairs(nets):
+    for online, target in pairs:
         targets += target.parameters()
         onlines += online.parameters()
         for t, o in zip(target.buffers(), online.buffers()):

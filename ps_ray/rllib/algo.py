@@ -1,12 +1,14 @@
-"""AlgorithmConfig for one (robot, task, method, seed) TrainSpec."""
+"""AlgorithmConfig for one (robot, task, method, seed) TrainSpec, or for a co-trained grid."""
 
 from __future__ import annotations
 
 import numpy as np
 from ray.rllib.algorithms.algorithm_config import TorchCompileWhatToCompile
 
-from ps_ray.envs.registry import register
+from ps_ray.envs.registry import RLLIB_GRID_ENV, register
+from ps_ray.rllib.grid_sac import GridSACConfig
 from ps_ray.rllib.sac_her import TRAIN_SETTINGS, ModularSACConfig
+from ps_ray.specs.grid import GridSpec
 from ps_ray.specs.resources import learner_device
 from ps_ray.specs.train import TrainSpec
 
@@ -17,16 +19,36 @@ def algo_config(
     """``gpu``: the learner's GPU share (RLlib's num_gpus_per_learner); none without CUDA is an
     error. ``compile``: the learner's module forward passes compiled (RLlib's
     ``torch_compile_learner``, forward_train: the losses and backward follow through AOTAutograd)."""
+    model_config = {"anchors": None if anchors is None else np.asarray(anchors, np.float32).tolist()}
+    return configure(ModularSACConfig(), spec, spec.env_name, spec.env_config, model_config, gpu, compile)
+
+
+def grid_algo_config(grid: GridSpec, anchors: list[np.ndarray | None]) -> GridSACConfig:
+    """The config of a co-trained grid (:mod:`ps_ray.rllib.grid_sac`): ``anchors`` per task."""
+    cells = grid.cells
+    model_config = {
+        "tasks": len(grid.tasks),
+        "robots": len(grid.robots),
+        "cells": [[grid.tasks.index(t), grid.robots.index(r)] for r, t in cells],
+        "anchors": [None if a is None else np.asarray(a, np.float32).tolist() for a in anchors],
+    }
+    env_config = {"cells": [grid.cell_spec(c).env_config for c in cells]}
+    return configure(GridSACConfig(), grid.base, RLLIB_GRID_ENV, env_config, model_config, 0, False)
+
+
+def configure(
+    config, spec: TrainSpec, env: str, env_config: dict, model_config: dict, gpu: float, compile: bool
+):
+    """``config`` set up from ``spec`` for the env ``env`` and the module's ``model_config``."""
     learner_device(gpu)
     register()
     config = (
-        ModularSACConfig()
-        .framework(
+        config.framework(
             "torch",
             torch_compile_learner=compile,
             torch_compile_learner_what_to_compile=TorchCompileWhatToCompile.FORWARD_TRAIN,
         )
-        .environment(spec.env_name, env_config=spec.env_config)
+        .environment(env, env_config=env_config)
         .env_runners(num_env_runners=0, num_envs_per_env_runner=spec.num_envs)
         .learners(num_learners=0, num_gpus_per_learner=gpu)
         .rl_module(
@@ -34,7 +56,7 @@ def algo_config(
                 "method": spec.method,
                 "interface_dim": spec.interface_dim,
                 "hidden": spec.hidden,
-                "anchors": None if anchors is None else np.asarray(anchors, np.float32).tolist(),
+                **model_config,
             }
         )
         .training(

@@ -32,13 +32,10 @@ class ModularSACLearner(SACTorchLearner):
                 learner_module(self, module_id).compile(compile_config)
 
     def configure_optimizers_for_module(self, module_id, config=None) -> None:
-        nets = learner_module(self, module_id)
+        nets = self.net_groups(learner_module(self, module_id))
         groups = {
-            "critic": (
-                list(nets.critic.parameters()) + list(nets.critic_twin.parameters()),
-                config.critic_lr,
-            ),
-            "actor": (list(nets.actor.parameters()), config.actor_lr),
+            "critic": (nets["critic"], config.critic_lr),
+            "actor": (nets["actor"], config.actor_lr),
             "alpha": ([self.curr_log_alpha[module_id]], config.alpha_lr),
         }
         for name, (params, lr) in groups.items():
@@ -49,6 +46,14 @@ class ModularSACLearner(SACTorchLearner):
                 params=params,
                 lr_or_lr_schedule=lr,
             )
+
+    @staticmethod
+    def net_groups(module) -> dict[str, list[torch.nn.Parameter]]:
+        """The parameters of the critic and the actor optimiser."""
+        return {
+            "critic": list(module.critic.parameters()) + list(module.critic_twin.parameters()),
+            "actor": list(module.actor.parameters()),
+        }
 
     def compute_loss_for_module(
         self, *, module_id, config, batch: dict[str, Any], fwd_out: dict[str, torch.Tensor]
@@ -89,7 +94,13 @@ class ModularSACLearner(SACTorchLearner):
     def apply_gradients(self, gradients_dict) -> None:
         super().apply_gradients(gradients_dict)
         for module_id in self.module.keys():
-            polyak(learner_module(self, module_id), self.config.get_config_for_module(module_id).tau)
+            self.update_targets(
+                learner_module(self, module_id), self.config.get_config_for_module(module_id).tau
+            )
+
+    @staticmethod
+    def update_targets(module, tau: float) -> None:
+        polyak(module, tau)
 
     def after_gradient_based_update(self, *, timesteps: dict[str, Any]) -> None:
         after_update_without_target_sync(self, timesteps)
@@ -97,7 +108,7 @@ class ModularSACLearner(SACTorchLearner):
     # -- checkpoint state as plain tensors (no pickle): nets, log alpha, every Adam slot -----------
     def training_state(self) -> dict[str, torch.Tensor]:
         module_id = DEFAULT_MODULE_ID
-        state = nets_state(learner_module(self, module_id))
+        state = self.module_tensors(learner_module(self, module_id))
         state[LOG_ALPHA] = self.curr_log_alpha[module_id].detach().clone()
         for name, optimizer in self.get_optimizers_for_module(module_id):
             for index, slots in optimizer.state_dict()["state"].items():
@@ -107,9 +118,13 @@ class ModularSACLearner(SACTorchLearner):
                     )
         return state
 
+    # the module's own tensors in the learner state: its five nets (a grid learner: its tables)
+    module_tensors = staticmethod(nets_state)
+    load_module_tensors = staticmethod(load_nets_state)
+
     def load_training_state(self, state: dict[str, torch.Tensor]) -> None:
         module_id = DEFAULT_MODULE_ID
-        load_nets_state(learner_module(self, module_id), state)
+        self.load_module_tensors(learner_module(self, module_id), state)
         with torch.no_grad():
             self.curr_log_alpha[module_id].copy_(state[LOG_ALPHA])
         for name, optimizer in self.get_optimizers_for_module(module_id):

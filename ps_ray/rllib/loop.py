@@ -81,6 +81,8 @@ class Tick:
 class TrainingRun:
     """One ModularSAC algorithm with its signature; the loop body shared by `ps-ray train` and Tune."""
 
+    metric_fields: tuple[str, ...] = METRIC_FIELDS  # the columns of a step's row
+
     def __init__(
         self,
         spec: TrainSpec,
@@ -136,7 +138,7 @@ class TrainingRun:
         self.consolidated = {}
         result = self.algo.train()
         ours = result.get("ps_ray", {})
-        row = {k: ours.get(k) for k in METRIC_FIELDS if k in ours}
+        row = {k: ours.get(k) for k in self.metric_fields if k in ours}
         row.update(iteration=result["training_iteration"], wall_s=round(time.time() - self.start, 1))
         if row.get("eval_success") is not None:
             self.best = max(self.best if self.best is not None else -1.0, row["eval_success"])

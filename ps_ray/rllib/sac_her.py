@@ -217,6 +217,22 @@ class ModularSAC(SAC):
 
     def training_step(self) -> None:
         cfg = self.config
+        steps = self.gather()
+        if self.ready_to_learn():
+            n_updates = max(1, round(steps * cfg.updates_per_step))
+            self.learn(self.sample_batch(n_updates), n_updates)
+        # Normaliser statistics change every step, so env runners are synced even before learning.
+        self.env_runner_group.sync_weights(
+            from_worker_or_learner_group=self.learner_group, inference_only=True
+        )
+        if cfg.eval_every and self.iteration % cfg.eval_every == 0:
+            self.log_evaluation()
+        for key, value in self.counters.items():
+            self.metrics.log_value(("ps_ray", key), value, reduce="item")
+
+    def gather(self) -> int:
+        """Collect the step's episodes into replay and the normalisers; returns the env steps."""
+        cfg = self.config
         with self.metrics.log_time((TIMERS, ENV_RUNNER_SAMPLING_TIMER)):
             episodes = self.collect_episodes(
                 explore=True, n=cfg.episodes_per_step, random=self.counters["episodes"] < cfg.random_episodes
@@ -227,43 +243,47 @@ class ModularSAC(SAC):
         self.counters["env_steps"] += steps
         self.counters["episodes"] += actions.shape[0]
         self._log_episode_stats("train", episodes)
+        self.see(self.replay, obs, lambda module: module)
+        return steps
 
-        # The normalisers see the new steps as training reads them: hindsight goals included
-        # (unless the method asks for the collected steps only: MethodSpec.hindsight_norm).
-        steps_seen = self.replay.relabelled(obs) if self.method.hindsight_norm else obs
+    def see(self, replay: HindsightReplay, obs: dict[str, np.ndarray], nets) -> None:
+        """The normalisers of ``nets(learner module)`` see new steps as training reads them:
+        hindsight goals included (unless the method asks for the collected steps only:
+        MethodSpec.hindsight_norm)."""
+        steps_seen = replay.relabelled(obs) if self.method.hindsight_norm else obs
         task_t = torch.from_numpy(task_input(steps_seen))
         robot_t = torch.from_numpy(steps_seen[ROBOT_KEY])
         self.learner_group.foreach_learner(
-            lambda learner: update_normalizers(learner.module[DEFAULT_MODULE_ID], task_t, robot_t)
+            lambda learner: update_normalizers(nets(learner.module[DEFAULT_MODULE_ID]), task_t, robot_t)
         )
 
-        if self.replay.num_transitions >= cfg.learning_starts:
-            n_updates = max(1, round(steps * cfg.updates_per_step))
-            batch = train_batch(self.replay.sample_many(n_updates, cfg.train_batch_size))
-            with self.metrics.log_time((TIMERS, LEARNER_UPDATE_TIMER)):
-                self.learner_group.update(
-                    batch=MultiAgentBatch(
-                        {DEFAULT_MODULE_ID: SampleBatch(batch)}, env_steps=n_updates * cfg.train_batch_size
-                    ),
-                    timesteps={NUM_ENV_STEPS_SAMPLED_LIFETIME: self.counters["env_steps"]},
-                    num_epochs=1,
-                    minibatch_size=cfg.train_batch_size,
-                    **NO_METRICS_REDUCE,
-                )
-            self.counters["updates"] += n_updates
-            reduced = self.learner_group.foreach_learner(lambda learner: learner.metrics.reduce())
-            self.metrics.aggregate([r.get() for r in reduced], key=LEARNER_RESULTS)
-        # Normaliser statistics change every step, so env runners are synced even before learning.
-        self.env_runner_group.sync_weights(
-            from_worker_or_learner_group=self.learner_group, inference_only=True
+    def ready_to_learn(self) -> bool:
+        return self.replay.num_transitions >= self.config.learning_starts
+
+    def sample_batch(self, n_updates: int) -> dict[str, torch.Tensor]:
+        return train_batch(self.replay.sample_many(n_updates, self.config.train_batch_size))
+
+    def log_evaluation(self) -> None:
+        self._log_episode_stats(
+            "eval", self.collect_episodes(explore=False, random=False, n=self.config.eval_episodes)
         )
 
-        if cfg.eval_every and self.iteration % cfg.eval_every == 0:
-            self._log_episode_stats(
-                "eval", self.collect_episodes(explore=False, random=False, n=cfg.eval_episodes)
+    def learn(self, batch: dict[str, torch.Tensor], n_updates: int) -> None:
+        """n_updates minibatch updates of the learner, in one ``update`` call, on ``batch``."""
+        cfg = self.config
+        with self.metrics.log_time((TIMERS, LEARNER_UPDATE_TIMER)):
+            self.learner_group.update(
+                batch=MultiAgentBatch(
+                    {DEFAULT_MODULE_ID: SampleBatch(batch)}, env_steps=n_updates * cfg.train_batch_size
+                ),
+                timesteps={NUM_ENV_STEPS_SAMPLED_LIFETIME: self.counters["env_steps"]},
+                num_epochs=1,
+                minibatch_size=cfg.train_batch_size,
+                **NO_METRICS_REDUCE,
             )
-        for key, value in self.counters.items():
-            self.metrics.log_value(("ps_ray", key), value, reduce="item")
+        self.counters["updates"] += n_updates
+        reduced = self.learner_group.foreach_learner(lambda learner: learner.metrics.reduce())
+        self.metrics.aggregate([r.get() for r in reduced], key=LEARNER_RESULTS)
 
     def _log_episode_stats(self, prefix: str, episodes: list) -> None:
         for key, value in episode_stats(episodes).items():

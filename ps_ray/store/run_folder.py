@@ -28,10 +28,13 @@ def _checkpoint_dirs(run_dir: Path) -> tuple[Path, Path, Path]:
     return (run_dir / f"{CHECKPOINT_DIR}.tmp", run_dir / CHECKPOINT_DIR, run_dir / f"{CHECKPOINT_DIR}.old")
 
 
-def save_atomically(save: Callable[[Path], None], run_dir: Path) -> None:
+def save_atomically(
+    save: Callable[[Path], None], run_dir: Path, copy_out: dict[str, str] | None = None
+) -> None:
     """Checkpoint (``save(folder)``) into a fresh folder, then swap it in: a kill never leaves half
     a checkpoint. Between the two renames only ``checkpoint.old`` exists; :func:`latest_checkpoint` reads it
-    then, so no moment makes a started run look unstarted."""
+    then, so no moment makes a started run look unstarted. Then ``copy_out`` (a checkpoint file ->
+    its copy's path in the run folder; default: the policy) is copied out, each file atomically."""
     tmp, final, old = _checkpoint_dirs(run_dir)
     shutil.rmtree(tmp, ignore_errors=True)
     save(tmp)
@@ -42,8 +45,10 @@ def save_atomically(save: Callable[[Path], None], run_dir: Path) -> None:
     os.replace(tmp, final)
     fsync_dir(run_dir)
     shutil.rmtree(old, ignore_errors=True)
-    with atomic_path(run_dir / POLICY_FILE) as partial:
-        shutil.copyfile(final / POLICY_FILE, partial)
+    for name, destination in (copy_out or {POLICY_FILE: POLICY_FILE}).items():
+        (run_dir / destination).parent.mkdir(parents=True, exist_ok=True)
+        with atomic_path(run_dir / destination) as partial:
+            shutil.copyfile(final / name, partial)
 
 
 def latest_checkpoint(run_dir: Path) -> Path | None:
@@ -58,9 +63,10 @@ def latest_checkpoint(run_dir: Path) -> Path | None:
     return best
 
 
-def metrics_up_to(run_dir: Path, env_steps: int) -> None:
+def metrics_up_to(run_dir: Path, env_steps: int, fields: tuple[str, ...] = METRIC_FIELDS) -> None:
     """Drop metrics rows written after the checkpoint a run resumes from (they will be written
-    again, and must not be there twice) and a last row that a kill cut short."""
+    again, and must not be there twice) and a last row that a kill cut short. ``fields``: the
+    file's columns."""
     path = run_dir / METRICS_FILE
     if not path.exists():
         return
@@ -76,7 +82,7 @@ def metrics_up_to(run_dir: Path, env_steps: int) -> None:
         return
     with atomic_file(path) as f:
         text = io.StringIO()
-        writer = csv.DictWriter(text, METRIC_FIELDS)
+        writer = csv.DictWriter(text, fields)
         writer.writeheader()
         writer.writerows(kept)
         f.write(text.getvalue().encode())

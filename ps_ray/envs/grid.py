@@ -1,0 +1,63 @@
+"""GridEnv: the trained cells of a robot x task grid stepped side by side, one env per cell.
+
+Co-training (Devin et al. 2017; docs/transfer.md "Co-trained grids") updates shared task and robot
+modules on every cell at once, so one env runner collects one episode of every cell per episode:
+the observation is a Dict of the cells' own Dict observations (keys :func:`cell_key`), the action
+the cells' actions side by side. Each cell keeps its own physics, seed, reward and info; the
+grid's reward is their sum (the learner never reads it: hindsight replay recomputes each cell's).
+All cells truncate after the same ``max_episode_steps``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+
+from .core import RobotTaskEnv, make
+
+
+def cell_key(index: int) -> str:
+    """The observation and info key of the grid's ``index``-th trained cell (sorts in order)."""
+    return f"c{index:02d}"
+
+
+class GridEnv(gym.Env):
+    """``cells``: the env configs (``{"robot": ..., "task": ..., **options}``) of the trained cells."""
+
+    def __init__(self, cells: Sequence[Mapping[str, Any]]) -> None:
+        if not cells:
+            raise ValueError("a grid env needs at least one cell")
+        self.envs: list[RobotTaskEnv] = [make(**dict(cell)) for cell in cells]
+        self.keys = [cell_key(i) for i in range(len(self.envs))]
+        self.observation_space = spaces.Dict({k: e.observation_space for k, e in zip(self.keys, self.envs)})
+        self.action_dims = [e.action_space.shape[0] for e in self.envs]
+        self.action_space = spaces.Box(-1.0, 1.0, shape=(sum(self.action_dims),), dtype=np.float32)
+        self.max_episode_steps = self.envs[0].max_episode_steps
+        self._cuts = np.cumsum(self.action_dims)[:-1]
+
+    def split_actions(self, actions: np.ndarray) -> list[np.ndarray]:
+        """The grid's actions (any batch shape) as each cell's, in cell order."""
+        return np.split(np.asarray(actions), self._cuts, axis=-1)
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        super().reset(seed=seed)
+        results = [
+            env.reset(seed=None if seed is None else seed * len(self.envs) + i, options=options)
+            for i, env in enumerate(self.envs)
+        ]
+        return {k: r[0] for k, r in zip(self.keys, results)}, {k: r[1] for k, r in zip(self.keys, results)}
+
+    def step(self, action: np.ndarray):
+        results = [env.step(a) for env, a in zip(self.envs, self.split_actions(action))]
+        obs = {k: r[0] for k, r in zip(self.keys, results)}
+        infos = {k: r[4] for k, r in zip(self.keys, results)}
+        reward = float(sum(r[1] for r in results))
+        return obs, reward, all(r[2] for r in results), all(r[3] for r in results), infos
+
+    def close(self) -> None:
+        for env in self.envs:
+            env.close()

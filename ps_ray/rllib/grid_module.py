@@ -1,0 +1,148 @@
+"""The co-trained grid on RLlib: one RLModule that holds every task and robot module of a grid
+(:mod:`ps_ray.nets.grid`), and its learner, whose update sums the cells' SAC losses, each cell with
+its own temperature (Devin et al. 2017's joint training; docs/transfer.md "Co-trained grids").
+
+The module acts on :class:`ps_ray.envs.grid.GridEnv`'s observation (a Dict of the cells' own) and
+returns the cells' actions side by side. Its learner batch holds each cell's columns under
+``"<cell key>/"`` (:func:`grid_train_batch`), one minibatch of every cell per update.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import torch
+from ray.rllib.core.columns import Columns
+from ray.rllib.core.rl_module.apis import InferenceOnlyAPI
+from ray.rllib.core.rl_module.torch.torch_rl_module import TorchRLModule
+
+from ps_ray.envs.goals import ROBOT_KEY, TASK_KEYS
+from ps_ray.nets.grid import ACTOR_TABLES, GRID_TABLES, add_grid_modules, grid_critic_pairs
+from ps_ray.nets.obs import split_obs
+from ps_ray.nets.sac import SACHyper, polyak_pairs, sac_forward, sac_losses, squashed_sample
+from ps_ray.rllib.episodes import train_batch
+from ps_ray.rllib.learner import ModularSACLearner
+from ps_ray.rllib.private import learner_module
+from ps_ray.specs.dims import NetDims
+
+
+def grid_train_batch(samples: dict[str, dict[str, np.ndarray]]) -> dict[str, torch.Tensor]:
+    """Each cell's HER sample (by cell key) -> one flat batch of ``"<key>/<column>"`` tensors."""
+    return {f"{key}/{k}": v for key, sample in samples.items() for k, v in train_batch(sample).items()}
+
+
+class GridSACModule(TorchRLModule, InferenceOnlyAPI):
+    """model_config keys: method, interface_dim, hidden, tasks and robots (counts), cells
+    ((task index, robot index) per trained cell, in the env's cell order), anchors (per task: an
+    array or None)."""
+
+    def setup(self) -> None:
+        cfg = self.model_config
+        self.keys = list(self.observation_space.spaces)
+        first = self.observation_space[self.keys[0]].spaces
+        self.dims = NetDims(
+            task_dim=sum(first[k].shape[0] for k in TASK_KEYS),
+            robot_dim=first[ROBOT_KEY].shape[0],
+            action_dim=self.action_space.shape[0] // len(self.keys),
+        )
+        self.cells = add_grid_modules(
+            self,
+            cfg["method"],
+            self.dims,
+            tasks=cfg["tasks"],
+            robots=cfg["robots"],
+            cells=[tuple(c) for c in cfg["cells"]],
+            interface_dim=cfg["interface_dim"],
+            hidden=cfg["hidden"],
+            anchors=[None if a is None else np.asarray(a, np.float32) for a in cfg["anchors"]],
+        )
+
+    # -- acting: every cell's actor on its own observation, actions side by side ---------------
+    def _forward_inference(self, batch: dict[str, Any], **kwargs) -> dict[str, Any]:
+        obs = batch[Columns.OBS]
+        means = [cell.actor(*split_obs(obs[key]))[0] for key, cell in zip(self.keys, self.cells)]
+        return {Columns.ACTIONS: torch.tanh(torch.cat(means, -1))}
+
+    def _forward_exploration(self, batch: dict[str, Any], **kwargs) -> dict[str, Any]:
+        obs = batch[Columns.OBS]
+        with torch.no_grad():
+            samples = [
+                squashed_sample(*cell.actor(*split_obs(obs[key]))) for key, cell in zip(self.keys, self.cells)
+            ]
+        return {
+            Columns.ACTIONS: torch.cat([a for a, _ in samples], -1),
+            Columns.ACTION_LOGP: torch.stack([logp for _, logp in samples]).sum(0),
+        }
+
+    # -- learning ------------------------------------------------------------------------------
+    def _forward_train(self, batch: dict[str, Any], **kwargs) -> dict[str, Any]:
+        out = {}
+        for key, cell in zip(self.keys, self.cells):
+            prefix = key + "/"
+            cell_batch = {k[len(prefix) :]: v for k, v in batch.items() if k.startswith(prefix)}
+            out.update({prefix + k: v for k, v in sac_forward(cell, cell_batch).items()})
+        return out
+
+    def get_non_inference_attributes(self) -> list[str]:
+        return [name for name in GRID_TABLES if name not in ACTOR_TABLES]
+
+
+class GridSACLearner(ModularSACLearner):
+    """One critic, one actor and one temperature optimiser for the whole grid (a shared module is
+    stepped once per update, with the sum of its cells' gradients); the temperature is a vector,
+    one per cell."""
+
+    def configure_optimizers_for_module(self, module_id, config=None) -> None:
+        module = learner_module(self, module_id)
+        self.curr_log_alpha[module_id] = self._get_tensor_variable(
+            [float(np.log(config.initial_alpha))] * len(module.cells), trainable=True
+        )
+        super().configure_optimizers_for_module(module_id, config)
+
+    @staticmethod
+    def net_groups(module) -> dict[str, list[torch.nn.Parameter]]:
+        tables = lambda names: [p for n in names for p in getattr(module, n).parameters()]  # noqa: E731
+        return {
+            "critic": tables(["critic_tasks", "critic_robots", "critic_twin_tasks", "critic_twin_robots"]),
+            "actor": tables(["actor_tasks", "actor_robots"]),
+        }
+
+    def compute_loss_for_module(self, *, module_id, config, batch, fwd_out) -> torch.Tensor:
+        module = learner_module(self, module_id)
+        hp = SACHyper(gamma=config.gamma, clip_targets=config.clip_targets, action_l2=config.action_l2)
+        log_alpha = self.curr_log_alpha[module_id]
+        warm = self.updates_done(module_id) < config.critic_warmup_updates
+        total = 0.0
+        for index, key in enumerate(module.keys):
+            prefix = key + "/"
+            fwd = {k[len(prefix) :]: v for k, v in fwd_out.items() if k.startswith(prefix)}
+            losses = sac_losses(fwd, batch[prefix + "rewards"], log_alpha[index], hp, module.dims.action_dim)
+            total = total + (
+                losses["critic"] + 0.0 * (losses["actor"] + losses["alpha"]) if warm else losses["total"]
+            )
+            self.metrics.log_dict(
+                {
+                    f"{key}_critic_loss": losses["critic"],
+                    f"{key}_actor_loss": losses["actor"],
+                    f"{key}_alpha": log_alpha[index].detach().exp(),
+                    f"{key}_entropy": losses["entropy"],
+                },
+                key=module_id,
+                window=1,
+            )
+        return total
+
+    @staticmethod
+    def update_targets(module, tau: float) -> None:
+        polyak_pairs(grid_critic_pairs(module), tau)
+
+    @staticmethod
+    def module_tensors(module) -> dict[str, torch.Tensor]:
+        return {k: v.detach().cpu().clone() for k, v in module.state_dict().items()}
+
+    @staticmethod
+    def load_module_tensors(module, state: dict[str, torch.Tensor]) -> None:
+        module.load_state_dict(
+            {k: v for k, v in state.items() if k.split(".")[0] in GRID_TABLES}, strict=True
+        )

@@ -1,0 +1,127 @@
+"""GridSpec: one co-trained robot x task grid (Devin et al. 2017; docs/transfer.md "Co-trained
+grids"): the task modules of its tasks and the robot modules of its robots, trained together on
+every cell but the held-out ones. Each trained cell is also a :class:`TrainSpec` (the base spec
+with its robot and task), so its exported policy is an ordinary source to every later stage."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+from ps_ray.envs.core import env_widths
+from ps_ray.specs.names import EnvPart
+from ps_ray.specs.train import POINT_TASK, SpecError, TrainSpec
+
+Cell = tuple[EnvPart, EnvPart]  # (robot, task)
+
+
+def cell_text(cell: Cell) -> str:
+    """``"panda_far/reach_blue"``: a cell as a command line and a table name it."""
+    return f"{cell[0].text}/{cell[1].text}"
+
+
+def parse_cell(text: str, where: str = "held-out cell") -> tuple[str, str]:
+    """``"robot/task"`` -> (robot, task); one line for anything else."""
+    robot, sep, task = str(text).partition("/")
+    if not sep or not robot or not task:
+        raise SpecError(f"{where} {text!r} is not 'robot/task' (e.g. panda_far/reach_blue)")
+    return robot, task
+
+
+@dataclass(frozen=True)
+class GridSpec:
+    """``base``: method, seed, sizes and the budget per cell (its robot and task are not read);
+    ``held_out``: cells never trained (nor sampled), stitched zero-shot afterwards."""
+
+    base: TrainSpec
+    robots: tuple[EnvPart, ...]
+    tasks: tuple[EnvPart, ...]
+    held_out: tuple[Cell, ...] = ()
+
+    def __post_init__(self) -> None:
+        for name in ("robots", "tasks"):
+            parts = tuple(EnvPart(p) for p in getattr(self, name))
+            if not parts:
+                raise SpecError(f"a grid needs at least one of {name}")
+            if len(set(parts)) != len(parts):
+                raise SpecError(f"grid {name} repeat one: {[p.text for p in parts]}")
+            object.__setattr__(self, name, parts)
+        if self.base.task == POINT_TASK:
+            raise SpecError("a grid trains robot x task cells; the point task has no robot")
+        if self.base.resolved.consolidate is not None:
+            raise SpecError(
+                f"method {self.base.method!r} consolidates its actor after training, which a grid "
+                "does not do; grids train methods without consolidate (ablation, devin, ps, plain)"
+            )
+        cells = [(r, t) for r in self.robots for t in self.tasks]
+        held = []
+        for robot, task in self.held_out:
+            cell = (EnvPart(robot), EnvPart(task))
+            if cell not in cells:
+                raise SpecError(
+                    f"held-out cell {cell_text(cell)!r} is not in the grid; its cells: "
+                    + ", ".join(cell_text(c) for c in cells)
+                )
+            held.append(cell)
+        object.__setattr__(self, "held_out", tuple(dict.fromkeys(held)))
+        trained = self.cells
+        for kind, parts, index in (("robot", self.robots, 0), ("task", self.tasks, 1)):
+            for part in parts:
+                if not any(c[index] == part for c in trained):
+                    raise SpecError(
+                        f"the held-out cells {[cell_text(c) for c in self.held_out]} leave {kind} "
+                        f"{part.text!r} with no trained cell, so its module would never learn"
+                    )
+        widths = {cell_text(c): env_widths(*c) for c in trained}
+        if len(set(widths.values())) > 1:
+            raise SpecError(
+                "a grid's cells must share their widths (task input, robot state, action); got "
+                + ", ".join(f"{k} {v}" for k, v in widths.items())
+            )
+
+    @classmethod
+    def of(
+        cls, base: TrainSpec, robots: Sequence[Any], tasks: Sequence[Any], held_out: Sequence[str] = ()
+    ) -> GridSpec:
+        """``held_out`` spelt ``"robot/task"``."""
+        return cls(base, tuple(robots), tuple(tasks), tuple(parse_cell(c) for c in held_out))
+
+    @property
+    def cells(self) -> list[Cell]:
+        """The trained cells, robot by robot, in the grid env's order."""
+        return [(r, t) for r in self.robots for t in self.tasks if (r, t) not in self.held_out]
+
+    def cell_spec(self, cell: Cell) -> TrainSpec:
+        """The cell as an ordinary training spec (its policy file's spec.json)."""
+        return dataclasses.replace(self.base, robot=cell[0], task=cell[1])
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "base": self.base.to_dict(),
+            "robots": [p.spelling for p in self.robots],
+            "tasks": [p.spelling for p in self.tasks],
+            "held_out": [[c[0].spelling, c[1].spelling] for c in self.held_out],
+        }
+
+    @classmethod
+    def from_mapping(cls, data: Mapping[str, Any], where: str = "grid spec") -> GridSpec:
+        unknown = sorted(set(data) - {f.name for f in dataclasses.fields(cls)})
+        if unknown:
+            raise SpecError(f"{where}: unknown key {unknown[0]!r}; valid keys: base, robots, tasks, held_out")
+        base = TrainSpec.from_mapping(data["base"], where=f"{where}.base")
+        held = tuple(tuple(c) for c in data.get("held_out", ()))
+        return cls(base, tuple(data["robots"]), tuple(data["tasks"]), held)  # type: ignore[arg-type]
+
+    def identity(self) -> dict[str, Any]:
+        """What defines the grid being trained; the base's budget and reporting may change on resume."""
+        return {**self.to_dict(), "base": self.base.identity()}
+
+    def label(self) -> str:
+        held = ",".join(cell_text(c) for c in self.held_out) or "none"
+        return f"grid {self.base.method} seed {self.base.seed} held out {held}"
+
+    def digest_text(self) -> str:
+        return json.dumps(self.identity(), sort_keys=True)

@@ -120,7 +120,7 @@ seeds: [1]
         (GOOD + "train: {method: ps}\n", "train.method is set by the sweep grid"),
         (
             GOOD + "stages: [train, fly]\n",
-            "unknown stage 'fly'; valid stages: train, zero_shot, few_shot, report",
+            "unknown stage 'fly'; valid stages: train, grid, zero_shot, few_shot, report",
         ),
         (GOOD + "anchors: {epizodes: 3}\n", "anchors: unknown key 'epizodes'; valid keys: file"),
         (GOOD + "zero_shot: {episodes: 0}\n", "zero_shot.episodes must be positive, got 0"),

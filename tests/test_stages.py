@@ -19,7 +19,7 @@ SMOKE = Path(__file__).resolve().parents[1] / "sweeps" / "smoke.yaml"
 
 
 def test_every_registry_names_the_stages_of_the_record():
-    assert STAGES == ("train", "zero_shot", "few_shot", "report")
+    assert STAGES == ("train", "grid", "zero_shot", "few_shot", "report")
     assert set(RUNNERS) == set(STAGES)  # ps-ray run can run each stage
     assert [f.name for f in dataclasses.fields(ResourcesSpec)] == list(STAGES_WITH_TRIALS)
     sweep_fields = {f.name for f in dataclasses.fields(SweepSpec)}
@@ -27,7 +27,7 @@ def test_every_registry_names_the_stages_of_the_record():
         if record.settings:  # its settings are a typed block of the sweep YAML
             assert record.settings in sweep_fields and record.settings in SUB_SPECS
     assert stage("anchors_plain").name == "train"  # the plain sources are part of training
-    with pytest.raises(KeyError, match="stages: train, zero_shot, few_shot, report"):
+    with pytest.raises(KeyError, match="stages: train, grid, zero_shot, few_shot, report"):
         stage("toy")
 
 
@@ -46,10 +46,15 @@ def test_each_tune_experiment_has_its_folder_under_the_sweep():
 
 
 def test_a_stage_s_settings_change_its_marker_and_the_later_ones_only():
-    spec = load_sweep(SMOKE)
+    spec = dataclasses.replace(load_sweep(SMOKE), stages=STAGES)
     before = {s: fingerprint(spec, s) for s in STAGES}
     # one setting of each stage's block, changed
-    changes = {"zero_shot": {"repeats": 3}, "few_shot": {"env_steps": 1200}, "report": {"seed": 7}}
+    changes = {
+        "grid": {"held_out": (f"panda/{spec.tasks[0].text}",)},
+        "zero_shot": {"repeats": 3},
+        "few_shot": {"env_steps": 1200},
+        "report": {"seed": 7},
+    }
     assert set(changes) == {s.settings for s in STAGE_RECORDS if s.settings}
     for record in STAGE_RECORDS:
         if not record.settings:

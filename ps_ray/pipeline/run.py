@@ -2,6 +2,7 @@
 
 Stages (``SweepSpec.stages``, run in the order of ``specs.stages.STAGES``):
   train      plain sources -> anchors -> the grid's trials (ps_ray.pipeline.sweep)
+  grid       co-trained robot x task grids, a held-out cell each (ps_ray.pipeline.grid)
   zero_shot  every stitched pair evaluated (ps_ray.pipeline.zero_shot)
   few_shot   stitched starts fine-tuned beside from-scratch runs (ps_ray.pipeline.few_shot)
   report     figures, tables, HTML and the MLflow report run (ps_ray.analysis.report)
@@ -34,6 +35,14 @@ def _train(spec: SweepSpec, resume: bool, progress: bool) -> str:
     return f"{len(grid)} training trials"
 
 
+def _grid(spec: SweepSpec, resume: bool, progress: bool) -> str:
+    from ps_ray.pipeline.grid import run_grids
+
+    grids = run_grids(spec, resume=True, progress=progress)  # as training: finished grids are kept
+    raise_on_errors(grids, "grid trials")
+    return f"{len(grids)} co-trained grids"
+
+
 def _zero_shot(spec: SweepSpec, resume: bool, progress: bool) -> str:
     from ps_ray.pipeline.zero_shot import run_zero_shot, summary
 
@@ -62,6 +71,7 @@ def _report(spec: SweepSpec, resume: bool, progress: bool) -> str:
 
 RUNNERS: dict[str, Callable[[SweepSpec, bool, bool], str]] = {
     "train": _train,
+    "grid": _grid,
     "zero_shot": _zero_shot,
     "few_shot": _few_shot,
     "report": _report,

@@ -99,12 +99,11 @@ def sweep_trial(config: dict[str, Any]) -> None:
     checkpoint after a retry, else from the furthest checkpoint an earlier attempt of the same
     trial left (a resumed stage, :mod:`ps_ray.pipeline.trials`); its last result carries ``FINISHED``."""
     import ray
-    from ray import tune
 
     from ps_ray.data.anchor_file import load_anchor_set
     from ps_ray.nets.policy_file import policy_anchor_set
     from ps_ray.rllib.loop import TrainingRun
-    from ps_ray.store.attempts import FINISHED, earlier_checkpoint, replay_store
+    from ps_ray.store.attempts import replay_store
 
     trial = TrainTrial.of(config["trial"])
     spec = trial.spec
@@ -123,11 +122,24 @@ def sweep_trial(config: dict[str, Any]) -> None:
         compile=config.get("compile", False),
         replay_store=replay_store(config, "trial"),
     )
+    report_ticks(run, config, "trial")
+
+
+def report_ticks(run, config: dict[str, Any], key: str) -> None:
+    """A Tune trial's loop over a :class:`TrainingRun` (a grid's too): restore from Tune's
+    checkpoint after a retry, else from the furthest checkpoint an earlier attempt of the same
+    trial (``config[key]``) left; report each evaluation, and checkpoints with their step; the
+    last result carries the final evaluation and ``FINISHED``."""
+    import ray
+    from ray import tune
+
+    from ps_ray.store.attempts import FINISHED, earlier_checkpoint
+
     checkpoint = tune.get_checkpoint()
     if checkpoint is not None:
         with checkpoint.as_directory() as directory:
             run.restore(Path(directory))
-    elif (earlier := earlier_checkpoint(config, "trial")) is not None:
+    elif (earlier := earlier_checkpoint(config, key)) is not None:
         run.restore(earlier)
     node_id = ray.get_runtime_context().get_node_id()
     for tick in run.ticks():  # the loop of `ps-ray train` too: it decides steps and checkpoints
@@ -227,8 +239,13 @@ def run_tune(
     progress: bool,
     key_fn=None,
     tags_fn=None,
+    trainable=None,
+    configs: list[dict] | None = None,
+    params_fn=None,
+    artifacts_fn=None,
 ):
-    """Training trials (sweep_trial) as one Tune experiment in ``folder``, tracked in MLflow."""
+    """Training trials (sweep_trial) as one Tune experiment in ``folder``, tracked in MLflow;
+    another ``trainable`` takes ``configs`` (its ``config["trial"]``) instead of ``trials``."""
 
     from ps_ray.pipeline.trials import run_trials
     from ps_ray.pipeline.tune_tracking import MLflowTuneCallback
@@ -245,8 +262,9 @@ def run_tune(
             "git_commit": git_commit() or "",
             **device_tags(resources),
         },
-        artifacts_fn=_trial_artifacts,
+        artifacts_fn=artifacts_fn or _trial_artifacts,
         **({"key_fn": key_fn} if key_fn else {}),
+        **({"params_fn": params_fn} if params_fn else {}),
         tags_fn=tags_fn,
         # ps_ray's own iteration, restored with a checkpoint (Tune's restarts at 1 when a resumed
         # stage relaunches a trial): a retried or relaunched trial re-reports the steps between
@@ -255,8 +273,8 @@ def run_tune(
         once_per_step=True,
     )
     return run_trials(
-        sweep_trial,
-        {"trial": [t.config() for t in trials]},
+        trainable or sweep_trial,
+        {"trial": configs if configs is not None else [t.config() for t in trials]},
         folder=folder,
         stage=stage,
         callback=callback,

@@ -31,12 +31,19 @@ from ps_ray.store.atomic import write_text
 from ps_ray.store.layout import LOG_FOLDER
 from ps_ray.store.lock import folder_lock
 from ps_ray.store.run_folder import latest_checkpoint, metrics_up_to, save_atomically
-from ps_ray.store.run_layout import METRIC_FIELDS, METRICS_FILE, POLICY_FILE, SPEC_FILE
+from ps_ray.store.run_layout import (
+    CELLS_FOLDER,
+    GRID_FILE,
+    METRIC_FIELDS,
+    METRICS_FILE,
+    POLICY_FILE,
+    SPEC_FILE,
+    cell_policy_file,
+    cell_spec_file,
+)
 from ps_ray.store.signature import Signature
 from ps_ray.store.terminal import others_to
 
-GRID_FILE = "grid.json"
-CELLS_FOLDER = "cells"
 RESULT_FILE = "result.json"
 
 
@@ -45,22 +52,19 @@ def cell_folder(cell: Cell) -> str:
     return re.sub(r"[^\w.-]+", "-", cell_text(cell).replace("/", "-")).strip("-")
 
 
-def cell_policy_file(index: int) -> str:
-    return f"policy_{cell_key(index)}.safetensors"
-
-
 class GridRun(TrainingRun):
     """A :class:`TrainingRun` of a grid: the same loop, stopping rule (on the worst cell's greedy
     success) and checkpoints, with one policy file per trained cell."""
 
-    def __init__(self, grid: GridSpec, anchor_sets: list) -> None:
+    def __init__(self, grid: GridSpec, anchor_sets: list, *, threads: int = 1) -> None:
+        """``anchor_sets``: each task's (PS) or None; ``threads``: torch's CPU threads."""
         import time
 
         import torch
 
         from ps_ray.rllib.algo import grid_algo_config
 
-        torch.set_num_threads(1)
+        torch.set_num_threads(threads)
         self.grid, self.spec = grid, grid.base
         self.keys = [cell_key(i) for i in range(len(grid.cells))]
         self.metric_fields = METRIC_FIELDS + tuple(f"eval_{k}_success" for k in self.keys)
@@ -94,6 +98,9 @@ class GridRun(TrainingRun):
         self.algo.export_cells(
             [directory / cell_policy_file(i) for i in range(len(self.keys))], self.signatures
         )
+        for index, cell in enumerate(self.grid.cells):  # each cell's spec, for the zoo
+            spec_text = json.dumps(self.grid.cell_spec(cell).to_dict(), indent=2)
+            (directory / cell_spec_file(index)).write_text(spec_text)
         (directory / GRID_FILE).write_text(json.dumps(self.grid.to_dict(), indent=2))
         progress = {"streak": self.streak, "best": self.best, "consolidated": {}}
         (directory / "progress.json").write_text(json.dumps(progress))

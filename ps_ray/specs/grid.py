@@ -12,10 +12,12 @@ from dataclasses import dataclass
 from typing import Any
 
 from ps_ray.envs.core import env_widths
-from ps_ray.specs.names import EnvPart
+from ps_ray.errors import UserError
+from ps_ray.specs.names import EnvPart, parse_spec_text
 from ps_ray.specs.train import POINT_TASK, SpecError, TrainSpec
 
 Cell = tuple[EnvPart, EnvPart]  # (robot, task)
+HELD_OUT_SEPARATOR = ";"  # between the cells of a grid's held-out text (a task's JSON has commas)
 
 
 def cell_text(cell: Cell) -> str:
@@ -87,7 +89,9 @@ class GridSpec:
         cls, base: TrainSpec, robots: Sequence[Any], tasks: Sequence[Any], held_out: Sequence[str] = ()
     ) -> GridSpec:
         """``held_out`` spelt ``"robot/task"``."""
-        return cls(base, tuple(robots), tuple(tasks), tuple(parse_cell(c) for c in held_out))
+        cells = [parse_cell(c) for c in held_out]
+        held = tuple((parse_spec_text(r), parse_spec_text(t)) for r, t in cells)
+        return cls(base, tuple(robots), tuple(tasks), held)  # type: ignore[arg-type]
 
     @property
     def cells(self) -> list[Cell]:
@@ -120,8 +124,51 @@ class GridSpec:
         return {**self.to_dict(), "base": self.base.identity()}
 
     def label(self) -> str:
-        held = ",".join(cell_text(c) for c in self.held_out) or "none"
-        return f"grid {self.base.method} seed {self.base.seed} held out {held}"
+        return f"grid {self.base.method} seed {self.base.seed} held out {self.held_out_text or 'none'}"
+
+    @property
+    def held_out_text(self) -> str:
+        """The held-out cells as one string (a zoo key's tag, :mod:`ps_ray.stitching.zoo`)."""
+        return HELD_OUT_SEPARATOR.join(cell_text(c) for c in self.held_out)
 
     def digest_text(self) -> str:
         return json.dumps(self.identity(), sort_keys=True)
+
+
+@dataclass(frozen=True)
+class GridSettings:
+    """The sweep's grid stage (key ``grid``): for each method, seed and interface width, one
+    co-trained grid over the sweep's robots x tasks per held-out cell."""
+
+    held_out: tuple[str, ...] = ()  # "robot/task", one grid each; () : each cell in turn
+    methods: tuple[str, ...] = ()  # default: the sweep's methods
+
+    def __post_init__(self) -> None:
+        from ps_ray.specs.methods import method_key
+        from ps_ray.specs.train import check_types
+
+        check_types(self, "grid")
+        try:
+            object.__setattr__(self, "methods", tuple(method_key(m) for m in self.methods))
+        except UserError as e:
+            raise SpecError(f"grid.methods: {e}") from None
+        for text in self.held_out:
+            parse_cell(text, "grid.held_out: cell")
+
+    def grids(self, sweep) -> list[GridSpec]:
+        """The grids of a sweep (a :class:`ps_ray.specs.sweep.SweepSpec`): the base of each is the
+        sweep's trial of its method, seed and width; a held-out cell outside the grid is refused
+        in one line."""
+        robots, tasks, trials = sweep.robots, sweep.tasks, sweep.trials()
+        cells = self.held_out or [f"{r.text}/{t.text}" for r in robots for t in tasks]
+        by_key = {(t.method, t.seed, t.interface_dim): t for t in trials}
+        out = []
+        for method in self.methods or sweep.methods:
+            for seed in sweep.seeds:
+                for dim in sweep.interface_dims:
+                    for cell in cells:
+                        try:
+                            out.append(GridSpec.of(by_key[(method, seed, dim)], robots, tasks, [cell]))
+                        except SpecError as e:
+                            raise SpecError(f"grid: {e}") from None
+        return out

@@ -61,6 +61,7 @@ class ResourcesSpec:
     """Each stage's per-trial request (default: one CPU, no GPU)."""
 
     train: StageResources = StageResources()
+    grid: StageResources = StageResources()
     zero_shot: StageResources = StageResources()
     few_shot: StageResources = StageResources()
 

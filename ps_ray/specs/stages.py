@@ -30,6 +30,8 @@ class Stage:
 
 STAGE_RECORDS = (
     Stage("train", None, {"anchors_plain": "tune_plain", "train": "tune"}, changes_training=True),
+    # co-trained grids (ps_ray.pipeline.grid): more sources, beside the train stage's, not instead
+    Stage("grid", "grid", {"grid": "tune_grid"}),
     Stage("zero_shot", "zero_shot", {"zero_shot": "tune_zero_shot"}),
     Stage("few_shot", "few_shot", {"few_shot": "few_shot/tune_few_shot"}),
     Stage("report", "report"),

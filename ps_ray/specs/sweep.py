@@ -15,6 +15,7 @@ from ps_ray.envs.robots import resolve_robot
 from ps_ray.envs.tasks import resolve_task
 from ps_ray.errors import UserError
 from ps_ray.specs.defaults import INTERFACE_DIM
+from ps_ray.specs.grid import GridSettings
 from ps_ray.specs.methods import method_key
 from ps_ray.specs.names import ANCHOR_GOALS, EnvPart, plain_json, translations_problem
 from ps_ray.specs.resources import ResourcesSpec
@@ -193,6 +194,7 @@ class ReportSpec:
 
 SUB_SPECS = {
     "anchors": AnchorSpec,
+    "grid": GridSettings,
     "zero_shot": ZeroShotSpec,
     "few_shot": FewShotSpec,
     "report": ReportSpec,
@@ -211,10 +213,10 @@ class SweepSpec:
     seeds: tuple[int, ...]
     stages: tuple[str, ...] = ("train",)
     interface_dims: tuple[int, ...] = (INTERFACE_DIM,)
-    # TrainSpec fields shared by every trial (documented by `ps-ray train --help`); each key and
-    # value is checked against TrainSpec's typed fields when the sweep loads (see trials()).
+    # TrainSpec fields shared by every trial (`ps-ray train --help`), checked when it loads (trials())
     train: Mapping[str, Any] = dataclasses.field(default_factory=dict)
     anchors: AnchorSpec = AnchorSpec()
+    grid: GridSettings = GridSettings()
     zero_shot: ZeroShotSpec = ZeroShotSpec()
     few_shot: FewShotSpec = FewShotSpec()
     report: ReportSpec = ReportSpec()
@@ -253,7 +255,7 @@ class SweepSpec:
             )
             if repeated:  # the same trial twice: one run folder, MLflow run and zoo key, or wasted work
                 raise SpecError(f"{key}: duplicate entries {', '.join(repeated)}; list each once")
-        for stage in (self.zero_shot, self.few_shot):
+        for stage in (self.grid, self.zero_shot, self.few_shot):
             for method in (*stage.methods, *getattr(stage, "translate", ())):
                 if method not in self.methods:
                     raise SpecError(
@@ -261,6 +263,8 @@ class SweepSpec:
                         f"this sweep; valid: {', '.join(self.methods)}"
                     )
         self.trials()  # every trial's TrainSpec is validated before anything starts
+        if "grid" in self.stages:
+            self.grid.grids(self)
 
     def to_dict(self) -> dict[str, Any]:
         """Plain JSON-able data (tuples as lists)."""
@@ -312,8 +316,7 @@ class SweepSpec:
 
 
 def _identity(key: str, value: Any) -> Any:
-    """What makes two entries of a sweep list the same: the robot or task they resolve to (two
-    spellings of one robot are duplicates), else the value itself."""
+    """What makes two list entries the same: the robot or task they resolve to, else the value."""
     try:
         if key == "robots":
             return resolve_robot(value)

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from ps_ray.specs.grid import HELD_OUT_SEPARATOR
 from ps_ray.specs.names import EnvPart
 from ps_ray.stitching.rule import stitchable, target_problems
 from ps_ray.stitching.zoo import ModuleZoo, ZooEntry
@@ -32,23 +33,27 @@ def combos(
     seed: int,
     interface_dim: int | None = None,
     robot_seed: int | None = None,
+    grid: str = "",
 ) -> list[Combo]:
     """Every valid (task module, robot module) pair of one method: task module from (task X, robot
     Ra) of ``seed``, robot module from (task Y, robot Rb) of ``robot_seed`` (default: the same
     seed; another seed makes cross-seed pairs, modules of separate training runs), X != Y, Ra != Rb
     (different arms), target env (Rb, X); pairs that cannot be stitched or cannot run their target
-    are left out."""
-    tasks = zoo.select(method=method, seed=seed, interface_dim=interface_dim)
+    are left out. With ``grid`` (a co-trained grid's held-out cells, :mod:`ps_ray.pipeline.grid`),
+    both modules come from that grid's cells (of each seed), and only held-out targets are kept:
+    the grid trained every other target itself."""
+    tasks = zoo.select(method=method, seed=seed, interface_dim=interface_dim, grid=grid)
     robots = (
         tasks
         if robot_seed in (None, seed)
-        else zoo.select(method=method, seed=robot_seed, interface_dim=interface_dim)
+        else zoo.select(method=method, seed=robot_seed, interface_dim=interface_dim, grid=grid)
     )
+    held_out = grid.split(HELD_OUT_SEPARATOR) if grid else None
     found = []
     for t in tasks:
         for r in robots:
             target = stitchable(t.spec, r.spec, t.signature, r.signature)
-            if target is not None:
+            if target is not None and (held_out is None or f"{target[0].text}/{target[1].text}" in held_out):
                 found.append(Combo(t, r, *target))
     return found
 
@@ -58,8 +63,9 @@ def controls(zoo: ModuleZoo, combo: Combo) -> dict[str, ZooEntry]:
     (docs/transfer.md): ``robot_source``, the robot module's own policy (task Y, robot Rb) run on
     task X as it is; ``task_source``, the task module's own policy (task X, robot Ra) run on robot
     Rb; ``oracle``, the policy the sweep trained on the target pair itself (task X, robot Rb, the
-    robot module's seed). A role is left out where its policy cannot run the target (other widths)
-    or, for the oracle, where the sweep did not train it."""
+    robot module's seed; trained alone, also beside a co-trained grid's pair). A role is left out
+    where its policy cannot run the target (other widths) or, for the oracle, where the sweep did
+    not train it."""
     target = (combo.robot, combo.task)
     found = {
         role: entry

@@ -26,6 +26,8 @@ ENV_FIELDS = ("robot", "task", "task_from_robot", "robot_from_robot", "robot_fro
 # a run's params must not change (the tracker refuses a run whose params differ)
 # the files a row names: the two sources' and each control's
 PATH_FIELDS = ("task_from_path", "robot_from_path", *(f"{role}_path" for role in CONTROL_ROLES))
+# the method shown for the pairs of co-trained grids (ps_ray.pipeline.grid): "ablation co-trained"
+CO_TRAINED = "co-trained"
 SHOWN = ("method", "translation", "pairing", "seed", "robot_seed", "label", "task_from", "robot_from")
 
 
@@ -144,18 +146,20 @@ def pairs(
 
     zoo = ModuleZoo.from_sweep(sweep_dir(spec))
     out = []
-    for method in methods or spec.methods:
+    for method, grid in ((m, g) for m in methods or spec.methods for g in ("", *zoo.grids(m))):
         kinds = ("", *spec.zero_shot.translations(method)) if translate else ("",)
+        shown = f"{method} {CO_TRAINED}" if grid else method  # a co-trained grid's pairs: their own rows
         for kind_of_pair, seed, robot_seed in seed_pairs(spec.seeds, pairing):
-            for combo in combos(zoo, method, seed, robot_seed=robot_seed):
+            for combo in combos(zoo, method, seed, robot_seed=robot_seed, grid=grid):
                 seeds = str(seed) if kind_of_pair == "same_seed" else f"{seed}x{robot_seed}"
                 t, r = combo.task_from, combo.robot_from
                 found = {role: Control(str(e.key), str(e.path)) for role, e in controls(zoo, combo).items()}
                 for kind in kinds:
-                    name = f"{method}+{kind}" if kind else method
+                    name = f"{shown}+{kind}" if kind else shown
                     out.append(
                         StitchedPair(
-                            key=f"zero_shot/{name}/{combo.label}/{seeds}",
+                            key=f"zero_shot/{name}/{combo.label}/{seeds}"
+                            + (f"/held_out={grid}" if grid else ""),
                             method=name,
                             translation=kind,
                             pairing=kind_of_pair,

@@ -10,6 +10,11 @@ Sweep layout read (see :mod:`ps_ray.pipeline.sweep`): ``<sweep>/tune/<trial>/che
 source policies), each with ``policy.safetensors`` and ``spec.json``. Of a trial's checkpoints
 over all its attempts (:mod:`ps_ray.store.attempts`), the furthest one whose manifest verifies is used.
 When one key appears twice, a "train" entry beats a "plain_source" one, then the newest file wins.
+
+A co-trained grid's cells (``<sweep>/tune_grid/<trial>/checkpoint_N/``, stage "grid",
+:mod:`ps_ray.pipeline.grid`) are entries too, their key tagged with the grid's held-out cells
+(``ablation/panda/reach_red/401/held_out=panda_far/reach_blue``): :meth:`ModuleZoo.select` keeps
+each grid's cells apart, and from the policies trained alone (its default).
 """
 
 from __future__ import annotations
@@ -25,7 +30,7 @@ from ps_ray.errors import UserError
 from ps_ray.specs.methods import method_key
 from ps_ray.specs.names import EnvPart, short_name, trial_key
 from ps_ray.store.layout import SweepLayout
-from ps_ray.store.run_layout import POLICY_FILE, SPEC_FILE
+from ps_ray.store.run_layout import GRID_FILE, POLICY_FILE, SPEC_FILE, cell_policy_file, cell_spec_file
 from ps_ray.store.signature import Signature, read_signature
 
 if TYPE_CHECKING:
@@ -41,9 +46,10 @@ class ZooKey:
     task: str
     seed: int
     interface_dim: int
+    grid: str = ""  # a co-trained grid's held-out cells (GridSpec.held_out_text); "": trained alone
 
     def __str__(self) -> str:
-        return trial_key(
+        key = trial_key(
             {
                 "method": self.method,
                 "robot": self.robot,
@@ -52,6 +58,7 @@ class ZooKey:
                 "interface_dim": self.interface_dim,
             }
         )
+        return f"{key}/held_out={self.grid}" if self.grid else key
 
 
 @dataclass(frozen=True)
@@ -74,7 +81,7 @@ class ZooEntry:
         return EnvPart(self.spec["task"])
 
 
-def key_of(spec: Mapping[str, Any]) -> ZooKey:
+def key_of(spec: Mapping[str, Any], grid: str = "") -> ZooKey:
     """The key of a TrainSpec dict; as a string, the trial key (MLflow run name)."""
     return ZooKey(
         method_key(str(spec["method"])),  # a folder written before the menu may name an old row
@@ -82,19 +89,23 @@ def key_of(spec: Mapping[str, Any]) -> ZooKey:
         short_name(spec["task"]),
         int(spec["seed"]),
         int(spec["interface_dim"]),
+        grid,
     )
 
 
-def read_entry(policy_path: str | Path, stage: str = "run") -> ZooEntry:
-    """A policy file and the ``spec.json`` beside it; ValueError naming the file if either is bad."""
+def read_entry(
+    policy_path: str | Path, stage: str = "run", spec_path: Path | None = None, grid: str = ""
+) -> ZooEntry:
+    """A policy file and its spec (default: the ``spec.json`` beside it); ValueError naming the
+    file if either is bad. ``grid``: the held-out cells of the grid it was co-trained in."""
     path = Path(policy_path)
     if not path.is_file():
         raise UserError(f"{path}: no such policy file")
     signature, _ = read_signature(path)
-    spec_path = path.parent / SPEC_FILE
+    spec_path = spec_path or path.parent / SPEC_FILE
     try:
         spec = json.loads(spec_path.read_text())
-        key = key_of(spec)
+        key = key_of(spec, grid)
     except (OSError, json.JSONDecodeError, KeyError, TypeError, ValueError) as e:
         raise UserError(f"{spec_path}: missing or unreadable training spec ({e})") from None
     if (key.method, key.interface_dim) != (signature.method, signature.interface_dim):
@@ -163,6 +174,11 @@ class ModuleZoo:
                     if strict:
                         raise
                     problems.append(str(e))
+            grids, unusable = _grid_cells(layout.tune_grid)
+            if unusable and strict:
+                raise UserError(unusable[0])
+            entries += grids
+            problems += unusable
         return cls(entries, problems)
 
     # -- lookup ---------------------------------------------------------------------------------
@@ -196,15 +212,59 @@ class ModuleZoo:
         raise UserError(f"no policy {str(key)!r} in the zoo ({len(self)} policies); {hint}")
 
     def select(
-        self, *, method: str | None = None, seed: int | None = None, interface_dim: int | None = None
+        self,
+        *,
+        method: str | None = None,
+        seed: int | None = None,
+        interface_dim: int | None = None,
+        grid: str = "",
     ) -> list[ZooEntry]:
+        """The entries of ``method``, ``seed`` and ``interface_dim`` (None: any) trained alone, or
+        with ``grid`` those of the co-trained grid that held those cells out."""
         return [
             e
             for e in self
             if (method is None or e.key.method == method)
             and (seed is None or e.key.seed == seed)
             and (interface_dim is None or e.key.interface_dim == interface_dim)
+            and e.key.grid == grid
         ]
+
+    def grids(self, method: str) -> list[str]:
+        """The held-out cells of every co-trained grid of ``method`` in the zoo."""
+        return sorted({e.key.grid for e in self if e.key.method == method and e.key.grid})
+
+
+def _grid_cells(stage_dir: Path) -> tuple[list[ZooEntry], list[str]]:
+    """Every trained cell of each grid trial's furthest verified checkpoint (its policy files
+    hashed), and a problem line per trial that has none."""
+    from ps_ray.specs.grid import GridSpec
+    from ps_ray.store import checkpoint
+    from ps_ray.store.attempts import attempts, checkpoint_dirs
+
+    entries, problems = [], []
+    for folders in attempts(stage_dir, "trial").values():
+        found = checkpoint_dirs(folders)
+        best = checkpoint.latest(found, (checkpoint.STATE_FILE, GRID_FILE))
+        try:
+            if best is None:
+                if found:
+                    checkpoint.verify(found[-1], (checkpoint.STATE_FILE, GRID_FILE))  # names the problem
+                continue
+            grid = GridSpec.from_mapping(
+                json.loads((best / GRID_FILE).read_text()), where=str(best / GRID_FILE)
+            )
+            n = len(grid.cells)
+            checkpoint.verify(best, tuple(f(i) for i in range(n) for f in (cell_policy_file, cell_spec_file)))
+        except UserError as e:
+            problems.append(str(e))
+            continue
+        for i in range(n):
+            entry = read_entry(
+                best / cell_policy_file(i), "grid", best / cell_spec_file(i), grid.held_out_text
+            )
+            entries.append(entry)
+    return entries, problems
 
 
 def _preference(entry: ZooEntry) -> tuple[int, float]:

@@ -63,6 +63,10 @@ class SweepLayout:
         return self.stage_folders()["train"]
 
     @property
+    def tune_grid(self) -> Path:
+        return self.stage_folders()["grid"]
+
+    @property
     def tune_zero_shot(self) -> Path:
         return self.stage_folders()["zero_shot"]
 

@@ -11,6 +11,21 @@ SIGNATURE_FILE = "signature.json"  # the policy's interface signature, inside ev
 BEST_POLICY_FILE = "best_policy.safetensors"  # the best greedy evaluation so far
 METRICS_FILE = "metrics.csv"  # one row per training step
 
+# A co-trained grid's folder (`ps-ray grid --run-dir`) and checkpoint (ps_ray.rllib.grid_train)
+GRID_FILE = "grid.json"  # the GridSpec; also in every checkpoint
+CELLS_FOLDER = "cells"  # each trained cell as a source: cells/<robot>-<task>/{spec.json, policy.safetensors}
+
+
+def cell_policy_file(index: int) -> str:
+    """The ``index``-th trained cell's policy file in a grid checkpoint."""
+    return f"policy_c{index:02d}.safetensors"  # c00, c01, ...: the grid env's cell keys
+
+
+def cell_spec_file(index: int) -> str:
+    """Its TrainSpec, beside it."""
+    return f"spec_c{index:02d}.json"
+
+
 # The columns of metrics.csv, one row per training step (also the keys of a sweep trial's results)
 METRIC_FIELDS = (
     "iteration",

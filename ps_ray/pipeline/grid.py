@@ -1,0 +1,75 @@
+"""The grid stage: each co-trained grid of a sweep (:class:`ps_ray.specs.grid.GridSettings`) as
+one Tune trial, resumable and tracked in MLflow like a training trial. Each checkpoint holds every
+trained cell's policy file and spec, so the zoo (:mod:`ps_ray.stitching.zoo`) offers the cells as
+sources of their grid, and the zero-shot stage stitches each held-out cell from them beside its
+controls (docs/transfer.md "Co-trained grids")."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from ps_ray.pipeline.stage import connect, require_same_sweep
+from ps_ray.pipeline.sweep import anchor_file, report_ticks, run_tune
+from ps_ray.specs.grid import GridSpec
+from ps_ray.specs.names import trial_key
+from ps_ray.specs.sweep import SweepSpec
+from ps_ray.store.layout import SweepLayout, sweep_dir
+
+
+def grid_key(grid: GridSpec) -> str:
+    """The grid's MLflow run name and zoo tag: its base trial's key and its held-out cells."""
+    return f"grid/{trial_key(grid.base.to_dict())}/held_out={grid.held_out_text}"
+
+
+def grid_trial(config: dict[str, Any]) -> None:
+    """Tune function trainable: one :class:`ps_ray.rllib.grid_train.GridRun`."""
+    import ray
+
+    from ps_ray.data.anchor_file import load_anchor_set
+    from ps_ray.rllib.grid_train import GridRun
+
+    trial = config["trial"]
+    grid = GridSpec.from_mapping(trial["grid"])
+    anchor_sets = [None if path is None else load_anchor_set(path) for path in trial["anchors"]]
+    granted = ray.get_runtime_context().get_assigned_resources()
+    report_ticks(GridRun(grid, anchor_sets, threads=max(1, int(granted.get("CPU", 1)))), config, "trial")
+
+
+def run_grids(spec: SweepSpec, *, resume: bool = False, progress: bool = True):
+    """Train (or resume) the sweep's grids; the train stage's anchor sets serve PS grids."""
+    from ps_ray.envs.registry import register
+
+    require_same_sweep(spec)
+    register()
+    configs = [
+        {
+            "grid": grid.to_dict(),
+            "anchors": [
+                anchor_file(spec, grid.cell_spec(next(c for c in grid.cells if c[1] == t)))
+                for t in grid.tasks
+            ],
+            "key": grid_key(grid),
+        }
+        for grid in spec.grid.grids(spec)
+    ]
+    return run_tune(
+        [],
+        folder=SweepLayout(sweep_dir(spec)).tune_grid,
+        stage="grid",
+        spec=spec,
+        tracking=connect(spec),
+        resume=resume,
+        progress=progress,
+        trainable=grid_trial,
+        configs=configs,
+        key_fn=lambda trial: trial.config["trial"]["key"],
+        params_fn=lambda trial: _params(trial.config["trial"]),
+        artifacts_fn=lambda trial: [],
+    )
+
+
+def _params(config: dict[str, Any]) -> dict[str, str]:
+    from ps_ray.pipeline.tune_tracking import spec_params
+
+    grid = GridSpec.from_mapping(config["grid"])
+    return {**spec_params(grid.base.to_dict()), "held_out": grid.held_out_text}

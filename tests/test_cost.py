@@ -77,6 +77,16 @@ def test_the_workload_of_the_smoke_sweep_is_counted_from_its_spec():
     assert len(loads["few_shot"].trials) == 2 * 3 and loads["few_shot"].env_steps == 6 * 1000
 
 
+def test_the_grid_stage_is_priced_per_cell_and_its_held_out_pairs_beside_the_alone_ones():
+    loads = {load.stage: load for load in workload(load_sweep(SWEEPS / "cotrain.yaml"))}
+    assert list(loads) == ["train", "grid", "zero_shot"]
+    # 5 seeds x 2 held-out cells = 10 grids, each training its 3 other cells to the 16k cap
+    assert len(loads["grid"].trials) == 10 and loads["grid"].env_steps == 10 * 3 * 16000
+    # alone: 4 targets x 5 seeds, same and cross seed = 40 pairs; co-trained: 2 held-out targets x 5
+    # seeds x 2 pairings = 20 pairs; each with 3 controls, chance twice on each of 4 targets
+    assert loads["zero_shot"].eval_steps == ((40 + 20) * 4 + 4 * 2) * 30 * 2 * 50
+
+
 def test_projection_is_the_rates_times_the_work():
     p = project(one_trial(), cores_on=8, rates=RATES)
     # 10 s start + 2,000 env steps + 400 updates x (0.02 + 0.1 x 1) + 4 evaluations x 4 episodes x 50

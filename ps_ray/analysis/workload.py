@@ -4,6 +4,7 @@ fine-tuning and from-scratch runs of the few-shot stage (docs/cost.md, "The work
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from dataclasses import dataclass
 
@@ -12,6 +13,7 @@ from ps_ray.specs.names import CONTROL_ROLES
 from ps_ray.specs.sweep import SweepSpec
 from ps_ray.specs.train import TrainSpec
 from ps_ray.stitching.chance import CHANCE_POLICIES
+from ps_ray.stitching.pairs import CO_TRAINED
 
 
 @dataclass(frozen=True)
@@ -56,6 +58,11 @@ def stitch_pairs(
     ]
 
 
+def _preset(shown: str) -> str:
+    """The method of a row name (``"ablation co-trained"`` -> ``"ablation"``)."""
+    return shown.removesuffix(f" {CO_TRAINED}")
+
+
 def workload(spec: SweepSpec) -> list[StageLoad]:
     """The work of every stage the spec runs, in order."""
     from ps_ray.specs.sweep import anchor_sources
@@ -66,11 +73,21 @@ def workload(spec: SweepSpec) -> list[StageLoad]:
         if plain:
             loads.append(train_load("anchors_plain", plain))
         loads.append(train_load("train", spec.trials()))
+    grids = spec.grid.grids(spec) if "grid" in spec.stages else []
+    if grids:  # a grid trial trains each of its cells (its update costs about one per cell)
+        cells = train_load("grid", [g.cell_spec(c) for g in grids for c in g.cells])
+        loads.append(dataclasses.replace(cells, trials=[g.base for g in grids]))
     if "zero_shot" in spec.stages:
         methods = list(spec.zero_shot.methods) or list(spec.methods)
         pairing = spec.zero_shot.pairs
         found = {m: stitch_pairs(spec, m, pairing) for m in methods}
-        n = sum(len(found[m]) * (1 + len(spec.zero_shot.translations(m))) for m in methods)
+        # a grid's pairs: the same rule, on the grid's held-out targets (ps_ray.stitching.matrix)
+        held = {(g.base.method, g.base.seed, g.held_out_text) for g in grids}
+        for m in list(found):
+            co_trained = [(t, r) for t, r in found[m] if (m, t.seed, f"{r.robot.text}/{t.task.text}") in held]
+            if co_trained:
+                found[f"{m} {CO_TRAINED}"] = co_trained
+        n = sum(len(pairs) * (1 + len(spec.zero_shot.translations(_preset(m)))) for m, pairs in found.items())
         # each trial evaluates its pair and up to three controls (ps_ray.stitching.stitch.controls);
         # chance, once per target env (the task source's task on the robot source's robot)
         targets = {(r.robot, t.task) for pairs in found.values() for t, r in pairs}
@@ -81,8 +98,8 @@ def workload(spec: SweepSpec) -> list[StageLoad]:
         # a translation fitted on matched pairs rolls each source out once (ps_ray.stitching.outcomes)
         matched = {
             src
-            for m in methods
-            if any("@" in k for k in spec.zero_shot.translations(m))
+            for m in found
+            if any("@" in k for k in spec.zero_shot.translations(_preset(m)))
             for pair in found[m]
             for src in pair
         }

@@ -10,15 +10,17 @@ from typing import Any
 
 from ps_ray.pipeline.stage import connect, require_same_sweep
 from ps_ray.pipeline.sweep import anchor_file, report_ticks, run_tune
+from ps_ray.specs.defaults import INTERFACE_DIM
 from ps_ray.specs.grid import GridSpec
-from ps_ray.specs.names import trial_key
 from ps_ray.specs.sweep import SweepSpec
 from ps_ray.store.layout import SweepLayout, sweep_dir
 
 
 def grid_key(grid: GridSpec) -> str:
-    """The grid's MLflow run name and zoo tag: its base trial's key and its held-out cells."""
-    return f"grid/{trial_key(grid.base.to_dict())}/held_out={grid.held_out_text}"
+    """The grid's MLflow run name: ``grid/<method>/<seed>[/i<dim>]/held_out=<cells>``."""
+    spec = grid.base
+    width = "" if spec.interface_dim == INTERFACE_DIM else f"/i{spec.interface_dim}"
+    return f"grid/{spec.method}/{spec.seed}{width}/held_out={grid.held_out_text}"
 
 
 def grid_trial(config: dict[str, Any]) -> None:

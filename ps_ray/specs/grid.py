@@ -35,7 +35,8 @@ def parse_cell(text: str, where: str = "held-out cell") -> tuple[str, str]:
 
 @dataclass(frozen=True)
 class GridSpec:
-    """``base``: method, seed, sizes and the budget per cell (its robot and task are not read);
+    """``base``: method, seed, sizes and the budget per cell (its robot and task become the first
+    trained cell's);
     ``held_out``: cells never trained (nor sampled), stitched zero-shot afterwards."""
 
     base: TrainSpec
@@ -70,6 +71,9 @@ class GridSpec:
             held.append(cell)
         object.__setattr__(self, "held_out", tuple(dict.fromkeys(held)))
         trained = self.cells
+        if trained:  # the base names the first trained cell: one grid, one spelling
+            base = dataclasses.replace(self.base, robot=trained[0][0], task=trained[0][1])
+            object.__setattr__(self, "base", base)
         for kind, parts, index in (("robot", self.robots, 0), ("task", self.tasks, 1)):
             for part in parts:
                 if not any(c[index] == part for c in trained):

@@ -250,3 +250,21 @@ def test_a_sweep_s_grid_stage_stitches_its_held_out_cell_beside_controls_and_cha
         row["robot_source_success"], row["task_source_success"], row["chance_success"]
     )
     assert row["transfer_gain"] == row["success_mean"] - row["best_control"]
+
+
+def test_what_co_training_adds_is_paired_with_the_same_pairs_trained_alone():
+    import pandas as pd
+
+    from ps_ray.analysis.transfer import co_training_numbers
+
+    rows = []
+    for seed, co, alone in ((1, 0.8, 0.1), (2, 0.7, 0.0), (3, 0.9, 0.2)):
+        target = dict(pairing="same_seed", seed=seed, robot_seed=seed, robot="panda_far", task="reach_blue")
+        rows += [dict(target, method="ablation co-trained", success_mean=co)]
+        rows += [dict(target, method="ablation", success_mean=alone)]
+        # another target of the alone sources, which no grid held out: not compared
+        rows += [dict(target, task="reach_red", method="ablation", success_mean=0.5)]
+    numbers = co_training_numbers(pd.DataFrame(rows))
+    assert len(numbers) == 1 and numbers.iloc[0]["pairs"] == 3
+    assert numbers.iloc[0]["co-trained minus alone (paired over seeds)"].startswith("+0.70 [")
+    assert numbers.iloc[0]["co-trained minus alone (paired over seeds)"].endswith("3/3 seeds up")

@@ -317,6 +317,12 @@ def _transfer(report: Report, table: pd.DataFrame) -> None:
         numbers=numbers,
     )
     report.figure(section, "transfer_gain", lambda p: plots.transfer_gain_bars(table, p))
+    co_trained = transfer.co_training_numbers(table)
+    if len(co_trained):
+        title = (
+            "What co-training adds: a grid's held-out pairs beside the same pairs of sources trained alone"
+        )
+        report.table(section, "co_training", title, co_trained.set_index(["method", "pairing"]))
     report.headline.transfer = numbers
     for _, row in numbers.iterrows():
         prefix = f"transfer.{row['method']}.{row['pairing']}"

@@ -81,6 +81,35 @@ def transfer_text(numbers: pd.DataFrame) -> pd.DataFrame:
     return out
 
 
+def co_training_numbers(table: pd.DataFrame) -> pd.DataFrame:
+    """What co-training adds (docs/transfer.md "Co-trained grids"): per method and pairing, the
+    stitched success of a co-trained grid's held-out pairs beside the same pairs (target, seeds)
+    stitched from sources trained alone, and their paired difference over seeds."""
+    from ps_ray.stitching.pairs import CO_TRAINED
+
+    suffix = f" {CO_TRAINED}"
+    keys = ["pairing", "seed", "robot_seed", "robot", "task"]
+    rows = []
+    for method in [m for m in table["method"].unique() if str(m).endswith(suffix)]:
+        alone = table[table["method"] == method.removesuffix(suffix)]
+        both = table[table["method"] == method].merge(alone, on=keys, suffixes=("", "_alone"))
+        for pairing, part in both.groupby("pairing", sort=False):
+            diff = paired(part["success_mean"], part["success_mean_alone"], part["seed"])
+            rows.append(
+                {
+                    "method": method,
+                    "pairing": pairing,
+                    "pairs": len(part),
+                    "co-trained": estimate(part["success_mean"].to_numpy(), part["seed"].to_numpy()).text(),
+                    "trained alone": estimate(
+                        part["success_mean_alone"].to_numpy(), part["seed"].to_numpy()
+                    ).text(),
+                    "co-trained minus alone (paired over seeds)": diff.text(),
+                }
+            )
+    return pd.DataFrame(rows)
+
+
 def controls_met(numbers: pd.DataFrame, unstitched_max: float = 0.1, oracle_min: float = 0.9) -> pd.DataFrame:
     """Whether the testbed needs transfer, per method and pairing: both unstitched controls at or
     below ``unstitched_max`` and the oracle at or above ``oracle_min`` (means over cells)."""
@@ -160,6 +189,7 @@ def few_shot_steps(curves: pd.DataFrame, threshold: float = 0.8) -> pd.DataFrame
 
 __all__ = [
     "CONTROL_ROLES",
+    "co_training_numbers",
     "controls_met",
     "curve_area",
     "few_shot_steps",

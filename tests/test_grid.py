@@ -203,55 +203,6 @@ def test_each_exported_cell_acts_exactly_as_the_grid_and_shares_its_modules(trai
         algo.stop()
 
 
-GRID_SWEEP = """
-name: gridsweep
-stages: [train, grid, zero_shot]
-methods: [ablation]
-robots: [panda, panda_l3]
-tasks:
-  - {name: reach, goal_region: q1}
-  - {name: reach, goal_region: q3}
-seeds: [101]
-interface_dims: [8]
-train: {env_steps: 200, hidden: 32, learning_starts: 100, random_episodes: 1, episodes_per_step: 1,
-        num_envs: 1, eval_every: 2, eval_episodes: 2, checkpoint_every: 2, batch_size: 32}
-grid:
-  held_out: ['panda_l3/{"name": "reach", "goal_region": "q3"}']
-zero_shot: {episodes: 3, repeats: 1}
-max_concurrent: 2
-"""
-
-
-def test_a_sweep_s_grid_stage_stitches_its_held_out_cell_beside_controls_and_chance(tmp_path):
-    """`ps-ray run` trains the sources alone, then the grid; the zero-shot table gets the grid's
-    held-out pair (task and robot modules from the grid, scored beside the grid's own cells, the
-    oracle trained alone and chance) beside the pairs of the sources trained alone."""
-    import pandas as pd
-
-    sweep = tmp_path / "grid.yaml"
-    sweep.write_text(GRID_SWEEP)
-    done = subprocess.run(
-        [sys.executable, "-m", "ps_ray.cli", "run", str(sweep), "--storage", str(tmp_path / "runs")],
-        capture_output=True,
-        text=True,
-    )
-    assert done.returncode == 0, done.stderr[-3000:]
-    assert "1 co-trained grids" in done.stdout
-    table = pd.read_csv(tmp_path / "runs" / "gridsweep" / "zero_shot.csv")
-    grid_rows = table[table["method"] == "ablation co-trained"]
-    held = 'panda_l3/{"goal_region": "q3", "name": "reach"}'
-    assert len(grid_rows) == 1 and len(table[table["method"] == "ablation"]) == 4
-    row = grid_rows.iloc[0]
-    assert (row["robot"], row["task"]) == ("panda_l3", '{"goal_region": "q3", "name": "reach"}')
-    assert row["task_from"].endswith(f"/held_out={held}") and row["robot_from"].endswith(f"/held_out={held}")
-    assert row["robot_source"] == row["robot_from"] and row["task_source"] == row["task_from"]
-    assert row["oracle"] == 'ablation/panda_l3/reach{"goal_region":"q3"}/101/i8'  # trained alone
-    assert row["best_control"] == max(
-        row["robot_source_success"], row["task_source_success"], row["chance_success"]
-    )
-    assert row["transfer_gain"] == row["success_mean"] - row["best_control"]
-
-
 def test_what_co_training_adds_is_paired_with_the_same_pairs_trained_alone():
     import pandas as pd
 

@@ -171,6 +171,55 @@ def test_a_sweep_with_a_damaged_policy_file_is_refused_before_any_trial_starts(t
     assert not (copy / spec.name / "tune_zero_shot").exists()
 
 
+def test_a_grid_s_held_out_cell_is_stitched_from_its_modules_beside_its_controls(trained_matrix, tmp_path):
+    """The grid stage on the trained matrix (a copy): one grid holds out (panda_l3, q3); the
+    zero-shot table gets its held-out pair (both modules from the grid, scored beside the grid's
+    own cells, the oracle trained alone and chance) beside the four pairs of the sources trained
+    alone, and its MLflow run links to the grid's run."""
+    import dataclasses
+    import shutil
+
+    from ps_ray.analysis.transfer import co_training_numbers
+    from ps_ray.pipeline.grid import run_grids
+    from ps_ray.specs.grid import GridSettings
+
+    copy = tmp_path / "copy"
+    shutil.copytree(sweep_dir(trained_matrix), copy / trained_matrix.name)
+    for made_here in ("tune_zero_shot", "mlartifacts", "mlflow.db"):  # a copy keeps no MLflow store
+        shutil.rmtree(copy / trained_matrix.name / made_here, ignore_errors=True)
+        (copy / trained_matrix.name / made_here).unlink(missing_ok=True)
+    q3 = '{"goal_region": "q3", "name": "reach"}'
+    grid = GridSettings(held_out=(f"panda_l3/{q3}",))
+    spec = dataclasses.replace(
+        trained_matrix, storage=str(copy), stages=("train", "grid", "zero_shot"), grid=grid
+    )
+    (copy / spec.name / "sweep.yaml").write_text(yaml.safe_dump(spec.to_dict(), sort_keys=True))  # moved
+    assert not any(r.error for r in run_grids(spec, progress=False))
+    table = run_zero_shot(spec, episodes=3, repeats=1, progress=False)
+    assert (table["method"] == "ablation").sum() == 4
+    (row,) = [r for _, r in table.iterrows() if r["method"] == "ablation co-trained"]
+    held = f"held_out=panda_l3/{q3}"
+    assert (row["robot"], row["task"]) == ("panda_l3", q3)
+    assert row["task_from"].endswith(held) and row["robot_from"].endswith(held)
+    assert row["robot_source"] == row["robot_from"] and row["task_source"] == row["task_from"]
+    assert row["oracle"] == 'ablation/panda_l3/reach{"goal_region":"q3"}/1/i8'  # trained alone
+    assert row["best_control"] == max(
+        row["robot_source_success"], row["task_source_success"], row["chance_success"]
+    )
+    assert row["transfer_gain"] == pytest.approx(row["success_mean"] - row["best_control"])
+    assert co_training_numbers(table)["pairs"].tolist() == [1]  # beside the same pair trained alone
+    client = mlflow.MlflowClient(f"sqlite:///{copy / spec.name / 'mlflow.db'}")
+    experiment = client.get_experiment_by_name("matrix")
+    (grid_run,) = client.search_runs([experiment.experiment_id], "tags.`ps_ray.stage` = 'grid'")
+    assert grid_run.data.tags["ps_ray.trial_key"] == f"grid/ablation/1/i8/{held}"
+    (pair_run,) = [
+        r
+        for r in client.search_runs([experiment.experiment_id], "tags.`ps_ray.stage` = 'zero_shot'")
+        if r.data.tags["ps_ray.task_module"] == row["task_from"]
+    ]
+    assert pair_run.data.tags["ps_ray.task_module_run"] == grid_run.info.run_id
+
+
 def test_few_shot_trials_start_from_stitched_weights_beside_unstitched_and_scratch_runs(trained_matrix):
     spec = trained_matrix
     results = run_few_shot(

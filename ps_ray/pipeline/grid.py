@@ -10,17 +10,9 @@ from typing import Any
 
 from ps_ray.pipeline.stage import connect, require_same_sweep
 from ps_ray.pipeline.sweep import anchor_file, report_ticks, run_tune
-from ps_ray.specs.defaults import INTERFACE_DIM
 from ps_ray.specs.grid import GridSpec
 from ps_ray.specs.sweep import SweepSpec
 from ps_ray.store.layout import SweepLayout, sweep_dir
-
-
-def grid_key(grid: GridSpec) -> str:
-    """The grid's MLflow run name: ``grid/<method>/<seed>[/i<dim>]/held_out=<cells>``."""
-    spec = grid.base
-    width = "" if spec.interface_dim == INTERFACE_DIM else f"/i{spec.interface_dim}"
-    return f"grid/{spec.method}/{spec.seed}{width}/held_out={grid.held_out_text}"
 
 
 def grid_trial(config: dict[str, Any]) -> None:
@@ -50,7 +42,7 @@ def run_grids(spec: SweepSpec, *, resume: bool = False, progress: bool = True):
                 anchor_file(spec, grid.cell_spec(next(c for c in grid.cells if c[1] == t)))
                 for t in grid.tasks
             ],
-            "key": grid_key(grid),
+            "key": grid.run_key,
         }
         for grid in spec.grid.grids(spec)
     ]

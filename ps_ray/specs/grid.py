@@ -13,6 +13,7 @@ from typing import Any
 
 from ps_ray.envs.core import env_widths
 from ps_ray.errors import UserError
+from ps_ray.specs.defaults import INTERFACE_DIM
 from ps_ray.specs.names import EnvPart, parse_spec_text
 from ps_ray.specs.train import POINT_TASK, SpecError, TrainSpec
 
@@ -131,12 +132,29 @@ class GridSpec:
         return f"grid {self.base.method} seed {self.base.seed} held out {self.held_out_text or 'none'}"
 
     @property
+    def run_key(self) -> str:
+        """The grid's MLflow run name: ``grid/<method>/<seed>[/i<dim>]/held_out=<cells>``."""
+        spec = self.base
+        width = "" if spec.interface_dim == INTERFACE_DIM else f"/i{spec.interface_dim}"
+        return f"grid/{spec.method}/{spec.seed}{width}/held_out={self.held_out_text}"
+
+    @property
     def held_out_text(self) -> str:
         """The held-out cells as one string (a zoo key's tag, :mod:`ps_ray.stitching.zoo`)."""
         return HELD_OUT_SEPARATOR.join(cell_text(c) for c in self.held_out)
 
     def digest_text(self) -> str:
         return json.dumps(self.identity(), sort_keys=True)
+
+
+def grid_run_of(source_key: str) -> str | None:
+    """The run key of the grid a co-trained cell's zoo key (``<trial key>/held_out=<cells>``,
+    :mod:`ps_ray.stitching.zoo`) comes from; None for a source trained alone."""
+    head, sep, held = source_key.partition("/held_out=")
+    if not sep:
+        return None
+    method, _robot, _task, seed, *width = head.split("/")
+    return f"grid/{method}/{seed}{''.join('/' + w for w in width)}/held_out={held}"
 
 
 @dataclass(frozen=True)

@@ -298,12 +298,14 @@ def find_run(client: MlflowClient, experiment_id: str, trial_key: str):
 
 def source_tags(client: MlflowClient, experiment_id: str, task_from: str, robot_from: str, policy) -> dict:
     """Tags linking a stitched policy's run to the training runs of its two sources (by their
-    trial keys) and naming its anchor set (from ``policy``, a stitched or source policy file)."""
+    trial keys; a co-trained cell's, to its grid's run) and naming its anchor set (from
+    ``policy``, a stitched or source policy file)."""
+    from ps_ray.specs.grid import grid_run_of
     from ps_ray.store.signature import read_signature
 
     tags = {TASK_SOURCE_TAG: task_from, ROBOT_SOURCE_TAG: robot_from}
     for key, tag in ((task_from, TASK_SOURCE_RUN_TAG), (robot_from, ROBOT_SOURCE_RUN_TAG)):
-        run = find_run(client, experiment_id, key)
+        run = find_run(client, experiment_id, grid_run_of(key) or key)  # a co-trained cell: its grid's
         if run is not None:
             tags[tag] = run.info.run_id
     anchor_hash = read_signature(policy)[0].anchor_hash

@@ -123,6 +123,20 @@ seeds: [1]
             "unknown stage 'fly'; valid stages: train, grid, zero_shot, few_shot, report",
         ),
         (GOOD + "anchors: {epizodes: 3}\n", "anchors: unknown key 'epizodes'; valid keys: file"),
+        (GOOD + "grid: {held: []}\n", "grid: unknown key 'held'; valid keys: held_out, methods"),
+        (GOOD + "grid: {held_out: [panda]}\n", "grid.held_out: cell 'panda' is not 'robot/task'"),
+        (
+            GOOD + "stages: [train, grid]\ngrid: {held_out: [panda/push]}\n",
+            "grid: held-out cell 'panda/push' is not in the grid; its cells: panda/reach",
+        ),
+        (
+            GOOD + "stages: [train, grid]\n",
+            "grid: the held-out cells ['panda/reach'] leave robot 'panda' with no trained cell",
+        ),
+        (
+            GOOD + "grid: {methods: [ablation]}\n",
+            "GridSettings: method 'ablation' is not trained by this sweep",
+        ),
         (GOOD + "zero_shot: {episodes: 0}\n", "zero_shot.episodes must be positive, got 0"),
         (
             GOOD + "zero_shot: {pairs: diagonal}\n",

@@ -79,7 +79,7 @@ def test_a_sweep_gives_each_stage_its_resources_outside_its_training_identity():
             {"train": {"compile": "yes"}},
             "resources.train: resources compile must be true or false, got 'yes'",
         ),
-        ({"trian": {}}, "unknown key 'trian'; valid keys: train, zero_shot, few_shot"),
+        ({"trian": {}}, "unknown key 'trian'; valid keys: train, grid, zero_shot, few_shot"),
         ({"train": {"cpu": "two"}}, "resources cpu must be a number, got 'two'"),
     ],
 )

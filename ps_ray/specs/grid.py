@@ -125,8 +125,10 @@ class GridSpec:
         return cls(base, tuple(data["robots"]), tuple(data["tasks"]), held)  # type: ignore[arg-type]
 
     def identity(self) -> dict[str, Any]:
-        """What defines the grid being trained; the base's budget and reporting may change on resume."""
-        return {**self.to_dict(), "base": self.base.identity()}
+        """What defines the grid being trained; the base's budget and reporting may change on
+        resume (its robot and task follow the cells)."""
+        base = {k: v for k, v in self.base.identity().items() if k not in ("robot", "task")}
+        return {**self.to_dict(), "base": base}
 
     def label(self) -> str:
         return f"grid {self.base.method} seed {self.base.seed} held out {self.held_out_text or 'none'}"

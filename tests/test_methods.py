@@ -124,6 +124,29 @@ def test_an_old_policy_file_loads_stitches_and_acts_as_it_did(row, expected):
     torch.testing.assert_close(q, expected[f"{row}_stitched.q"], rtol=1e-5, atol=1e-6)
 
 
+V2 = Path(__file__).parent / "data" / "policies_v2"  # settings stored before hindsight_norm existed
+
+
+@pytest.mark.parametrize("method", ["ablation", "ps"])
+def test_a_file_written_before_a_setting_existed_loads_stitches_and_acts_as_it_did(method):
+    """Its stored settings lack the newer setting: read at its default, as its nets are built, so
+    that the stitch of two such files is refused by nothing and computes what it did."""
+    old = load_file(str(V2 / "expected.safetensors"))
+    task_in, robot_in, action = old["task_in"], old["robot_in"], old["action"]
+    for seed in (0, 1):
+        nets, signature = load_policy(V2 / f"{method}_{seed}.safetensors")
+        assert signature.spec == method_spec(method) and '"hindsight_norm": true' in signature.settings
+        with torch.no_grad():
+            mean = nets.eval().actor(task_in, robot_in)[0]
+        torch.testing.assert_close(mean, old[f"{method}_{seed}.mean"], rtol=1e-5, atol=1e-6)
+    stitched, _ = stitch_policies(V2 / f"{method}_0.safetensors", V2 / f"{method}_1.safetensors")
+    with torch.no_grad():
+        mean = stitched.eval().actor(task_in, robot_in)[0]
+        q = stitched.critic(task_in, robot_in, action)
+    torch.testing.assert_close(mean, old[f"{method}_stitched.mean"], rtol=1e-5, atol=1e-6)
+    torch.testing.assert_close(q, old[f"{method}_stitched.q"], rtol=1e-5, atol=1e-6)
+
+
 def test_a_policy_file_keeps_its_settings_whatever_the_menu_becomes(tmp_path, monkeypatch, expected):
     """A file stores the resolved method: redefining the preset it names changes nothing it does."""
     torch.manual_seed(0)

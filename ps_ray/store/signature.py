@@ -86,6 +86,8 @@ def read_signature(path: str | Path) -> tuple[Signature, dict[str, str]]:
     if not signature.settings:  # written before the resolved method was stored: resolve its name
         spec = method_spec(signature.method)
         signature = dataclasses.replace(signature, method=spec.name, settings=spec_json(spec))
+    else:  # written before a setting existed: the setting at its default, as the nets are built
+        signature = dataclasses.replace(signature, settings=spec_json(signature.spec))
     return signature, metadata
 
 

@@ -32,6 +32,22 @@ def grid_train_batch(samples: dict[str, dict[str, np.ndarray]]) -> dict[str, tor
     return {f"{key}/{k}": v for key, sample in samples.items() for k, v in train_batch(sample).items()}
 
 
+def grid_modules(owner: torch.nn.Module, model_config: dict[str, Any], dims: NetDims) -> list:
+    """The grid's module tables on ``owner`` as the module's ``model_config`` describes them;
+    returns each trained cell's view (:func:`ps_ray.nets.grid.add_grid_modules`)."""
+    return add_grid_modules(
+        owner,
+        model_config["method"],
+        dims,
+        tasks=model_config["tasks"],
+        robots=model_config["robots"],
+        cells=[tuple(c) for c in model_config["cells"]],
+        interface_dim=model_config["interface_dim"],
+        hidden=model_config["hidden"],
+        anchors=[None if a is None else np.asarray(a, np.float32) for a in model_config["anchors"]],
+    )
+
+
 class GridSACModule(TorchRLModule, InferenceOnlyAPI):
     """model_config keys: method, interface_dim, hidden, tasks and robots (counts), cells
     ((task index, robot index) per trained cell, in the env's cell order), anchors (per task: an
@@ -46,17 +62,7 @@ class GridSACModule(TorchRLModule, InferenceOnlyAPI):
             robot_dim=first[ROBOT_KEY].shape[0],
             action_dim=self.action_space.shape[0] // len(self.keys),
         )
-        self.cells = add_grid_modules(
-            self,
-            cfg["method"],
-            self.dims,
-            tasks=cfg["tasks"],
-            robots=cfg["robots"],
-            cells=[tuple(c) for c in cfg["cells"]],
-            interface_dim=cfg["interface_dim"],
-            hidden=cfg["hidden"],
-            anchors=[None if a is None else np.asarray(a, np.float32) for a in cfg["anchors"]],
-        )
+        self.cells = grid_modules(self, cfg, self.dims)
 
     # -- acting: every cell's actor on its own observation, actions side by side ---------------
     def _forward_inference(self, batch: dict[str, Any], **kwargs) -> dict[str, Any]:

@@ -11,7 +11,6 @@ success is its worst cell's, so the stopping rule waits for every cell.
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
@@ -20,18 +19,14 @@ from ray.rllib.algorithms.sac import SAC
 from ray.rllib.core import DEFAULT_MODULE_ID
 from ray.rllib.core.rl_module.rl_module import RLModuleSpec
 from ray.rllib.utils.metrics import ENV_RUNNER_SAMPLING_TIMER, TIMERS
-from safetensors.torch import load_file, save_file
 from torch import nn
 
 from ps_ray.data.her import HindsightReplay
 from ps_ray.errors import UserError
-from ps_ray.nets.grid import add_grid_modules
 from ps_ray.nets.policy_file import save_policy
-from ps_ray.rllib.grid_module import GridSACLearner, GridSACModule, grid_train_batch
-from ps_ray.rllib.private import set_training_iteration
-from ps_ray.rllib.sac_her import LEARNER_FILE, ModularSAC, ModularSACConfig
+from ps_ray.rllib.grid_module import GridSACLearner, GridSACModule, grid_modules, grid_train_batch
+from ps_ray.rllib.sac_her import ModularSAC, ModularSACConfig
 from ps_ray.specs.methods import method_spec
-from ps_ray.store.checkpoint import STATE_FILE
 from ps_ray.store.signature import Signature
 
 
@@ -157,17 +152,7 @@ class GridSAC(ModularSAC):
         module_dims = self.learner_group.foreach_learner(
             lambda learner: learner.module[DEFAULT_MODULE_ID].dims
         )
-        views = add_grid_modules(
-            owner,
-            cfg["method"],
-            module_dims.result_or_errors[0].get(),
-            tasks=cfg["tasks"],
-            robots=cfg["robots"],
-            cells=[tuple(c) for c in cfg["cells"]],
-            interface_dim=cfg["interface_dim"],
-            hidden=cfg["hidden"],
-            anchors=[None if a is None else np.asarray(a, np.float32) for a in cfg["anchors"]],
-        )
+        views = grid_modules(owner, cfg, module_dims.result_or_errors[0].get())
         GridSACLearner.load_module_tensors(owner, state)
         return views
 
@@ -176,26 +161,11 @@ class GridSAC(ModularSAC):
         for view, path, signature in zip(self.cell_nets(), paths, signatures):
             save_policy(path, view, signature)
 
-    # -- checkpoints: learner tensors, one replay file per cell, counters -----------------------
-    def save_checkpoint(self, checkpoint_dir: str) -> None:
-        directory = Path(checkpoint_dir)
-        directory.mkdir(parents=True, exist_ok=True)
-        tensors = self.learner_group.foreach_learner(lambda learner: learner.training_state())
-        save_file(tensors.result_or_errors[0].get(), directory / LEARNER_FILE)
+    # -- checkpoints: ModularSAC's, with one whole replay file per cell ------------------------
+    def save_replay(self, directory: Path) -> None:
         for key, replay in self.replays.items():
             replay.save(directory / f"replay_{key}.npz")
-        state = {"counters": self.counters, "iteration": self.iteration}
-        (directory / STATE_FILE).write_text(json.dumps(state))
 
-    def load_checkpoint(self, checkpoint_dir: str) -> None:
-        directory = Path(checkpoint_dir)
-        tensors = load_file(directory / LEARNER_FILE)
-        self.learner_group.foreach_learner(lambda learner: learner.load_training_state(tensors))
-        self.env_runner_group.sync_weights(
-            from_worker_or_learner_group=self.learner_group, inference_only=True
-        )
+    def load_replay(self, directory: Path) -> None:
         for key, replay in self.replays.items():
             replay.load(directory / f"replay_{key}.npz")
-        state = json.loads((directory / STATE_FILE).read_text())
-        self.counters = {k: int(state["counters"][k]) for k in self.counters}
-        set_training_iteration(self, int(state["iteration"]))

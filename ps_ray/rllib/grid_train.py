@@ -15,14 +15,13 @@ from __future__ import annotations
 
 import csv
 import json
-import os
 import re
 from pathlib import Path
 from typing import Any
 
 from ps_ray.envs.goals import ROBOT_KEY, TASK_KEYS
 from ps_ray.envs.grid import cell_key
-from ps_ray.rllib.loop import TrainingRun
+from ps_ray.rllib.loop import TrainingRun, start_local_ray
 from ps_ray.specs.grid import Cell, GridSpec, cell_text
 from ps_ray.specs.methods import spec_json
 from ps_ray.specs.train import require_same
@@ -150,18 +149,9 @@ def train_grid(grid: GridSpec, run_dir: str | Path, *, progress: bool = True) ->
 
 
 def _train_grid(grid: GridSpec, run_dir: Path, progress: bool) -> dict[str, Any]:
-    import ray
-
     anchor_sets = grid_anchor_sets(grid, run_dir)
     with others_to(run_dir / LOG_FOLDER / "ray.log"):
-        if not ray.is_initialized():
-            ray.init(
-                address="local",
-                num_cpus=max(1, os.cpu_count() or 1),
-                include_dashboard=False,
-                log_to_driver=False,
-                configure_logging=False,
-            )
+        start_local_ray()
         run = GridRun(grid, anchor_sets)
     resume_from = latest_checkpoint(run_dir)
     if resume_from is not None:

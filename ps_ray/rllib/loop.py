@@ -40,6 +40,22 @@ def make_env(spec: TrainSpec):
     return make(**spec.env_config)
 
 
+def start_local_ray() -> None:
+    """A local Ray for a run in this process (``ps-ray train``, ``ps-ray grid``), unless one runs."""
+    import os
+
+    import ray
+
+    if not ray.is_initialized():
+        ray.init(
+            address="local",
+            num_cpus=max(1, os.cpu_count() or 1),
+            include_dashboard=False,
+            log_to_driver=False,
+            configure_logging=False,
+        )
+
+
 def prepare_anchors(spec: TrainSpec, run_dir: Path, given=None):
     """The anchor set of a PS run: the run folder's own (a resume), else the one its inputs give
     (:func:`read_inputs`: the init policy's or the anchors file's), else k-means over

@@ -295,6 +295,11 @@ class ModularSAC(SAC):
         directory.mkdir(parents=True, exist_ok=True)
         tensors = self.learner_group.foreach_learner(lambda learner: learner.training_state())
         save_file(tensors.result_or_errors[0].get(), directory / LEARNER_FILE)
+        self.save_replay(directory)
+        state = {"counters": self.counters, "iteration": self.iteration}
+        (directory / STATE_FILE).write_text(json.dumps(state))
+
+    def save_replay(self, directory: Path) -> None:
         if self.replay_store is None:
             self.replay.save(directory / REPLAY_FILE)
         else:  # only the segments the last checkpoint does not hold yet; then what neither names goes
@@ -302,8 +307,6 @@ class ModularSAC(SAC):
             replay_segments.save_manifest(manifest, directory)
             replay_segments.prune(self.replay_store, self._replay_manifest, manifest)
             self._replay_manifest = manifest
-        state = {"counters": self.counters, "iteration": self.iteration}
-        (directory / STATE_FILE).write_text(json.dumps(state))
 
     def load_checkpoint(self, checkpoint_dir: str) -> None:
         """Restore from a checkpoint folder that :func:`ps_ray.store.checkpoint.verify` accepted."""
@@ -313,12 +316,15 @@ class ModularSAC(SAC):
         self.env_runner_group.sync_weights(
             from_worker_or_learner_group=self.learner_group, inference_only=True
         )
+        self.load_replay(directory)
+        state = json.loads((directory / STATE_FILE).read_text())
+        self.counters = {k: int(state["counters"][k]) for k in self.counters}
+        set_training_iteration(self, int(state["iteration"]))
+
+    def load_replay(self, directory: Path) -> None:
         if (directory / replay_segments.MANIFEST_FILE).is_file():
             if self.replay_store is None:
                 raise UserError(f"{directory}: its replay buffer is in segment files; give their store")
             self._replay_manifest = replay_segments.load(self.replay, directory, self.replay_store)
         else:  # a checkpoint that holds the whole buffer (no store, or an earlier ps_ray)
             self.replay.load(directory / REPLAY_FILE)
-        state = json.loads((directory / STATE_FILE).read_text())
-        self.counters = {k: int(state["counters"][k]) for k in self.counters}
-        set_training_iteration(self, int(state["iteration"]))

@@ -15,12 +15,11 @@ from __future__ import annotations
 
 import csv
 import json
-import os
 from pathlib import Path
 from typing import Any
 
 from ps_ray.errors import UserError
-from ps_ray.rllib.loop import TrainingRun, format_figure, prepare_anchors, read_inputs
+from ps_ray.rllib.loop import TrainingRun, format_figure, prepare_anchors, read_inputs, start_local_ray
 from ps_ray.specs.train import TrainSpec, require_same
 from ps_ray.store.atomic import write_text
 from ps_ray.store.layout import LOG_FOLDER
@@ -66,18 +65,9 @@ def _check_run_dir(spec: TrainSpec, run_dir: Path) -> None:
 
 
 def _train(spec: TrainSpec, run_dir: Path, given, progress: bool, compile: bool) -> dict[str, Any]:
-    import ray
-
     anchor_set = prepare_anchors(spec, run_dir, given) if spec.resolved.uses_anchors else None
     with others_to(run_dir / LOG_FOLDER / "ray.log"):  # Ray's and RLlib's start-up messages
-        if not ray.is_initialized():
-            ray.init(
-                address="local",
-                num_cpus=max(1, os.cpu_count() or 1),
-                include_dashboard=False,
-                log_to_driver=False,
-                configure_logging=False,
-            )
+        start_local_ray()
         run = TrainingRun(spec, anchor_set, compile=compile, replay_store=run_dir / REPLAY_FOLDER)  # loads
     _check_run_dir(spec, run_dir)  # --init-policy: a bad one fails before spec.json
     resume_from = latest_checkpoint(run_dir)

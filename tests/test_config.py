@@ -134,6 +134,12 @@ seeds: [1]
             "grid: the held-out cells ['panda/reach'] leave robot 'panda' with no trained cell",
         ),
         (
+            GOOD.replace("[panda]", "[panda, panda_far]").replace("[reach]", "[reach_red, reach_blue]")
+            + "stages: [grid, zero_shot]\ngrid: {held_out: [panda_far/reach_blue]}\n",
+            "grid: anchors.policy 'plain' rolls out the plain sources the train stage trains; add "
+            "train to stages, or set anchors.policy: random or anchors.file",
+        ),
+        (
             GOOD + "grid: {methods: [ablation]}\n",
             "GridSettings: method 'ablation' is not trained by this sweep",
         ),

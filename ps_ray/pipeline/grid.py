@@ -9,7 +9,7 @@ from __future__ import annotations
 from typing import Any
 
 from ps_ray.pipeline.stage import connect, require_same_sweep
-from ps_ray.pipeline.sweep import anchor_file, report_ticks, run_tune
+from ps_ray.pipeline.sweep import anchor_file, prepare_sweep_anchors, report_ticks, run_tune
 from ps_ray.specs.grid import GridSpec
 from ps_ray.specs.sweep import SweepSpec
 from ps_ray.store.layout import SweepLayout, sweep_dir
@@ -35,6 +35,9 @@ def run_grids(spec: SweepSpec, *, resume: bool = False, progress: bool = True):
 
     require_same_sweep(spec)
     register()
+    # a sweep that co-trains without training alone makes its anchor sets here (policy random or
+    # a file; policy plain needs the train stage, as the spec says); made ones are kept
+    prepare_sweep_anchors(spec)
     configs = [
         {
             "grid": grid.to_dict(),

@@ -195,4 +195,11 @@ class GridSettings:
                             out.append(GridSpec.of(by_key[(method, seed, dim)], robots, tasks, [cell]))
                         except SpecError as e:
                             raise SpecError(f"grid: {e}") from None
+        anchors = sweep.anchors
+        if "train" not in sweep.stages and anchors.policy == "plain" and not anchors.file:
+            if any(g.base.resolved.uses_anchors for g in out):
+                raise SpecError(
+                    "grid: anchors.policy 'plain' rolls out the plain sources the train stage "
+                    "trains; add train to stages, or set anchors.policy: random or anchors.file"
+                )
         return out

@@ -40,6 +40,7 @@ FIGURES = {
     "heatmap_seeds_i16",
     "heatmap_robots_i16",
     "zero_shot",
+    "transfer_controls",
     "transfer_gain",
     "few_shot_curves",
 } | {f"interface_{c}_i16_{m}" for c in ("seeds", "robots") for m in ("ps", "ablation")}

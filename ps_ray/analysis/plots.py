@@ -169,8 +169,8 @@ def zero_shot_bars(table: pd.DataFrame, path: Path) -> Path:
 
 def transfer_gain_bars(table: pd.DataFrame, path: Path) -> Path:
     """The report's main figure: per stitched combination (rows) and method (bars), the transfer
-    gain, stitched success minus the better unstitched source on the same episodes (mean over
-    seeds, error bar: the seeds' range); one panel per pairing (same seed, across seeds)."""
+    gain, stitched success minus the best of its unstitched sources and chance on the same episodes
+    (mean over seeds, error bar: the seeds' range); one panel per pairing (same seed, across seeds)."""
     from ps_ray.analysis.tables import method_order
 
     pairings = list(dict.fromkeys(table["pairing"]))
@@ -199,9 +199,43 @@ def transfer_gain_bars(table: pd.DataFrame, path: Path) -> Path:
         ax.axvline(0.0, color="black", linewidth=0.8)
         ax.set_yticks(np.arange(len(labels)) + 0.4 - height / 2, [readable(x) for x in labels], fontsize=7)
         ax.set_xlim(-1.05, 1.05)
-        ax.set_xlabel("transfer gain: stitched - best unstitched source")
+        ax.set_xlabel("transfer gain: stitched - best of (unstitched sources, chance)")
         ax.set_title(pairing.replace("_", " "), fontsize=9)
         ax.invert_yaxis()
     axes[0][0].legend(fontsize=8)
+    fig.tight_layout()
+    return _save(fig, path)
+
+
+# the bars of :func:`controls_bars`, in the order shown: (column of transfer_numbers, legend label)
+CONTROL_BARS = (
+    ("success_mean", "stitched"),
+    ("robot_source_success", "robot source"),
+    ("task_source_success", "task source"),
+    ("chance_success", "chance"),
+    ("oracle_success", "oracle"),
+)
+
+
+def controls_bars(numbers: pd.DataFrame, path: Path) -> Path:
+    """Stitched success beside its controls, one group per (method, pairing) row of
+    :func:`ps_ray.analysis.transfer.transfer_numbers`: stitched, robot source, task source, chance
+    and oracle, each a mean over seeds with its 95% t interval; a control that was not run is
+    left out of its group."""
+    rows = list(numbers.itertuples(index=False))
+    fig, ax = plt.subplots(figsize=(8, 1.2 * len(rows) + 1.8))
+    height = 0.8 / len(CONTROL_BARS)
+    for index, (column, label) in enumerate(CONTROL_BARS):
+        mean = np.array([getattr(r, column) for r in rows], float)
+        lo = np.array([getattr(r, f"{column}_lo") for r in rows], float)
+        hi = np.array([getattr(r, f"{column}_hi") for r in rows], float)
+        errors = np.nan_to_num(np.stack([mean - lo, hi - mean]).clip(min=0))
+        ax.barh(np.arange(len(rows)) + index * height, mean, height, xerr=errors, label=label, capsize=2)
+    names = [readable(f"{r.method}, {r.pairing.replace('_', ' ')}") for r in rows]
+    ax.set_yticks(np.arange(len(rows)) + 0.4 - height / 2, names, fontsize=8)
+    ax.set_xlim(0, 1.05)
+    ax.set_xlabel("zero-shot success on the stitched pairs' episodes (mean over seeds, 95% t interval)")
+    ax.invert_yaxis()
+    ax.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.1), ncol=len(CONTROL_BARS))
     fig.tight_layout()
     return _save(fig, path)

@@ -46,6 +46,10 @@ def files(tmp_path_factory):
         "name: typed\nmethods: [ablation]\nrobots: [panda]\ntasks: [{name: reach_red, min_separation: x}]\n"
         f"seeds: [1]\nstorage: {root / 'sweeps'}\n"
     )
+    (root / "no_train.yaml").write_text(
+        "name: no_train\nmethods: [ablation]\nrobots: [panda, panda_far]\ntasks: [reach_red, reach_blue]\n"
+        f"seeds: [1]\nstages: [grid, zero_shot]\nstorage: {root / 'sweeps'}\n"
+    )
     (root / "sweep.yaml").write_text(
         f"name: never\nmethods: [ablation]\nrobots: [panda]\ntasks: [reach]\nseeds: [1]\n"
         f"storage: {root / 'sweeps'}\n"
@@ -99,6 +103,7 @@ CASES = [  # (arguments, with {f} the input folder and {out} a path that must no
     ("train --run-dir {f}/list_run", "list_run/spec.json: not a ps_ray run spec (a JSON list)"),
     ("report {f}/sweep.yaml", "sweeps/never: no trained sweep there; train it first"),
     ("sweep {f}/no_anchors.yaml", "anchors.file: /nonexistent/states.npz: no such file"),
+    ("sweep {f}/no_train.yaml", "has no train stage (stages: grid, zero_shot); ps-ray run runs them"),
     ("run {f}/bad_start.yaml", "garbage.safetensors: not a ps_ray policy file"),
     ("render --robot pandaa --png {out}/x.png", "unknown robot 'pandaa'; valid robots: panda, panda_l3"),
     ("render --png {f}/reach.safetensors/x.png", "reach.safetensors is a file, not a folder"),

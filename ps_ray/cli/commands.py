@@ -85,6 +85,9 @@ def cmd_sweep(args: argparse.Namespace) -> int:
         return 0
     from ps_ray.pipeline.sweep import run_sweep, sweep_dir
 
+    if "train" not in spec.stages:  # it would train sources that none of its stages reads
+        stages = ", ".join(spec.stages)
+        raise UserError(f"sweep {spec.name!r} has no train stage (stages: {stages}); ps-ray run runs them")
     with _sweep_lock(spec):
         results = run_sweep(spec, resume=args.resume)
     errors = [r for r in results if r.error]

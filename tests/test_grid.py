@@ -219,3 +219,49 @@ def test_what_co_training_adds_is_paired_with_the_same_pairs_trained_alone():
     assert len(numbers) == 1 and numbers.iloc[0]["pairs"] == 3
     assert numbers.iloc[0]["co-trained minus alone (paired over seeds)"].startswith("+0.70 [")
     assert numbers.iloc[0]["co-trained minus alone (paired over seeds)"].endswith("3/3 seeds up")
+
+
+def test_a_ps_grid_stage_without_a_train_stage_makes_and_uses_its_anchor_set(tmp_path):
+    """`ps-ray run` of a sweep that co-trains `ps` grids and trains nothing alone: the grid stage
+    makes the sweep's anchor set itself, and every exported cell's relative projection reads it."""
+    import yaml
+
+    from ps_ray.data.anchor_file import load_anchor_set
+    from ps_ray.specs.sweep import load_sweep, task_input_dim
+    from ps_ray.stitching.zoo import ModuleZoo
+    from ps_ray.store.layout import SweepLayout, sweep_dir
+
+    train = {
+        k: v for k, v in SMALL.items() if k not in ("method", "seed", "interface_dim", "anchor_episodes")
+    }
+    path = tmp_path / "ps_grid.yaml"
+    path.write_text(
+        yaml.safe_dump(
+            {
+                "name": "ps_grid",
+                "stages": ["grid"],
+                "methods": ["ps"],
+                "robots": ROBOTS,
+                "tasks": TASKS,
+                "seeds": [3],
+                "interface_dims": [8],
+                "train": {**train, "env_steps": 200},
+                "anchors": {"policy": "random", "episodes": 16},
+                "grid": {"held_out": [HELD_OUT]},
+                "storage": str(tmp_path / "sweeps"),
+            }
+        )
+    )
+    done = subprocess.run(
+        [sys.executable, "-m", "ps_ray.cli", "run", str(path)], capture_output=True, text=True
+    )
+    assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
+    spec = load_sweep(path)
+    anchor_set = load_anchor_set(SweepLayout(sweep_dir(spec)).anchor_set(task_input_dim(TASKS[0]), 8))
+    cells = ModuleZoo.from_sweep(sweep_dir(spec)).select(grid=HELD_OUT)
+    assert sorted(f"{e.key.robot}/{e.key.task}" for e in cells) == [
+        "panda/reach_blue",
+        "panda/reach_red",
+        "panda_far/reach_red",
+    ]
+    assert {e.signature.anchor_hash for e in cells} == {anchor_set.hash}

@@ -152,7 +152,8 @@ class ModuleZoo:
 
     @classmethod
     def from_sweep(cls, *sweep_dirs: str | Path, strict: bool = True) -> ModuleZoo:
-        """Index ``tune/`` and ``tune_plain/`` of each sweep directory (``<storage>/<name>``)."""
+        """Index ``tune/``, ``tune_plain/`` and ``tune_grid/`` of each sweep directory
+        (``<storage>/<name>``); a sweep with none of them trained is refused in one line."""
         entries, problems = [], []
         for sweep in map(Path, sweep_dirs):
             found = []
@@ -163,7 +164,11 @@ class ModuleZoo:
                 if unusable and strict:
                     raise UserError(unusable[0])
                 problems += unusable
-            if not found:
+            grids, unusable = _grid_cells(layout.tune_grid)
+            if unusable and strict:
+                raise UserError(unusable[0])
+            problems += unusable
+            if not found and not grids:  # a sweep may co-train grids and train nothing alone
                 raise UserError(
                     f"{sweep}: no trained policies (expected tune/<trial>/checkpoint_*/{POLICY_FILE})"
                 )
@@ -174,11 +179,7 @@ class ModuleZoo:
                     if strict:
                         raise
                     problems.append(str(e))
-            grids, unusable = _grid_cells(layout.tune_grid)
-            if unusable and strict:
-                raise UserError(unusable[0])
             entries += grids
-            problems += unusable
         return cls(entries, problems)
 
     # -- lookup ---------------------------------------------------------------------------------

@@ -372,8 +372,10 @@ def test_report_opens_in_headless_chromium(smoke, rebuilt, visible_text):
     pixels = matplotlib.image.imread(shot)[..., :3]
     assert pixels.shape[1] == 1280
     ink = (pixels < 0.9).any(-1).mean()
-    colour = (pixels.max(-1) - pixels.min(-1) > 0.3).mean()  # plots are coloured, text is not
-    assert ink > 0.05 and colour > 0.01, (ink, colour)
+    # plots are coloured, text is not: at the smoke's near-zero successes most bars are short, so
+    # the bar is about 25k coloured pixels of the 1280 x 4000 frame (the text alone has none)
+    colour = (pixels.max(-1) - pixels.min(-1) > 0.3).mean()
+    assert ink > 0.05 and colour > 0.005, (ink, colour)
     top = pixels[:400]
     assert (top < 0.5).any(-1).mean() > 0.002  # the title and overview table are drawn
     assert np.isfinite(pixels).all()

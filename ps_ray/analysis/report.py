@@ -316,8 +316,8 @@ def _transfer(report: Report, table: pd.DataFrame) -> None:
         transfer.transfer_text(numbers),
         numbers=numbers,
     )
-    report.figure(section, "transfer_controls", lambda p: plots.controls_bars(numbers, p))
     report.figure(section, "transfer_gain", lambda p: plots.transfer_gain_bars(table, p))
+    report.figure(section, "transfer_controls", lambda p: plots.controls_bars(numbers, p))
     co_trained = transfer.co_training_numbers(table)
     if len(co_trained):
         title = (

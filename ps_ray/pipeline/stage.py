@@ -44,21 +44,19 @@ def connect(spec: SweepSpec) -> tuple[str, str]:
     """Join (or start) Ray and open the sweep's MLflow experiment: (tracking URI, experiment id).
 
     The driver creates the store and experiment once, before any trial could race for it."""
-    import ray
-
+    from ps_ray.rllib.ray_start import init_ray
     from ps_ray.store.layout import LOG_FOLDER
     from ps_ray.store.terminal import others_to
     from ps_ray.store.tracking import default_tracking_uri, ensure_experiment
 
     where = layout(spec)
     with others_to(where.root / LOG_FOLDER / "driver.log"):  # Ray's and MLflow's start-up messages
-        if not ray.is_initialized():
-            ray.init(
-                address=os.environ.get("RAY_ADDRESS", "local"),
-                include_dashboard=False,
-                log_to_driver=False,
-                configure_logging=False,
-            )
+        init_ray(
+            address=os.environ.get("RAY_ADDRESS", "local"),
+            include_dashboard=False,
+            log_to_driver=False,
+            configure_logging=False,
+        )
         tracking_uri = spec.tracking_uri or default_tracking_uri(where.root)
         return tracking_uri, ensure_experiment(tracking_uri, spec.name, where.artifacts)
 

@@ -44,16 +44,15 @@ def start_local_ray() -> None:
     """A local Ray for a run in this process (``ps-ray train``, ``ps-ray grid``), unless one runs."""
     import os
 
-    import ray
+    from ps_ray.rllib.ray_start import init_ray
 
-    if not ray.is_initialized():
-        ray.init(
-            address="local",
-            num_cpus=max(1, os.cpu_count() or 1),
-            include_dashboard=False,
-            log_to_driver=False,
-            configure_logging=False,
-        )
+    init_ray(
+        address="local",
+        num_cpus=max(1, os.cpu_count() or 1),
+        include_dashboard=False,
+        log_to_driver=False,
+        configure_logging=False,
+    )
 
 
 def prepare_anchors(spec: TrainSpec, run_dir: Path, given=None):

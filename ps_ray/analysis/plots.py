@@ -236,6 +236,6 @@ def controls_bars(numbers: pd.DataFrame, path: Path) -> Path:
     ax.set_xlim(0, 1.05)
     ax.set_xlabel("zero-shot success on the stitched pairs' episodes (mean over seeds, 95% t interval)")
     ax.invert_yaxis()
-    ax.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.1), ncol=len(CONTROL_BARS))
+    ax.legend(fontsize=8, loc="lower center", bbox_to_anchor=(0.5, 1.0), ncol=len(CONTROL_BARS))
     fig.tight_layout()
     return _save(fig, path)

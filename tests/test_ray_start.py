@@ -9,7 +9,17 @@ from ps_ray.rllib.ray_start import RAY_START_TRIES, init_ray
 TIMED_OUT = "The current node timed out during startup. This could happen because some of the raylet failed"
 
 
-def test_a_start_up_timeout_is_tried_again_and_other_errors_are_not(monkeypatch, capsys):
+@pytest.fixture
+def no_ray_here(monkeypatch):
+    """This process as if no Ray ran in it (another test of the worker may have started one, which
+    must survive): ``ray.shutdown`` calls are counted, not made."""
+    shutdowns = []
+    monkeypatch.setattr(ray, "is_initialized", lambda: False)
+    monkeypatch.setattr(ray, "shutdown", lambda: shutdowns.append(True))
+    return shutdowns
+
+
+def test_a_start_up_timeout_is_tried_again_and_other_errors_are_not(monkeypatch, capsys, no_ray_here):
     calls = []
 
     def init(**kwargs):
@@ -20,10 +30,11 @@ def test_a_start_up_timeout_is_tried_again_and_other_errors_are_not(monkeypatch,
     with pytest.raises(RuntimeError, match="bad address"):
         init_ray(address="local")
     assert calls == [{"address": "local"}] * 2  # the same request again, then the other error as it is
+    assert len(no_ray_here) == 1  # the timed-out start was cleaned up before the second
     assert "timed out during startup (attempt 1); starting it again" in capsys.readouterr().out
 
 
-def test_a_node_that_keeps_timing_out_fails_after_the_last_try(monkeypatch):
+def test_a_node_that_keeps_timing_out_fails_after_the_last_try(monkeypatch, no_ray_here):
     calls = []
 
     def init(**kwargs):

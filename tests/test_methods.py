@@ -116,12 +116,19 @@ def test_an_old_policy_file_loads_stitches_and_acts_as_it_did(row, expected):
         torch.testing.assert_close(mean, expected[f"{row}_{seed}.mean"], rtol=1e-5, atol=1e-6)
         torch.testing.assert_close(log_std, expected[f"{row}_{seed}.log_std"], rtol=1e-5, atol=1e-6)
         torch.testing.assert_close(q, expected[f"{row}_{seed}.q"], rtol=1e-5, atol=1e-6)
-    stitched, _ = stitch_policies(OLD / f"{row}_0.safetensors", OLD / f"{row}_1.safetensors")
+    _assert_stitch_acts_as_it_did(OLD, row, expected)
+
+
+def _assert_stitch_acts_as_it_did(folder: Path, name: str, expected: dict) -> None:
+    """The stitch of golden files ``<name>_0`` (task module) and ``<name>_1`` (robot module)
+    computes the stored actor mean and critic value on the stored inputs."""
+    task_in, robot_in, action = expected["task_in"], expected["robot_in"], expected["action"]
+    stitched, _ = stitch_policies(folder / f"{name}_0.safetensors", folder / f"{name}_1.safetensors")
     with torch.no_grad():
         mean = stitched.eval().actor(task_in, robot_in)[0]
         q = stitched.critic(task_in, robot_in, action)
-    torch.testing.assert_close(mean, expected[f"{row}_stitched.mean"], rtol=1e-5, atol=1e-6)
-    torch.testing.assert_close(q, expected[f"{row}_stitched.q"], rtol=1e-5, atol=1e-6)
+    torch.testing.assert_close(mean, expected[f"{name}_stitched.mean"], rtol=1e-5, atol=1e-6)
+    torch.testing.assert_close(q, expected[f"{name}_stitched.q"], rtol=1e-5, atol=1e-6)
 
 
 V2 = Path(__file__).parent / "data" / "policies_v2"  # settings stored before hindsight_norm existed
@@ -132,19 +139,14 @@ def test_a_file_written_before_a_setting_existed_loads_stitches_and_acts_as_it_d
     """Its stored settings lack the newer setting: read at its default, as its nets are built, so
     that the stitch of two such files is refused by nothing and computes what it did."""
     old = load_file(str(V2 / "expected.safetensors"))
-    task_in, robot_in, action = old["task_in"], old["robot_in"], old["action"]
+    task_in, robot_in = old["task_in"], old["robot_in"]
     for seed in (0, 1):
         nets, signature = load_policy(V2 / f"{method}_{seed}.safetensors")
         assert signature.spec == method_spec(method) and '"hindsight_norm": true' in signature.settings
         with torch.no_grad():
             mean = nets.eval().actor(task_in, robot_in)[0]
         torch.testing.assert_close(mean, old[f"{method}_{seed}.mean"], rtol=1e-5, atol=1e-6)
-    stitched, _ = stitch_policies(V2 / f"{method}_0.safetensors", V2 / f"{method}_1.safetensors")
-    with torch.no_grad():
-        mean = stitched.eval().actor(task_in, robot_in)[0]
-        q = stitched.critic(task_in, robot_in, action)
-    torch.testing.assert_close(mean, old[f"{method}_stitched.mean"], rtol=1e-5, atol=1e-6)
-    torch.testing.assert_close(q, old[f"{method}_stitched.q"], rtol=1e-5, atol=1e-6)
+    _assert_stitch_acts_as_it_did(V2, method, old)
 
 
 def test_a_policy_file_keeps_its_settings_whatever_the_menu_becomes(tmp_path, monkeypatch, expected):

@@ -67,10 +67,10 @@ class BareGrid:
 
 
 def main(argv: list[str] | None = None) -> None:
-    import ray
     from ray.rllib.core import DEFAULT_MODULE_ID
 
     from ps_ray.rllib.algo import algo_config, grid_algo_config
+    from ps_ray.rllib.ray_start import init_ray
 
     parser = Parser(prog="ps-ray bench grid", description=__doc__)
     parser.add_argument("--method", default="ablation")
@@ -88,7 +88,7 @@ def main(argv: list[str] | None = None) -> None:
     if grid.base.resolved.uses_anchors:
         parser.error("the benchmark builds no anchors: use a method without them (ablation, devin, plain)")
     torch.set_num_threads(1)
-    ray.init(num_cpus=1, include_dashboard=False, log_to_driver=False, configure_logging=False)
+    init_ray(num_cpus=1)
     grid_algo = grid_algo_config(grid, [None] * len(grid.tasks)).build_algo()
     single = algo_config(grid.cell_spec(grid.cells[0])).build_algo()
     for algo in (grid_algo, single):

@@ -119,15 +119,11 @@ def run(spec: TrainSpec, seconds: float = 60.0, rounds: int = 2, compile: bool =
     """Alternate RLlib and bare measurements (after a warm-up that fills the buffer); with
     ``compile``, also RLlib with the learner's forward pass compiled (its compilation is in the
     warm-up, not in the figures)."""
-    import ray
-
     from ps_ray.rllib.algo import algo_config
+    from ps_ray.rllib.ray_start import init_ray
 
     torch.set_num_threads(1)
-    if not ray.is_initialized():
-        ray.init(
-            address="local", num_cpus=1, include_dashboard=False, log_to_driver=False, configure_logging=False
-        )
+    init_ray(num_cpus=1)
     algos = {"rllib": algo_config(spec).build_algo()}
     if compile:
         algos["rllib compiled"] = algo_config(spec, compile=True).build_algo()

@@ -51,12 +51,7 @@ def connect(spec: SweepSpec) -> tuple[str, str]:
 
     where = layout(spec)
     with others_to(where.root / LOG_FOLDER / "driver.log"):  # Ray's and MLflow's start-up messages
-        init_ray(
-            address=os.environ.get("RAY_ADDRESS", "local"),
-            include_dashboard=False,
-            log_to_driver=False,
-            configure_logging=False,
-        )
+        init_ray(os.environ.get("RAY_ADDRESS", "local"))
         tracking_uri = spec.tracking_uri or default_tracking_uri(where.root)
         return tracking_uri, ensure_experiment(tracking_uri, spec.name, where.artifacts)
 

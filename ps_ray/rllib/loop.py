@@ -46,13 +46,7 @@ def start_local_ray() -> None:
 
     from ps_ray.rllib.ray_start import init_ray
 
-    init_ray(
-        address="local",
-        num_cpus=max(1, os.cpu_count() or 1),
-        include_dashboard=False,
-        log_to_driver=False,
-        configure_logging=False,
-    )
+    init_ray(num_cpus=max(1, os.cpu_count() or 1))
 
 
 def prepare_anchors(spec: TrainSpec, run_dir: Path, given=None):

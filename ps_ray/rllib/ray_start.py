@@ -8,16 +8,18 @@ RAY_START_TIMEOUT = "timed out during startup"
 RAY_START_TRIES = 3
 
 
-def init_ray(**kwargs) -> None:
-    """``ray.init(**kwargs)`` unless Ray runs in this process, started again (up to
-    RAY_START_TRIES times in all) when the local node timed out during its start-up."""
+def init_ray(address: str = "local", **kwargs) -> None:
+    """``ray.init(address, **kwargs)`` unless Ray runs in this process, quiet (no dashboard, no
+    worker logs on the terminal, Ray's logging left alone), started again (up to RAY_START_TRIES
+    times in all) when the local node timed out during its start-up."""
     import ray
 
+    quiet = dict(include_dashboard=False, log_to_driver=False, configure_logging=False)
     for attempt in range(1, RAY_START_TRIES + 1):
         if ray.is_initialized():
             return
         try:
-            ray.init(**kwargs)
+            ray.init(address=address, **{**quiet, **kwargs})
             return
         except Exception as e:
             if RAY_START_TIMEOUT not in str(e) or attempt == RAY_START_TRIES:

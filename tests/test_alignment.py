@@ -147,6 +147,71 @@ def test_translation_needs_fit_states_and_refuses_restitching():
         stitch_policies((stitched, tsig), (nets, sig))
 
 
+def _reading_permuted(nets, perm: np.ndarray):
+    """A copy whose task modules read an input x as the original reads x[perm] (its first layer's
+    columns and its normaliser's statistics permuted): a task that means by one marker what the
+    original means by the other."""
+    other, inv = copy.deepcopy(nets), torch.as_tensor(np.argsort(perm))
+    with torch.no_grad():
+        for name in NET_NAMES:
+            task = getattr(other, name).task
+            task.norm.mean.copy_(task.norm.mean[inv])
+            task.norm.var.copy_(task.norm.var[inv])
+            task.body[0].weight.copy_(task.body[0].weight[:, inv])
+    return other
+
+
+@pytest.mark.parametrize("method", ["ps", "ps+center=mean+norm=layer"])
+def test_a_stitch_reanchored_on_matched_anchors_reads_the_scene_as_its_robot_module_does(method, tmp_path):
+    """Task module X reads a scene as the robot module's own task module reads the scene with two
+    markers trading places. Re-anchored on the anchors with those markers traded (what each anchor
+    means to X), the stitch acts on a scene exactly as the robot source acts on the traded scene;
+    left on the shared anchors, it does not. The matched anchors travel in the policy file."""
+    nets, sig = _nets(method)
+    perm = np.r_[3:6, 0:3, 6:15]  # the first two 3-D blocks trade places
+    x_reader = _reading_permuted(nets, perm)
+    anchors = nets.actor.anchors.numpy()
+    task, robot = 2 * torch.randn(32, 15) + 1, torch.randn(32, 8)
+    with torch.no_grad():
+        want = nets.actor(task[:, perm], robot)[0]
+        same_anchors, _ = stitch_policies((x_reader, sig), (nets, sig))
+        matched, msig = stitch_policies(
+            (x_reader, sig), (nets, sig), translation="anchors", fit_states=anchors[:, np.argsort(perm)]
+        )
+        assert (same_anchors.eval().actor(task, robot)[0] - want).abs().max() > 1e-2
+        torch.testing.assert_close(matched.eval().actor(task, robot)[0], want, atol=1e-5, rtol=1e-5)
+        action = torch.rand(32, 7) * 2 - 1
+        torch.testing.assert_close(
+            matched.critic(task, robot, action),
+            nets.critic(task[:, perm], robot, action),
+            atol=1e-4,
+            rtol=1e-4,
+        )
+    assert msig.translation == "anchors" and msig.anchor_hash != sig.anchor_hash
+    loaded, loaded_sig = load_policy(save_policy(tmp_path / "m.safetensors", matched, msig))
+    assert loaded_sig == msig
+    with torch.no_grad():
+        torch.testing.assert_close(loaded.eval().actor(task, robot)[0], want, atol=1e-5, rtol=1e-5)
+
+
+def test_reanchoring_on_the_same_anchors_is_the_plain_stitch_and_bad_anchors_are_refused():
+    a, sig = _nets("ps", seed=0)
+    b, _ = _nets("ps", seed=1)
+    anchors = a.actor.anchors.numpy()
+    task, robot = torch.randn(16, 15), torch.randn(16, 8)
+    with torch.no_grad():
+        plain, _ = stitch_policies((a, sig), (b, sig))
+        same, _ = stitch_policies((a, sig), (b, sig), translation="anchors", fit_states=anchors)
+        torch.testing.assert_close(same.eval().actor(task, robot)[0], plain.eval().actor(task, robot)[0])
+    with pytest.raises(
+        ValueError, match=r"matched anchors of shape \(7, 15\) cannot replace anchors of shape \(8, 15\)"
+    ):
+        stitch_policies((a, sig), (b, sig), translation="anchors", fit_states=anchors[:7])
+    ablation, asig = _nets("ablation")
+    with pytest.raises(ValueError, match="cannot re-anchor a ablation stitch: it has no relative projection"):
+        stitch_policies((ablation, asig), (ablation, asig), translation="anchors", fit_states=anchors)
+
+
 # -- retrieval and collapse -----------------------------------------------------------------------
 def _relative(z: np.ndarray, anchor_rows: np.ndarray) -> np.ndarray:
     """A relative space of absolute latents z, anchors = the given rows of z."""

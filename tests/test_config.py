@@ -208,6 +208,17 @@ seeds: [1]
             "orthogonal@shuffled, orthogonal@swapped, affine@outcome",
         ),
         (
+            GOOD + "zero_shot: {translate: {ps: [anchors]}}\n",
+            "zero_shot.translate.ps: unknown translation 'anchors'; valid: orthogonal, affine, "
+            "orthogonal@outcome",
+        ),
+        (
+            GOOD.replace("[ps]", "[ps, ablation]")
+            + "zero_shot: {translate: {ablation: [anchors@outcome]}}\n",
+            "zero_shot.translate.ablation: anchors@outcome re-anchors a relative projection, and ablation "
+            "has none; methods with one: ps, ps_distilled",
+        ),
+        (
             GOOD + "zero_shot: {translate: {plain: [affine]}}\n",
             "method 'plain' is not trained by this sweep; valid: ps",
         ),

@@ -6,10 +6,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from ps_ray.envs import make
 from ps_ray.errors import UserError
 from ps_ray.specs.names import EnvPart
 from ps_ray.stitching.evaluate import evaluate
-from ps_ray.stitching.outcomes import colour_swapped, matched_pairs, outcomes
+from ps_ray.stitching.outcomes import anchor_ends, colour_swapped, match_anchors, matched_pairs, outcomes
 
 RED, BLUE = slice(0, 3), slice(3, 6)  # the marker task state: red's position, then blue's
 
@@ -60,3 +61,55 @@ def test_the_swapped_scene_trades_the_two_tasks_markers():
     np.testing.assert_array_equal(swapped[:, 6:], states[:, 6:])  # the goal offset stays
     with pytest.raises(UserError, match="two tasks of the marker family, got reach and reach_blue"):
         colour_swapped(states, EnvPart("reach"), EnvPart("reach_blue"))
+
+
+def test_an_env_reset_to_a_task_input_shows_that_scene():
+    env = make("panda", "reach_blue")
+    try:
+        scene = np.array([0.05, -0.06, 0.12, -0.07, 0.08, 0.18, 0.01, 0.0, -0.02], np.float32)
+        obs, _ = env.reset(seed=3, options={"task_input": scene})
+        np.testing.assert_allclose(obs["task_state"], scene[:6], atol=1e-7)
+        np.testing.assert_allclose(obs["desired_goal"], scene[6:], atol=1e-7)
+        np.testing.assert_allclose(obs["achieved_goal"], env.ee_position - scene[BLUE], atol=1e-6)
+        drawn, _ = env.reset(seed=3)  # without the option, the seed's own scene
+        assert np.abs(drawn["task_state"] - scene[:6]).max() > 0.01
+        with pytest.raises(
+            UserError, match=r"unknown reset options \['goal'\]; valid reset options: task_input"
+        ):
+            env.reset(seed=3, options={"goal": scene})
+        with pytest.raises(UserError, match="has 9 numbers, got shape"):
+            env.reset(seed=3, options={"task_input": scene[:6]})
+    finally:
+        env.close()
+    reach = make("panda", "reach")
+    try:
+        with pytest.raises(
+            UserError, match="a reach scene cannot be set from a task input; valid: the marker family"
+        ):
+            reach.reset(seed=0, options={"task_input": np.zeros(3)})
+    finally:
+        reach.close()
+
+
+def test_anchors_matched_by_outcome_mean_to_the_task_module_what_they_mean_to_the_robot_module():
+    """The robot module's anchors are reach_blue scenes; the robot source (a blue reacher on
+    panda_far) ends each where its blue marker is; the reach_red scene ending nearest takes its
+    place, so its red marker lies where the anchor's blue one does. Outcomes are where the arm
+    ended: a policy that goes nowhere ends every anchor at one point."""
+    anchors = np.array(
+        [
+            r["task_input"]
+            for r in evaluate(Reacher(), "panda", "reach_blue", episodes=12, repeats=1, seed=77)["records"]
+        ],
+        np.float32,
+    )
+    ends = anchor_ends(Reacher(), "panda_far", "reach_blue", anchors)
+    assert np.median(np.linalg.norm(ends - anchors[:, BLUE], axis=1)) < 0.05  # it reached them
+    red = outcomes(Reacher(), "panda", "reach_red", 80)
+    matched = match_anchors(red, ends)
+    assert matched.shape == anchors.shape
+    gap = np.linalg.norm(matched[:, RED] - anchors[:, BLUE], axis=1)
+    unmatched = np.linalg.norm(matched[::-1][:, RED] - anchors[:, BLUE], axis=1)
+    assert np.median(gap) < 0.05 and np.median(unmatched) > 2 * np.median(gap)
+    still = anchor_ends(lambda obs: np.zeros((len(obs["robot_state"]), 7)), "panda", "reach_blue", anchors)
+    np.testing.assert_allclose(still, still[:1].repeat(len(anchors), 0), atol=1e-6)

@@ -93,10 +93,11 @@ class RobotTaskEnv(gym.Env[Obs, np.ndarray]):
     # -- gymnasium API ------------------------------------------------------------------------
     def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[Obs, dict]:
         super().reset(seed=seed)
-        if options:
-            raise UserError(f"unknown reset options {sorted(options)}; valid reset options: none")
+        unknown = sorted(set(options or {}) - {"task_input"})
+        if unknown:
+            raise UserError(f"unknown reset options {unknown}; valid reset options: task_input")
         self.robot.reset()
-        self.task.reset(self.np_random)
+        self.task.reset(self.np_random, (options or {}).get("task_input"))
         self.sim.detect_collisions()
         self._steps = 0
         obs, distance = self._observe()

@@ -12,6 +12,7 @@ from ps_ray.data.anchors import anchor_hash
 from ps_ray.errors import UserError
 from ps_ray.nets.sac import NET_NAMES, SACNets, build_sac_nets
 from ps_ray.specs.methods import method_spec, spec_json
+from ps_ray.specs.names import LATENT_TRANSLATIONS
 from ps_ray.store.signature import Signature
 
 ANCHORS_KEY = "actor.task.relative.anchors"
@@ -21,9 +22,10 @@ def signature_of(
     nets: nn.Module, method: str, interface_dim: int, hidden: int, translation: str = ""
 ) -> Signature:
     dims = nets.actor.dims
-    if bool(translation) != (getattr(nets.actor, "translate", None) is not None):
+    latent = translation in LATENT_TRANSLATIONS  # "anchors" moves the anchors, adds no map
+    if latent != (getattr(nets.actor, "translate", None) is not None):
         raise ValueError(
-            f"nets {'lack' if translation else 'carry'} a latent translation, "
+            f"nets {'lack' if latent else 'carry'} a latent translation, "
             f"signature says {translation or 'none'!r}"
         )
     spec = nets.actor.spec
@@ -88,7 +90,7 @@ def build_nets(signature: Signature, anchors: torch.Tensor | None, source: str =
         )
     except ValueError as e:
         raise UserError(f"{source}: {e}") from None
-    if signature.translation:
+    if signature.translation in LATENT_TRANSLATIONS:  # "anchors" moves anchors, adds no map
         attach_translations(nets)
     return nets
 

@@ -20,14 +20,14 @@ import torch
 from torch import Tensor, nn
 
 from ps_ray.errors import UserError
-from ps_ray.specs.names import TRANSLATIONS
+from ps_ray.specs.names import LATENT_TRANSLATIONS
 
 SCALE_EPS = 1e-8
 
 
 def check_kind(kind: str) -> str:
-    if kind not in TRANSLATIONS:
-        raise UserError(f"unknown translation {kind!r}; expected one of {list(TRANSLATIONS)}")
+    if kind not in LATENT_TRANSLATIONS:
+        raise UserError(f"unknown translation {kind!r}; expected one of {list(LATENT_TRANSLATIONS)}")
     return kind
 
 

@@ -148,21 +148,26 @@ def evaluate_pair(
     ``outcome`` the scenes, reference points and cache folder of a translation fitted on matched
     pairs, ``scored`` the controls' evaluations so far (by file and target env), to reuse."""
     from ps_ray.stitching.evaluate import evaluate
-    from ps_ray.stitching.outcomes import fit_pairs
+    from ps_ray.stitching.outcomes import fit_pairs, matched_anchors
     from ps_ray.stitching.stitch import stitch_policies
 
     scored = {} if scored is None else scored
 
     kind, fit = split_translation(pair.translation) if pair.translation else (None, "")
-    if fit:  # matched pairs of states (ps_ray.stitching.outcomes)
+    sources = (
+        (pair.task_from_path, pair.task_from_robot, pair.task),
+        (pair.robot_from_path, pair.robot_from_robot, pair.robot_from_task),
+    )
+    if kind == "anchors":  # the robot module's anchors, matched in the task module's task
+        anchors = source(pair.robot_from_path)[0].actor.anchors
+        if anchors is None:
+            raise UserError(f"{pair.key}: anchors@{fit} needs a method with a relative projection")
+        states = matched_anchors(
+            fit, anchors.numpy(), *sources, outcome["scenes"], settings["seed"], outcome.get("cache")
+        )
+    elif fit:  # matched pairs of states (ps_ray.stitching.outcomes)
         states = fit_pairs(
-            fit,
-            (pair.task_from_path, pair.task_from_robot, pair.task),
-            (pair.robot_from_path, pair.robot_from_robot, pair.robot_from_task),
-            outcome["scenes"],
-            outcome["points"],
-            settings["seed"],
-            outcome.get("cache"),
+            fit, *sources, outcome["scenes"], outcome["points"], settings["seed"], outcome.get("cache")
         )
     else:
         states = fit_states(list(pair.fit_tasks), per_quadrant, settings["seed"]) if kind else None

@@ -13,8 +13,11 @@ from typing import Any
 from ps_ray.errors import UserError
 from ps_ray.specs.defaults import INTERFACE_DIM
 
-# The latent translations a stitch may fit (ps_ray.nets.translation), by name.
-TRANSLATIONS = ("orthogonal", "affine")
+# How a stitch aligns its interface, by name: a latent translation fitted between the two task
+# modules (ps_ray.nets.translation), or "anchors": the task module's relative projection re-anchored
+# on task states matched to the robot module's anchors (ps_ray.stitching.outcomes; needs a fit).
+TRANSLATIONS = ("orthogonal", "affine", "anchors")
+LATENT_TRANSLATIONS = TRANSLATIONS[:2]
 # What a translation is fitted on, other than the same task states through both task modules
 # (ps_ray.stitching.outcomes): scenes matched by the outcome of each task's own policy, the same
 # pairs shuffled (a control), or the known correspondence of the marker family (an upper bound).
@@ -30,8 +33,8 @@ def split_translation(name: str) -> tuple[str, str]:
     """``"affine@outcome"`` -> ``("affine", "outcome")``; ``"affine"`` -> ``("affine", "")``;
     UserError naming the valid choices for anything else."""
     kind, _, fit = name.partition("@")
-    if kind not in TRANSLATIONS or fit not in ("", *TRANSLATION_FITS):
-        choices = [*TRANSLATIONS, *(f"{k}@{f}" for k in TRANSLATIONS for f in TRANSLATION_FITS)]
+    if kind not in TRANSLATIONS or fit not in ("", *TRANSLATION_FITS) or (kind == "anchors" and not fit):
+        choices = [*LATENT_TRANSLATIONS, *(f"{k}@{f}" for k in TRANSLATIONS for f in TRANSLATION_FITS)]
         raise UserError(f"unknown translation {name!r}; valid: {', '.join(choices)}")
     return kind, fit
 

@@ -16,7 +16,7 @@ from ps_ray.envs.tasks import resolve_task
 from ps_ray.errors import UserError
 from ps_ray.specs.defaults import INTERFACE_DIM
 from ps_ray.specs.grid import GridSettings
-from ps_ray.specs.methods import method_key
+from ps_ray.specs.methods import PRESETS, method_key, uses_anchors
 from ps_ray.specs.names import ANCHOR_GOALS, EnvPart, plain_json, translations_problem
 from ps_ray.specs.resources import ResourcesSpec
 from ps_ray.specs.stages import NOT_TRAINING, STAGES
@@ -88,6 +88,9 @@ def _positive(where: str, **values: int | None) -> None:
 PAIRINGS = ("same_seed", "cross_seed", "both")
 
 
+ANCHORED_PRESETS = tuple(name for name in PRESETS if uses_anchors(name))
+
+
 @dataclass(frozen=True)
 class ZeroShotSpec:
     """The zero-shot stage: every stitched pair evaluated on fixed seeds (episodes x repeats)."""
@@ -134,6 +137,12 @@ class ZeroShotSpec:
             problem = translations_problem([kinds] if isinstance(kinds, str) else kinds)
             if problem:
                 raise SpecError(f"zero_shot.translate.{method}: {problem}")
+            anchored = [k for k in self.translations(method) if k.startswith("anchors@")]
+            if anchored and not uses_anchors(method):
+                raise SpecError(
+                    f"zero_shot.translate.{method}: {anchored[0]} re-anchors a relative projection, "
+                    f"and {method} has none; methods with one: {', '.join(ANCHORED_PRESETS)}"
+                )
 
     def batch_sizes(self, pairs: int, slots: int | None) -> list[int]:
         """How many pairs each Tune trial of the stage evaluates: at most ``pairs_per_trial``, as

@@ -132,11 +132,19 @@ def _stack(obs: Sequence[Obs]) -> Obs:
 
 
 def _run_batch(
-    envs: Sequence, seeds: Sequence[int], act: ActionFn, repeat_of: Callable[[int], int]
+    envs: Sequence,
+    seeds: Sequence[int],
+    act: ActionFn,
+    repeat_of: Callable[[int], int],
+    scenes: Sequence[np.ndarray | None],
 ) -> list[EpisodeRecord]:
-    """One episode per env, in lockstep: one batched forward per step. A scripted policy (the
-    chance control, :mod:`ps_ray.stitching.chance`) is told the reset envs and seeds first."""
-    resets = [env.reset(seed=s) for env, s in zip(envs, seeds)]
+    """One episode per env, in lockstep: one batched forward per step; an env with a scene (a task
+    input) is reset to it. A scripted policy (the chance control, :mod:`ps_ray.stitching.chance`)
+    is told the reset envs and seeds first."""
+    resets = [
+        env.reset(seed=s, options=None if scene is None else {"task_input": scene})
+        for env, s, scene in zip(envs, seeds, scenes)
+    ]
     if hasattr(act, "begin"):
         act.begin(envs, seeds)
     obs = [o for o, _ in resets]
@@ -192,6 +200,7 @@ def evaluate(
     num_envs: int = 8,
     verbose: bool = False,
     fast: bool = True,
+    scenes: np.ndarray | None = None,
 ) -> dict[str, Any]:
     """Zero-shot evaluation of a deterministic policy (see the module docstring).
 
@@ -199,7 +208,8 @@ def evaluate(
     per repeat, ``records`` (one :class:`EpisodeRecord` dict per episode), ``episodes_digest``
     (:func:`episodes_digest`), ``episodes_per_s`` and
     ``env_steps_per_s`` of the rollout loop (env construction excluded) and ``wall_s`` (all of it).
-    ``fast``: see :class:`BatchedGreedy`.
+    ``fast``: see :class:`BatchedGreedy`. ``scenes``: task inputs (episodes x repeats rows), each
+    episode reset to its row (the marker family; :mod:`ps_ray.stitching.outcomes`).
     """
     for name, value in (("episodes", episodes), ("repeats", repeats), ("num_envs", num_envs)):
         if not isinstance(value, int) or value < 1:
@@ -207,6 +217,9 @@ def evaluate(
     robot, task = EnvPart(robot), EnvPart(task)
     act, dims = as_action_fn(policy, fast)
     seeds = [seed + r * episodes + j for r in range(repeats) for j in range(episodes)]
+    if scenes is not None and len(scenes) != len(seeds):
+        raise UserError(f"{len(scenes)} scenes for {len(seeds)} episodes; give one per episode")
+    scene_of = [None] * len(seeds) if scenes is None else list(np.asarray(scenes, float))
     repeat_of = lambda s: (s - seed) // episodes  # noqa: E731
     started, envs = time.perf_counter(), []
     label = f"{task.short}/{robot.short}"
@@ -221,7 +234,9 @@ def evaluate(
             for first in range(0, len(seeds), len(envs)):
                 chunk = seeds[first : first + len(envs)]
                 done_before = len(records)
-                records += _run_batch(envs[: len(chunk)], chunk, act, repeat_of)
+                records += _run_batch(
+                    envs[: len(chunk)], chunk, act, repeat_of, scene_of[first : first + len(envs)]
+                )
                 if verbose:
                     _progress(records, done_before, episodes, repeats, loop_start, label)
         loop_s = time.perf_counter() - loop_start

@@ -1,5 +1,6 @@
-"""Pairs of task states matched by meaning, to fit a latent translation on (docs/transfer.md,
-"Translations fitted on matched pairs").
+"""Pairs of task states matched by meaning, to fit a latent translation on or to re-anchor a
+relative projection with (docs/transfer.md, "Translations fitted on matched pairs", "Anchors
+matched by meaning").
 
 A translation fitted on the *same* task states through two task modules makes one task's module
 read a scene as the other task reads it: on the marker family, exactly the difference the target
@@ -14,6 +15,11 @@ task-Y scene, each spelt as a translation's fit (``affine@outcome``):
 - ``shuffled``: the same pairs with the Y side permuted (a control: as many pairs, no meaning);
 - ``swapped``: the known correspondence of the marker family, each X scene with the scene whose
   two tasks' markers trade places (an upper bound no outcome matching can beat).
+
+Re-anchoring (``anchors@outcome``, :func:`matched_anchors`) keeps the robot module's anchors as
+they are and gives the task module, per anchor, the X scene that means what the anchor means to
+the robot source's task: the robot source is rolled out from each anchor's scene, and the X scene
+whose outcome is nearest its end point takes the anchor's place.
 """
 
 from __future__ import annotations
@@ -64,18 +70,58 @@ def _source_outcomes(path: str, robot: str, task: str, scenes: int, cache: str |
     """:func:`outcomes` of a policy file in its env (spec texts), cached per process (the pairs
     of a zero-shot batch share their sources) and, given a ``cache`` folder, on disk, keyed by the
     file's bytes, its env and the scenes (every batch of a stage reads the same sources)."""
+    found = _disk_cached(
+        cache,
+        (path, f"|{robot}|{task}|{scenes}|{OUTCOME_SEED}".encode()),
+        lambda: vars(outcomes(path, parse_spec_text(robot), parse_spec_text(task), scenes)),
+    )
+    return Outcomes(found["task_in"], found["end"])
+
+
+def anchor_ends(policy, robot, task, anchors: np.ndarray) -> np.ndarray:
+    """Where a policy's greedy rollouts in its env end (world frame), one per anchor, each reset to
+    the anchor's scene; every episode is kept (success is not read, nor is the env's target)."""
+    from ps_ray.stitching.evaluate import evaluate
+
+    result = evaluate(
+        policy, robot, task, episodes=len(anchors), repeats=1, seed=OUTCOME_SEED, scenes=anchors
+    )
+    return np.array([r["end_effector"] for r in result["records"]])
+
+
+def match_anchors(mine: Outcomes, ends: np.ndarray) -> np.ndarray:
+    """Per end point (one per anchor), the task input of ``mine`` whose outcome is nearest it."""
+    return mine.task_in[np.linalg.norm(mine.end[None, :, :] - ends[:, None, :], axis=-1).argmin(axis=1)]
+
+
+@lru_cache(maxsize=16)
+def _source_anchor_ends(
+    path: str, robot: str, task: str, anchors: bytes, task_dim: int, cache: str | None
+) -> np.ndarray:
+    """:func:`anchor_ends` of a policy file in its env (spec texts), cached as
+    :func:`_source_outcomes` is."""
+    scenes = np.frombuffer(anchors, np.float32).reshape(-1, task_dim)
+    return _disk_cached(
+        cache,
+        (path, f"|{robot}|{task}|anchors|".encode() + anchors),
+        lambda: {"end": anchor_ends(path, parse_spec_text(robot), parse_spec_text(task), scenes)},
+    )["end"]
+
+
+def _disk_cached(cache: str | None, key: tuple[str, bytes], compute) -> dict[str, np.ndarray]:
+    """``compute()`` (a dict of arrays), kept in ``cache`` (a folder) under a hash of the policy
+    file's bytes and ``key``'s bytes; computed every time without a folder."""
     if cache is None:
-        return outcomes(path, parse_spec_text(robot), parse_spec_text(task), scenes)
-    key = hashlib.sha256(Path(path).read_bytes())
-    key.update(f"|{robot}|{task}|{scenes}|{OUTCOME_SEED}".encode())
-    file = Path(cache) / f"{key.hexdigest()[:20]}.npz"
+        return compute()
+    digest = hashlib.sha256(Path(key[0]).read_bytes())
+    digest.update(key[1])
+    file = Path(cache) / f"{digest.hexdigest()[:20]}.npz"
     if file.is_file():
-        arrays = read_npz(file)
-        return Outcomes(arrays["task_in"], arrays["end"])
-    found = outcomes(path, parse_spec_text(robot), parse_spec_text(task), scenes)
+        return read_npz(file)
+    found = compute()
     file.parent.mkdir(parents=True, exist_ok=True)
     with atomic_file(file) as f:
-        np.savez(f, task_in=found.task_in, end=found.end)
+        np.savez(f, **found)
     return found
 
 
@@ -134,3 +180,39 @@ def fit_pairs(
     elif fit != "outcome":
         raise ValueError(f"unknown fit {fit!r}")
     return states_t, states_r
+
+
+def matched_anchors(
+    fit: str,
+    anchors: np.ndarray,
+    task_source: tuple[str, EnvPart, EnvPart],
+    robot_source: tuple[str, EnvPart, EnvPart],
+    scenes: int,
+    seed: int = 0,
+    cache: str | None = None,
+) -> np.ndarray:
+    """The task module's anchors of a re-anchored stitch (``anchors@<fit>``): row j a task-X scene
+    that means what the robot module's anchor j means to the robot source's task Y; each source
+    given as (policy file, its robot, its task), their rollouts kept in ``cache``, if given.
+
+    ``outcome``: the robot source rolled out from anchor j's scene ends at e_j; the task source's
+    successful scene (of ``scenes`` rollouts, :func:`outcomes`) that ends nearest e_j. ``shuffled``:
+    those rows permuted. ``swapped``: anchor j with X's and Y's markers trading places."""
+    anchors = np.asarray(anchors, np.float32)
+    if fit == "swapped":
+        return colour_swapped(anchors, robot_source[2], task_source[2])
+    if fit not in ("outcome", "shuffled"):
+        raise ValueError(f"unknown fit {fit!r}")
+    mine = _source_outcomes(task_source[0], task_source[1].text, task_source[2].text, scenes, cache)
+    ends = _source_anchor_ends(
+        robot_source[0],
+        robot_source[1].text,
+        robot_source[2].text,
+        anchors.tobytes(),
+        anchors.shape[1],
+        cache,
+    )
+    matched = match_anchors(mine, ends)
+    if fit == "shuffled":
+        matched = matched[np.random.default_rng(seed).permutation(len(matched))]
+    return matched

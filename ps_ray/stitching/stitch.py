@@ -19,6 +19,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from ps_ray.data.anchors import anchor_hash
 from ps_ray.envs.core import env_widths
 from ps_ray.errors import UserError
 from ps_ray.nets.from_signature import signature_of
@@ -68,14 +69,22 @@ def stitch_policies(
     back exactly that policy. ``translation`` ("orthogonal" or "affine") fits a latent map per net
     on ``fit_states`` between the two policies' task modules (:mod:`ps_ray.nets.translation`):
     task inputs (N x task_dim) through both, or matched pairs (states of ``task_from``'s task,
-    states of ``robot_from``'s own task: :mod:`ps_ray.stitching.outcomes`); the signature names it.
+    states of ``robot_from``'s own task: :mod:`ps_ray.stitching.outcomes`). ``"anchors"``
+    re-anchors instead: ``fit_states`` (K x task_dim) replace the task modules' anchors, row j
+    the task-X state matched to the robot module's anchor j (:func:`ps_ray.stitching.outcomes.
+    matched_anchors`). The signature names either.
     """
     nets_t, sig_t = load_source(task_from)
     nets_r, sig_r = load_source(robot_from)
     if sig_t.translation or sig_r.translation:
         raise UserError("cannot stitch a policy that is itself a translated stitch; use its sources")
     signature = check_stitchable(sig_t, sig_r, target)
-    if translation is not None:
+    anchors = nets_t.actor.anchors
+    anchors = None if anchors is None else anchors.detach().cpu().numpy()
+    if translation == "anchors":
+        anchors = _matched_anchors(anchors, fit_states, sig_t.method)
+        signature = dataclasses.replace(signature, translation=translation, anchor_hash=anchor_hash(anchors))
+    elif translation is not None:
         check_kind(translation)
         if fit_states is None:
             raise UserError("a translated stitch needs fit_states (task inputs for the fit)")
@@ -85,19 +94,20 @@ def stitch_policies(
                 f"{sig_r.task_dim}-D task inputs, the target task has {sig_t.task_dim}"
             )
         signature = dataclasses.replace(signature, translation=translation)
-    anchors = nets_t.actor.anchors
     nets = build_sac_nets(
         signature.method,
         signature.dims,
         interface_dim=signature.interface_dim,
         hidden=signature.hidden,
-        anchors=None if anchors is None else anchors.detach().cpu().numpy(),
+        anchors=anchors,
     )
     for name in NET_NAMES:
         net = getattr(nets, name)
         net.task.load_state_dict(getattr(nets_t, name).task.state_dict(), strict=True)
         net.robot.load_state_dict(getattr(nets_r, name).robot.state_dict(), strict=True)
-        if translation is not None:
+        if translation == "anchors" and net.task.relative is not None:
+            net.task.relative.anchors.copy_(torch.as_tensor(anchors))
+        elif translation is not None and translation != "anchors":
             net.translate = fit_net_translation(
                 getattr(nets_t, name), getattr(nets_r, name), fit_states, translation
             )
@@ -107,6 +117,20 @@ def stitch_policies(
     if rebuilt != signature:  # the anchors the nets carry are the ones the signature names
         raise ValueError(f"stitched nets do not match their signature: {rebuilt.mismatches(signature)}")
     return nets, signature
+
+
+def _matched_anchors(anchors: np.ndarray | None, matched, method: str) -> np.ndarray:
+    """The re-anchored stitch's anchors, checked against the ones they replace."""
+    if anchors is None:
+        raise UserError(f"cannot re-anchor a {method} stitch: it has no relative projection")
+    if matched is None or isinstance(matched, tuple):
+        raise UserError("a re-anchored stitch needs its matched anchors (K x task_dim) as fit_states")
+    matched = np.asarray(matched, np.float32)
+    if matched.shape != anchors.shape:
+        raise UserError(
+            f"matched anchors of shape {matched.shape} cannot replace anchors of shape {anchors.shape}"
+        )
+    return matched
 
 
 @torch.no_grad()

@@ -9,6 +9,8 @@ from typing import ClassVar
 import numpy as np
 import pybullet as p
 
+from ps_ray.errors import UserError
+
 from ..sim import Sim
 
 PLANE_Z = -0.4
@@ -73,9 +75,19 @@ class Task(ABC):
         """The world point the achieved goal must reach (the goal, unless the family says otherwise)."""
         return self.goal
 
-    def reset(self, rng: np.random.Generator) -> None:
+    def reset(self, rng: np.random.Generator, task_input: np.ndarray | None = None) -> None:
+        """Draw a scene, or set the one a task input (task state, then goal) describes."""
         self._reset(rng)
+        if task_input is not None:
+            self._set(np.asarray(task_input, float))
         self.sim.move(self._marker, self.target_position)
+
+    def _set(self, task_input: np.ndarray) -> None:
+        """Set the scene a task input describes (a family that can do it says so)."""
+        raise UserError(
+            f"a {type(self).__name__.lower()} scene cannot be set from a task input; "
+            f"valid: the marker family (reach_red, reach_blue, ...)"
+        )
 
     @abstractmethod
     def target_region(self) -> tuple[np.ndarray, np.ndarray]:

@@ -168,3 +168,19 @@ def test_progress_line_per_repeat(capsys):
     evaluate(lean_if_goal_ahead, "panda", "push", episodes=2, repeats=3, num_envs=2, verbose=True)
     lines = [line for line in capsys.readouterr().out.splitlines() if "repeat" in line]
     assert [line.split("repeat ")[1][:3] for line in lines] == ["1/3", "2/3", "3/3"]
+
+
+def test_envs_lent_again_give_the_episodes_of_new_ones(monkeypatch):
+    """Evaluation keeps its envs between calls; a push env lent again, after other episodes and
+    after an evaluation of another task, gives the records a new env gives (physics included)."""
+    from ps_ray.stitching import evaluate as evaluation
+
+    policy = GreedyPolicy(nets_for("ablation").actor, fast=True)
+    first = evaluate(policy, "panda", "push", episodes=4, repeats=1, num_envs=2, seed=3)
+    evaluate(policy, "panda", "push", episodes=4, repeats=1, num_envs=2, seed=40)
+    evaluate(lambda obs: np.ones((len(obs["robot_state"]), 7)), "panda", "reach", episodes=2, repeats=1)
+    again = evaluate(policy, "panda", "push", episodes=4, repeats=1, num_envs=2, seed=3)
+    monkeypatch.setattr(evaluation, "_ENVS", evaluation.EnvPool())
+    fresh = evaluate(policy, "panda", "push", episodes=4, repeats=1, num_envs=2, seed=3)
+    assert again["records"] == first["records"] == fresh["records"]
+    assert len({r["end_effector"] for r in first["records"]}) == 4  # the episodes differ

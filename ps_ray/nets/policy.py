@@ -50,7 +50,9 @@ def _traced(net: nn.Module, example: tuple[torch.Tensor, ...]) -> nn.Module:
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", DeprecationWarning)
-            return torch.jit.freeze(torch.jit.trace(net, example))
+            # no check_trace: it runs the net again and costs more than the trace (0.5 s per policy);
+            # tests/test_evaluate.py checks the traced actions against the actor's
+            return torch.jit.freeze(torch.jit.trace(net, example, check_trace=False))
     except (AttributeError, RuntimeError):
         return net
 

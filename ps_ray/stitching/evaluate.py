@@ -81,6 +81,44 @@ def as_action_fn(policy: PolicyLike, fast: bool = True) -> tuple[ActionFn, NetDi
     )
 
 
+# -- envs ------------------------------------------------------------------------------------------
+class EnvPool:
+    """Envs kept between evaluations in one process: building one (loading the robot's URDF) costs
+    more than a short evaluation's steps. Every episode starts with ``reset(seed)``, which sets
+    the whole scene again, so an env lent twice gives the same episodes as a new one (tested).
+    The envs of the ``targets`` most recently used (robot, task) are kept; others are closed."""
+
+    def __init__(self, targets: int = 4) -> None:
+        self.targets = targets
+        self._free: dict[tuple[str, str], list] = {}
+
+    @contextmanager
+    def lend(self, robot: EnvPart, task: EnvPart, count: int) -> Iterator[list]:
+        key = (robot.text, task.text)
+        free = self._free.pop(key, [])
+        envs = free[:count]
+        try:
+            while len(envs) < count:
+                envs.append(make(robot, task))
+        except BaseException:
+            for env in envs + free[count:]:
+                env.close()
+            raise
+        try:
+            yield envs
+        except BaseException:  # an env stopped mid-episode by an error is not lent again
+            for env in envs + free[count:]:
+                env.close()
+            raise
+        self._free[key] = envs + free[count:]  # the most recent target last
+        while len(self._free) > self.targets:
+            for env in self._free.pop(next(iter(self._free))):
+                env.close()
+
+
+_ENVS = EnvPool()
+
+
 # -- aggregation ----------------------------------------------------------------------------------
 def _rate(flags: Sequence[bool]) -> float:
     return float(np.mean(flags)) if len(flags) else math.nan
@@ -221,11 +259,9 @@ def evaluate(
         raise UserError(f"{len(scenes)} scenes for {len(seeds)} episodes; give one per episode")
     scene_of = [None] * len(seeds) if scenes is None else list(np.asarray(scenes, float))
     repeat_of = lambda s: (s - seed) // episodes  # noqa: E731
-    started, envs = time.perf_counter(), []
+    started = time.perf_counter()
     label = f"{task.short}/{robot.short}"
-    try:
-        for _ in range(min(num_envs, len(seeds))):
-            envs.append(make(robot, task))
+    with _ENVS.lend(robot, task, min(num_envs, len(seeds))) as envs:
         if dims is not None:
             check_dims(dims, envs[0])
         records: list[EpisodeRecord] = []
@@ -241,9 +277,6 @@ def evaluate(
                     _progress(records, done_before, episodes, repeats, loop_start, label)
         loop_s = time.perf_counter() - loop_start
         steps = envs[0].max_episode_steps
-    finally:
-        for env in envs:
-            env.close()
     return {
         "robot": robot.short,
         "task": task.short,

@@ -348,6 +348,18 @@ def uses_anchors(method: str | Mapping | MethodSpec) -> bool:
     return method_spec(method).uses_anchors
 
 
+def reanchoring_problem(method: str, translations: tuple[str, ...]) -> str | None:
+    """Why a method's stitches cannot be re-anchored (``anchors@<fit>`` among its translations:
+    :mod:`ps_ray.stitching.outcomes`), or None."""
+    anchored = [t for t in translations if t.startswith("anchors@")]
+    if not anchored or uses_anchors(method):
+        return None
+    with_one = ", ".join(name for name in PRESETS if uses_anchors(name))
+    return (
+        f"{anchored[0]} re-anchors a relative projection, and {method} has none; methods with one: {with_one}"
+    )
+
+
 def table_order(label: str) -> tuple[int, str, str]:
     """Sort key for tables: the menu's order, each preset's variants after it, and a translated
     stitch (``<method>+<translation>``, a part without ``=``) right after its method."""

@@ -16,7 +16,7 @@ from ps_ray.envs.tasks import resolve_task
 from ps_ray.errors import UserError
 from ps_ray.specs.defaults import INTERFACE_DIM
 from ps_ray.specs.grid import GridSettings
-from ps_ray.specs.methods import PRESETS, method_key, uses_anchors
+from ps_ray.specs.methods import method_key, reanchoring_problem
 from ps_ray.specs.names import ANCHOR_GOALS, EnvPart, plain_json, translations_problem
 from ps_ray.specs.resources import ResourcesSpec
 from ps_ray.specs.stages import NOT_TRAINING, STAGES
@@ -88,9 +88,6 @@ def _positive(where: str, **values: int | None) -> None:
 PAIRINGS = ("same_seed", "cross_seed", "both")
 
 
-ANCHORED_PRESETS = tuple(name for name in PRESETS if uses_anchors(name))
-
-
 @dataclass(frozen=True)
 class ZeroShotSpec:
     """The zero-shot stage: every stitched pair evaluated on fixed seeds (episodes x repeats)."""
@@ -99,9 +96,8 @@ class ZeroShotSpec:
     repeats: int = 5
     seed: int = 0  # first evaluation seed
     methods: tuple[str, ...] = ()  # default: the sweep's methods
-    # method -> latent translations also evaluated for its pairs, e.g. {ablation: [affine]};
-    # shown as rows "ablation+affine" (ps_ray.nets.translation); "affine@outcome" fits it on
-    # scenes matched by outcome instead (ps_ray.stitching.outcomes; also @shuffled, @swapped)
+    # method -> translations also evaluated for its pairs, e.g. {ablation: [affine]}: rows
+    # "ablation+affine" (ps_ray.nets.translation); "@outcome" etc.: ps_ray.stitching.outcomes
     translate: Mapping[str, tuple[str, ...]] = dataclasses.field(default_factory=dict)
     fit_states_per_quadrant: int = 128  # reset task states per goal quadrant and source task
     outcome_scenes: int = 400  # per source: scenes its policy is rolled out on, for "@" fits
@@ -135,14 +131,9 @@ class ZeroShotSpec:
             raise SpecError(f"zero_shot.translate must map methods to translations, got {self.translate!r}")
         for method, kinds in self.translate.items():
             problem = translations_problem([kinds] if isinstance(kinds, str) else kinds)
+            problem = problem or reanchoring_problem(method, self.translations(method))
             if problem:
                 raise SpecError(f"zero_shot.translate.{method}: {problem}")
-            anchored = [k for k in self.translations(method) if k.startswith("anchors@")]
-            if anchored and not uses_anchors(method):
-                raise SpecError(
-                    f"zero_shot.translate.{method}: {anchored[0]} re-anchors a relative projection, "
-                    f"and {method} has none; methods with one: {', '.join(ANCHORED_PRESETS)}"
-                )
 
     def batch_sizes(self, pairs: int, slots: int | None) -> list[int]:
         """How many pairs each Tune trial of the stage evaluates: at most ``pairs_per_trial``, as

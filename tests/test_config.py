@@ -219,6 +219,15 @@ seeds: [1]
             "has none; methods with one: ps, ps_distilled",
         ),
         (
+            GOOD + "zero_shot: {translate: {ps: [affine, anchors@outcome]}}\n",
+            "zero_shot.translate: anchors@outcome sets or swaps marker scenes, and task reach has none; "
+            "valid: tasks of the marker family (reach_red, reach_blue, ...)",
+        ),
+        (
+            GOOD + "zero_shot: {translate: {ps: [affine@swapped]}}\n",
+            "zero_shot.translate: affine@swapped sets or swaps marker scenes, and task reach has none",
+        ),
+        (
             GOOD + "zero_shot: {translate: {plain: [affine]}}\n",
             "method 'plain' is not trained by this sweep; valid: ps",
         ),

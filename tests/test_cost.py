@@ -226,3 +226,36 @@ def test_a_gpu_share_packs_one_over_share_trials_per_gpu(share):
     expected = own + 400 * max(g.launch_s, g.busy_s / share)  # hidden 256, batch 256: one unit
     assert (gpu.wall_s - RATES.stage_s) * gpu.at_once["train"] / 32 == pytest.approx(expected)
     assert "train: its gpu" in " ".join(cpu.notes)  # the CPU cluster trains it on the CPU
+
+
+def test_fits_on_matched_scenes_are_priced_by_the_rollouts_they_need():
+    """Per stitched pair's sources, once each: a translation fitted on outcomes rolls both sources
+    out on `outcome_scenes` scenes; re-anchoring rolls the task source out so and the robot source
+    once per anchor; the swapped scenes roll nothing out."""
+    from ps_ray.envs import EPISODE_STEPS
+    from ps_ray.specs.sweep import SweepSpec
+
+    def zero_shot_steps(translate: list[str]) -> int:
+        spec = SweepSpec.from_mapping(
+            {
+                "name": "t",
+                "stages": ["train", "zero_shot"],
+                "methods": ["ps"],
+                "robots": ["panda", "panda_far"],
+                "tasks": ["reach_red", "reach_blue"],
+                "seeds": [1],
+                "interface_dims": [16],
+                "zero_shot": {"outcome_scenes": 50, "translate": {"ps": translate} if translate else {}},
+            }
+        )
+        return next(load for load in workload(spec) if load.stage == "zero_shot").eval_steps
+
+    plain = zero_shot_steps([])
+    per_stitch = zero_shot_steps(["affine"]) - plain  # one more evaluation per pair
+    sources = 4  # every source of the 2 x 2 grid is both a task source and a robot source
+    assert zero_shot_steps(["affine", "affine@swapped"]) - plain == 2 * per_stitch
+    assert (
+        zero_shot_steps(["affine", "affine@outcome"]) - plain == 2 * per_stitch + sources * 50 * EPISODE_STEPS
+    )
+    anchored = zero_shot_steps(["affine", "anchors@outcome"]) - plain
+    assert anchored == 2 * per_stitch + sources * (50 + 16) * EPISODE_STEPS

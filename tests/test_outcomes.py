@@ -77,8 +77,10 @@ def test_an_env_reset_to_a_task_input_shows_that_scene():
             UserError, match=r"unknown reset options \['goal'\]; valid reset options: task_input"
         ):
             env.reset(seed=3, options={"goal": scene})
-        with pytest.raises(UserError, match="has 9 numbers, got shape"):
+        with pytest.raises(UserError, match="a task input of this scene is 9 finite numbers, got"):
             env.reset(seed=3, options={"task_input": scene[:6]})
+        with pytest.raises(UserError, match="9 finite numbers"):
+            env.reset(seed=3, options={"task_input": np.r_[scene[:8], np.nan]})
     finally:
         env.close()
     reach = make("panda", "reach")

@@ -15,7 +15,8 @@ from ps_ray.analysis.page import Report
 from ps_ray.pipeline.few_shot import selected_pairs
 from ps_ray.pipeline.zero_shot import CONTROL_KEYS, RESULT_KEYS, table_of, write_atomic_csv
 from ps_ray.specs.names import short_name
-from ps_ray.specs.sweep import FewShotSpec, SweepSpec
+from ps_ray.specs.stage_settings import FewShotSpec
+from ps_ray.specs.sweep import SweepSpec
 from ps_ray.stitching.pairs import Control, StitchedPair, evaluated_pairs, pairs, pairs_from_table
 from ps_ray.store.layout import SweepLayout, sweep_dir
 from tests.test_stitch import K, write_trial

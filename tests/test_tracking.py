@@ -189,6 +189,14 @@ def test_tracker_params_tags_and_batched_metrics(store):
     assert [(m.step, m.value) for m in history] == [(0, 0.0), (10, 1.5), (20, 3.0)]
     assert set(store["client"].get_run(tracker.run_id).data.metrics) == {"return", "success"}
 
+    # a translated stitch's label in a name: MLflow allows neither "+" nor "@"
+    tracker.log_metrics({"zero_shot.ps_distilled+anchors@outcome.success": 0.5}, step=0)
+    tracker.flush()
+    assert (
+        store["client"].get_run(tracker.run_id).data.metrics["zero_shot.ps_distilled-anchors:outcome.success"]
+        == 0.5
+    )
+
     for step in range(2500):  # more than one log_batch call (1000 metrics each)
         tracker.log_metrics({"big": float(step)}, step=step)
     tracker.close()

@@ -108,7 +108,7 @@ def test_zero_shot_matrix_of_a_sweep(trained_matrix):
 
 
 def test_batches_are_even_and_fill_whole_rounds_of_concurrent_trials():
-    from ps_ray.specs.sweep import ZeroShotSpec
+    from ps_ray.specs.stage_settings import ZeroShotSpec
 
     settings = ZeroShotSpec(pairs_per_trial=8)
     assert settings.batch_sizes(40, 2) == [7, 7, 7, 7, 6, 6]  # 3 full rounds, not 8+8 | 8+8 | 8

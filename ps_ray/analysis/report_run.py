@@ -34,8 +34,7 @@ def log_report(spec: SweepSpec, report_dir: Path, metrics: dict[str, float]) -> 
         params={"sweep": spec.name},
         tags={STAGE_TAG: "report", "ps_ray.sweep": spec.name, "git_commit": git_commit() or ""},
     )
-    # MLflow names allow no "+": a translated stitch "ablation+affine" is logged as "ablation-affine"
-    tracker.log_metrics({k.replace("+", "-"): v for k, v in metrics.items()}, step=0)
+    tracker.log_metrics(metrics, step=0)
     for path in sorted(report_dir.iterdir()):
         tracker.log_artifact(path)
     tracker.log_dict(_run_index(tracker.client, experiment, tracker.run_id), "runs.json")

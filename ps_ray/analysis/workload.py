@@ -9,7 +9,7 @@ import json
 from dataclasses import dataclass
 
 from ps_ray.envs import EPISODE_STEPS
-from ps_ray.specs.names import CONTROL_ROLES
+from ps_ray.specs.names import CONTROL_ROLES, split_translation
 from ps_ray.specs.sweep import SweepSpec
 from ps_ray.specs.train import TrainSpec
 from ps_ray.stitching.chance import CHANCE_POLICIES
@@ -95,15 +95,19 @@ def workload(spec: SweepSpec) -> list[StageLoad]:
         base = sum(len(pairs) for pairs in found.values())
         evaluations = n + base * len(CONTROL_ROLES) + len(targets) * len(CHANCE_POLICIES)
         steps = evaluations * spec.zero_shot.episodes * spec.zero_shot.repeats * EPISODE_STEPS
-        # a translation fitted on matched pairs rolls each source out once (ps_ray.stitching.outcomes)
-        matched = {
-            src
-            for m in found
-            if any("@" in k for k in spec.zero_shot.translations(_preset(m)))
-            for pair in found[m]
-            for src in pair
-        }
-        steps += len(matched) * spec.zero_shot.outcome_scenes * EPISODE_STEPS
+        # a fit on scenes matched by outcome rolls each source out once (ps_ray.stitching.outcomes):
+        # on `outcome_scenes` scenes, except a re-anchored stitch's robot source, once per anchor
+        # (PS: as many as the interface is wide); the swapped scenes need no rollout
+        rollouts: dict[tuple[TrainSpec, str], int] = {}
+        for m in found:
+            for kind, fit in map(split_translation, spec.zero_shot.translations(_preset(m))):
+                for t, r in found[m] if fit in ("outcome", "shuffled") else ():
+                    rollouts[t, "scenes"] = spec.zero_shot.outcome_scenes
+                    if kind == "anchors":
+                        rollouts[r, "anchors"] = r.interface_dim
+                    else:
+                        rollouts[r, "scenes"] = spec.zero_shot.outcome_scenes
+        steps += sum(rollouts.values()) * EPISODE_STEPS
         batches = len(spec.zero_shot.batch_sizes(n, spec.max_concurrent))  # trials of several pairs
         loads.append(StageLoad("zero_shot", [None] * batches, 0, 0, steps))
     if "few_shot" in spec.stages:

@@ -22,7 +22,8 @@ from ps_ray.errors import UserError
 from ps_ray.pipeline.stage import layout
 from ps_ray.pipeline.sweep import anchor_file
 from ps_ray.specs.names import trial_key
-from ps_ray.specs.sweep import FewShotSpec, SweepSpec
+from ps_ray.specs.stage_settings import FewShotSpec
+from ps_ray.specs.sweep import SweepSpec
 from ps_ray.specs.train import TrainSpec
 from ps_ray.specs.trial import TrainTrial
 from ps_ray.stitching.pairs import StitchedPair, evaluated_pairs

@@ -244,9 +244,7 @@ def read_inputs(spec: TrainSpec):
         if spec.task != POINT_TASK:
             problems += target_problems(signature, (spec.robot, spec.task))
         if signature.translation:
-            problems.append(
-                f"a stitch with a latent translation ({signature.translation}) is for zero-shot use"
-            )
+            problems.append(f"a stitch aligned at stitch time ({signature.translation}) is for zero-shot use")
         if problems:
             raise UserError(f"{spec.init_policy}: cannot start this run: " + "; ".join(problems))
         return policy_anchor_set(spec.init_policy) if spec.resolved.uses_anchors else None

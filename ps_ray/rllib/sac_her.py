@@ -147,9 +147,9 @@ class ModularSAC(SAC):
         nets, signature = load_policy(path)
         if signature.translation:
             raise UserError(
-                f"{path}: a stitch with a fitted latent translation "
-                f"({signature.translation}) is for zero-shot use; fine-tune an "
-                f"untranslated stitch instead"
+                f"{path}: a stitch aligned at stitch time ({signature.translation}: a fitted "
+                f"latent map or re-anchored task modules) is for zero-shot use; fine-tune an "
+                f"unaligned stitch instead"
             )
         ours = {k: self.replay_dims[k] for k in ("task_dim", "robot_dim", "action_dim")}
         theirs = {k: getattr(signature, k) for k in ours}

@@ -29,20 +29,29 @@ CONTROL_ROLES = ("robot_source", "task_source", "oracle")
 ANCHOR_GOALS = ("real", "relabelled")
 
 
+# Every valid spelling, in the order error messages list them
+TRANSLATION_CHOICES = (*LATENT_TRANSLATIONS, *(f"{k}@{f}" for k in TRANSLATIONS for f in TRANSLATION_FITS))
+
+
 def split_translation(name: str) -> tuple[str, str]:
     """``"affine@outcome"`` -> ``("affine", "outcome")``; ``"affine"`` -> ``("affine", "")``;
     UserError naming the valid choices for anything else."""
     kind, _, fit = name.partition("@")
     if kind not in TRANSLATIONS or fit not in ("", *TRANSLATION_FITS) or (kind == "anchors" and not fit):
-        choices = [*LATENT_TRANSLATIONS, *(f"{k}@{f}" for k in TRANSLATIONS for f in TRANSLATION_FITS)]
-        raise UserError(f"unknown translation {name!r}; valid: {', '.join(choices)}")
+        raise UserError(f"unknown translation {name!r}; valid: {', '.join(TRANSLATION_CHOICES)}")
     return kind, fit
+
+
+def scene_fit(translation: str) -> bool:
+    """Whether a translation's fit sets scenes from task inputs or swaps their markers (the
+    marker family only): any ``anchors@`` re-anchoring, and ``@swapped``."""
+    return translation.startswith("anchors@") or translation.endswith("@swapped")
 
 
 def translations_problem(kinds: Any) -> str | None:
     """What is wrong with a list of translation names (None: nothing)."""
     if not isinstance(kinds, (list, tuple)) or not kinds:
-        return f"expected a list of translations, got {kinds!r}; valid: {', '.join(TRANSLATIONS)}"
+        return f"expected a list of translations, got {kinds!r}; valid: {', '.join(TRANSLATION_CHOICES)}"
     for kind in kinds:
         try:
             split_translation(kind if isinstance(kind, str) else repr(kind))

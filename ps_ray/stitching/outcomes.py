@@ -101,11 +101,15 @@ def _source_anchor_ends(
     """:func:`anchor_ends` of a policy file in its env (spec texts), cached as
     :func:`_source_outcomes` is."""
     scenes = np.frombuffer(anchors, np.float32).reshape(-1, task_dim)
-    return _disk_cached(
+    key = f"|{robot}|{task}|anchor ends|{OUTCOME_SEED}|{scenes.shape}|".encode() + anchors
+    ends = _disk_cached(
         cache,
-        (path, f"|{robot}|{task}|anchors|".encode() + anchors),
+        (path, key),
         lambda: {"end": anchor_ends(path, parse_spec_text(robot), parse_spec_text(task), scenes)},
     )["end"]
+    if ends.shape != (len(scenes), 3):  # a bug, never bad input: the key names the scenes
+        raise RuntimeError(f"{path}: cached anchor ends of shape {ends.shape} for {len(scenes)} anchors")
+    return ends
 
 
 def _disk_cached(cache: str | None, key: tuple[str, bytes], compute) -> dict[str, np.ndarray]:

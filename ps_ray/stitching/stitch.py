@@ -27,7 +27,7 @@ from ps_ray.nets.policy_file import load_policy
 from ps_ray.nets.sac import NET_NAMES, SACNets, build_sac_nets
 from ps_ray.nets.translation import LatentTranslation, check_kind
 from ps_ray.specs.dims import NetDims
-from ps_ray.specs.names import EnvPart
+from ps_ray.specs.names import TRANSLATIONS, EnvPart
 from ps_ray.stitching.rule import (
     EnvSpec,
     check_stitchable,
@@ -79,6 +79,8 @@ def stitch_policies(
     if sig_t.translation or sig_r.translation:
         raise UserError("cannot stitch a policy that is itself a translated stitch; use its sources")
     signature = check_stitchable(sig_t, sig_r, target)
+    if translation not in (None, *TRANSLATIONS):
+        raise UserError(f"unknown translation {translation!r}; valid: none, {', '.join(TRANSLATIONS)}")
     anchors = nets_t.actor.anchors
     anchors = None if anchors is None else anchors.detach().cpu().numpy()
     if translation == "anchors":

@@ -157,6 +157,16 @@ def _chunks(items: Sequence[Any], size: int) -> Iterable[Sequence[Any]]:
 # ---------------------------------------------------------------------------------- tracker
 
 
+# MLflow names allow neither "+" nor "@": a translated stitch's row "ablation+affine@outcome"
+# is logged as "ablation-affine:outcome"
+_METRIC_CHARACTERS = str.maketrans({"+": "-", "@": ":"})
+
+
+def metric_name(key: str) -> str:
+    """``key`` as an MLflow metric name."""
+    return key.translate(_METRIC_CHARACTERS)
+
+
 class TrialTracker:
     """One MLflow run per trial key; a resumed trial continues its run instead of creating a second.
 
@@ -239,7 +249,8 @@ class TrialTracker:
 
     def log_metrics(self, metrics: Mapping[str, Any], step: int, *, timestamp_ms: int | None = None) -> None:
         """Buffer ``metrics`` at ``step``; None, NaN, infinities and non-numbers are dropped, and so
-        is, with ``once_per_step``, a step at or before one the run holds for that metric."""
+        is, with ``once_per_step``, a step at or before one the run holds for that metric. Names
+        take the characters MLflow allows (:func:`metric_name`)."""
         from mlflow.entities import Metric
 
         stamp = int(time.time() * 1000) if timestamp_ms is None else timestamp_ms
@@ -247,7 +258,7 @@ class TrialTracker:
             number = finite_float(value)
             if number is None or (self.once_per_step and int(step) <= self._last_step.get(key, -1)):
                 continue
-            self._pending.append(Metric(key, number, stamp, int(step)))
+            self._pending.append(Metric(metric_name(key), number, stamp, int(step)))
             self._last_step[key] = int(step)
         if len(self._pending) >= MAX_METRICS_PER_CALL:
             self.flush()

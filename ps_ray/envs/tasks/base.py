@@ -77,17 +77,22 @@ class Task(ABC):
 
     def reset(self, rng: np.random.Generator, task_input: np.ndarray | None = None) -> None:
         """Draw a scene, or set the one a task input (task state, then goal) describes."""
+        if task_input is not None:
+            task_input = self._settable(np.asarray(task_input, float))
         self._reset(rng)
         if task_input is not None:
-            self._set(np.asarray(task_input, float))
+            self._set(task_input)
         self.sim.move(self._marker, self.target_position)
 
-    def _set(self, task_input: np.ndarray) -> None:
-        """Set the scene a task input describes (a family that can do it says so)."""
+    def _settable(self, task_input: np.ndarray) -> np.ndarray:
+        """The task input checked before anything moves (a family that can set scenes says so)."""
         raise UserError(
             f"a {type(self).__name__.lower()} scene cannot be set from a task input; "
             f"valid: the marker family (reach_red, reach_blue, ...)"
         )
+
+    def _set(self, task_input: np.ndarray) -> None:  # noqa: B027 (only families that pass _settable)
+        """Set the scene a checked task input describes."""
 
     @abstractmethod
     def target_region(self) -> tuple[np.ndarray, np.ndarray]:

@@ -104,13 +104,17 @@ class Markers(Task):
             self.sim.move(body, position)
         self.goal = np.zeros(3)
 
+    def _settable(self, task_input: np.ndarray) -> np.ndarray:
+        width = 3 * self.options.markers + 3
+        if task_input.shape != (width,) or not np.isfinite(task_input).all():
+            raise UserError(
+                f"a task input of this scene is {width} finite numbers, got {task_input.tolist()}"
+            )
+        return task_input
+
     def _set(self, task_input: np.ndarray) -> None:
         """Every marker at the task state's positions, the desired offset from the goal part."""
         width = 3 * self.options.markers
-        if task_input.shape != (width + 3,):
-            raise UserError(
-                f"a task input of this scene has {width + 3} numbers, got shape {task_input.shape}"
-            )
         self.positions = task_input[:width].reshape(-1, 3).copy()
         for body, position in zip(self._bodies, self.positions):
             self.sim.move(body, position)

@@ -10,7 +10,14 @@ from ps_ray.envs import make
 from ps_ray.errors import UserError
 from ps_ray.specs.names import EnvPart
 from ps_ray.stitching.evaluate import evaluate
-from ps_ray.stitching.outcomes import anchor_ends, colour_swapped, match_anchors, matched_pairs, outcomes
+from ps_ray.stitching.outcomes import (
+    anchor_ends,
+    colour_swapped,
+    match_anchors,
+    matched_anchors,
+    matched_pairs,
+    outcomes,
+)
 
 RED, BLUE = slice(0, 3), slice(3, 6)  # the marker task state: red's position, then blue's
 
@@ -115,3 +122,14 @@ def test_anchors_matched_by_outcome_mean_to_the_task_module_what_they_mean_to_th
     assert np.median(gap) < 0.05 and np.median(unmatched) > 2 * np.median(gap)
     still = anchor_ends(lambda obs: np.zeros((len(obs["robot_state"]), 7)), "panda", "reach_blue", anchors)
     np.testing.assert_allclose(still, still[:1].repeat(len(anchors), 0), atol=1e-6)
+
+
+def test_the_swapped_anchors_are_the_robot_module_s_with_the_two_markers_traded():
+    """anchors@swapped needs no rollout: anchor j, a scene of the robot source's task (reach_red),
+    with red and blue trading places is the reach_blue scene that means the same."""
+    anchors = np.arange(27, dtype=np.float32).reshape(3, 9)
+    task_source = ("never-read.safetensors", EnvPart("panda"), EnvPart("reach_blue"))
+    robot_source = ("never-read.safetensors", EnvPart("panda_far"), EnvPart("reach_red"))
+    swapped = matched_anchors("swapped", anchors, task_source, robot_source, scenes=10)
+    np.testing.assert_array_equal(swapped[:, BLUE], anchors[:, RED])
+    np.testing.assert_array_equal(swapped[:, RED], anchors[:, BLUE])

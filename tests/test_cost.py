@@ -259,3 +259,7 @@ def test_fits_on_matched_scenes_are_priced_by_the_rollouts_they_need():
     )
     anchored = zero_shot_steps(["affine", "anchors@outcome"]) - plain
     assert anchored == 2 * per_stitch + sources * (50 + 16) * EPISODE_STEPS
+    # each source also on the anchors as a task source (the same rollouts) and on its pair's task
+    # source's scenes (one pair per robot source here)
+    both = zero_shot_steps(["affine", "anchors@both"]) - plain
+    assert both == 2 * per_stitch + sources * (50 + 16 + 50) * EPISODE_STEPS

@@ -11,9 +11,11 @@ from ps_ray.errors import UserError
 from ps_ray.specs.names import EnvPart
 from ps_ray.stitching.evaluate import evaluate
 from ps_ray.stitching.outcomes import (
+    Outcomes,
     anchor_ends,
     colour_swapped,
     match_anchors,
+    match_anchors_by_both,
     matched_anchors,
     matched_pairs,
     outcomes,
@@ -133,3 +135,27 @@ def test_the_swapped_anchors_are_the_robot_module_s_with_the_two_markers_traded(
     swapped = matched_anchors("swapped", anchors, task_source, robot_source, scenes=10)
     np.testing.assert_array_equal(swapped[:, BLUE], anchors[:, RED])
     np.testing.assert_array_equal(swapped[:, RED], anchors[:, BLUE])
+
+
+def test_anchors_matched_by_both_outcomes_are_the_anchors_with_the_meanings_traded():
+    """Sources that end at their own marker (as trained reachers do, to a cm): one outcome finds a
+    scene whose red marker is where the anchor's blue one is, with its blue marker anywhere; both
+    outcomes also put its blue marker where the anchor's red one is, without reading a target."""
+    rng = np.random.default_rng(0)
+
+    def scenes(n: int) -> np.ndarray:
+        markers = rng.uniform((-0.1, -0.1, 0.1), (0.1, 0.1, 0.2), size=(n, 2, 3)).reshape(n, 6)
+        return np.hstack([markers, np.zeros((n, 3))]).astype(np.float32)
+
+    def ends(states: np.ndarray, marker: slice) -> np.ndarray:
+        return states[:, marker] + rng.normal(0, 0.01, size=(len(states), 3))
+
+    candidates, anchors = scenes(2000), scenes(30)  # blue scenes; the robot module's red anchors
+    mine = Outcomes(candidates, ends(candidates, BLUE))  # the blue source ends at blue
+    one = match_anchors(mine, ends(anchors, RED))
+    both = match_anchors_by_both(mine, ends(candidates, RED), ends(anchors, RED), ends(anchors, BLUE))
+    meant = np.linalg.norm(both[:, BLUE] - anchors[:, RED], axis=1)
+    other = np.linalg.norm(both[:, RED] - anchors[:, BLUE], axis=1)
+    other_one = np.linalg.norm(one[:, RED] - anchors[:, BLUE], axis=1)
+    assert np.median(meant) < 0.04 and np.median(other) < 0.04
+    assert np.median(other_one) > 2 * np.median(other)  # one outcome leaves the other marker anywhere

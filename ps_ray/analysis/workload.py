@@ -97,16 +97,20 @@ def workload(spec: SweepSpec) -> list[StageLoad]:
         steps = evaluations * spec.zero_shot.episodes * spec.zero_shot.repeats * EPISODE_STEPS
         # a fit on scenes matched by outcome rolls each source out once (ps_ray.stitching.outcomes):
         # on `outcome_scenes` scenes, except a re-anchored stitch's robot source, once per anchor
-        # (PS: as many as the interface is wide); the swapped scenes need no rollout
-        rollouts: dict[tuple[TrainSpec, str], int] = {}
+        # (PS: as many as the interface is wide), and with "both" each source also in the other's
+        # scenes (at most `outcome_scenes` candidates); the swapped scenes need no rollout
+        rollouts: dict[tuple[TrainSpec, TrainSpec | str], int] = {}
         for m in found:
             for kind, fit in map(split_translation, spec.zero_shot.translations(_preset(m))):
-                for t, r in found[m] if fit in ("outcome", "shuffled") else ():
+                for t, r in found[m] if fit in ("outcome", "shuffled", "both") else ():
                     rollouts[t, "scenes"] = spec.zero_shot.outcome_scenes
                     if kind == "anchors":
                         rollouts[r, "anchors"] = r.interface_dim
                     else:
                         rollouts[r, "scenes"] = spec.zero_shot.outcome_scenes
+                    if fit == "both":  # each source also ends in the other's scenes
+                        rollouts[t, "anchors"] = t.interface_dim
+                        rollouts[r, t] = spec.zero_shot.outcome_scenes
         steps += sum(rollouts.values()) * EPISODE_STEPS
         batches = len(spec.zero_shot.batch_sizes(n, spec.max_concurrent))  # trials of several pairs
         loads.append(StageLoad("zero_shot", [None] * batches, 0, 0, steps))

@@ -23,6 +23,8 @@ LATENT_TRANSLATIONS = TRANSLATIONS[:2]
 # pairs shuffled (a control), or the known correspondence of the marker family (an upper bound).
 # Spelt "<translation>@<fit>", e.g. "affine@outcome".
 TRANSLATION_FITS = ("outcome", "shuffled", "swapped")
+# Re-anchoring may also match a scene by where *both* tasks' sources end in it ("anchors@both")
+ANCHOR_FITS = (*TRANSLATION_FITS, "both")
 # The unstitched controls and the oracle scored beside every stitched pair (ps_ray.stitching.stitch.controls)
 CONTROL_ROLES = ("robot_source", "task_source", "oracle")
 # The desired goals of anchor states (ps_ray.data.collect): their own, or hindsight-relabelled.
@@ -30,14 +32,18 @@ ANCHOR_GOALS = ("real", "relabelled")
 
 
 # Every valid spelling, in the order error messages list them
-TRANSLATION_CHOICES = (*LATENT_TRANSLATIONS, *(f"{k}@{f}" for k in TRANSLATIONS for f in TRANSLATION_FITS))
+TRANSLATION_CHOICES = (
+    *LATENT_TRANSLATIONS,
+    *(f"{k}@{f}" for k in LATENT_TRANSLATIONS for f in TRANSLATION_FITS),
+    *(f"anchors@{f}" for f in ANCHOR_FITS),
+)
 
 
 def split_translation(name: str) -> tuple[str, str]:
     """``"affine@outcome"`` -> ``("affine", "outcome")``; ``"affine"`` -> ``("affine", "")``;
     UserError naming the valid choices for anything else."""
     kind, _, fit = name.partition("@")
-    if kind not in TRANSLATIONS or fit not in ("", *TRANSLATION_FITS) or (kind == "anchors" and not fit):
+    if (fit and name not in TRANSLATION_CHOICES) or (not fit and kind not in LATENT_TRANSLATIONS):
         raise UserError(f"unknown translation {name!r}; valid: {', '.join(TRANSLATION_CHOICES)}")
     return kind, fit
 

@@ -94,6 +94,19 @@ def match_anchors(mine: Outcomes, ends: np.ndarray) -> np.ndarray:
     return mine.task_in[np.linalg.norm(mine.end[None, :, :] - ends[:, None, :], axis=-1).argmin(axis=1)]
 
 
+def match_anchors_by_both(
+    mine: Outcomes, theirs_on_mine: np.ndarray, theirs: np.ndarray, mine_on_anchors: np.ndarray
+) -> np.ndarray:
+    """Per anchor, the task input of ``mine`` whose two outcomes match the anchor's crossed over:
+    where the task source ends in it nearest where the robot source ends in the anchor
+    (``theirs``), and where the robot source ends in it (``theirs_on_mine``) nearest where the task
+    source ends in the anchor (``mine_on_anchors``). One outcome reveals what a scene means to one
+    task; both reveal the whole scene, so the match is the anchor with the meanings traded."""
+    cost = np.linalg.norm(mine.end[None, :, :] - theirs[:, None, :], axis=-1)
+    cost += np.linalg.norm(theirs_on_mine[None, :, :] - mine_on_anchors[:, None, :], axis=-1)
+    return mine.task_in[cost.argmin(axis=1)]
+
+
 @lru_cache(maxsize=16)
 def _source_anchor_ends(
     path: str, robot: str, task: str, anchors: bytes, task_dim: int, cache: str | None
@@ -201,22 +214,30 @@ def matched_anchors(
 
     ``outcome``: the robot source rolled out from anchor j's scene ends at e_j; the task source's
     successful scene (of ``scenes`` rollouts, :func:`outcomes`) that ends nearest e_j. ``shuffled``:
-    those rows permuted. ``swapped``: anchor j with X's and Y's markers trading places."""
+    those rows permuted. ``both``: the candidate scenes matched by both sources' outcomes
+    (:func:`match_anchors_by_both`). ``swapped``: anchor j with X's and Y's markers trading places."""
     anchors = np.asarray(anchors, np.float32)
     if fit == "swapped":
         return colour_swapped(anchors, robot_source[2], task_source[2])
-    if fit not in ("outcome", "shuffled"):
+    if fit not in ("outcome", "shuffled", "both"):
         raise ValueError(f"unknown fit {fit!r}")
     mine = _source_outcomes(task_source[0], task_source[1].text, task_source[2].text, scenes, cache)
-    ends = _source_anchor_ends(
-        robot_source[0],
-        robot_source[1].text,
-        robot_source[2].text,
-        anchors.tobytes(),
-        anchors.shape[1],
-        cache,
-    )
-    matched = match_anchors(mine, ends)
+
+    def ends(source: tuple[str, EnvPart, EnvPart], scenes: np.ndarray) -> np.ndarray:
+        return _source_anchor_ends(
+            source[0],
+            source[1].text,
+            source[2].text,
+            np.asarray(scenes, np.float32).tobytes(),
+            scenes.shape[1],
+            cache,
+        )
+
+    if fit == "both":  # each scene described by where both sources end in it
+        return match_anchors_by_both(
+            mine, ends(robot_source, mine.task_in), ends(robot_source, anchors), ends(task_source, anchors)
+        )
+    matched = match_anchors(mine, ends(robot_source, anchors))
     if fit == "shuffled":
         matched = matched[np.random.default_rng(seed).permutation(len(matched))]
     return matched

@@ -89,6 +89,8 @@ class EnvPool:
     The envs of the ``targets`` most recently used (robot, task) are kept; others are closed."""
 
     def __init__(self, targets: int = 4) -> None:
+        if targets < 0:
+            raise ValueError(f"an env pool keeps the envs of 0 or more targets, not {targets}")
         self.targets = targets
         self._free: dict[tuple[str, str], list] = {}
 
@@ -110,7 +112,8 @@ class EnvPool:
             for env in envs + free[count:]:
                 env.close()
             raise
-        self._free[key] = envs + free[count:]  # the most recent target last
+        # the most recent target last; envs a nested lend of the same target returned are kept
+        self._free[key] = self._free.pop(key, []) + envs + free[count:]
         while len(self._free) > self.targets:
             for env in self._free.pop(next(iter(self._free))):
                 env.close()

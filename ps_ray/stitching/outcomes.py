@@ -90,7 +90,8 @@ def anchor_ends(policy, robot, task, anchors: np.ndarray) -> np.ndarray:
 
 
 def match_anchors(mine: Outcomes, ends: np.ndarray) -> np.ndarray:
-    """Per end point (one per anchor), the task input of ``mine`` whose outcome is nearest it."""
+    """Per point (an anchor's end point, a reference point), the task input of ``mine`` whose
+    outcome is nearest it."""
     return mine.task_in[np.linalg.norm(mine.end[None, :, :] - ends[:, None, :], axis=-1).argmin(axis=1)]
 
 
@@ -150,12 +151,7 @@ def matched_pairs(a: Outcomes, b: Outcomes, points: int, seed: int = 0) -> tuple
     pooled = np.concatenate([a.end, b.end])
     k = min(points, len(a.end), len(b.end))
     centres = KMeans(n_clusters=k, n_init=4, random_state=seed).fit(pooled).cluster_centers_
-
-    def nearest(side: Outcomes) -> np.ndarray:
-        distance = np.linalg.norm(side.end[None, :, :] - centres[:, None, :], axis=-1)
-        return side.task_in[distance.argmin(axis=1)]
-
-    return nearest(a), nearest(b)
+    return match_anchors(a, centres), match_anchors(b, centres)
 
 
 def colour_swapped(states: np.ndarray, task_from: EnvPart, task_to: EnvPart) -> np.ndarray:

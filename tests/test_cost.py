@@ -263,3 +263,6 @@ def test_fits_on_matched_scenes_are_priced_by_the_rollouts_they_need():
     # source's scenes (one pair per robot source here)
     both = zero_shot_steps(["affine", "anchors@both"]) - plain
     assert both == 2 * per_stitch + sources * (50 + 16 + 50) * EPISODE_STEPS
+    # decoding reads the same outcomes; with both, nothing is rolled out twice
+    assert zero_shot_steps(["affine", "anchors@decoded"]) - plain == both
+    assert zero_shot_steps(["affine", "anchors@both", "anchors@decoded"]) - plain == both + per_stitch

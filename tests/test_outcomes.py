@@ -14,6 +14,7 @@ from ps_ray.stitching.outcomes import (
     Outcomes,
     anchor_ends,
     colour_swapped,
+    decode_anchors,
     match_anchors,
     match_anchors_by_both,
     matched_anchors,
@@ -159,3 +160,30 @@ def test_anchors_matched_by_both_outcomes_are_the_anchors_with_the_meanings_trad
     other_one = np.linalg.norm(one[:, RED] - anchors[:, BLUE], axis=1)
     assert np.median(meant) < 0.04 and np.median(other) < 0.04
     assert np.median(other_one) > 2 * np.median(other)  # one outcome leaves the other marker anywhere
+
+
+def test_anchors_decoded_from_both_outcomes_lie_between_the_candidates():
+    """Among as few candidate scenes as a stage rolls out (400), the nearest one to both outcomes
+    is some cm off; an affine map from a scene's two outcomes to the scene, fitted on the
+    candidates, decodes each anchor with its meanings traded to about the sources' own noise."""
+    rng = np.random.default_rng(1)
+    low, high = (-0.1, -0.1, 0.1), (0.1, 0.1, 0.2)
+
+    def scenes(n: int) -> np.ndarray:
+        markers = rng.uniform(low, high, size=(n, 2, 3)).reshape(n, 6)
+        return np.hstack([markers, np.zeros((n, 3))]).astype(np.float32)
+
+    def ends(states: np.ndarray, marker: slice) -> np.ndarray:  # 1 cm of end-point noise
+        return states[:, marker] + rng.normal(0, 0.01, size=(len(states), 3))
+
+    candidates, anchors = scenes(400), scenes(128)
+    mine = Outcomes(candidates, ends(candidates, BLUE))
+    crossed = (mine, ends(candidates, RED), ends(anchors, RED), ends(anchors, BLUE))
+    truth = np.hstack([anchors[:, BLUE], anchors[:, RED], anchors[:, 6:]])  # the known swap
+    nearest = np.linalg.norm(match_anchors_by_both(*crossed) - truth, axis=1)
+    decoded = decode_anchors(*crossed)
+    assert decoded.shape == anchors.shape and decoded.dtype == np.float32
+    error = np.linalg.norm(decoded - truth, axis=1)
+    assert np.median(error) < 0.03  # about sqrt(2 x 3) x 1 cm: the noise of the two outcomes
+    assert np.median(error) < 0.6 * np.median(nearest)
+    np.testing.assert_allclose(decoded[:, 6:], 0, atol=1e-6)  # a constant part stays as it is

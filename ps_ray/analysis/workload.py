@@ -9,7 +9,7 @@ import json
 from dataclasses import dataclass
 
 from ps_ray.envs import EPISODE_STEPS
-from ps_ray.specs.names import CONTROL_ROLES, split_translation
+from ps_ray.specs.names import CONTROL_ROLES, CROSSED_FITS, split_translation
 from ps_ray.specs.sweep import SweepSpec
 from ps_ray.specs.train import TrainSpec
 from ps_ray.stitching.chance import CHANCE_POLICIES
@@ -97,18 +97,18 @@ def workload(spec: SweepSpec) -> list[StageLoad]:
         steps = evaluations * spec.zero_shot.episodes * spec.zero_shot.repeats * EPISODE_STEPS
         # a fit on scenes matched by outcome rolls each source out once (ps_ray.stitching.outcomes):
         # on `outcome_scenes` scenes, except a re-anchored stitch's robot source, once per anchor
-        # (PS: as many as the interface is wide), and with "both" each source also in the other's
+        # (PS: as many as the interface is wide), and with "both" / "decoded" each source also in the other's
         # scenes (at most `outcome_scenes` candidates); the swapped scenes need no rollout
         rollouts: dict[tuple[TrainSpec, TrainSpec | str], int] = {}
         for m in found:
             for kind, fit in map(split_translation, spec.zero_shot.translations(_preset(m))):
-                for t, r in found[m] if fit in ("outcome", "shuffled", "both") else ():
+                for t, r in found[m] if fit and fit != "swapped" else ():
                     rollouts[t, "scenes"] = spec.zero_shot.outcome_scenes
                     if kind == "anchors":
                         rollouts[r, "anchors"] = r.interface_dim
                     else:
                         rollouts[r, "scenes"] = spec.zero_shot.outcome_scenes
-                    if fit == "both":  # each source also ends in the other's scenes
+                    if fit in CROSSED_FITS:  # each source also ends in the other's scenes
                         rollouts[t, "anchors"] = t.interface_dim
                         rollouts[r, t] = spec.zero_shot.outcome_scenes
         steps += sum(rollouts.values()) * EPISODE_STEPS

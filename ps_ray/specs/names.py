@@ -23,8 +23,10 @@ LATENT_TRANSLATIONS = TRANSLATIONS[:2]
 # pairs shuffled (a control), or the known correspondence of the marker family (an upper bound).
 # Spelt "<translation>@<fit>", e.g. "affine@outcome".
 TRANSLATION_FITS = ("outcome", "shuffled", "swapped")
-# Re-anchoring may also match a scene by where *both* tasks' sources end in it ("anchors@both")
-ANCHOR_FITS = (*TRANSLATION_FITS, "both")
+# Re-anchoring may also match a scene by where *both* tasks' sources end in it ("anchors@both"), or
+# decode one from those two outcomes by an affine map fitted on the candidate scenes ("anchors@decoded")
+CROSSED_FITS = ("both", "decoded")  # fits that read both sources' outcomes in every scene
+ANCHOR_FITS = (*TRANSLATION_FITS, *CROSSED_FITS)
 # The unstitched controls and the oracle scored beside every stitched pair (ps_ray.stitching.stitch.controls)
 CONTROL_ROLES = ("robot_source", "task_source", "oracle")
 # The desired goals of anchor states (ps_ray.data.collect): their own, or hindsight-relabelled.

@@ -34,7 +34,7 @@ import numpy as np
 from ps_ray.envs.tasks import resolve_task
 from ps_ray.envs.tasks.markers import Markers
 from ps_ray.errors import UserError
-from ps_ray.specs.names import EnvPart, parse_spec_text
+from ps_ray.specs.names import ANCHOR_FITS, CROSSED_FITS, EnvPart, parse_spec_text
 from ps_ray.store.atomic import atomic_file
 from ps_ray.store.npz import read_npz
 
@@ -106,6 +106,21 @@ def match_anchors_by_both(
     cost = np.linalg.norm(mine.end[None, :, :] - theirs[:, None, :], axis=-1)
     cost += np.linalg.norm(theirs_on_mine[None, :, :] - mine_on_anchors[:, None, :], axis=-1)
     return mine.task_in[cost.argmin(axis=1)]
+
+
+def decode_anchors(
+    mine: Outcomes, theirs_on_mine: np.ndarray, theirs: np.ndarray, mine_on_anchors: np.ndarray
+) -> np.ndarray:
+    """Per anchor, the task input decoded from the outcomes :func:`match_anchors_by_both` matches
+    on: the scene in which the task source would end where the robot source ends in the anchor
+    (``theirs``) and the robot source where the task source ends in it (``mine_on_anchors``), by an
+    affine map from a scene's two outcomes to the scene, fitted by least squares on the candidate
+    scenes (``mine``, ``theirs_on_mine``). It reads between the candidates instead of taking the
+    nearest (docs/transfer.md, "Anchors matched by meaning": closer to the known correspondence)."""
+    from sklearn.linear_model import LinearRegression
+
+    decoder = LinearRegression().fit(np.c_[mine.end, theirs_on_mine], mine.task_in)
+    return decoder.predict(np.c_[theirs, mine_on_anchors]).astype(np.float32)
 
 
 @lru_cache(maxsize=16)
@@ -211,11 +226,12 @@ def matched_anchors(
     ``outcome``: the robot source rolled out from anchor j's scene ends at e_j; the task source's
     successful scene (of ``scenes`` rollouts, :func:`outcomes`) that ends nearest e_j. ``shuffled``:
     those rows permuted. ``both``: the candidate scenes matched by both sources' outcomes
-    (:func:`match_anchors_by_both`). ``swapped``: anchor j with X's and Y's markers trading places."""
+    (:func:`match_anchors_by_both`); ``decoded``: decoded from those outcomes between the
+    candidates (:func:`decode_anchors`). ``swapped``: anchor j with X's and Y's markers trading places."""
     anchors = np.asarray(anchors, np.float32)
     if fit == "swapped":
         return colour_swapped(anchors, robot_source[2], task_source[2])
-    if fit not in ("outcome", "shuffled", "both"):
+    if fit not in ANCHOR_FITS:
         raise ValueError(f"unknown fit {fit!r}")
     mine = _source_outcomes(task_source[0], task_source[1].text, task_source[2].text, scenes, cache)
 
@@ -229,8 +245,9 @@ def matched_anchors(
             cache,
         )
 
-    if fit == "both":  # each scene described by where both sources end in it
-        return match_anchors_by_both(
+    if fit in CROSSED_FITS:  # each scene described by where both sources end in it
+        crossed = decode_anchors if fit == "decoded" else match_anchors_by_both
+        return crossed(
             mine, ends(robot_source, mine.task_in), ends(robot_source, anchors), ends(task_source, anchors)
         )
     matched = match_anchors(mine, ends(robot_source, anchors))

@@ -184,3 +184,24 @@ def test_envs_lent_again_give_the_episodes_of_new_ones(monkeypatch):
     fresh = evaluate(policy, "panda", "push", episodes=4, repeats=1, num_envs=2, seed=3)
     assert again["records"] == first["records"] == fresh["records"]
     assert len({r["end_effector"] for r in first["records"]}) == 4  # the episodes differ
+
+
+def test_the_env_pool_keeps_the_envs_of_the_last_target_only():
+    """An env holds ~90 MB: the pool keeps the envs of the most recent target (a pair's stitch and
+    its controls share them) and closes the rest; a negative target count is refused."""
+    from ps_ray.specs.names import EnvPart
+    from ps_ray.stitching.evaluate import EnvPool
+
+    pool = EnvPool()
+    red, blue = (EnvPart("panda"), EnvPart("reach_red")), (EnvPart("panda"), EnvPart("reach_blue"))
+    with pool.lend(*red, 2) as first:
+        pass
+    with pool.lend(*red, 2) as again:
+        assert again == first  # the same env objects, lent again
+    with pool.lend(*blue, 2):
+        pass
+    assert all(env.sim.client is None for env in first)  # closed: another target came
+    with pool.lend(*red, 2) as new:
+        assert all(env.sim.client is not None for env in new) and not set(map(id, new)) & set(map(id, first))
+    with pytest.raises(ValueError, match="0 or more targets"):
+        EnvPool(-1)

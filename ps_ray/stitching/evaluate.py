@@ -86,9 +86,11 @@ class EnvPool:
     """Envs kept between evaluations in one process: building one (loading the robot's URDF) costs
     more than a short evaluation's steps. Every episode starts with ``reset(seed)``, which sets
     the whole scene again, so an env lent twice gives the same episodes as a new one (tested).
-    The envs of the ``targets`` most recently used (robot, task) are kept; others are closed."""
+    The envs of the ``targets`` most recently used (robot, task) are kept; others are closed. An
+    env holds about 90 MB (a PyBullet client and the robot's meshes), so one target (a zero-shot
+    pair's stitch and controls share it) keeps what one evaluation needs anyway (docs/cost.md)."""
 
-    def __init__(self, targets: int = 4) -> None:
+    def __init__(self, targets: int = 1) -> None:
         if targets < 0:
             raise ValueError(f"an env pool keeps the envs of 0 or more targets, not {targets}")
         self.targets = targets

@@ -231,6 +231,8 @@ def controls_bars(numbers: pd.DataFrame, path: Path) -> Path:
         hi = np.array([getattr(r, f"{column}_hi") for r in rows], float)
         errors = np.nan_to_num(np.stack([mean - lo, hi - mean]).clip(min=0))
         ax.barh(np.arange(len(rows)) + index * height, mean, height, xerr=errors, label=label, capsize=2)
+    for gap in np.arange(len(rows) - 1) + 0.9 - height / 2:  # a faint line between groups
+        ax.axhline(gap, color="0.85", linewidth=0.8)
     names = [readable(f"{r.method}, {r.pairing.replace('_', ' ')}") for r in rows]
     ax.set_yticks(np.arange(len(rows)) + 0.4 - height / 2, names, fontsize=8)
     ax.set_xlim(0, 1.05)

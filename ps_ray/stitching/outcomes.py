@@ -19,7 +19,9 @@ task-Y scene, each spelt as a translation's fit (``affine@outcome``):
 Re-anchoring (``anchors@outcome``, :func:`matched_anchors`) keeps the robot module's anchors as
 they are and gives the task module, per anchor, the X scene that means what the anchor means to
 the robot source's task: the robot source is rolled out from each anchor's scene, and the X scene
-whose outcome is nearest its end point takes the anchor's place.
+whose outcome is nearest its end point takes the anchor's place. Re-anchoring may also read both
+sources' outcomes in every scene (``anchors@both``: the nearest candidate, ``anchors@decoded``: an
+affine decoding between the candidates).
 """
 
 from __future__ import annotations

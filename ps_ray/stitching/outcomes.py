@@ -118,7 +118,8 @@ def decode_anchors(
     (``theirs``) and the robot source where the task source ends in it (``mine_on_anchors``), by an
     affine map from a scene's two outcomes to the scene, fitted by least squares on the candidate
     scenes (``mine``, ``theirs_on_mine``). It reads between the candidates instead of taking the
-    nearest (docs/transfer.md, "Anchors matched by meaning": closer to the known correspondence)."""
+    nearest (docs/transfer.md, "Anchors matched by meaning": closer to the known correspondence,
+    and no better zero-shot: its scenes need not be ones the task module saw)."""
     from sklearn.linear_model import LinearRegression
 
     decoder = LinearRegression().fit(np.c_[mine.end, theirs_on_mine], mine.task_in)

@@ -97,8 +97,9 @@ def workload(spec: SweepSpec) -> list[StageLoad]:
         steps = evaluations * spec.zero_shot.episodes * spec.zero_shot.repeats * EPISODE_STEPS
         # a fit on scenes matched by outcome rolls each source out once (ps_ray.stitching.outcomes):
         # on `outcome_scenes` scenes, except a re-anchored stitch's robot source, once per anchor
-        # (PS: as many as the interface is wide), and with "both" / "decoded" each source also in the other's
-        # scenes (at most `outcome_scenes` candidates); the swapped scenes need no rollout
+        # (PS: as many as the interface is wide), and with a crossed fit ("both", "decoded") each
+        # source also in the other's scenes (at most `outcome_scenes` candidates); the swapped
+        # scenes need no rollout
         rollouts: dict[tuple[TrainSpec, TrainSpec | str], int] = {}
         for m in found:
             for kind, fit in map(split_translation, spec.zero_shot.translations(_preset(m))):

@@ -256,6 +256,38 @@ def test_few_shot_table_pairs_each_start_with_scratch_on_steps_and_area():
     )
 
 
+def test_few_shot_curves_are_means_over_seeds_with_their_t_interval_and_stopped_runs_held():
+    """The few-shot figure's numbers: a seed's runs averaged first, then mean and t interval over
+    seeds; a run stopped at its target keeps its last success to the budget; steps some seed has
+    not reached yet are left out."""
+    from ps_ray.analysis.stats import t_interval
+    from ps_ray.analysis.transfer import seed_curves
+
+    rows = []
+    for seed, pairs in ((1, ([0.2, 0.6, 1.0], [0.0, 0.4, 0.8])), (2, ([0.4, 1.0], [0.2, 0.2, 0.6]))):
+        for pair, curve in enumerate(pairs):  # seed 2's first run stopped at 1.0 after 2,000 steps
+            for step, success in zip((1000, 2000, 3000), curve):
+                rows.append(
+                    {"run": f"s{seed}p{pair}", "kind": "stitched", "method": "ablation", "seed": seed}
+                    | {"env_steps": step, "success": success}
+                )
+    rows.append(
+        {"run": "late", "kind": "scratch", "method": "ablation", "seed": 1, "env_steps": 2000, "success": 0.5}
+    )
+    rows.append(
+        {"run": "late", "kind": "scratch", "method": "ablation", "seed": 1, "env_steps": 3000, "success": 0.7}
+    )
+    table = seed_curves(pd.DataFrame(rows)).set_index(["kind", "env_steps"])
+    at_3000 = table.loc[("stitched", 3000)]
+    # seed 1: (1.0 + 0.8) / 2; seed 2: (1.0 held + 0.6) / 2
+    assert at_3000["mean"] == pytest.approx((0.9 + 0.8) / 2)
+    assert (at_3000["low"], at_3000["high"]) == pytest.approx(t_interval([0.9, 0.8])[1:])
+    assert table.loc[("stitched", 1000), "mean"] == pytest.approx((0.1 + 0.3) / 2)
+    assert at_3000["seeds"] == 2
+    scratch = table.loc["scratch"]  # one seed: a mean, no interval, and nothing before its first evaluation
+    assert list(scratch.index) == [2000, 3000] and np.isnan(scratch["low"]).all()
+
+
 def test_task_variants_are_named_as_a_reader_would_in_tables_and_plots():
     from ps_ray.specs.names import readable
 

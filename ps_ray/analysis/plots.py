@@ -130,6 +130,33 @@ def learning_curves(
     return _save(fig, path)
 
 
+START_ORDER = ("stitched", "task_module", "robot_module", "unstitched", "scratch")  # few-shot starts
+
+
+def seed_interval_curves(table: pd.DataFrame, title: str, path: Path) -> Path:
+    """A panel per method, a line per start kind: the mean over seeds of ``seed_curves``' table
+    (ps_ray.analysis.transfer) with its 95% t interval as a band (none from one seed)."""
+    methods = list(dict.fromkeys(table["method"]))
+    fig, axes = plt.subplots(1, len(methods), figsize=(5.4 * len(methods), 3.6), squeeze=False)
+    for ax, method in zip(axes[0], methods):
+        lines = table[table["method"] == method]
+        kinds = sorted(dict.fromkeys(lines["kind"]), key=lambda k: (START_ORDER + (k,)).index(k))
+        for kind in kinds:
+            line = lines[lines["kind"] == kind]
+            drawn = ax.plot(line["env_steps"], line["mean"], label=f"{kind} ({line['seeds'].iloc[0]} seeds)")
+            ax.fill_between(
+                line["env_steps"], line["low"], line["high"], color=drawn[0].get_color(), alpha=0.15
+            )
+        ax.set_title(readable(str(method)), fontsize=9)
+        ax.set_xlabel("env steps")
+        ax.set_ylabel("greedy success")
+        ax.set_ylim(-0.05, 1.05)
+        ax.legend(fontsize=7)
+    fig.suptitle(title)
+    fig.tight_layout()
+    return _save(fig, path)
+
+
 def zero_shot_bars(table: pd.DataFrame, path: Path) -> Path:
     """Success and touching per stitched combination (rows), one bar per method (mean over
     seeds, error bar: pooled std)."""

@@ -350,15 +350,19 @@ def _few_shot(report: Report, root: Path, say) -> None:
         "Few-shot fine-tuning",
         "Stitched policies fine-tuned in their target env (after a collection phase without updates, "
         "then critic-only updates with the actor frozen) beside each pair's robot source fine-tuned "
-        "as it is (unstitched) and the same env trained from scratch: greedy success vs env steps. "
-        "Where the sweep asks for the halves (few_shot.halves): the pair's robot module under a "
-        "fresh task module (robot_module) and its task module over a fresh robot module "
-        "(task_module).",
+        "as it is (unstitched) and the same env trained from scratch: greedy success vs env steps, "
+        "mean over seeds (a seed's runs averaged first; a run stopped at its target keeps its last "
+        "success) with a 95% t interval over seeds. Where the sweep asks for the halves "
+        "(few_shot.halves): the pair's robot module under a fresh task module (robot_module) and "
+        "its task module over a fresh robot module (task_module).",
+    )
+    title = "few-shot: greedy success in the target envs, mean and 95% t interval over seeds"
+    seed_table = transfer.seed_curves(frame)
+    report.figure(
+        section, "few_shot_curves", lambda p: plots.seed_interval_curves(seed_table, title=title, path=p)
     )
     frame["target"] = frame["robot"] + " / " + frame["task"]
     frame["line"] = frame["kind"] + ": " + frame["method"]
-    title = "few-shot: greedy success in the target env"
-    _success_curves(report, section, "few_shot_curves", frame, "target", "line", title)
     final = results.final_success(frame)
     summary = final.groupby(["target", "line"])["success"].mean().unstack("line")
     report.table(

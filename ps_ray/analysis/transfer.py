@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from ps_ray.analysis.stats import estimate, paired
+from ps_ray.analysis.stats import estimate, paired, t_interval
 from ps_ray.analysis.tables import ci, method_order
 from ps_ray.specs.names import CONTROL_ROLES
 
@@ -187,6 +187,34 @@ def few_shot_steps(curves: pd.DataFrame, threshold: float = 0.8) -> pd.DataFrame
     return pd.DataFrame(rows).set_index(["start", "method"]).fillna("–")
 
 
+def seed_curves(curves: pd.DataFrame) -> pd.DataFrame:
+    """Per start kind and method, greedy success against env steps as the mean over seeds with its
+    t interval: each run's success held from one evaluation to the next and, past its last, to
+    the stage's budget (a run stopped early at its target keeps its success, as in
+    :func:`curve_area`); a seed's runs averaged first. Only steps every seed of the kind has
+    reached are kept. Columns: kind, method, env_steps, mean, low, high, seeds."""
+    grid = np.unique(curves["env_steps"])
+    rows = []
+    for (kind, method), part in curves.groupby(["kind", "method"], sort=False):
+        held = []
+        for _, run in part.groupby("run"):
+            run = run.sort_values("env_steps")
+            last = np.searchsorted(run["env_steps"].to_numpy(), grid, side="right") - 1
+            success = np.where(last >= 0, run["success"].to_numpy()[np.maximum(last, 0)], np.nan)
+            held.append(pd.DataFrame({"env_steps": grid, "success": success, "seed": run["seed"].iloc[0]}))
+        per_seed = pd.concat(held).dropna().groupby(["env_steps", "seed"])["success"].mean()
+        seeds = part["seed"].nunique()
+        for steps, at in per_seed.groupby(level="env_steps"):
+            if len(at) == seeds:
+                mean, low, high = t_interval(at.to_numpy())
+                rows.append(
+                    dict(
+                        kind=kind, method=method, env_steps=steps, mean=mean, low=low, high=high, seeds=seeds
+                    )
+                )
+    return pd.DataFrame(rows, columns=["kind", "method", "env_steps", "mean", "low", "high", "seeds"])
+
+
 __all__ = [
     "CONTROL_ROLES",
     "co_training_numbers",
@@ -194,6 +222,7 @@ __all__ = [
     "curve_area",
     "few_shot_steps",
     "has_controls",
+    "seed_curves",
     "transfer_numbers",
     "transfer_text",
 ]

@@ -74,11 +74,9 @@ def test_a_grid_refuses_held_out_cells_outside_it_or_that_leave_a_module_untrain
     assert message in str(caught.value)
 
 
-def test_a_grid_refuses_cells_of_different_widths_and_a_consolidating_method():
+def test_a_grid_refuses_cells_of_different_widths():
     with pytest.raises(ValueError, match=r"must share their widths .* panda/push \(15, 8, 7\)"):
         GridSpec.of(TrainSpec(method="ablation"), ["panda"], ["reach_red", "push"])
-    with pytest.raises(ValueError, match="method 'ps_distilled' consolidates its actor"):
-        GridSpec.of(TrainSpec(method="ps_distilled"), ROBOTS, TASKS, [HELD_OUT])
 
 
 def test_ps_ray_grid_answers_bad_input_in_one_line_and_writes_nothing(tmp_path):
@@ -265,3 +263,42 @@ def test_a_ps_grid_stage_without_a_train_stage_makes_and_uses_its_anchor_set(tmp
         "panda_far/reach_red",
     ]
     assert {e.signature.anchor_hash for e in cells} == {anchor_set.hash}
+
+
+def test_a_consolidating_grid_distils_its_cells_together_onto_the_relative_cut(tmp_path):
+    """ps_distilled in a grid: trained on the raw latent as the ablation, then every cell
+    consolidated at once; the exported cells carry the relative cut (projection on), still share
+    their modules, and keep the grid's actions (a small action error)."""
+    from ps_ray.nets.policy_file import load_policy
+
+    run_dir = tmp_path / "grid"
+    method = "--method=ps_distilled+consolidate_updates=40+consolidate_batch_size=64"
+    done = subprocess.run(
+        grid_args(run_dir, 300, method, "--anchor-episodes=20"), capture_output=True, text=True
+    )
+    assert done.returncode == 0, done.stderr[-3000:]
+    result = json.loads((run_dir / "result.json").read_text())
+    assert result["consolidation_gap_after"] < 0.5 * result["consolidation_gap_before"]
+    assert result["consolidation_bc"] < 0.05
+    cells = {}
+    for name in ("panda-reach_red", "panda-reach_blue", "panda_far-reach_red"):
+        cells[name], signature = load_policy(run_dir / "cells" / name / "policy.safetensors")
+        assert signature.projection_off is False and cells[name].actor.task.projection is not None
+    red_panda, red_far, blue_panda = (
+        cells[n] for n in ("panda-reach_red", "panda_far-reach_red", "panda-reach_blue")
+    )
+    for a, b in zip(red_panda.actor.task.state_dict().values(), red_far.actor.task.state_dict().values()):
+        assert torch.equal(a, b)  # reach_red's task module, consolidated once for both its cells
+    for a, b in zip(
+        red_panda.actor.robot.state_dict().values(), blue_panda.actor.robot.state_dict().values()
+    ):
+        assert torch.equal(a, b)  # panda's robot module, for both of its tasks
+    # resumed when finished, it is not consolidated again
+    again = subprocess.run(
+        grid_args(run_dir, 300, method, "--anchor-episodes=20"), capture_output=True, text=True
+    )
+    assert again.returncode == 0, again.stderr[-3000:]
+    assert (
+        json.loads((run_dir / "result.json").read_text())["consolidation_gap_after"]
+        == result["consolidation_gap_after"]
+    )

@@ -11,6 +11,7 @@ success is its worst cell's, so the stopping rule waits for every cell.
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -23,10 +24,13 @@ from torch import nn
 
 from ps_ray.data.her import HindsightReplay
 from ps_ray.errors import UserError
+from ps_ray.nets.consolidate import consolidate_cells
 from ps_ray.nets.policy_file import save_policy
+from ps_ray.rllib.episodes import train_batch
 from ps_ray.rllib.grid_module import GridSACLearner, GridSACModule, grid_modules, grid_train_batch
+from ps_ray.rllib.private import mark_weights_changed
 from ps_ray.rllib.sac_her import ModularSAC, ModularSACConfig
-from ps_ray.specs.methods import method_spec
+from ps_ray.specs.methods import ConsolidateSpec, method_spec
 from ps_ray.store.signature import Signature
 
 
@@ -133,12 +137,28 @@ class GridSAC(ModularSAC):
         for key, value in self._cell_figures(episodes).items():
             self.metrics.log_value(("ps_ray", f"{prefix}_{key}"), value, reduce="item")
 
+    def consolidate_actor(self, spec: ConsolidateSpec) -> dict[str, float]:
+        """The method's consolidation of the grid's cells together
+        (:func:`ps_ray.nets.consolidate.consolidate_cells`), each cell on HER replay states of its
+        own replay; the env runners get the result."""
+        batches = [train_batch(r.sample_many(spec.updates, spec.batch_size)) for r in self.replays.values()]
+        task_ins, robot_ins = [b["task_in"] for b in batches], [b["robot_in"] for b in batches]
+
+        def on_learner(learner):
+            cells = learner.module[DEFAULT_MODULE_ID].cells
+            stats = consolidate_cells([c.actor for c in cells], task_ins, robot_ins, spec)
+            mark_weights_changed(learner)
+            return stats
+
+        stats = self.learner_group.foreach_learner(on_learner).result_or_errors[0].get()
+        self.env_runner_group.sync_weights(
+            from_worker_or_learner_group=self.learner_group, inference_only=True
+        )
+        return stats
+
     # -- what a grid does not do (yet) ----------------------------------------------------------
     def load_policy_weights(self, path) -> None:
         raise UserError(f"{path}: a grid starts from fresh modules; fine-tune one exported cell instead")
-
-    def consolidate_actor(self, spec):
-        raise UserError("a grid's method has no after-training consolidation")
 
     # -- export: each trained cell as an ordinary policy file ----------------------------------
     def cell_nets(self) -> list[nn.Module]:
@@ -159,7 +179,8 @@ class GridSAC(ModularSAC):
     def export_cells(self, paths: list[Path], signatures: list[Signature]) -> None:
         """Write each trained cell's policy file (paths and signatures in cell order)."""
         for view, path, signature in zip(self.cell_nets(), paths, signatures):
-            save_policy(path, view, signature)
+            task = view.actor.task  # a consolidated grid's projection is on (Signature.projection_off)
+            save_policy(path, view, dataclasses.replace(signature, projection_off=task.projection_off))
 
     # -- checkpoints: ModularSAC's, with one whole replay file per cell ------------------------
     def save_replay(self, directory: Path) -> None:

@@ -89,7 +89,8 @@ class GridRun(TrainingRun):
         ]
         self.start, self.start_steps = time.time(), 0
         self.streak, self.best = 0, None
-        self.consolidation, self.consolidated = None, {}
+        self.consolidation = grid.base.resolved.consolidate  # all cells together, once trained
+        self.consolidated: dict[str, float] = {}
 
     def save(self, directory: Path) -> None:
         directory = Path(directory)
@@ -101,7 +102,7 @@ class GridRun(TrainingRun):
             spec_text = json.dumps(self.grid.cell_spec(cell).to_dict(), indent=2)
             (directory / cell_spec_file(index)).write_text(spec_text)
         (directory / GRID_FILE).write_text(json.dumps(self.grid.to_dict(), indent=2))
-        progress = {"streak": self.streak, "best": self.best, "consolidated": {}}
+        progress = {"streak": self.streak, "best": self.best, "consolidated": self.consolidated}
         (directory / "progress.json").write_text(json.dumps(progress))
         checkpoint.seal(directory)
 
@@ -190,6 +191,7 @@ def _train_grid(grid: GridSpec, run_dir: Path, progress: bool) -> dict[str, Any]
         write_text(run_dir / CELLS_FOLDER / cell_folder(cell) / RESULT_FILE, json.dumps(figures, indent=2))
     result = {
         **row,
+        **tick.finished,
         **{f"final_{k}": v for k, v in final.items()},
         **run.best_field(),
         "converged": run.converged,

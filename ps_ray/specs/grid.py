@@ -55,11 +55,6 @@ class GridSpec:
             object.__setattr__(self, name, parts)
         if self.base.task == POINT_TASK:
             raise SpecError("a grid trains robot x task cells; the point task has no robot")
-        if self.base.resolved.consolidate is not None:
-            raise SpecError(
-                f"method {self.base.method!r} consolidates its actor after training, which a grid "
-                "does not do; grids train methods without consolidate (ablation, devin, ps, plain)"
-            )
         cells = [(r, t) for r in self.robots for t in self.tasks]
         held = []
         for robot, task in self.held_out:

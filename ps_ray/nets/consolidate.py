@@ -21,6 +21,7 @@ from __future__ import annotations
 import copy
 from typing import TYPE_CHECKING
 
+import numpy as np
 import torch
 from torch import Tensor
 
@@ -60,12 +61,13 @@ def consolidate_cells(
     for actor in actors:
         if actor.task.projection is None:  # a task module shared by two cells is switched once
             actor.task.switch_relative_on()
-    gaps = (
-        lambda: [  # noqa: E731
+
+    def gaps() -> list[float]:  # each cell's interface gap to the input reference, on a probe
+        return [
             a.task.relative.reference_gap(a.task.encode, t[: spec.batch_size]).item()
             for a, t in zip(actors, task_ins)
         ]
-    )
+
     with torch.no_grad():
         gap_before = gaps()
     parameters = {id(p): p for actor in actors for p in actor.parameters()}  # shared modules once
@@ -90,5 +92,8 @@ def consolidate_cells(
         optimizer.step()
     with torch.no_grad():
         gap_after = gaps()
-    mean = lambda values: float(sum(values) / len(values))  # noqa: E731
-    return {"gap_before": mean(gap_before), "gap_after": mean(gap_after), "bc": mean([b.item() for b in bcs])}
+    return {
+        "gap_before": float(np.mean(gap_before)),
+        "gap_after": float(np.mean(gap_after)),
+        "bc": float(np.mean([b.item() for b in bcs])),
+    }

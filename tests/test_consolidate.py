@@ -99,8 +99,10 @@ def test_without_the_action_term_the_pull_alone_would_change_the_policy():
 def test_consolidation_refuses_bad_settings_and_a_raw_latent():
     with pytest.raises(ValueError, match="updates must be a positive integer, got 0"):
         ConsolidateSpec(updates=0)
-    with pytest.raises(ValueError, match="pull must be positive, got -1"):
+    with pytest.raises(ValueError, match="pull must be >= 0, got -1"):
         ConsolidateSpec(pull=-1)
+    with pytest.raises(ValueError, match="lr must be positive, got 0"):
+        ConsolidateSpec(lr=0)
     with pytest.raises(UserError, match=r"'ablation\+consolidate=true': consolidation needs"):
         method_spec("ablation+consolidate=true")
     ablation = build_sac_nets("ablation", DIMS, interface_dim=16, hidden=32)

@@ -101,11 +101,11 @@ class ConsolidateSpec:
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
                 raise ValueError(f"consolidation {name} must be a positive integer, got {value!r}")
-        for name in ("pull", "lr"):
-            if not getattr(self, name) > 0:
-                raise ValueError(f"consolidation {name} must be positive, got {getattr(self, name)!r}")
-        if not self.log_std_weight >= 0:
-            raise ValueError(f"consolidation log_std_weight must be >= 0, got {self.log_std_weight!r}")
+        if not self.lr > 0:
+            raise ValueError(f"consolidation lr must be positive, got {self.lr!r}")
+        for name in ("pull", "log_std_weight"):  # pull 0: distillation into the relative cut alone
+            if not getattr(self, name) >= 0:
+                raise ValueError(f"consolidation {name} must be >= 0, got {getattr(self, name)!r}")
 
     @property
     def rows(self) -> int:

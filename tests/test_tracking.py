@@ -189,13 +189,16 @@ def test_tracker_params_tags_and_batched_metrics(store):
     assert [(m.step, m.value) for m in history] == [(0, 0.0), (10, 1.5), (20, 3.0)]
     assert set(store["client"].get_run(tracker.run_id).data.metrics) == {"return", "success"}
 
-    # a translated stitch's label in a name: MLflow allows neither "+" nor "@"
+    # a translated stitch's label and a method's options in a name: MLflow allows neither "+", "@"
+    # nor "=", nor a task variant's braces and quotes
     tracker.log_metrics({"zero_shot.ps_distilled+anchors@outcome.success": 0.5}, step=0)
+    tracker.log_metrics({"transfer.ps_distilled+consolidate_pull=0 co-trained.gain": 0.25}, step=0)
+    tracker.log_metrics({'few_shot.reach{"goal_region":"q1"}.success': 0.75}, step=0)
     tracker.flush()
-    assert (
-        store["client"].get_run(tracker.run_id).data.metrics["zero_shot.ps_distilled-anchors:outcome.success"]
-        == 0.5
-    )
+    metrics = store["client"].get_run(tracker.run_id).data.metrics
+    assert metrics["zero_shot.ps_distilled-anchors:outcome.success"] == 0.5
+    assert metrics["transfer.ps_distilled-consolidate_pull_0 co-trained.gain"] == 0.25
+    assert metrics["few_shot.reach__goal_region_:_q1__.success"] == 0.75
 
     for step in range(2500):  # more than one log_batch call (1000 metrics each)
         tracker.log_metrics({"big": float(step)}, step=step)

@@ -15,6 +15,7 @@ from __future__ import annotations
 import json
 import logging
 import math
+import re
 import subprocess
 import time
 from collections.abc import Iterable, Mapping, Sequence
@@ -157,14 +158,16 @@ def _chunks(items: Sequence[Any], size: int) -> Iterable[Sequence[Any]]:
 # ---------------------------------------------------------------------------------- tracker
 
 
-# MLflow names allow neither "+" nor "@": a translated stitch's row "ablation+affine@outcome"
-# is logged as "ablation-affine:outcome"
+# MLflow names allow alphanumerics, "_", "-", ".", " ", "/" and ":" only: a translated stitch's
+# row "ablation+affine@outcome" is logged as "ablation-affine:outcome", a method with an option,
+# "ps_distilled+consolidate_pull=0", as "ps_distilled-consolidate_pull_0"
 _METRIC_CHARACTERS = str.maketrans({"+": "-", "@": ":"})
+_NOT_IN_METRIC_NAMES = re.compile(r"[^\w.\- /:]")
 
 
 def metric_name(key: str) -> str:
-    """``key`` as an MLflow metric name."""
-    return key.translate(_METRIC_CHARACTERS)
+    """``key`` as an MLflow metric name (any other character becomes "_")."""
+    return _NOT_IN_METRIC_NAMES.sub("_", key.translate(_METRIC_CHARACTERS))
 
 
 class TrialTracker:

@@ -263,6 +263,9 @@ def test_a_ps_grid_stage_without_a_train_stage_makes_and_uses_its_anchor_set(tmp
         "panda_far/reach_red",
     ]
     assert {e.signature.anchor_hash for e in cells} == {anchor_set.hash}
+    # the folder records its spec, as a trained sweep's does: zero-shot, few-shot and report take it
+    recorded = yaml.safe_load(SweepLayout(sweep_dir(spec)).spec_file.read_text())
+    assert recorded == spec.to_dict()
 
 
 def test_a_consolidating_grid_distils_its_cells_together_onto_the_relative_cut(tmp_path):

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from ps_ray.pipeline.stage import connect, require_same_sweep
+from ps_ray.pipeline.stage import connect, record_spec, require_same_sweep
 from ps_ray.pipeline.sweep import anchor_file, prepare_sweep_anchors, report_ticks, run_tune
 from ps_ray.specs.grid import GridSpec
 from ps_ray.specs.sweep import SweepSpec
@@ -34,6 +34,7 @@ def run_grids(spec: SweepSpec, *, resume: bool = False, progress: bool = True):
     from ps_ray.envs.registry import register
 
     require_same_sweep(spec)
+    record_spec(spec)  # a grid-only sweep is a trained sweep to zero-shot, few-shot and report
     register()
     # a sweep that co-trains without training alone makes its anchor sets here (policy random or
     # a file; policy plain needs the train stage, as the spec says); made ones are kept

@@ -28,6 +28,7 @@ def require_same_sweep(spec: SweepSpec) -> None:
     holds_work = (
         attempts(layout.tune_train, "trial")
         or attempts(layout.tune_plain, "trial")
+        or attempts(layout.tune_grid, "trial")
         or any(layout.anchors.glob("*.npz"))
     )
     if spec_file.exists() and holds_work:
@@ -38,6 +39,18 @@ def require_same_sweep(spec: SweepSpec) -> None:
             f"{sweep_dir(spec)} was trained from a different sweep spec",
             "resume with the same training settings, or give the sweep another name or storage",
         )
+
+
+def record_spec(spec: SweepSpec) -> None:
+    """Write the spec into its sweep folder (made if missing), where every later command and stage
+    finds it: a stage that trains (train, grid) does so once ``require_same_sweep`` has passed."""
+    import yaml
+
+    from ps_ray.store.atomic import write_text
+
+    root = sweep_dir(spec)
+    root.mkdir(parents=True, exist_ok=True)
+    write_text(SweepLayout(root).spec_file, yaml.safe_dump(spec.to_dict(), sort_keys=True))
 
 
 def connect(spec: SweepSpec) -> tuple[str, str]:

@@ -13,12 +13,11 @@ from functools import partial
 from pathlib import Path
 from typing import Any
 
-from ps_ray.pipeline.stage import connect, layout, raise_on_errors, require_same_sweep
+from ps_ray.pipeline.stage import connect, layout, raise_on_errors, record_spec, require_same_sweep
 from ps_ray.specs.stages import stage as stage_record
 from ps_ray.specs.sweep import SweepSpec, anchor_sources, task_input_dim
 from ps_ray.specs.train import TrainSpec
 from ps_ray.specs.trial import TrainTrial
-from ps_ray.store.atomic import write_text
 from ps_ray.store.layout import SweepLayout, sweep_dir
 from ps_ray.store.run_layout import METRIC_FIELDS, POLICY_FILE, SIGNATURE_FILE, SPEC_FILE
 
@@ -185,21 +184,18 @@ def run_sweep(spec: SweepSpec, *, resume: bool = False, progress: bool = True):
     Stage 2: anchor sets, made by the driver. Stage 3: every trial of the grid, as Tune trials.
     A stage whose outputs exist is skipped, so a killed sweep resumes where it stopped.
     """
-    import yaml
 
     from ps_ray.envs.registry import register
     from ps_ray.pipeline.tune_tracking import default_key_fn
     from ps_ray.store.attempts import require_fresh
 
     root = sweep_dir(spec)
-    spec_file = SweepLayout(root).spec_file
     require_same_sweep(spec)
     if not resume:  # refused before Ray starts and anything is written
         require_fresh(SweepLayout(root).tune_plain, "trial", "anchors_plain")
         require_fresh(SweepLayout(root).tune_train, "trial", "train")
     check_inputs(spec)
-    root.mkdir(parents=True, exist_ok=True)
-    write_text(spec_file, yaml.safe_dump(spec.to_dict(), sort_keys=True))
+    record_spec(spec)
     register()
     tune_args = dict(spec=spec, tracking=connect(spec), resume=resume, progress=progress)
 

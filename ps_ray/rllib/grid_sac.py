@@ -24,13 +24,10 @@ from torch import nn
 
 from ps_ray.data.her import HindsightReplay
 from ps_ray.errors import UserError
-from ps_ray.nets.consolidate import consolidate_cells
 from ps_ray.nets.policy_file import save_policy
-from ps_ray.rllib.episodes import train_batch
 from ps_ray.rllib.grid_module import GridSACLearner, GridSACModule, grid_modules, grid_train_batch
-from ps_ray.rllib.private import mark_weights_changed
 from ps_ray.rllib.sac_her import ModularSAC, ModularSACConfig
-from ps_ray.specs.methods import ConsolidateSpec, method_spec
+from ps_ray.specs.methods import method_spec
 from ps_ray.store.signature import Signature
 
 
@@ -137,24 +134,14 @@ class GridSAC(ModularSAC):
         for key, value in self._cell_figures(episodes).items():
             self.metrics.log_value(("ps_ray", f"{prefix}_{key}"), value, reduce="item")
 
-    def consolidate_actor(self, spec: ConsolidateSpec) -> dict[str, float]:
-        """The method's consolidation of the grid's cells together
-        (:func:`ps_ray.nets.consolidate.consolidate_cells`), each cell on HER replay states of its
-        own replay; the env runners get the result."""
-        batches = [train_batch(r.sample_many(spec.updates, spec.batch_size)) for r in self.replays.values()]
-        task_ins, robot_ins = [b["task_in"] for b in batches], [b["robot_in"] for b in batches]
+    def consolidation_replays(self) -> list[HindsightReplay]:
+        """Each trained cell's replay: a grid's cells are consolidated together
+        (:func:`ps_ray.nets.consolidate.consolidate_cells`)."""
+        return list(self.replays.values())
 
-        def on_learner(learner):
-            cells = learner.module[DEFAULT_MODULE_ID].cells
-            stats = consolidate_cells([c.actor for c in cells], task_ins, robot_ins, spec)
-            mark_weights_changed(learner)
-            return stats
-
-        stats = self.learner_group.foreach_learner(on_learner).result_or_errors[0].get()
-        self.env_runner_group.sync_weights(
-            from_worker_or_learner_group=self.learner_group, inference_only=True
-        )
-        return stats
+    @staticmethod
+    def module_actors(module) -> list:
+        return [cell.actor for cell in module.cells]
 
     # -- what a grid does not do (yet) ----------------------------------------------------------
     def load_policy_weights(self, path) -> None:

@@ -30,7 +30,7 @@ from safetensors.torch import load_file, save_file
 from ps_ray.data.her import HindsightReplay
 from ps_ray.envs.goals import ROBOT_KEY, task_input
 from ps_ray.errors import UserError
-from ps_ray.nets.consolidate import consolidate
+from ps_ray.nets.consolidate import consolidate_cells
 from ps_ray.nets.from_signature import load_nets_state, nets_from_state, nets_state
 from ps_ray.nets.modular import update_normalizers
 from ps_ray.nets.obs import dims_from_spaces
@@ -165,13 +165,18 @@ class ModularSAC(SAC):
         )
 
     def consolidate_actor(self, spec: ConsolidateSpec) -> dict[str, float]:
-        """The method's consolidation (:mod:`ps_ray.nets.consolidate`) of the learner's actor on
-        HER replay states (goals relabelled as in training); the env runners get the result."""
-        batch = train_batch(self.replay.sample_many(spec.updates, spec.batch_size))
-        task_in, robot_in = batch["task_in"], batch["robot_in"]
+        """The method's consolidation (:mod:`ps_ray.nets.consolidate`) of the learner's actors
+        (one; a grid's cells together), each on HER replay states of its own replay (goals
+        relabelled as in training); the env runners get the result."""
+        batches = [
+            train_batch(r.sample_many(spec.updates, spec.batch_size)) for r in self.consolidation_replays()
+        ]
+        task_ins, robot_ins = [b["task_in"] for b in batches], [b["robot_in"] for b in batches]
+        actors_of = self.module_actors
 
         def on_learner(learner):
-            stats = consolidate(learner.module[DEFAULT_MODULE_ID].actor, task_in, robot_in, spec)
+            actors = actors_of(learner.module[DEFAULT_MODULE_ID])
+            stats = consolidate_cells(actors, task_ins, robot_ins, spec)
             mark_weights_changed(learner)
             return stats
 
@@ -180,6 +185,15 @@ class ModularSAC(SAC):
             from_worker_or_learner_group=self.learner_group, inference_only=True
         )
         return stats
+
+    def consolidation_replays(self) -> list[HindsightReplay]:
+        """The replays consolidation reads, one per actor of :meth:`module_actors`."""
+        return [self.replay]
+
+    @staticmethod
+    def module_actors(module) -> list:
+        """The actors a consolidation moves, in the order of :meth:`consolidation_replays`."""
+        return [module.actor]
 
     def export_policy(self, path, signature, extra: dict[str, str] | None = None) -> Signature:
         """Write the learner's nets as a policy file; returns its signature, which records whether

@@ -1,9 +1,9 @@
 """Which marker does an actor follow? On the marker family (docs/transfer.md "Why ps does not learn
 the family") a policy that learned its task moves its action with the named marker and ignores the
 other; one that did not moves with both alike. Selectivity = the mean change of the greedy action
-(tanh of the actor's mean) when the named marker moves ``step`` metres, over the change when the
-other marker does, each axis in turn, over probe scenes, the arm at its robot module's running
-mean (a typical arm state)."""
+(:class:`ps_ray.nets.policy.GreedyPolicy`'s) when the named marker moves ``step`` metres, over the
+change when the other marker does, each axis in turn, over probe scenes, the arm at its robot
+module's running mean (a typical arm state)."""
 
 from __future__ import annotations
 
@@ -13,6 +13,7 @@ import torch
 from torch import Tensor
 
 from ps_ray.nets.modular import Actor
+from ps_ray.nets.policy import GreedyPolicy
 
 MARKER_STEP = 0.05  # metres: a marker moved well within the scene's box
 
@@ -27,16 +28,6 @@ class Selectivity(NamedTuple):
 
 
 @torch.no_grad()
-def _moved(actor: Actor, scenes: Tensor, robot: Tensor, columns: slice, step: float) -> float:
-    base = torch.tanh(actor(scenes, robot)[0])
-    changes = []
-    for column in range(columns.start, columns.stop):
-        shifted = scenes.clone()
-        shifted[:, column] += step
-        changes.append((torch.tanh(actor(shifted, robot)[0]) - base).norm(dim=-1).mean())
-    return float(torch.stack(changes).mean())
-
-
 def marker_selectivity(
     actor: Actor, scenes: Tensor, named: slice, other: slice, step: float = MARKER_STEP
 ) -> Selectivity:
@@ -44,10 +35,16 @@ def marker_selectivity(
     norm = actor.robot.norm
     if norm is None:
         raise ValueError("marker selectivity needs a modular actor (its robot module's running mean)")
+    act = GreedyPolicy(actor).net  # the greedy action on tensors (an eval-mode copy: no dropout)
     robot = norm.mean.expand(len(scenes), -1)
-    training = actor.training
-    actor.eval()  # the greedy policy: no dropout (devin)
-    try:
-        return Selectivity(*(_moved(actor, scenes, robot, marker, step) for marker in (named, other)))
-    finally:
-        actor.train(training)
+    base = act(scenes, robot)
+
+    def moved(columns: slice) -> float:
+        changes = []
+        for column in range(columns.start, columns.stop):
+            shifted = scenes.clone()
+            shifted[:, column] += step
+            changes.append((act(shifted, robot) - base).norm(dim=-1).mean())
+        return float(torch.stack(changes).mean())
+
+    return Selectivity(moved(named), moved(other))

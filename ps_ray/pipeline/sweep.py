@@ -184,7 +184,6 @@ def run_sweep(spec: SweepSpec, *, resume: bool = False, progress: bool = True):
     Stage 2: anchor sets, made by the driver. Stage 3: every trial of the grid, as Tune trials.
     A stage whose outputs exist is skipped, so a killed sweep resumes where it stopped.
     """
-
     from ps_ray.envs.registry import register
     from ps_ray.pipeline.tune_tracking import default_key_fn
     from ps_ray.store.attempts import require_fresh

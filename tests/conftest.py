@@ -23,33 +23,48 @@ os.environ["PS_RAY_CACHE"] = tempfile.mkdtemp(prefix="ps_ray_cache_")
 
 
 def _init_local_ray() -> None:
+    """The session's Ray; its address goes into RAY_ADDRESS, so that a `ps-ray` command a test
+    runs in a subprocess joins it instead of starting its own (about 10 s of CPU each,
+    docs/cost.md "The test suite's time")."""
     import ray
 
     ray.init(
         address="local", num_cpus=2, include_dashboard=False, log_to_driver=False, configure_logging=False
     )
+    os.environ["RAY_ADDRESS"] = ray.get_runtime_context().gcs_address
 
 
-@pytest.fixture(scope="session")
-def ray_local():
+def _shutdown_ray() -> None:
     import ray
 
+    os.environ.pop("RAY_ADDRESS", None)
+    ray.shutdown()
+
+
+def own_ray_env() -> dict[str, str]:
+    """This process's environment without RAY_ADDRESS: a subprocess started with it starts its
+    own Ray, for tests that kill a run together with every process it started."""
+    return {k: v for k, v in os.environ.items() if k != "RAY_ADDRESS"}
+
+
+@pytest.fixture(scope="session", autouse=True)
+def ray_local():
     _init_local_ray()
     yield
-    ray.shutdown()
+    _shutdown_ray()
 
 
 @pytest.fixture
 def two_node_cluster():
     """A local two-node Ray cluster (head and one worker, one CPU each), connected. The session's
-    single-node instance, if running, is stopped for it and restarted afterwards, so no later test
-    depends on the order tests run in."""
+    single-node instance is stopped for it and restarted afterwards, so no later test depends on
+    the order tests run in."""
     import ray
     from ray.cluster_utils import Cluster
 
     was_running = ray.is_initialized()
     if was_running:
-        ray.shutdown()
+        _shutdown_ray()
     cluster = Cluster(initialize_head=True, head_node_args={"num_cpus": 1})
     cluster.add_node(num_cpus=1)
     try:
@@ -136,10 +151,10 @@ def tiny_train() -> dict:
     return dict(TINY_TRAIN)
 
 
-def _cli(*args: str, env: dict | None = None, **kwargs) -> subprocess.Popen:
+def _cli(*args: str, env: dict | None = None, own_ray: bool = False, **kwargs) -> subprocess.Popen:
     return subprocess.Popen(
         [sys.executable, "-m", "ps_ray.cli", *args],
-        env={**os.environ, **(env or {})},
+        env={**(own_ray_env() if own_ray else os.environ), **(env or {})},
         stdout=subprocess.PIPE,
         stderr=subprocess.STDOUT,
         text=True,
@@ -149,7 +164,8 @@ def _cli(*args: str, env: dict | None = None, **kwargs) -> subprocess.Popen:
 
 @pytest.fixture(scope="session")
 def cli():
-    """``cli(*args, env=None, **popen_kwargs)``: ``ps-ray`` in a subprocess, output in one pipe."""
+    """``cli(*args, env=None, own_ray=False, **popen_kwargs)``: ``ps-ray`` in a subprocess, output
+    in one pipe; it joins the session's Ray unless ``own_ray``."""
     return _cli
 
 

@@ -15,6 +15,8 @@ import mlflow
 import pytest
 import yaml
 
+from tests.conftest import own_ray_env
+
 REPO = Path(__file__).resolve().parents[1]
 BIN = Path(sys.executable).parent
 
@@ -28,7 +30,7 @@ def free_port() -> int:
 @pytest.fixture
 def ray_head(tmp_path):
     """`ray start --head --block` in its own session; killed with its process group afterwards."""
-    env = {**os.environ, "RAY_AUTH_MODE": "token", "RAY_USAGE_STATS_ENABLED": "0"}
+    env = {**own_ray_env(), "RAY_AUTH_MODE": "token", "RAY_USAGE_STATS_ENABLED": "0"}
     dashboard = free_port()
     head = subprocess.Popen(
         [

@@ -32,7 +32,7 @@ from ps_ray.store.checkpoint import latest as latest_checkpoint
 from ps_ray.store.layout import SweepLayout
 from ps_ray.store.stages import stage_state
 from ps_ray.store.tracking import TRIAL_KEY_TAG
-from tests.conftest import wait_until_serving
+from tests.conftest import own_ray_env, wait_until_serving
 
 SMOKE = Path(__file__).resolve().parents[1] / "sweeps" / "smoke.yaml"
 FIGURES = {
@@ -109,6 +109,7 @@ def smoke(tmp_path_factory, cli, planted):
                 stdout=sink,
                 stderr=subprocess.STDOUT,
                 start_new_session=True,
+                env=own_ray_env(),  # its own Ray: the kill takes every process of the run
             )
             try:
                 _kill_at(run, root, moment, sign, delay, look)

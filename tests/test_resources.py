@@ -14,6 +14,7 @@ from ps_ray.rllib.algo import algo_config
 from ps_ray.specs.resources import StageResources, device_tags, learner_device
 from ps_ray.specs.sweep import SweepSpec
 from ps_ray.specs.train import TrainSpec
+from tests.conftest import own_ray_env
 
 GRID = {"name": "r", "methods": ["ablation"], "robots": ["panda"], "tasks": ["reach"], "seeds": [1]}
 
@@ -45,7 +46,11 @@ print(json.dumps([o.metrics for o in out]))
 
 def test_four_trials_asking_a_quarter_gpu_each_run_at_once_on_one_gpu(tmp_path):
     proc = subprocess.run(
-        [sys.executable, "-c", SHARE, str(tmp_path / "share")], capture_output=True, text=True, timeout=300
+        [sys.executable, "-c", SHARE, str(tmp_path / "share")],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        env=own_ray_env(),  # its own Ray, with a GPU it pretends to have
     )
     assert proc.returncode == 0, proc.stderr[-3000:]
     rows = json.loads(proc.stdout.strip().splitlines()[-1])

@@ -93,7 +93,7 @@ def test_resume_after_sigkill_reruns_only_missing_trials_and_never_unpickles(
     tmp_path, cli, tiny_train, planted
 ):
     path = write_sweep(tmp_path, "killed", tiny_train, seeds=(1, 2, 3), max_concurrent=1)
-    proc = cli("sweep", str(path), start_new_session=True)
+    proc = cli("sweep", str(path), own_ray=True, start_new_session=True)
     deadline = time.time() + 300
     while time.time() < deadline:
         if any(r.info.status == "FINISHED" for r in runs(path).values()):
@@ -143,7 +143,7 @@ def test_a_killed_trial_worker_is_retried_from_its_checkpoint(tmp_path, cli, tin
     out-of-memory kill would: Tune retries the trial (FailureConfig), from that checkpoint."""
     path = write_sweep(tmp_path, "crash", {**tiny_train, "env_steps": 1500}, seeds=(1,))
     tag = f"PS_RAY_TEST_RUN={tmp_path.name}"
-    proc = cli("sweep", str(path), env={"PS_RAY_TEST_RUN": tmp_path.name})
+    proc = cli("sweep", str(path), env={"PS_RAY_TEST_RUN": tmp_path.name}, own_ray=True)
     tune_dir = sweep_dir(load_sweep(path)) / "tune"
     deadline = time.time() + 300
     while not _reported_checkpoint(tune_dir):

@@ -4,8 +4,6 @@ sweep's MLflow experiment (:func:`connect`), the check that a folder keeps one s
 
 from __future__ import annotations
 
-import os
-
 from ps_ray.specs.sweep import SweepSpec
 from ps_ray.specs.train import require_same
 from ps_ray.store.layout import SweepLayout, sweep_dir
@@ -57,14 +55,14 @@ def connect(spec: SweepSpec) -> tuple[str, str]:
     """Join (or start) Ray and open the sweep's MLflow experiment: (tracking URI, experiment id).
 
     The driver creates the store and experiment once, before any trial could race for it."""
-    from ps_ray.rllib.ray_start import init_ray
+    from ps_ray.rllib.ray_start import cluster_address, init_ray
     from ps_ray.store.layout import LOG_FOLDER
     from ps_ray.store.terminal import others_to
     from ps_ray.store.tracking import default_tracking_uri, ensure_experiment
 
     where = layout(spec)
     with others_to(where.root / LOG_FOLDER / "driver.log"):  # Ray's and MLflow's start-up messages
-        init_ray(os.environ.get("RAY_ADDRESS", "local"))
+        init_ray(cluster_address() or "local")
         tracking_uri = spec.tracking_uri or default_tracking_uri(where.root)
         return tracking_uri, ensure_experiment(tracking_uri, spec.name, where.artifacts)
 

@@ -41,12 +41,18 @@ def make_env(spec: TrainSpec):
 
 
 def start_local_ray() -> None:
-    """A local Ray for a run in this process (``ps-ray train``, ``ps-ray grid``), unless one runs."""
+    """Ray for a run in this process (``ps-ray train``, ``ps-ray grid``), unless one runs: the
+    cluster at ``RAY_ADDRESS`` when set (the run itself stays in this process), else a local
+    instance with this machine's cores."""
     import os
 
-    from ps_ray.rllib.ray_start import init_ray
+    from ps_ray.rllib.ray_start import cluster_address, init_ray
 
-    init_ray(num_cpus=max(1, os.cpu_count() or 1))
+    address = cluster_address()
+    if address:
+        init_ray(address)
+    else:
+        init_ray(num_cpus=max(1, os.cpu_count() or 1))
 
 
 def prepare_anchors(spec: TrainSpec, run_dir: Path, given=None):

@@ -8,6 +8,14 @@ RAY_START_TIMEOUT = "timed out during startup"
 RAY_START_TRIES = 3
 
 
+def cluster_address() -> str | None:
+    """The Ray cluster this process should join: ``RAY_ADDRESS`` (set by ``ray job submit`` and
+    on a cluster's nodes), or None: start a local instance."""
+    import os
+
+    return os.environ.get("RAY_ADDRESS") or None
+
+
 def init_ray(address: str = "local", **kwargs) -> None:
     """``ray.init(address, **kwargs)`` unless Ray runs in this process, quiet (no dashboard, no
     worker logs on the terminal, Ray's logging left alone), started again (up to RAY_START_TRIES

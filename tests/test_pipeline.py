@@ -10,6 +10,7 @@ import hashlib
 import json
 import os
 import re
+import shlex
 import signal
 import socket
 import subprocess
@@ -393,22 +394,15 @@ def _free_port() -> int:
 
 
 def test_mlflow_ui_lists_the_runs_and_the_report_artifact(smoke, visible_text):
-    """`mlflow ui` as the README says to open it, read in headless Chromium."""
-    _, root, _ = smoke
+    """`mlflow ui` as `ps-ray run` prints it at the end, read in headless Chromium."""
+    _, root, outs = smoke
     assert find_chromium(), "Chromium is needed for this check (./run.sh test installs it)"
+    (printed,) = [line for line in outs[-1].splitlines() if line.startswith("MLflow: ")]
+    command = shlex.split(printed.removeprefix("MLflow: "))
+    assert command[:2] == ["mlflow", "ui"] and f"sqlite:///{root / 'mlflow.db'}" in command
     port = _free_port()
-    mlflow_bin = Path(sys.executable).with_name("mlflow")
     server = subprocess.Popen(
-        [
-            str(mlflow_bin),
-            "ui",
-            "--backend-store-uri",
-            f"sqlite:///{root / 'mlflow.db'}",
-            "--host",
-            "127.0.0.1",
-            "--port",
-            str(port),
-        ],
+        [Path(sys.executable).with_name("mlflow"), *command[1:], "--host", "127.0.0.1", "--port", str(port)],
         stdout=subprocess.DEVNULL,
         stderr=subprocess.DEVNULL,
         start_new_session=True,

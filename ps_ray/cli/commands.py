@@ -227,7 +227,8 @@ def cmd_run(args: argparse.Namespace) -> int:
     if "report" in summaries:
         print(f"report: {SweepLayout(sweep_dir(spec)).report / 'index.html'}")
     uri = spec.tracking_uri or default_tracking_uri(sweep_dir(spec))
-    print(f"MLflow: mlflow ui --backend-store-uri {uri}")
+    # one server worker is plenty for one reader; MLflow's default 4 each import MLflow (~10 s of CPU)
+    print(f"MLflow: mlflow ui --workers 1 --backend-store-uri {uri}")
     note = budget_note(spec)
     if note:
         print(f"note: {note}")

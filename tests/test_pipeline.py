@@ -399,7 +399,7 @@ def test_mlflow_ui_lists_the_runs_and_the_report_artifact(smoke, visible_text):
     assert find_chromium(), "Chromium is needed for this check (./run.sh test installs it)"
     (printed,) = [line for line in outs[-1].splitlines() if line.startswith("MLflow: ")]
     command = shlex.split(printed.removeprefix("MLflow: "))
-    assert command[:2] == ["mlflow", "ui"] and f"sqlite:///{root / 'mlflow.db'}" in command
+    assert command[:2] == ["mlflow", "ui"] and f"sqlite:///{root.resolve() / 'mlflow.db'}" in command
     port = _free_port()
     server = subprocess.Popen(
         [Path(sys.executable).with_name("mlflow"), *command[1:], "--host", "127.0.0.1", "--port", str(port)],

@@ -227,8 +227,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     if "report" in summaries:
         print(f"report: {SweepLayout(sweep_dir(spec)).report / 'index.html'}")
     uri = spec.tracking_uri or default_tracking_uri(sweep_dir(spec))
-    # one server worker is plenty for one reader; MLflow's default 4 each import MLflow (~10 s of CPU)
-    print(f"MLflow: mlflow ui --workers 1 --backend-store-uri {uri}")
+    print(f"MLflow: mlflow ui --workers 1 --backend-store-uri {uri}")  # one reader (docs/cost.md)
     note = budget_note(spec)
     if note:
         print(f"note: {note}")

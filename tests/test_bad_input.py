@@ -124,6 +124,7 @@ CASES = [  # (arguments, with {f} the input folder and {out} a path that must no
     ("bench env --steps 0", "argument --steps: expected a positive integer, got 0"),
     ("bench her --repeats -3", "argument --repeats: expected a positive integer, got -3"),
     ("bench update --methods ps nope", "unknown method 'nope'; valid presets: ps, ps_distilled, ablation"),
+    ("bench update --dims 15,8", "--dims takes TASK,ROBOT,ACTION widths, e.g. 15,8,7; got '15,8'"),
     (
         "bench learn --methods ablation nope --out {out}/b",
         "unknown method 'nope'; valid presets: ps, ps_distilled",

@@ -94,8 +94,8 @@ def test_no_module_is_over_400_lines():
     assert not long, long
 
 
-def _loaded_after(code: str) -> set[str]:
-    probe = code + "\nimport sys; print(' '.join(m for m in ('ray', 'torch') if m in sys.modules))"
+def _loaded_after(code: str, names: tuple[str, ...] = ("ray", "torch")) -> set[str]:
+    probe = code + f"\nimport sys; print(' '.join(m for m in {names!r} if m in sys.modules))"
     out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, cwd=REPO, check=True)
     return set(out.stdout.split("\n")[-2].split())
 
@@ -105,6 +105,25 @@ def test_the_report_module_and_a_sweep_check_load_neither_ray_nor_torch():
     check = "from ps_ray import cli\nassert cli.main(['sweep', 'sweeps/transfer.yaml', '--check']) == 0"
     assert _loaded_after(check) == set()
     assert _loaded_after("import ps_ray.nets.policy_file") == {"torch"}  # the probe sees what is loaded
+
+
+def test_the_update_benchmark_runs_where_only_torch_is_installed(tmp_path):
+    """A GPU host without PyBullet or Ray (docs/cost.md, "A GPU update, measured") times the update
+    with the widths given, and the nets it saves are policy files a CPU host loads."""
+    from safetensors import safe_open
+
+    from ps_ray.nets.policy_file import load_policy
+
+    args = ["--dims", "15,8,7", "--methods", "ps", "--rounds", "1", "--updates", "2", "--save", str(tmp_path)]
+    code = f"from ps_ray.bench import update\nupdate.main({args!r})"
+    assert _loaded_after(code, ("ray", "torch", "pybullet", "gymnasium", "mlflow")) == {"torch"}
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["ablation_cpu.safetensors", "ps_cpu.safetensors"]
+    nets, signature = load_policy(tmp_path / "ps_cpu.safetensors")
+    widths = (signature.task_dim, signature.robot_dim, signature.action_dim)
+    assert (signature.method, widths) == ("ps", (15, 8, 7))
+    assert nets.actor.anchors.shape == (128, 15)
+    with safe_open(str(tmp_path / "ps_cpu.safetensors"), "pt") as f:
+        assert f.metadata()["written_on"] == "cpu"
 
 
 def test_every_module_but_the_errors_lives_in_the_package_of_its_floor():

@@ -102,12 +102,14 @@ class GpuRates:
         return factor * max(self.launch_s / cpu_speed, self.busy_s * unit / share)
 
 
-# LeanRL's SAC on an H100 (github.com/pytorch-labs/LeanRL README): 127 steps/s eager (CleanRL),
-# 725 steps/s compiled with CUDA graphs. A public figure, not measured here (no GPU was lent).
+# ps_ray's own SAC update on an H100 (`ps-ray bench update --devices cpu cuda --dims 15,8,7`,
+# session 30, docs/cost.md "A GPU update, measured"): eager, batch 256, hidden 256, the ablation
+# 11.2 ms on one host thread whose CPU update takes 30 ms, as on the 2-core machine the rates are
+# measured on. Batch 65,536 took 17.9 ms: the GPU's own work at batch 256 is at most 1/256 of that.
 DEFAULT_GPU_RATES = GpuRates(
-    launch_s=1 / 127,
-    busy_s=1 / 725,
-    source="GPU: LeanRL's public SAC figures on an H100 (7.9 ms eager), not measured here",
+    launch_s=0.0112,
+    busy_s=0.0179 / 256,
+    source="GPU: ps_ray's eager update measured on an H100 (11.2 ms, ablation, batch 256)",
 )
 
 

@@ -17,7 +17,7 @@ from collections.abc import Sequence
 import numpy as np
 import pybullet as p
 
-from ps_ray.cli.parsers import Parser, positive_int
+from ps_ray.cli.args import Parser, positive_int
 from ps_ray.envs import EPISODE_STEPS, TASKS, make
 
 

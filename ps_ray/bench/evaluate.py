@@ -19,7 +19,7 @@ from collections.abc import Sequence
 import numpy as np
 import torch
 
-from ps_ray.cli.parsers import Parser, positive_int
+from ps_ray.cli.args import Parser, positive_int
 from ps_ray.envs import make, task_input
 from ps_ray.nets.obs import dims_from_spaces
 from ps_ray.nets.sac import build_sac_nets

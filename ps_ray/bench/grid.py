@@ -18,7 +18,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from ps_ray.cli.parsers import Parser, positive_int
+from ps_ray.cli.args import Parser, positive_int
 from ps_ray.nets.grid import add_grid_modules, grid_critic_pairs
 from ps_ray.nets.sac import SACHyper, polyak_pairs, sac_forward, sac_losses
 from ps_ray.specs.grid import GridSpec

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ps_ray.cli.parsers import Parser, positive_int
+from ps_ray.cli.args import Parser, positive_int
 from ps_ray.data.her import HindsightReplay
 from ps_ray.envs.goals import goal_reward
 

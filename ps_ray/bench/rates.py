@@ -25,7 +25,7 @@ import pandas as pd
 
 from ps_ray.analysis.cost import rates_path
 from ps_ray.analysis.hardware import DEFAULT_RATES, Rates
-from ps_ray.cli.parsers import Parser, positive_int
+from ps_ray.cli.args import Parser, positive_int
 from ps_ray.envs import EPISODE_STEPS
 from ps_ray.specs.train import TrainSpec
 from ps_ray.store.atomic import write_text

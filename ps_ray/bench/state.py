@@ -10,7 +10,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from ps_ray.cli.parsers import Parser, positive_int
+from ps_ray.cli.args import Parser, positive_int
 from ps_ray.store import checkpoint
 from ps_ray.store.atomic import write_text
 from ps_ray.store.lock import folder_lock

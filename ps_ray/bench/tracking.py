@@ -21,7 +21,7 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-from ps_ray.cli.parsers import Parser, positive_int
+from ps_ray.cli.args import Parser, positive_int
 from ps_ray.pipeline.tune_tracking import MLflowTuneCallback
 from ps_ray.store.tracking import default_tracking_uri, ensure_experiment
 

@@ -15,7 +15,7 @@ import time
 import numpy as np
 import torch
 
-from ps_ray.cli.parsers import Parser
+from ps_ray.cli.args import Parser
 from ps_ray.data.her import HindsightReplay
 from ps_ray.nets.modular import update_normalizers
 from ps_ray.nets.obs import dims_from_spaces, split_obs

@@ -3,26 +3,31 @@
 The nets are the ones training builds (the task's real dims, hidden 256, interface 128, batch
 256, one torch thread); the batch and the anchors are random, which changes values, not cost.
 Methods take turns round by round, so a noisy machine slows them alike; the last column is each
-method's median over rounds divided by the ablation's (the ablation is added when not listed).
+row's median over rounds divided by the eager ablation's on the first device (the ablation is
+added when not listed).
 ``--compile`` adds each method with its forward pass and losses compiled (``torch.compile``; the
 backward pass follows through AOTAutograd), eager and compiled taking turns, and prints the
-compilation time (docs/cost.md has the figures of this machine).
+compilation time (docs/cost.md has the figures of this machine). ``--devices cpu cuda`` times
+each method on each device (a CUDA update is timed to its end: the host waits for the GPU);
+``--dims`` gives the widths instead of building the task's env, for a GPU host without PyBullet;
+``--save DIR`` writes each row's nets, as its updates left them, as a policy file (written from
+the GPU, read and stitched on a CPU host).
 """
 
 from __future__ import annotations
 
+import argparse
 import time
+from pathlib import Path
 
 import numpy as np
 import torch
 
-from ps_ray.cli.parsers import Parser, positive_int
-from ps_ray.nets.obs import dims_from_spaces
+from ps_ray.cli.args import Parser, positive_int
 from ps_ray.nets.sac import SACHyper, build_sac_nets, sac_forward, sac_losses
-from ps_ray.rllib.loop import make_env
+from ps_ray.specs.defaults import HIDDEN
 from ps_ray.specs.dims import NetDims
 from ps_ray.specs.methods import method_spec, uses_anchors
-from ps_ray.specs.train import TrainSpec
 
 
 class UpdateLoop:
@@ -35,23 +40,26 @@ class UpdateLoop:
         batch_size: int,
         interface_dim: int,
         seed: int = 0,
-        compile: bool = False,
+        compile: str = "",
+        device: str = "cpu",
     ):
         rng = np.random.default_rng(seed)
+        self.method, self.interface_dim = method, interface_dim
         anchors = rng.normal(size=(interface_dim, dims.task_dim)) if uses_anchors(method) else None
-        self.nets = build_sac_nets(method, dims, interface_dim=interface_dim, anchors=anchors)
-        self.log_alpha = torch.zeros(1, requires_grad=True)
+        self.nets = build_sac_nets(method, dims, interface_dim=interface_dim, anchors=anchors).to(device)
+        self.device = torch.device(device)
+        self.log_alpha = torch.zeros(1, device=device, requires_grad=True)
         trained = (self.nets.actor, self.nets.critic, self.nets.critic_twin)
         self.optimizer = torch.optim.Adam([p for n in trained for p in n.parameters()] + [self.log_alpha])
         widths = {"task_in": dims.task_dim, "robot_in": dims.robot_dim, "actions": dims.action_dim}
         widths |= {"next_task_in": dims.task_dim, "next_robot_in": dims.robot_dim}
         self.batch = {
-            k: torch.as_tensor(rng.normal(size=(batch_size, w)), dtype=torch.float32)
+            k: torch.as_tensor(rng.normal(size=(batch_size, w)), dtype=torch.float32, device=device)
             for k, w in widths.items()
         }
-        self.rewards = -torch.ones(batch_size)
+        self.rewards = -torch.ones(batch_size, device=device)
         self.action_dim = dims.action_dim
-        self.loss = torch.compile(self._loss) if compile else self._loss
+        self.loss = torch.compile(self._loss, mode=compile) if compile else self._loss
 
     def _loss(self) -> torch.Tensor:
         fwd = sac_forward(self.nets, self.batch)
@@ -63,6 +71,44 @@ class UpdateLoop:
         loss.backward()
         self.optimizer.step()
 
+    def save(self, path: Path) -> Path:
+        from ps_ray.nets.from_signature import signature_of
+        from ps_ray.nets.policy_file import save_policy
+
+        signature = signature_of(self.nets, self.method, self.interface_dim, HIDDEN)
+        return save_policy(path, self.nets, signature, extra={"written_on": str(self.device)})
+
+    def timed(self, updates: int) -> float:
+        """Seconds per update over ``updates`` updates, the GPU's queued work included."""
+        start = time.perf_counter()
+        for _ in range(updates):
+            self.update()
+        if self.device.type == "cuda":
+            torch.cuda.synchronize(self.device)
+        return (time.perf_counter() - start) / updates
+
+
+def task_dims(task: str) -> NetDims:
+    """The widths of a task's nets, read off its env (PyBullet's)."""
+    from ps_ray.nets.obs import dims_from_spaces
+    from ps_ray.rllib.loop import make_env
+    from ps_ray.specs.train import TrainSpec
+
+    env = make_env(TrainSpec(task=task))
+    dims = dims_from_spaces(env.observation_space, env.action_space)
+    env.close()
+    return dims
+
+
+def parse_dims(text: str) -> NetDims:
+    try:
+        task_dim, robot_dim, action_dim = (positive_int(v) for v in text.split(","))
+    except (ValueError, TypeError):
+        raise argparse.ArgumentTypeError(
+            f"--dims takes TASK,ROBOT,ACTION widths, e.g. 15,8,7; got {text!r}"
+        ) from None
+    return NetDims(task_dim, robot_dim, action_dim)
+
 
 def main(argv: list[str] | None = None) -> None:
     parser = Parser(prog="ps-ray bench update", description=__doc__)
@@ -73,41 +119,56 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--batch-size", type=positive_int, default=256)
     parser.add_argument("--interface-dim", type=positive_int, default=128)
     parser.add_argument("--compile", action="store_true", help="also each method compiled (torch.compile)")
+    parser.add_argument(
+        "--compile-mode",
+        default="default",
+        choices=["default", "reduce-overhead", "max-autotune-no-cudagraphs"],
+        help="torch.compile's mode (reduce-overhead: CUDA graphs on a GPU)",
+    )
+    parser.add_argument("--devices", nargs="+", default=["cpu"], choices=["cpu", "cuda"])
+    parser.add_argument("--dims", type=parse_dims, default=None, help="TASK,ROBOT,ACTION widths (no env)")
+    parser.add_argument("--save", type=Path, default=None, help="write each row's nets here (policy files)")
     args = parser.parse_args(argv)
     methods = list(dict.fromkeys(["ablation", *args.methods]))
     for method in methods:
         method_spec(method)  # an unknown name fails in one line before anything is built
+    if "cuda" in args.devices and not torch.cuda.is_available():
+        parser.error("--devices cuda: this torch finds no CUDA device")
     torch.set_num_threads(1)
-    env = make_env(TrainSpec(task=args.task))
-    dims = dims_from_spaces(env.observation_space, env.action_space)
-    env.close()
-    loops = {m: UpdateLoop(m, dims, args.batch_size, args.interface_dim) for m in methods}
-    compiled = {}
-    for m in methods if args.compile else ():
-        compiled[f"{m} compiled"] = UpdateLoop(m, dims, args.batch_size, args.interface_dim, compile=True)
-        start = time.perf_counter()
-        compiled[f"{m} compiled"].update()  # the first call compiles
-        print(f"{m}: compiled in {time.perf_counter() - start:.1f} s", flush=True)
-    loops |= compiled
-    for loop in loops.values():
-        loop.update()  # warm-up: allocator, Adam state
-    seconds: dict[str, list[float]] = {m: [] for m in loops}
-    for _ in range(args.rounds):
-        for method, loop in loops.items():
+    dims = args.dims or task_dims(args.task)
+    loops: dict[str, UpdateLoop] = {}
+    for device in args.devices:
+        for m in methods:
+            loops[f"{m} {device}"] = UpdateLoop(m, dims, args.batch_size, args.interface_dim, device=device)
+        for m in methods if args.compile else ():
+            name = f"{m} {device} compiled"
+            loops[name] = UpdateLoop(
+                m, dims, args.batch_size, args.interface_dim, compile=args.compile_mode, device=device
+            )
             start = time.perf_counter()
-            for _ in range(args.updates):
-                loop.update()
-            seconds[method].append((time.perf_counter() - start) / args.updates)
+            loops[name].timed(3)  # the first calls compile (reduce-overhead records its graphs later)
+            print(f"{name}: compiled in {time.perf_counter() - start:.1f} s", flush=True)
+    for loop in loops.values():
+        loop.timed(3)  # warm-up: allocator, Adam state, CUDA kernels
+    seconds: dict[str, list[float]] = {name: [] for name in loops}
+    for _ in range(args.rounds):
+        for name, loop in loops.items():
+            seconds[name].append(loop.timed(args.updates))
+    where = "given widths" if args.dims else f"task {args.task}"
     print(
-        f"task {args.task} (task {dims.task_dim}, robot {dims.robot_dim}, action {dims.action_dim}), "
+        f"{where} (task {dims.task_dim}, robot {dims.robot_dim}, action {dims.action_dim}), "
         f"batch {args.batch_size}, interface {args.interface_dim}, 1 torch thread; "
         f"median over {args.rounds} rounds of {args.updates} updates"
     )
-    print(f"{'method':<22}{'ms/update':>10}{'min':>8}{'max':>8}{'/ ablation':>12}")
-    base = float(np.median(seconds["ablation"]))
-    for method, values in seconds.items():
+    if "cuda" in args.devices:
+        print(f"cuda: {torch.cuda.get_device_name()}, torch {torch.__version__}")
+    print(f"{'method':<34}{'ms/update':>10}{'min':>8}{'max':>8}{'/ ablation':>12}")
+    base = float(np.median(seconds[f"ablation {args.devices[0]}"]))
+    for name, values in seconds.items():
         ms, ratio = 1000 * np.asarray(values), np.median(values) / base
-        print(f"{method:<22}{np.median(ms):>10.2f}{ms.min():>8.2f}{ms.max():>8.2f}{ratio:>12.2f}")
+        print(f"{name:<34}{np.median(ms):>10.2f}{ms.min():>8.2f}{ms.max():>8.2f}{ratio:>12.2f}")
+    for name, loop in loops.items() if args.save else ():
+        print("wrote", loop.save(args.save / f"{name.replace(' ', '_')}.safetensors"))
 
 
 if __name__ == "__main__":

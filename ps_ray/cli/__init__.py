@@ -1,5 +1,11 @@
-"""`ps-ray`: the commands (commands.py) and their arguments (parsers.py)."""
+"""`ps-ray`: the commands (commands.py), their arguments (parsers.py) and the argument types
+(args.py). The commands load on the first call, so ``ps_ray.cli.args`` imports nothing else."""
 
-from ps_ray.cli.commands import main
+
+def main(argv: list[str] | None = None) -> int:
+    from ps_ray.cli.commands import main as run
+
+    return run(argv)
+
 
 __all__ = ["main"]

@@ -6,6 +6,7 @@ from __future__ import annotations
 import contextlib
 from pathlib import Path
 
+from ps_ray.pipeline.heap import releasing
 from ps_ray.pipeline.preemption import PREEMPTION_RETRIES, failures, preempted
 from ps_ray.specs.resources import StageResources
 from ps_ray.store.attempts import STAGE_DIR_KEY, TrialOutcome, identity, outcomes, require_fresh
@@ -60,7 +61,7 @@ def run_trials(
                 flush=True,
             )
         tuner = tune.Tuner(
-            tune.with_resources(trainable, resources.tune_request()),
+            tune.with_resources(releasing(trainable), resources.tune_request()),
             param_space={key: tune.grid_search(todo), **(constants or {}), STAGE_DIR_KEY: str(path)},
             # a finished trial's worker process runs the next one: no new process, imports and
             # lazy inits per trial (docs/cost.md "Per-trial overhead")

@@ -89,21 +89,16 @@ class UpdateLoop:
 
 
 def task_dims(task: str) -> NetDims:
-    """The widths of a task's nets, read off its env (PyBullet's)."""
-    from ps_ray.nets.obs import dims_from_spaces
-    from ps_ray.rllib.loop import make_env
-    from ps_ray.specs.train import TrainSpec
+    """The widths of a task's nets on the Panda (``ps_ray.envs`` loads PyBullet)."""
+    from ps_ray.envs.core import env_widths
 
-    env = make_env(TrainSpec(task=task))
-    dims = dims_from_spaces(env.observation_space, env.action_space)
-    env.close()
-    return dims
+    return NetDims(*env_widths("panda", task))
 
 
 def parse_dims(text: str) -> NetDims:
     try:
         task_dim, robot_dim, action_dim = (positive_int(v) for v in text.split(","))
-    except (ValueError, TypeError):
+    except ValueError:
         raise argparse.ArgumentTypeError(
             f"--dims takes TASK,ROBOT,ACTION widths, e.g. 15,8,7; got {text!r}"
         ) from None

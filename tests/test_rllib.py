@@ -337,7 +337,8 @@ def test_a_consolidated_actor_reaches_the_env_runners_that_act_and_evaluate(ray_
             algo.train()
         runner = algo.env_runner_group.local_env_runner
         before = {k: v.clone() for k, v in runner.module.actor.state_dict().items()}
-        stats = algo.consolidate_actor(method_spec(method).consolidate)
+        # 100 of the default 2,000 updates: enough to move the actor, which is all this checks
+        stats = algo.consolidate_actor(dataclasses.replace(method_spec(method).consolidate, updates=100))
         assert stats["gap_after"] < stats["gap_before"]
         assert runner.module.actor.task.projection is not None
         learner_actor = _learner_module(algo).actor.state_dict()

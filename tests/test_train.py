@@ -173,11 +173,13 @@ def test_resume_drops_rows_after_the_checkpoint_and_a_row_a_kill_cut_short(tmp_p
     assert pd.read_csv(path)["env_steps"].tolist() == [100, 200]
 
 
+# 300 of the default 2,000 consolidation updates: at this size they shrink the gap as far
+# (0.30 -> 0.004, against 0.001 after 600), in a third of the run's time
 @pytest.mark.parametrize(
     "method",
     [
-        PS_CONSOLIDATED,
-        "ps_distilled",
+        PS_CONSOLIDATED + "+consolidate_updates=300",
+        "ps_distilled+consolidate_updates=300",
     ],
 )
 def test_a_consolidating_method_aligns_once_when_training_ends_and_keeps_it_on_resume(
@@ -213,7 +215,7 @@ def test_a_consolidating_method_aligns_once_when_training_ends_and_keeps_it_on_r
         [*train_cmd(run_dir, 800), "--method", method, "--quiet"], capture_output=True, text=True, timeout=600
     )
     extended = json.loads((run_dir / "result.json").read_text())
-    if method == "ps_distilled":  # its actor is no longer the network its training trained
+    if method.startswith("ps_distilled"):  # its actor is no longer the network its training trained
         assert raised.returncode == 2, raised.stdout[-2000:] + raised.stderr[-2000:]
         assert "switched its actor to the relative interface" in raised.stderr.strip().splitlines()[-1]
         assert (run_dir / "spec.json").read_text() == spec_before and extended == resumed

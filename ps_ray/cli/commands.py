@@ -22,8 +22,6 @@ from ps_ray.store.lock import folder_lock
 
 
 def cmd_train(args: argparse.Namespace) -> int:
-    from ps_ray.rllib.train import train
-
     fields = {f.name: getattr(args, f.name) for f in dataclasses.fields(TrainSpec)}
     from ps_ray.envs.robots import resolve_robot
     from ps_ray.envs.tasks import resolve_task
@@ -41,6 +39,8 @@ def cmd_train(args: argparse.Namespace) -> int:
         named = _flag_of(str(e), fields)
         raise UserError(f"--{named.replace('_', '-')}: {e}" if named else str(e)) from None
     run_dir = Path(args.run_dir or Path("runs") / spec.slug())
+    from ps_ray.rllib.train import train  # torch and Ray: only once the flags are good
+
     train(spec, run_dir, progress=not args.quiet, compile=args.compile)
     return 0
 
@@ -250,10 +250,8 @@ def cmd_report(args: argparse.Namespace) -> int:
 
 
 def cmd_render(args: argparse.Namespace) -> int:
-    from ps_ray.envs.render import record
     from ps_ray.envs.robots import resolve_robot
     from ps_ray.envs.tasks import resolve_task
-    from ps_ray.nets.policy import GreedyPolicy
 
     if args.png is None and args.gif is None:
         raise UserError("nothing to write: give --png and/or --gif")
@@ -261,6 +259,7 @@ def cmd_render(args: argparse.Namespace) -> int:
     resolve_robot(robot), resolve_task(task)  # bad names fail before any folder is made
     policy = None
     if args.policy:
+        from ps_ray.nets.policy import GreedyPolicy
         from ps_ray.stitching.rule import target_problems
         from ps_ray.store.signature import read_signature
 
@@ -276,14 +275,9 @@ def cmd_render(args: argparse.Namespace) -> int:
     for path in (args.png, args.gif):
         if path:
             _output_file(path)
-    record(
-        robot,
-        task,
-        policy,
-        seed=args.seed,
-        png=args.png,
-        gif=args.gif,
-    )
+    from ps_ray.envs.render import record  # torch: only once the flags are good
+
+    record(robot, task, policy, seed=args.seed, png=args.png, gif=args.gif)
     print(f"wrote {' and '.join(p for p in (args.png, args.gif) if p)}")
     return 0
 

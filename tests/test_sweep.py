@@ -53,7 +53,8 @@ def history(path: Path, run, key: str) -> list[tuple[int, float]]:
 
 
 def test_sweep_tracks_one_mlflow_run_per_trial_with_artifacts(tmp_path, cli, tiny_train):
-    methods = ("ps", "ps_distilled", "ablation")
+    distilled = "ps_distilled+consolidate_updates=300"  # of 2,000: enough to align at this size
+    methods = ("ps", distilled, "ablation")
     path = write_sweep(tmp_path, "track", tiny_train, methods=methods, seeds=(1,))
     proc = cli("sweep", str(path))
     out, _ = proc.communicate(timeout=600)
@@ -61,7 +62,7 @@ def test_sweep_tracks_one_mlflow_run_per_trial_with_artifacts(tmp_path, cli, tin
     found = runs(path)
     # the plain source policy of the anchor stage is tracked too
     plain = "anchors_plain/plain/panda/reach/1/i8"
-    consolidated = "ps_distilled/panda/reach/1/i8"
+    consolidated = f"{distilled}/panda/reach/1/i8"
     assert sorted(found) == ["ablation/panda/reach/1/i8", plain, "ps/panda/reach/1/i8", consolidated]
     assert found[plain].data.tags["ps_ray.stage"] == "anchors_plain"
     # every run names the device its trial trained on (the default request: one CPU, no GPU)
@@ -92,7 +93,7 @@ def test_sweep_tracks_one_mlflow_run_per_trial_with_artifacts(tmp_path, cli, tin
 def test_resume_after_sigkill_reruns_only_missing_trials_and_never_unpickles(
     tmp_path, cli, tiny_train, planted
 ):
-    path = write_sweep(tmp_path, "killed", tiny_train, seeds=(1, 2, 3), max_concurrent=1)
+    path = write_sweep(tmp_path, "killed", tiny_train, seeds=(1, 2), max_concurrent=1)
     proc = cli("sweep", str(path), own_ray=True, start_new_session=True)
     deadline = time.time() + 300
     while time.time() < deadline:
@@ -104,7 +105,7 @@ def test_resume_after_sigkill_reruns_only_missing_trials_and_never_unpickles(
     os.killpg(proc.pid, signal.SIGKILL)  # the driver and everything it started
     proc.wait()
     before = {n: r for n, r in runs(path).items() if r.info.status == "FINISHED"}
-    assert 1 <= len(before) < 3
+    assert len(before) == 1  # the second trial takes seconds; the kill came within 0.5 s
     done_name = next(iter(before))
     done_history = history(path, before[done_name], "env_steps")
     # Anyone who can write to shared storage could plant these where Tune and RLlib look.
@@ -117,7 +118,7 @@ def test_resume_after_sigkill_reruns_only_missing_trials_and_never_unpickles(
     out, _ = resumed.communicate(timeout=600)
     assert resumed.returncode == 0, out[-3000:]
     after = runs(path)
-    assert sorted(after) == [f"ablation/panda/reach/{s}/i8" for s in (1, 2, 3)]  # one run per trial
+    assert sorted(after) == [f"ablation/panda/reach/{s}/i8" for s in (1, 2)]  # one run per trial
     assert all(r.info.status == "FINISHED" for r in after.values())
     assert history(path, after[done_name], "env_steps") == done_history  # not rerun
     assert not planted.marker.exists(), "a planted pickle was loaded on resume"

@@ -25,6 +25,7 @@ import pandas as pd
 from ps_ray.errors import UserError
 from ps_ray.pipeline.stage import layout, raise_on_errors
 from ps_ray.specs.names import CONTROL_ROLES, split_translation
+from ps_ray.specs.stage_settings import ZeroShotSpec
 from ps_ray.specs.sweep import SweepSpec
 from ps_ray.stitching.pairs import StitchedPair, pairs
 from ps_ray.store.atomic import atomic_path
@@ -218,13 +219,9 @@ def run_zero_shot(
     ``spec.zero_shot`` (``overrides`` replace fields).
 
     ``resume`` finishes an interrupted matrix: pairs with a result row in ``tune_zero_shot`` are
-    kept, whatever batch they ran in; the others run in new batches."""
-    from ps_ray.pipeline.stage import connect
-    from ps_ray.pipeline.trials import run_trials
-    from ps_ray.pipeline.tune_tracking import RowRunsCallback
-    from ps_ray.specs.resources import device_tags
+    kept, whatever batch they ran in; the others run in new batches (a matrix with none left
+    starts neither Ray nor its chance levels)."""
     from ps_ray.store.attempts import require_fresh, rows_naming
-    from ps_ray.store.tracking import git_commit
 
     settings = dataclasses.replace(spec.zero_shot, **overrides)
     root, folder = sweep_dir(spec), layout(spec).tune_zero_shot
@@ -237,6 +234,34 @@ def run_zero_shot(
     by_key = {pair.key: pair for pair in trials}
     done = rows_naming(folder, PAIR_KEY) if resume else {}
     todo = [pair.to_dict() for pair in trials if pair.key not in done]
+    if todo:  # a resumed matrix whose every pair reported needs neither Ray nor chance again
+        _evaluate(spec, settings, trials, todo, resume=resume, progress=progress)
+    rows = rows_naming(folder, PAIR_KEY)
+    missing = [key for key in by_key if key not in rows]
+    if missing:  # every batch finished, so each of its pairs reported: a bug, never bad input
+        raise RuntimeError(f"{len(missing)} pairs have no result row, e.g. {missing[0]}")
+    table = table_of([(pair, rows[pair.key]) for pair in trials], root)
+    write_atomic_csv(table, layout(spec).zero_shot_table)
+    return table
+
+
+def _evaluate(
+    spec: SweepSpec,
+    settings: ZeroShotSpec,
+    trials: list[StitchedPair],
+    todo: list[dict],
+    *,
+    resume: bool,
+    progress: bool,
+) -> None:
+    """Run the ``todo`` pairs as Tune batches, each pair's row and MLflow run as it reports."""
+    from ps_ray.pipeline.stage import connect
+    from ps_ray.pipeline.trials import run_trials
+    from ps_ray.pipeline.tune_tracking import RowRunsCallback
+    from ps_ray.specs.resources import device_tags
+    from ps_ray.store.tracking import git_commit
+
+    folder, by_key = layout(spec).tune_zero_shot, {pair.key: pair for pair in trials}
     evaluated = {"episodes": settings.episodes, "repeats": settings.repeats}
     episodes = {"episodes": settings.episodes, "repeats": settings.repeats, "seed": settings.seed}
     chance = chance_levels(trials, episodes, progress)
@@ -279,13 +304,6 @@ def run_zero_shot(
         },
     )
     raise_on_errors(results, "zero-shot batches")
-    rows = rows_naming(folder, PAIR_KEY)
-    missing = [key for key in by_key if key not in rows]
-    if missing:  # every batch finished, so each of its pairs reported: a bug, never bad input
-        raise RuntimeError(f"{len(missing)} pairs have no result row, e.g. {missing[0]}")
-    table = table_of([(pair, rows[pair.key]) for pair in trials], root)
-    write_atomic_csv(table, layout(spec).zero_shot_table)
-    return table
 
 
 def _batches(pairs: list, sizes: list[int]) -> list[list]:

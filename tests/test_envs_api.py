@@ -110,3 +110,7 @@ def test_render_frame_and_files(tmp_path):
 
     with Image.open(tmp_path / "ep.gif") as gif:
         assert gif.n_frames == 6 and gif.size == (480, 360)
+    # a picture alone renders only the first and last frames, and is the same picture
+    alone = record("panda", "push", seed=0, png=tmp_path / "alone.png")
+    assert len(alone) == 2 and np.array_equal(alone[-1], frames[-1])
+    assert (tmp_path / "alone.png").read_bytes() == (tmp_path / "last.png").read_bytes()

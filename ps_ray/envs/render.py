@@ -22,8 +22,8 @@ def rollout(
     every: int = 1,
 ) -> tuple[list[np.ndarray], bool, float]:
     """Run one episode (``policy(obs) -> action``; random actions if None); returns RGB frames,
-    the initial one and then one every ``every`` steps, whether the last step succeeded, and the
-    final distance (m) between the achieved and the desired goal. ``env`` needs
+    the initial one, one every ``every`` steps and the last, whether the last step succeeded, and
+    the final distance (m) between the achieved and the desired goal. ``env`` needs
     ``render_mode="rgb_array"``."""
     obs, _ = env.reset(seed=seed)
     env.action_space.seed(seed)
@@ -36,6 +36,8 @@ def rollout(
             frames.append(env.render())
         if terminated or truncated:
             break
+    if (t + 1) % every:
+        frames.append(env.render())
     distance = float(goal_distance(obs["achieved_goal"], obs["desired_goal"]))
     return frames, success, distance
 
@@ -66,9 +68,11 @@ def record(
     every: int = 1,
     **options: Any,
 ) -> list[np.ndarray]:
-    """Roll out ``policy`` in a fresh env and write the last frame to ``png`` and all to ``gif``."""
+    """Roll out ``policy`` in a fresh env and write the last frame to ``png`` and all to ``gif``
+    (without a ``gif``, only the first and last frames are rendered)."""
     env = make(robot, task, render_mode="rgb_array", **options)
     try:
+        every = every if gif is not None else env.max_episode_steps
         frames, _, _ = rollout(env, policy, seed=seed, every=every)
     finally:
         env.close()

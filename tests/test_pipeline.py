@@ -474,5 +474,7 @@ def test_no_entry_point_runs_the_pickles_planted_in_the_sweep_folder(smoke, cli,
         proc = cli(*args)
         out, _ = proc.communicate(timeout=600)
         assert proc.returncode == 0, (args[0], out[-3000:])
+        if args[0] == "zero-shot":  # a finished matrix is not evaluated again, not even chance
+            assert "chance on" not in out and "ps " in out.splitlines()[-1], out[-3000:]
     assert (tmp_path / "stitched.safetensors").exists() and (tmp_path / "last.png").exists()
     assert not planted.marker.exists(), "a planted pickle was loaded"

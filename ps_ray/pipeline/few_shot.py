@@ -127,10 +127,11 @@ def _start_file(spec: SweepSpec, pair: StitchedPair, kind: str) -> Path:
 
 
 def run_few_shot(spec: SweepSpec, *, resume: bool = False, progress: bool = True, **overrides: Any):
-    """Settings from ``spec.few_shot`` (``overrides`` replace fields); returns the ResultGrid."""
+    """Settings from ``spec.few_shot`` (``overrides`` replace fields); returns the trials'
+    outcomes. A resumed stage whose every trial finished starts neither Ray nor MLflow."""
     from ps_ray.pipeline.stage import connect
     from ps_ray.pipeline.sweep import run_tune
-    from ps_ray.store.attempts import require_fresh
+    from ps_ray.store.attempts import outcomes, require_fresh
 
     settings = dataclasses.replace(spec.few_shot, **overrides)
     root = sweep_dir(spec)
@@ -139,6 +140,10 @@ def run_few_shot(spec: SweepSpec, *, resume: bool = False, progress: bool = True
     trials = few_shot_trials(spec, settings)
     if not trials:
         raise UserError(f"{root}: no stitchable pairs (train the sweep first: ps-ray sweep)")
+    if resume:
+        finished = outcomes(layout(spec).tune_few_shot, "trial", [trial.config() for trial in trials])
+        if not any(outcome.error for outcome in finished):
+            return finished
     tracking = connect(spec)
     return run_tune(
         trials,

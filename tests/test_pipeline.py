@@ -1,4 +1,4 @@
-"""`ps-ray run sweeps/smoke.yaml` end to end (the README's pipeline), killed once and resumed;
+"""`ps-ray run sweeps/smoke.yaml` end to end (the README's pipeline), killed in every stage and resumed;
 `ps-ray report` rebuilt idempotently and opened in headless Chromium."""
 
 from __future__ import annotations

@@ -4,6 +4,7 @@ episodes, learning to reach."""
 from __future__ import annotations
 
 import dataclasses
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -233,11 +234,18 @@ def test_the_task_normaliser_sees_the_hindsight_goals_training_reads(ray_local, 
         algo.stop()
 
 
-def _run_state(spec: TrainSpec, iterations: int) -> tuple[dict[str, torch.Tensor], np.ndarray]:
+def _run_state(
+    spec: TrainSpec, iterations: int, export_to: Path | None = None
+) -> tuple[dict[str, torch.Tensor], np.ndarray]:
+    """A run's learner state and actions after ``iterations`` steps; with ``export_to``, a policy
+    file written there after every step (as `ps-ray train` writes its best policy)."""
     algo = algo_config(spec).build_algo()
+    signature = Signature(method=spec.method, interface_dim=16, hidden=64, anchor_hash="", **algo.replay_dims)
     try:
         for _ in range(iterations):
             algo.train()
+            if export_to is not None:
+                algo.export_policy(export_to / "policy.safetensors", signature)
         return algo.learner_state(), algo.replay.episodes(*algo.replay.live_range())["actions"]
     finally:
         algo.stop()
@@ -256,6 +264,19 @@ def test_a_seed_repeats_its_run_bit_for_bit(ray_local):
         assert torch.equal(value, again[key]), key
     assert not np.array_equal(first_actions, other_actions)
     assert any(not torch.equal(value, other[key]) for key, value in first.items())
+
+
+def test_writing_policy_files_does_not_change_the_run(ray_local, tmp_path):
+    """Building nets to write (or read) a policy file draws no initial weights from the run's
+    random stream: a run that wrote a file after every step ends as one that wrote none, so a
+    sweep's trial and `ps-ray train` (which also writes each new best policy) train alike."""
+    spec = TrainSpec(method="ablation", **{**SMALL, "learning_starts": 100})
+    quiet, quiet_actions = _run_state(spec, 3)
+    written, written_actions = _run_state(spec, 3, export_to=tmp_path)
+    assert (tmp_path / "policy.safetensors").exists()
+    np.testing.assert_array_equal(quiet_actions, written_actions)
+    for key, value in quiet.items():
+        assert torch.equal(value, written[key]), key
 
 
 def test_a_run_can_start_from_given_weights(ray_local, tmp_path):

@@ -73,7 +73,10 @@ def nets_from_state(state: dict[str, torch.Tensor], signature: Signature, source
             f"{source}: tensors do not match the signature (missing {missing[:3]}, "
             f"unexpected {unexpected[:3]}, wrong shape {wrong_shape[:3]})"
         )
-    nets = build_nets(signature, anchors, source)
+    # The initial weights drawn here are all overwritten: draw them outside the caller's random
+    # stream, so writing or reading a policy file mid-run does not change the run.
+    with torch.random.fork_rng(devices=[]):
+        nets = build_nets(signature, anchors, source)
     load_nets_state(nets, state)
     return nets
 

@@ -211,7 +211,55 @@ def test_transfer_table_pairs_each_stitched_cell_with_its_controls():
     met = controls_met(transfer_numbers(table)).iloc[0]
     assert met["unstitched fail"] and met["oracle learns"]
     shown = transfer_text(transfer_numbers(table))
-    assert shown.iloc[0]["transfer gain (paired over seeds)"].endswith("p 0.25, 3/3 seeds up")
+    gain_column = "transfer gain over every control and the floor (paired over seeds)"
+    assert shown.iloc[0][gain_column].endswith("p 0.25, 3/3 seeds up")
+    assert shown.iloc[0]["task-blind floor (every task, not told which)"].startswith("absent")
+    assert shown.iloc[0]["result"] == "label-free"
+
+
+def test_the_task_blind_floor_raises_the_bar_and_the_old_gain_stays_beside_it():
+    """On a family whose tasks share a scene the gain is taken over the floor too; the gain over
+    the sources and chance alone stays as a column; an @swapped row is an upper bound, listed last;
+    cross-seed rows have their intervals widened for the runs they share and no p-value."""
+    from ps_ray.analysis.transfer import transfer_numbers, transfer_text
+    from ps_ray.pipeline.zero_shot import gain
+
+    rows = []
+    for method in ("ablation+affine@swapped", "ablation+affine@outcome"):
+        for pairing in ("same_seed", "cross_seed"):
+            for seed, success in ((1, 0.8), (2, 0.7), (3, 0.9), (4, 0.75)):
+                metrics = {
+                    "success_mean": success,
+                    "robot_source_success": 0.0,
+                    "task_source_success": 0.05,
+                    "oracle_success": 0.95,
+                    "chance_success": 0.1,
+                    "task_blind_success": 0.5,
+                    "wrong_target_mean": 0.1,
+                }
+                row = {"method": method, "pairing": pairing, "seed": seed, "label": "a"}
+                rows.append(row | metrics | gain(metrics))
+    numbers = transfer_numbers(pd.DataFrame(rows))
+    assert list(numbers["method"])[-2:] == ["ablation+affine@swapped"] * 2  # upper bounds last
+    same = numbers[
+        (numbers["method"] == "ablation+affine@outcome") & (numbers["pairing"] == "same_seed")
+    ].iloc[0]
+    assert same["gain_diff"] == pytest.approx(0.7875 - 0.5)  # over the floor
+    assert same["chance_gain_diff"] == pytest.approx(0.7875 - 0.1)  # over chance, as before
+    assert same["wrong_target_mean"] == pytest.approx(0.1)
+    cross = numbers[
+        (numbers["method"] == "ablation+affine@outcome") & (numbers["pairing"] == "cross_seed")
+    ].iloc[0]
+    assert (
+        np.isnan(cross["gain_p"]) and cross["gain_hi"] - cross["gain_lo"] > same["gain_hi"] - same["gain_lo"]
+    )
+    shown = transfer_text(numbers)
+    assert shown.loc[("ablation+affine@swapped", "same_seed"), "result"] == "upper bound (reads the target)"
+    cross_shown = shown.loc[("ablation+affine@outcome", "cross_seed")]
+    assert (
+        "units share runs"
+        in cross_shown["transfer gain over every control and the floor (paired over seeds)"]
+    )
 
 
 def test_few_shot_table_pairs_each_start_with_scratch_on_steps_and_area():

@@ -74,7 +74,7 @@ CASES = [  # (arguments, with {f} the input folder and {out} a path that must no
     ),
     ("train --anchors {f}/missing.npz --run-dir {out}", "missing.npz: cannot read the file (No such file"),
     ("train --anchors {f}/evil.npy --run-dir {out}", "evil.npy: neither an .npy nor an .npz file"),
-    ("train --seed -1 --run-dir {out}", "seed must be a non-negative integer, got -1"),
+    ("train --seed -1 --run-dir {out}", "seed must be an integer 0..99999, got -1"),
     (
         "train --eval-every -2 --run-dir {out}",
         "--eval-every: eval_every must be a non-negative integer, got -2",

@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 from ps_ray.envs import make
-from ps_ray.stitching.chance import RandomPoint, chance
+from ps_ray.envs.goals import SUCCESS_DISTANCE
+from ps_ray.stitching.chance import RandomPoint, chance, has_floor
 from ps_ray.stitching.evaluate import evaluate
 
 EPISODES = {"episodes": 30, "repeats": 1, "seed": 7}
@@ -51,3 +52,37 @@ def test_chance_on_the_marker_family_is_scored_on_the_pair_s_episodes():
     assert found["chance_success"] == max(found["random_point_success"], found["random_actions_success"])
     assert found["chance_policy"] in ("random_point", "random_actions")
     assert found["random_point_success"] <= 0.25 and found["random_actions_success"] <= 0.25
+
+
+def test_the_task_blind_floor_ends_at_one_marker_or_the_other_on_the_pair_s_episodes():
+    """The floor for a transfer claim on the marker family: it can reach every marker but is not
+    told which one the task names, so it ends at the named one about half the time and at the
+    other one otherwise, far above chance; it runs on the pair's episodes (chance() raises if its
+    digest differs from the chance policies', which test above shares with any policy's)."""
+    found = chance("panda_far", "reach_blue", EPISODES)
+    assert found["task_blind_success"] + found["task_blind_wrong_target"] == pytest.approx(1.0)
+    assert 0.25 <= found["task_blind_success"] <= 0.75  # 30 episodes of a fair coin
+    assert found["task_blind_success"] > found["chance_success"]
+    assert has_floor("reach_blue") and not has_floor("reach") and not has_floor("push")
+
+
+class OtherMarker:
+    """Drives to the marker the task does not name, every episode."""
+
+    def begin(self, envs, seeds) -> None:
+        self.envs = list(envs)
+
+    def __call__(self, obs):
+        return np.stack([e.action_toward(e.candidate_targets()[1 - e.named_candidate]) for e in self.envs])
+
+
+def test_a_policy_that_always_reaches_the_other_marker_has_a_wrong_target_rate_of_one():
+    result = evaluate(OtherMarker(), "panda", "reach_red", episodes=6, repeats=1, seed=11)
+    assert result["wrong_target_mean"] == 1.0 and result["success_mean"] == 0.0
+    for record in result["records"]:
+        named, other = record["candidate_distances"]  # reach_red names marker 0
+        assert other < SUCCESS_DISTANCE < named and record["wrong_target"]
+    # a scene of one target has no wrong one: NaN, not 0
+    still = lambda obs: np.zeros((len(obs["robot_state"]), 7))  # noqa: E731
+    reach = evaluate(still, "panda", "reach", episodes=2, repeats=1)
+    assert np.isnan(reach["wrong_target_mean"]) and reach["records"][0]["candidate_distances"] == ()

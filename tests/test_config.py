@@ -116,7 +116,7 @@ seeds: [1]
             "bad locked joint 8; valid locked joints: 0-based arm joint indices 0..6",
         ),
         (GOOD + "train: {env_steps: -1}\n", "env_steps must be a positive integer, got -1"),
-        (GOOD.replace("seeds: [1]", "seeds: abc"), "seed must be a non-negative integer, got 'abc'"),
+        (GOOD.replace("seeds: [1]", "seeds: abc"), "seed must be an integer 0..99999, got 'abc'"),
         (GOOD + "train: {method: ps}\n", "train.method is set by the sweep grid"),
         (
             GOOD + "stages: [train, fly]\n",

@@ -187,3 +187,15 @@ def test_anchors_decoded_from_both_outcomes_lie_between_the_candidates():
     assert np.median(error) < 0.03  # about sqrt(2 x 3) x 1 cm: the noise of the two outcomes
     assert np.median(error) < 0.6 * np.median(nearest)
     np.testing.assert_allclose(decoded[:, 6:], 0, atol=1e-6)  # a constant part stays as it is
+
+
+def test_a_fit_is_priced_in_the_env_steps_its_rollouts_take():
+    """affine@outcome rolls out both sources on every scene; re-anchoring by one outcome the task
+    source on its scenes and the robot source on each anchor; by both outcomes also the robot
+    source on each successful candidate and the task source on each anchor; swapped nothing."""
+    from ps_ray.stitching.outcomes import fit_env_steps
+
+    assert fit_env_steps("affine", "outcome", 400) == 2 * 400 * 50
+    assert fit_env_steps("anchors", "outcome", 400, anchors=128) == (400 + 128) * 50
+    assert fit_env_steps("anchors", "both", 400, anchors=128, candidates=300) == (400 + 300 + 256) * 50
+    assert fit_env_steps("anchors", "swapped", 400, anchors=128) == 0

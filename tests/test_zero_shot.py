@@ -6,6 +6,7 @@ import json
 from pathlib import Path
 
 import mlflow
+import numpy as np
 import pandas as pd
 import pytest
 import torch
@@ -69,6 +70,9 @@ def test_zero_shot_matrix_of_a_sweep(trained_matrix):
         # chance: the target env's own figure, the same for every pair on that env
         assert row["best_control"] == max(best, row["chance_success"])
         assert row["transfer_gain"] == pytest.approx(row["success_mean"] - row["best_control"])
+        # reach halves hold one target per scene: no task-blind floor, no wrong target, no fit
+        assert np.isnan(row["task_blind_success"]) and np.isnan(row["wrong_target_mean"])
+        assert row["gain_over_chance"] == pytest.approx(row["transfer_gain"]) and row["fit_env_steps"] == 0
     assert table.groupby(["robot", "task"])["chance_success"].nunique().eq(1).all()
     # the table keeps each pair's record: its sources' and controls' files, which few-shot reads
     written = pd.read_csv(sweep_dir(spec) / "zero_shot.csv")

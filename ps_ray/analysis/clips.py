@@ -6,12 +6,13 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
+from ps_ray.specs import reset_seeds
 from ps_ray.specs.names import short_name
 from ps_ray.specs.sweep import SweepSpec
 from ps_ray.stitching.pairs import StitchedPair, evaluated_pairs
 
 CLIP_SIZE = (240, 180)  # pixels; every second step, so a clip is about 26 frames
-START_SEED = 0  # the env reset every clip starts from
+START_SEED = reset_seeds.fixed("clips")  # the env reset every clip starts from
 
 
 ROLES = ("stitched", "task source", "robot source")

@@ -240,15 +240,16 @@ CONTROL_BARS = (
     ("robot_source_success", "robot source"),
     ("task_source_success", "task source"),
     ("chance_success", "chance"),
+    ("task_blind_success", "task-blind floor"),
     ("oracle_success", "oracle"),
 )
 
 
 def controls_bars(numbers: pd.DataFrame, path: Path) -> Path:
     """Stitched success beside its controls, one group per (method, pairing) row of
-    :func:`ps_ray.analysis.transfer.transfer_numbers`: stitched, robot source, task source, chance
-    and oracle, each a mean over seeds with its 95% t interval; a control that was not run is
-    left out of its group."""
+    :func:`ps_ray.analysis.transfer.transfer_numbers`: stitched, robot source, task source, chance,
+    the task-blind floor and oracle, each a mean over seeds with its 95% t interval; a control
+    that was not run is left out of its group."""
     rows = list(numbers.itertuples(index=False))
     fig, ax = plt.subplots(figsize=(8, 1.2 * len(rows) + 1.8))
     height = 0.8 / len(CONTROL_BARS)

@@ -24,6 +24,7 @@ from ps_ray.analysis.page import Report, Section, render_html
 from ps_ray.analysis.report_run import REPORT_RUN, log_report
 from ps_ray.analysis.summary import cost_section, summary_section
 from ps_ray.errors import UserError
+from ps_ray.specs import reset_seeds
 from ps_ray.specs.names import parse_spec_text, short_name
 from ps_ray.specs.sweep import SweepSpec
 from ps_ray.store.atomic import fsync_dir, write_text
@@ -164,7 +165,9 @@ def _latent(report: Report, spec: SweepSpec, root: Path, say) -> None:
     def probes_for(task) -> latent.Probes:
         name = short_name(task)
         if name not in probes:
-            probes[name] = latent.probe_states(task, spec.report.probes_per_group, spec.report.seed)
+            probes[name] = latent.probe_states(
+                task, spec.report.probes_per_group, reset_seeds.fixed("probes", spec.report.seed)
+            )
         return probes[name]
 
     dumps = latent.dump_interfaces(entries, probes_for)
@@ -301,12 +304,19 @@ def _transfer(report: Report, table: pd.DataFrame) -> None:
         "Transfer: stitching against its controls",
         "Each stitched pair (task module of (X, Ra), robot module of (Y, Rb), run on (X, Rb)) beside "
         "its robot source run unstitched on (X, Rb), its task source run on robot Rb, and the "
-        "oracle trained on (X, Rb), and chance: the better of two policies with no task knowledge "
-        "(the end effector driven to a random point of the task's target region; random actions), "
-        "all on the pair's evaluation episodes. Transfer gain: stitched success minus the best of "
-        "the unstitched sources and chance, averaged per seed; mean with a t interval over "
-        "seeds (df = n - 1) and an exact sign-flip p-value. Same-seed pairs join modules of one "
-        "training seed, cross-seed pairs modules of two.",
+        "oracle trained on (X, Rb), chance (the better of two policies with no task knowledge: "
+        "the end effector driven to a random point of the task's target region; random actions) "
+        "and the task-blind floor (a policy that can do every task sharing the target's scene but "
+        "is not told which: the end effector driven to one of the scene's candidate targets drawn "
+        "at random; absent where the tasks do not share a scene), all on the pair's evaluation "
+        "episodes. Wrong target: the stitched policy ended within the success distance of a "
+        "target the task does not name. Transfer gain: stitched success minus the best of the "
+        "unstitched sources, chance and the floor, averaged per seed; mean with a t interval over "
+        "seeds (df = n - 1) and an exact sign-flip p-value; the gain over the sources and chance "
+        "alone beside it. Same-seed pairs join modules of one training seed; cross-seed pairs "
+        "seed i's task modules with seed i+1's robot modules, so neighbouring units share a run: "
+        "their intervals are widened for the worst case of that sharing and carry no p-value. "
+        "Rows whose translation reads the task's target (@swapped) are upper bounds, listed last.",
         first=True,
     )
     report.table(
@@ -327,7 +337,7 @@ def _transfer(report: Report, table: pd.DataFrame) -> None:
     report.headline.transfer = numbers
     for _, row in numbers.iterrows():
         prefix = f"transfer.{row['method']}.{row['pairing']}"
-        for column in ("success_mean", *transfer.CONTROL_COLUMNS, "gain_diff", "gain_p"):
+        for column in ("success_mean", *transfer.CONTROL_COLUMNS, "wrong_target_mean", "gain_diff", "gain_p"):
             if row[column] == row[column]:
                 report.metrics[f"{prefix}.{column}"] = float(row[column])
 

@@ -8,6 +8,11 @@ over seeds returns [min, max] of the seed means and covers about 75%. Paired com
 method against another on the same cells) take per-seed mean differences, their t interval and an
 exact sign-flip permutation p-value. The IQM is given as a point; its seed-bootstrap interval only
 from ``BOOTSTRAP_MIN_SEEDS`` seeds on. Fewer than two seeds: no interval (NaN).
+
+Cross-seed units share runs (unit i: run i's task module with run i+1's robot module, cyclically),
+so neighbouring units are correlated; ``shared_runs=True`` widens the interval for the worst case
+that sharing allows (:func:`shared_runs_factor`) and gives no sign-flip p-value (it assumes
+independent units).
 """
 
 from __future__ import annotations
@@ -23,13 +28,36 @@ RESAMPLES = 2000
 BOOTSTRAP_MIN_SEEDS = 10  # rliable's advice; below it a percentile bootstrap over seeds undercovers
 
 
-def t_interval(values, confidence: float = CONFIDENCE) -> tuple[float, float, float]:
-    """Mean and Student t interval (df = n - 1) of independent values (one per seed)."""
+def shared_runs_factor(n: int) -> float:
+    """How much wider a t interval over ``n`` cyclic cross-seed units must be to keep its coverage
+    whatever the runs they share contribute (docs/statistics.md, "Units that share runs").
+
+    Unit i is g(X_i, Y_{i+1}) of run i's task half and run i+1's robot half; only neighbours share
+    a run. By the Hoeffding decomposition their covariance is cov(B(Y_j), A(X_j)) of the two
+    halves' main effects in the shared run j, at most sqrt(var A var B) <= var(u) / 2: the
+    correlation of neighbours is rho <= 1/2. Then var(mean) = var(u) (1 + 2 rho) / n and the
+    sample variance's expectation is var(u) (1 - 2 rho / (n - 1)); at rho = 1/2 the standard error
+    grows by sqrt(2 (n - 1) / (n - 2)). Fewer than three units: no interval (they share every run)."""
+    return float(np.sqrt(2 * (n - 1) / (n - 2))) if n >= 3 else float("nan")
+
+
+def t_interval(
+    values, confidence: float = CONFIDENCE, shared_runs: bool = False
+) -> tuple[float, float, float]:
+    """Mean and Student t interval (df = n - 1) of values one per seed: independent, or with
+    ``shared_runs`` cyclic cross-seed units, widened by :func:`shared_runs_factor` with df = n - 2
+    (at the worst case the sharing allows it covers 0.95-0.96 at n = 3..8 in simulation, where
+    the plain interval covers 0.81-0.84; docs/statistics.md)."""
     x = np.asarray(values, float)
     mean = float(x.mean()) if len(x) else float("nan")
     if len(x) < 2:
         return mean, float("nan"), float("nan")
-    half = float(stats.t.ppf(0.5 + confidence / 2, len(x) - 1) * x.std(ddof=1) / np.sqrt(len(x)))
+    df = len(x) - 2 if shared_runs else len(x) - 1  # shared: one df fewer keeps the coverage (simulated)
+    if df < 1:
+        return mean, float("nan"), float("nan")
+    half = float(stats.t.ppf(0.5 + confidence / 2, df) * x.std(ddof=1) / np.sqrt(len(x)))
+    if shared_runs:
+        half *= shared_runs_factor(len(x))
     return mean, mean - half, mean + half
 
 
@@ -63,27 +91,29 @@ class Paired:
 
     def text(self, digits: int = 2) -> str:
         """``+0.12 [0.03, 0.21], p 0.03, 5/6 seeds up``."""
-        if self.seeds < 2:
-            return f"{self.diff:+.{digits}f} [n/a: 1 seed]"
+        if self.seeds < 2 or np.isnan(self.lo):
+            return f"{self.diff:+.{digits}f} [n/a: {self.seeds} seed{'s' * (self.seeds != 1)}]"
+        p = "" if np.isnan(self.p) else f"p {self.p:.2g}, "
         return (
             f"{self.diff:+.{digits}f} [{self.lo:+.{digits}f}, {self.hi:+.{digits}f}], "
-            f"p {self.p:.2g}, {self.wins}/{self.seeds} seeds up"
+            f"{p}{self.wins}/{self.seeds} seeds up"
         )
 
 
-def paired(a, b, seeds) -> Paired:
+def paired(a, b, seeds, shared_runs: bool = False) -> Paired:
     """``a - b`` over cells of the same pairs (aligned arrays), averaged per seed, with its t
-    interval over seeds and a sign-flip p-value."""
+    interval over seeds and a sign-flip p-value; ``shared_runs``: cyclic cross-seed units, the
+    interval widened for their sharing and no p-value (NaN)."""
     a, b, seeds = np.asarray(a, float), np.asarray(b, float), np.asarray(seeds)
     if not a.shape == b.shape == seeds.shape or a.ndim != 1 or len(a) == 0:
         raise ValueError(f"need aligned cells, got shapes {a.shape}, {b.shape} and {seeds.shape} seeds")
     per_seed = np.array([(a - b)[seeds == s].mean() for s in np.unique(seeds)])
-    diff, lo, hi = t_interval(per_seed)
+    diff, lo, hi = t_interval(per_seed, shared_runs=shared_runs)
     return Paired(
         diff,
         lo,
         hi,
-        sign_flip_p(per_seed),
+        float("nan") if shared_runs else sign_flip_p(per_seed),
         len(per_seed),
         int((per_seed > 0).sum()),
         int((per_seed < 0).sum()),
@@ -114,17 +144,18 @@ class Estimate:
         return f"{point:.{digits}f} [{lo:.{digits}f}, {hi:.{digits}f}]"
 
 
-def estimate(values, seeds, *, seed: int = 0) -> Estimate:
+def estimate(values, seeds, *, seed: int = 0, shared_runs: bool = False) -> Estimate:
     """Mean of ``values`` (one per cell) with the t interval over per-seed means, and the IQM
     (its seed-bootstrap interval from ``BOOTSTRAP_MIN_SEEDS`` seeds); ``seeds`` names the training
-    seed of each cell."""
+    seed of each cell; ``shared_runs``: cyclic cross-seed units (:func:`t_interval`)."""
     values, seeds = np.asarray(values, float), np.asarray(seeds)
     if values.shape != seeds.shape or values.ndim != 1 or len(values) == 0:
         raise ValueError(f"need one seed per value, got {values.shape} values and {seeds.shape} seeds")
     by_seed = [values[seeds == s] for s in np.unique(seeds)]
     out: dict[str, float] = {}
     # the mean of the per-seed means (the cell mean when every seed has as many cells)
-    out["mean"], out["mean_lo"], out["mean_hi"] = t_interval([part.mean() for part in by_seed])
+    seed_means = [part.mean() for part in by_seed]
+    out["mean"], out["mean_lo"], out["mean_hi"] = t_interval(seed_means, shared_runs=shared_runs)
     out["iqm"] = iqm(values)
     out["iqm_lo"] = out["iqm_hi"] = float("nan")
     if len(by_seed) >= BOOTSTRAP_MIN_SEEDS:

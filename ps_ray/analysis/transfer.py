@@ -1,7 +1,11 @@
 """Stitching against its controls: per method and pairing, the stitched success beside the
-unstitched sources, chance and the oracle on the same episodes, and the transfer gain (stitched
-minus the best of the unstitched sources and chance) as a paired comparison over seeds
-(docs/transfer.md). Tables from before the chance control: the gain over the unstitched sources."""
+unstitched sources, chance, the task-blind floor and the oracle on the same episodes, the
+wrong-target rate, and the transfer gain (stitched minus the best of the unstitched sources,
+chance and the floor) as a paired comparison over seeds, beside the gain over the sources and
+chance alone (docs/transfer.md). Cross-seed units share runs: their intervals are widened for it
+and carry no p-value (ps_ray.analysis.stats). Rows whose translation reads the task's target
+(``@swapped``) are upper bounds, listed after the label-free rows. Tables from before a control
+lack its column."""
 
 from __future__ import annotations
 
@@ -16,8 +20,15 @@ CONTROL_COLUMNS = {
     "robot_source_success": "robot source unstitched",
     "task_source_success": "task source unstitched",
     "chance_success": "chance (no task knowledge)",
+    "task_blind_success": "task-blind floor (every task, not told which)",
     "oracle_success": "oracle (trained on the target)",
 }
+UPPER_BOUND_FITS = ("@swapped",)  # fits that read the task's target: the known correspondence
+
+
+def reads_target(method: str) -> bool:
+    """Whether a row's translation reads the task's target (an upper bound, not a label-free result)."""
+    return any(fit in str(method) for fit in UPPER_BOUND_FITS)
 
 
 def best_control_column(table: pd.DataFrame) -> str:
@@ -36,43 +47,70 @@ def transfer_numbers(table: pd.DataFrame) -> pd.DataFrame:
     rows = []
     for (method, pairing), part in table.groupby(["method", "pairing"], sort=False):
         seeds = part["seed"].to_numpy()
+        shared = pairing == "cross_seed"  # cyclic units share runs
         row = {"method": method, "pairing": pairing, "cells": len(part), "seeds": len(np.unique(seeds))}
-        for column in ("success_mean", *CONTROL_COLUMNS):
+        row["upper_bound"] = reads_target(method)
+        for column in ("success_mean", *CONTROL_COLUMNS, "wrong_target_mean"):
             cells = part.dropna(subset=[column]) if column in part.columns else part.iloc[:0]
             if cells.empty:
                 row[column], row[f"{column}_lo"], row[f"{column}_hi"] = np.nan, np.nan, np.nan
                 continue
-            e = estimate(cells[column].to_numpy(), cells["seed"].to_numpy())
+            e = estimate(cells[column].to_numpy(), cells["seed"].to_numpy(), shared_runs=shared)
             row[column], row[f"{column}_lo"], row[f"{column}_hi"] = e.mean, e.mean_lo, e.mean_hi
         best = best_control_column(part)
         cells = part.dropna(subset=[best])
-        gain = paired(cells["success_mean"], cells[best], cells["seed"]) if len(cells) else None
+        gain = paired(cells["success_mean"], cells[best], cells["seed"], shared) if len(cells) else None
         for field in ("diff", "lo", "hi", "p", "wins", "losses"):
             row[f"gain_{field}"] = np.nan if gain is None else getattr(gain, field)
+        has_old = "gain_over_chance" in part.columns
+        old = part.dropna(subset=["gain_over_chance"]) if has_old else part.iloc[:0]
+        before = (
+            paired(old["success_mean"], old["success_mean"] - old["gain_over_chance"], old["seed"], shared)
+            if len(old)
+            else None
+        )
+        for field in ("diff", "lo", "hi"):
+            row[f"chance_gain_{field}"] = np.nan if before is None else getattr(before, field)
         row["pairs_above_every_control"] = int((cells["transfer_gain"] > 0).sum())
         rows.append(row)
     out = pd.DataFrame(rows)
     if out.empty:
         return out
     order = {m: i for i, m in enumerate(method_order(out["method"]))}
-    return out.sort_values(["pairing", "method"], key=lambda s: s.map(order) if s.name == "method" else s)
+    return out.sort_values(
+        ["upper_bound", "pairing", "method"], key=lambda s: s.map(order) if s.name == "method" else s
+    )
 
 
 def transfer_text(numbers: pd.DataFrame) -> pd.DataFrame:
     """The shown form: ``mean [95% CI]`` per column, the gain with its p-value and seed count."""
     out = pd.DataFrame(index=pd.MultiIndex.from_frame(numbers[["method", "pairing"]]))
+    out["result"] = ["upper bound (reads the target)" if r else "label-free" for r in numbers["upper_bound"]]
     out["cells (pairs x seeds)"] = numbers["cells"].to_numpy()
     out["seeds"] = numbers["seeds"].to_numpy()
-    for column, name in {"success_mean": "stitched", **CONTROL_COLUMNS}.items():
+    shown = {"success_mean": "stitched", **CONTROL_COLUMNS, "wrong_target_mean": "wrong target (stitched)"}
+    for column, name in shown.items():
         out[name] = [
-            "–" if np.isnan(r[column]) else f"{r[column]:.2f} {ci(r[f'{column}_lo'], r[f'{column}_hi'])}"
+            ("absent (the tasks do not share a scene)" if column == "task_blind_success" else "–")
+            if np.isnan(r[column])
+            else f"{r[column]:.2f} {ci(r[f'{column}_lo'], r[f'{column}_hi'])}"
             for _, r in numbers.iterrows()
         ]
-    out["transfer gain (paired over seeds)"] = [
+
+    def p_text(r) -> str:
+        return "units share runs" if np.isnan(r["gain_p"]) else f"p {r['gain_p']:.2g}"
+
+    out["transfer gain over every control and the floor (paired over seeds)"] = [
         "–"
         if np.isnan(r["gain_diff"])
-        else f"{r['gain_diff']:+.2f} {ci(r['gain_lo'], r['gain_hi'])}, p {r['gain_p']:.2g}, "
+        else f"{r['gain_diff']:+.2f} {ci(r['gain_lo'], r['gain_hi'])}, {p_text(r)}, "
         f"{int(r['gain_wins'])}/{int(r['seeds'])} seeds up"
+        for _, r in numbers.iterrows()
+    ]
+    out["gain over sources and chance (without the floor)"] = [
+        "–"
+        if np.isnan(r["chance_gain_diff"])
+        else f"{r['chance_gain_diff']:+.2f} {ci(r['chance_gain_lo'], r['chance_gain_hi'])}"
         for _, r in numbers.iterrows()
     ]
     out["pairs above every control"] = [

@@ -15,6 +15,7 @@ from pathlib import Path
 from ps_ray.cli.parsers import build_parser
 from ps_ray.errors import UserError
 from ps_ray.pipeline.stage import StageError
+from ps_ray.specs import reset_seeds
 from ps_ray.specs.names import parse_spec_text
 from ps_ray.specs.train import POINT_TASK, TrainSpec
 from ps_ray.store.layout import SweepLayout
@@ -325,7 +326,7 @@ def cmd_stitch(args: argparse.Namespace) -> int:
         from ps_ray.pipeline.zero_shot import fit_states
 
         tasks = [task] + ([robot_src.spec["task"]] if robot_src.spec is not None else [])
-        states = fit_states(tasks, args.fit_states, args.seed)
+        states = fit_states(tasks, args.fit_states, reset_seeds.fixed("fit", args.seed))
     nets, signature = stitch_policies(
         task_src.path, robot_src.path, target=(robot, task), translation=args.translate, fit_states=states
     )
@@ -340,7 +341,7 @@ def cmd_stitch(args: argparse.Namespace) -> int:
             task,
             episodes=args.episodes,
             repeats=args.repeats,
-            seed=args.seed,
+            seed=reset_seeds.fixed("zero_shot", args.seed),  # the zero-shot stage's episodes
             num_envs=args.num_envs,
             verbose=True,
         )

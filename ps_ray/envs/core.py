@@ -129,10 +129,20 @@ class RobotTaskEnv(gym.Env[Obs, np.ndarray]):
     def close(self) -> None:
         self.sim.close()
 
-    # -- for scripted policies (the chance-level control, ps_ray.stitching.chance) ---------------
+    # -- for scripted policies (chance and the task-blind floor, ps_ray.stitching.chance) ---------
     def target_region(self) -> tuple[np.ndarray, np.ndarray]:
         """The box (world frame, low and high corners) the task draws its targets from."""
         return self.task.target_region()
+
+    def candidate_targets(self) -> np.ndarray | None:
+        """The targets the scene holds for every task of its family (None: one task per scene);
+        the named one is row :attr:`named_candidate` (the task-blind floor and the wrong-target
+        rate, ps_ray.stitching.chance and ps_ray.stitching.evaluate)."""
+        return self.task.candidate_targets()
+
+    @property
+    def named_candidate(self) -> int:
+        return self.task.named_candidate
 
     def action_toward(self, point: np.ndarray) -> np.ndarray:
         """An action that moves the end effector toward a world point (inverse kinematics)."""

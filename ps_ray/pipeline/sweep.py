@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from ps_ray.pipeline.stage import connect, layout, raise_on_errors, record_spec, require_same_sweep
+from ps_ray.specs import reset_seeds
 from ps_ray.specs.stages import stage as stage_record
 from ps_ray.specs.sweep import SweepSpec, anchor_sources, task_input_dim
 from ps_ray.specs.train import TrainSpec
@@ -71,7 +72,7 @@ def prepare_sweep_anchors(
                     episodes=spec.anchors.episodes,
                     steps=spec.anchors.steps,
                     policy=policy,
-                    seed=spec.anchors.seed,
+                    seed=reset_seeds.fixed("anchors", spec.anchors.seed),
                     goals=spec.anchors.goals,
                 )
             anchor_set = make_anchor_set(

@@ -24,6 +24,7 @@ import pandas as pd
 
 from ps_ray.errors import UserError
 from ps_ray.pipeline.stage import layout, raise_on_errors
+from ps_ray.specs import reset_seeds
 from ps_ray.specs.names import CONTROL_ROLES, split_translation
 from ps_ray.specs.stage_settings import ZeroShotSpec
 from ps_ray.specs.sweep import SweepSpec
@@ -37,16 +38,22 @@ RESULT_KEYS = (
     "touching_mean",
     "touching_std",
     "contact_mean",
+    "wrong_target_mean",  # ended at a candidate target the task does not name (NaN: one per scene)
     "episodes_per_s",
+    "fit_env_steps",  # env steps the translation's fit rolled out (outcome matching; 0 for none)
 )
-# each control's success on the pair's episodes (ps_ray.stitching.stitch.controls), chance on them,
-# the better unstitched source, the best of those and chance, and the gain over that best
+# each control's success on the pair's episodes (ps_ray.stitching.stitch.controls), chance and the
+# task-blind floor on them, the better unstitched source, the best of all those and the gain over
+# it; the gain over the best of the sources and chance alone, as before the floor, beside it
 CONTROL_KEYS = (
     *(f"{role}_success" for role in CONTROL_ROLES),
     "chance_success",
+    "task_blind_success",
+    "task_blind_wrong_target",
     "best_unstitched",
     "best_control",
     "transfer_gain",
+    "gain_over_chance",
 )
 
 
@@ -144,15 +151,18 @@ def evaluate_pair(
     scored: dict[tuple, dict] | None = None,
 ) -> dict:
     """Stitch one pair (translated, if the pair says so), evaluate it, then each of its controls
-    as it is, all on the stage's fixed episodes; ``source(path)`` gives a loaded policy file,
-    ``chance`` the chance level of the pair's target env on those episodes (:func:`chance_levels`),
-    ``outcome`` the scenes, reference points and cache folder of a translation fitted on matched
-    pairs, ``scored`` the controls' evaluations so far (by file and target env), to reuse."""
+    as it is, all on the stage's fixed episodes (``settings``: ``evaluate``'s episodes, repeats
+    and first reset seed); ``source(path)`` gives a loaded policy file, ``chance`` the chance level
+    and task-blind floor of the pair's target env on those episodes (:func:`chance_levels`),
+    ``outcome`` the scenes, reference points, cache folder, k-means ``seed`` and first reset seed
+    of the fit states (``fit_seed``) of a translation, ``scored`` the controls' evaluations so far
+    (by file and target env), to reuse."""
     from ps_ray.stitching.evaluate import evaluate
-    from ps_ray.stitching.outcomes import fit_pairs, matched_anchors
+    from ps_ray.stitching.outcomes import fit_cost, fit_pairs, matched_anchors
     from ps_ray.stitching.stitch import stitch_policies
 
     scored = {} if scored is None else scored
+    outcome = outcome or {}
 
     kind, fit = split_translation(pair.translation) if pair.translation else (None, "")
     sources = (
@@ -164,14 +174,14 @@ def evaluate_pair(
         if anchors is None:
             raise UserError(f"{pair.key}: anchors@{fit} needs a method with a relative projection")
         states = matched_anchors(
-            fit, anchors.numpy(), *sources, outcome["scenes"], settings["seed"], outcome.get("cache")
+            fit, anchors.numpy(), *sources, outcome["scenes"], outcome["seed"], outcome.get("cache")
         )
     elif fit:  # matched pairs of states (ps_ray.stitching.outcomes)
         states = fit_pairs(
-            fit, *sources, outcome["scenes"], outcome["points"], settings["seed"], outcome.get("cache")
+            fit, *sources, outcome["scenes"], outcome["points"], outcome["seed"], outcome.get("cache")
         )
     else:
-        states = fit_states(list(pair.fit_tasks), per_quadrant, settings["seed"]) if kind else None
+        states = fit_states(list(pair.fit_tasks), per_quadrant, outcome.get("fit_seed", 0)) if kind else None
     stitched = stitch_policies(
         source(pair.task_from_path),
         source(pair.robot_from_path),
@@ -179,7 +189,13 @@ def evaluate_pair(
         fit_states=states,
     )
     result = evaluate(stitched, pair.robot, pair.task, **settings)
-    metrics = {k: result[k] for k in RESULT_KEYS}
+    metrics = {k: result[k] for k in RESULT_KEYS if k in result}
+    if fit:  # what the fit rolled out, cached or not
+        n_anchors = len(anchors) if kind == "anchors" else 0
+        cache = outcome.get("cache")
+        metrics["fit_env_steps"] = fit_cost(kind, fit, sources[0], outcome["scenes"], n_anchors, cache)
+    else:
+        metrics["fit_env_steps"] = 0
     for role, control in pair.controls.items():
         key = (control.path, pair.robot.text, pair.task.text)
         if key not in scored:  # the translated stitches of a pair share its controls
@@ -190,25 +206,28 @@ def evaluate_pair(
         metrics[f"{role}_success"] = unstitched["success_mean"]
     if chance["episodes_digest"] != result["episodes_digest"]:  # a bug, never bad input
         raise RuntimeError(f"{pair.key}: its chance level was measured on other episodes")
-    metrics["chance_success"] = chance["chance_success"]
+    for key in ("chance_success", "task_blind_success", "task_blind_wrong_target"):
+        metrics[key] = chance.get(key, np.nan)
     return {**metrics, **gain(metrics)}
 
 
 def gain(metrics: dict[str, Any]) -> dict[str, float]:
     """``best_unstitched`` (the better of the two unstitched controls that apply), ``best_control``
-    (the best of those and chance) and ``transfer_gain`` (stitched success minus ``best_control``);
-    NaN when none applies."""
+    (the best of those, chance and the task-blind floor where the scene has one), ``transfer_gain``
+    (stitched success minus ``best_control``) and ``gain_over_chance`` (the gain over the sources
+    and chance alone, the measure before the floor existed); NaN when none applies."""
 
     def best(keys) -> float:
         values = [metrics.get(f"{key}_success") for key in keys]
         return max((v for v in values if v is not None and v == v), default=np.nan)
 
     unstitched = best(("robot_source", "task_source"))
-    control = best(("robot_source", "task_source", "chance"))
+    control = best(("robot_source", "task_source", "chance", "task_blind"))
     return {
         "best_unstitched": unstitched,
         "best_control": control,
         "transfer_gain": metrics["success_mean"] - control,
+        "gain_over_chance": metrics["success_mean"] - best(("robot_source", "task_source", "chance")),
     }
 
 
@@ -263,7 +282,8 @@ def _evaluate(
 
     folder, by_key = layout(spec).tune_zero_shot, {pair.key: pair for pair in trials}
     evaluated = {"episodes": settings.episodes, "repeats": settings.repeats}
-    episodes = {"episodes": settings.episodes, "repeats": settings.repeats, "seed": settings.seed}
+    first = reset_seeds.fixed("zero_shot", settings.seed)  # episodes no other stage draws
+    episodes = {"episodes": settings.episodes, "repeats": settings.repeats, "seed": first}
     chance = chance_levels(trials, episodes, progress)
     tracking_uri, experiment_id = connect(spec)
     callback = RowRunsCallback(
@@ -300,6 +320,8 @@ def _evaluate(
                 "scenes": settings.outcome_scenes,
                 "points": settings.outcome_points,
                 "cache": str(layout(spec).outcomes),
+                "seed": settings.seed,
+                "fit_seed": reset_seeds.fixed("fit", settings.seed),
             },
         },
     )
@@ -331,7 +353,8 @@ def table_of(results: list[tuple[StitchedPair, dict[str, Any]]], root: Path | No
 
 def summary(table: pd.DataFrame) -> pd.DataFrame:
     """Mean over pairs per method (and the number of pairs) of success, touching, the better
-    unstitched control, the oracle and the transfer gain, for the terminal and the note."""
+    unstitched control, chance, the task-blind floor, the wrong-target rate, the oracle and the
+    transfer gain, for the terminal and the note."""
     grouped = table.groupby("method")
     return pd.DataFrame(
         {
@@ -340,10 +363,17 @@ def summary(table: pd.DataFrame) -> pd.DataFrame:
             "touching": grouped["touching_mean"].mean(),
             "best unstitched": grouped["best_unstitched"].mean(),
             "chance": grouped["chance_success"].mean(),
+            "task-blind floor": _mean_of(grouped, "task_blind_success"),
+            "wrong target": _mean_of(grouped, "wrong_target_mean"),
             "oracle": grouped["oracle_success"].mean(),
             "transfer gain": grouped["transfer_gain"].mean(),
         }
     )
+
+
+def _mean_of(grouped, column: str) -> pd.Series:
+    """A column's mean per group; NaN for a table from before the column existed."""
+    return grouped[column].mean() if column in grouped.obj.columns else grouped.size() * np.nan
 
 
 def write_atomic_csv(table: pd.DataFrame, path: Path) -> None:

@@ -15,6 +15,7 @@ import numpy as np
 import torch
 
 from ps_ray.errors import UserError
+from ps_ray.specs import reset_seeds
 from ps_ray.specs.methods import spec_json
 from ps_ray.specs.train import POINT_TASK, TrainSpec
 from ps_ray.store import checkpoint
@@ -69,7 +70,8 @@ def prepare_anchors(spec: TrainSpec, run_dir: Path, given=None):
     if given is not None:
         anchor_set = given
     else:
-        states = collect_task_states(lambda: make_env(spec), episodes=spec.anchor_episodes, seed=spec.seed)
+        first = reset_seeds.fixed("anchors", spec.seed)  # the run's own anchor scenes
+        states = collect_task_states(lambda: make_env(spec), episodes=spec.anchor_episodes, seed=first)
         anchor_set = AnchorSet.of(
             select_anchors(states, spec.interface_dim, seed=0),
             {

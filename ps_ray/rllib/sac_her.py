@@ -45,14 +45,13 @@ from ps_ray.rllib.private import (
     set_training_iteration,
 )
 from ps_ray.specs.methods import ConsolidateSpec, method_spec, spec_json
+from ps_ray.specs.reset_seeds import RUNNER_STRIDE, run_episode_seed
 from ps_ray.specs.train import TrainSpec
 from ps_ray.store import replay as replay_segments
 from ps_ray.store.checkpoint import STATE_FILE
 from ps_ray.store.signature import Signature
 
 LEARNER_FILE = "learner.safetensors"
-EVAL_SEED_OFFSET = 500_000  # the periodic evaluations, which the stopping rule reads
-FINAL_EVAL_SEED_OFFSET = 700_000  # the final evaluation: episodes the stopping rule never read
 REPLAY_FILE = "replay.npz"
 
 
@@ -218,13 +217,12 @@ class ModularSAC(SAC):
         the run's seed and episode count, so a resumed run does not replay old goals); greedy
         evaluations reuse one fixed seed, so every evaluation sees the same episodes; the final
         evaluation (``final``) another fixed seed, so its episodes are none of those."""
-        offset = FINAL_EVAL_SEED_OFFSET if final else EVAL_SEED_OFFSET
-        seed = (self.config.seed or 0) * 1_000_003 + (self.counters["episodes"] if explore else offset)
+        seed = run_episode_seed(self.config.seed, self.counters["episodes"], explore=explore, final=final)
 
         def sample(runner):
             # RLlib re-seeds the envs with its config seed on every num_episodes call, which
             # would replay the same goals forever: set the seed of this call instead.
-            set_runner_seed(runner, seed + 1_000 * runner.worker_index)
+            set_runner_seed(runner, seed + RUNNER_STRIDE * runner.worker_index)
             return runner.sample(num_episodes=n, explore=explore, random_actions=random)
 
         results = self.env_runner_group.foreach_env_runner(

@@ -18,6 +18,7 @@ from ps_ray.errors import UserError, describe, fits
 from ps_ray.specs.defaults import HIDDEN, INTERFACE_DIM, MAX_WIDTH
 from ps_ray.specs.methods import OPTIONS, PRESETS, MethodSpec, method_key, method_spec
 from ps_ray.specs.names import EnvPart, plain_json, trial_key
+from ps_ray.specs.reset_seeds import MAX_RUN_SEED
 
 POINT_TASK = "point"  # the physics-free PointGoalEnv (robot is ignored), for fast checks
 
@@ -143,8 +144,9 @@ class TrainSpec:
         for name in ("interface_dim", "hidden"):
             if getattr(self, name) > MAX_WIDTH:
                 raise SpecError(f"{name} must be at most {MAX_WIDTH}, got {getattr(self, name)}")
-        if not isinstance(self.seed, int) or isinstance(self.seed, bool) or self.seed < 0:
-            raise SpecError(f"seed must be a non-negative integer, got {self.seed!r}")
+        seed_ok = isinstance(self.seed, int) and not isinstance(self.seed, bool)
+        if not seed_ok or not 0 <= self.seed <= MAX_RUN_SEED:  # its reset seeds stay in its block
+            raise SpecError(f"seed must be an integer 0..{MAX_RUN_SEED}, got {self.seed!r}")
         for name in ("random_episodes", "learning_starts", "eval_every"):
             value = getattr(self, name)
             if not isinstance(value, int) or isinstance(value, bool) or value < 0:

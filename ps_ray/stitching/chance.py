@@ -1,4 +1,4 @@
-"""The chance-level control: what a policy with no task knowledge scores on a pair's episodes.
+"""The controls with no task knowledge: chance, and the task-blind floor, on a pair's episodes.
 
 A stitched pair's unstitched sources can fail at zero by construction (the robot source reaches the
 wrong marker every time), so a stitched policy above them is not yet a policy that knows the task.
@@ -12,7 +12,15 @@ episodes, and the higher is the control:
   about 8% of the time);
 - ``random_actions``: uniform random actions.
 
-Both draw from the episode's seed alone, so they are deterministic and every pair with the same
+Chance is a floor for moving purposefully; the **task-blind floor** is the floor for a transfer
+claim: the best policy that lacks only the knowledge being transferred (docs/transfer.md, "The
+task-blind floor"). It can do every task that shares the target's scene on the target robot but
+is not told which one: each episode it drives the end effector to one of the scene's candidate
+targets (``env.candidate_targets()``: on the marker family every marker) drawn uniformly
+(``task_blind``). On the two-marker family it reaches the named marker about half the time, far
+above chance. Where the family's tasks do not share a scene (one candidate) it is absent (NaN).
+
+All draw from the episode's seed alone, so they are deterministic and every pair with the same
 target env and episodes gets the same figure. No torch, no Ray.
 """
 
@@ -52,14 +60,41 @@ class RandomActions:
         return np.stack([rng.uniform(-1.0, 1.0, self.dim) for rng in self.rngs])
 
 
+class TaskBlind:
+    """Each episode: one of the scene's candidate targets, drawn uniformly; every step moves toward it."""
+
+    def begin(self, envs: Sequence, seeds: Sequence[int]) -> None:
+        self.envs = list(envs)
+        self.points = []
+        for env, seed in zip(envs, seeds):
+            candidates = env.candidate_targets()
+            if candidates is None:
+                raise ValueError(f"{env.task_spec.name}: one target per scene, no task-blind floor")
+            pick = np.random.default_rng([_STREAM, 2, seed]).integers(len(candidates))
+            self.points.append(candidates[pick])
+
+    def __call__(self, obs: Mapping[str, np.ndarray]) -> np.ndarray:
+        return np.stack([env.action_toward(point) for env, point in zip(self.envs, self.points)])
+
+
 POLICIES: dict[str, Callable[[], Any]] = {"random_point": RandomPoint, "random_actions": RandomActions}
 CHANCE_POLICIES = tuple(POLICIES)
 
 
+def has_floor(task) -> bool:
+    """Whether the target's scene holds several candidate targets (a task-blind floor exists)."""
+    from ps_ray.envs.tasks import resolve_task
+    from ps_ray.specs.names import EnvPart
+
+    return resolve_task(EnvPart(task)).candidate_count > 1
+
+
 def chance(robot, task, settings: Mapping[str, Any]) -> dict[str, Any]:
     """Each chance policy's success on the episodes ``settings`` (``evaluate``'s episodes, repeats,
-    seed) name, ``chance_success`` (the higher), ``chance_policy`` (which) and the episodes'
-    digest (:func:`ps_ray.stitching.evaluate.episodes_digest`), to check a pair ran on the same ones."""
+    seed) name, ``chance_success`` (the higher), ``chance_policy`` (which), the task-blind floor's
+    success and wrong-target rate (``task_blind_success``, ``task_blind_wrong_target``; NaN where
+    the scene holds one target) and the episodes' digest
+    (:func:`ps_ray.stitching.evaluate.episodes_digest`), to check a pair ran on the same ones."""
     from ps_ray.stitching.evaluate import evaluate
 
     out: dict[str, Any] = {}
@@ -68,4 +103,12 @@ def chance(robot, task, settings: Mapping[str, Any]) -> dict[str, Any]:
         out[f"{name}_success"] = result["success_mean"]
         out["episodes_digest"] = result["episodes_digest"]
     best = max(CHANCE_POLICIES, key=lambda name: out[f"{name}_success"])
-    return {**out, "chance_success": out[f"{best}_success"], "chance_policy": best}
+    out.update(chance_success=out[f"{best}_success"], chance_policy=best)
+    out.update(task_blind_success=np.nan, task_blind_wrong_target=np.nan)
+    if has_floor(task):
+        blind = evaluate(TaskBlind(), robot, task, **settings)
+        if blind["episodes_digest"] != out["episodes_digest"]:  # a bug, never bad input
+            raise RuntimeError("the task-blind floor ran on other episodes than chance")
+        out["task_blind_success"] = blind["success_mean"]
+        out["task_blind_wrong_target"] = blind["wrong_target_mean"]
+    return out

@@ -9,7 +9,10 @@ Per repeat:
 - touching (the authors' measure): the end effector within 0.05 m of the object in any state the
   policy acts on (checked before each action, as the authors do: the reset state and the states
   after steps 1..49), averaged over the episodes that did *not* start successful;
-- contact: PyBullet robot-object contact at any step, same denominator as touching.
+- contact: PyBullet robot-object contact at any step, same denominator as touching;
+- wrong target (scenes that hold several candidate targets, the marker family): the end effector
+  ended within the success distance of a target the task does not name, averaged over all
+  episodes; NaN where the scene holds one target.
 
 Reported: mean and (population) std over the repeats, the per-repeat values and speed. Reach has
 no object, so its touching and contact are 0.
@@ -31,6 +34,7 @@ import torch
 from torch import nn
 
 from ps_ray.envs import make, task_input
+from ps_ray.envs.goals import SUCCESS_DISTANCE
 from ps_ray.errors import UserError
 from ps_ray.nets.modular import Actor
 from ps_ray.nets.obs import dims_from_spaces
@@ -57,6 +61,10 @@ class EpisodeRecord:
     start: tuple[float, ...]  # achieved goal at reset (the object; the end effector for reach)
     task_input: tuple[float, ...]  # the task module's input at reset (task state, then goal)
     end_effector: tuple[float, ...]  # the end effector's final position (world frame)
+    # the end effector's final distance to each candidate target (env.candidate_targets(); empty
+    # where the scene holds one), and whether it ended within the success distance of another one
+    candidate_distances: tuple[float, ...] = ()
+    wrong_target: bool = False
 
 
 # -- the policy -----------------------------------------------------------------------------------
@@ -144,6 +152,7 @@ def summarize(records: Sequence[EpisodeRecord]) -> dict[str, Any]:
         "touching_per_repeat": [],
         "contact_per_repeat": [],
         "initially_successful_per_repeat": [],
+        "wrong_target_per_repeat": [],
     }
     for rep in repeats:
         rows = [r for r in records if r.repeat == rep]
@@ -152,7 +161,9 @@ def summarize(records: Sequence[EpisodeRecord]) -> dict[str, Any]:
         out["touching_per_repeat"].append(_rate([r.touched for r in eligible]))
         out["contact_per_repeat"].append(_rate([r.contact for r in eligible]))
         out["initially_successful_per_repeat"].append(len(rows) - len(eligible))
-    for name in ("success", "touching", "contact"):
+        several = [r for r in rows if len(r.candidate_distances) > 1]
+        out["wrong_target_per_repeat"].append(_rate([r.wrong_target for r in several]))
+    for name in ("success", "touching", "contact", "wrong_target"):
         out[f"{name}_mean"], out[f"{name}_std"] = _mean_std(out[f"{name}_per_repeat"])
     return out
 
@@ -203,6 +214,7 @@ def _run_batch(
                 touched[i] |= info["touching"]
             contact[i] |= info["contact"]
             success[i] = info["is_success"]  # success after the last step counts
+    ends = [_candidate_ends(env) for env in envs]
     return [
         EpisodeRecord(
             repeat_of(s),
@@ -215,9 +227,21 @@ def _run_batch(
             tuple(map(float, o["achieved_goal"])),
             tuple(map(float, task_input(o))),
             tuple(map(float, envs[i].ee_position)),
+            *ends[i],
         )
         for i, (s, (o, info)) in enumerate(zip(seeds, resets))
     ]
+
+
+def _candidate_ends(env) -> tuple[tuple[float, ...], bool]:
+    """The end effector's distance to each of the scene's candidate targets, and whether it is
+    within the success distance of one the task does not name (``(), False``: one target)."""
+    candidates = env.candidate_targets()
+    if candidates is None:
+        return (), False
+    distances = np.linalg.norm(candidates - env.ee_position, axis=-1)
+    others = np.delete(distances, env.named_candidate)
+    return tuple(map(float, distances)), bool((others < SUCCESS_DISTANCE).any())
 
 
 def check_dims(dims: NetDims, env) -> None:
@@ -329,7 +353,9 @@ def format_result(result: Mapping[str, Any], title: str = "") -> str:
         f"{result['episodes_per_s']:.1f} episodes/s"
     )
     lines.append(f"{'':<10}{'mean':>8}{'std':>8}   per repeat")
-    for name in ("success", "touching", "contact"):
+    for name in ("success", "touching", "contact", "wrong_target"):
+        if all(math.isnan(v) for v in result[f"{name}_per_repeat"]):
+            continue
         per = " ".join(f"{v:.3f}" for v in result[f"{name}_per_repeat"])
         lines.append(f"{name:<10}{result[name + '_mean']:>8.3f}{result[name + '_std']:>8.3f}   {per}")
     n_init = sum(result["initially_successful_per_repeat"])

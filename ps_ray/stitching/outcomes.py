@@ -36,11 +36,12 @@ import numpy as np
 from ps_ray.envs.tasks import resolve_task
 from ps_ray.envs.tasks.markers import Markers
 from ps_ray.errors import UserError
+from ps_ray.specs import reset_seeds
 from ps_ray.specs.names import ANCHOR_FITS, CROSSED_FITS, EnvPart, parse_spec_text
 from ps_ray.store.atomic import atomic_file
 from ps_ray.store.npz import read_npz
 
-OUTCOME_SEED = 3_000_000  # first reset seed of the outcome rollouts: far from every evaluation's
+OUTCOME_SEED = reset_seeds.fixed("outcomes")  # first reset seed of the outcome rollouts
 
 
 @dataclass(frozen=True)
@@ -89,6 +90,41 @@ def anchor_ends(policy, robot, task, anchors: np.ndarray) -> np.ndarray:
         policy, robot, task, episodes=len(anchors), repeats=1, seed=OUTCOME_SEED, scenes=anchors
     )
     return np.array([r["end_effector"] for r in result["records"]])
+
+
+def fit_env_steps(kind: str, fit: str, scenes: int, anchors: int = 0, candidates: int = 0) -> int:
+    """Env steps the fit of ``<kind>@<fit>`` rolls out (whether or not a cache spares them): each
+    rollout is one episode of ``EPISODE_STEPS``. ``scenes``: rollouts per source for outcomes;
+    ``anchors``: the robot module's anchors (re-anchoring); ``candidates``: the task source's
+    successful outcome scenes (the crossed fits roll the robot source out on each)."""
+    from ps_ray.envs.core import EPISODE_STEPS
+
+    if kind != "anchors":  # both sources' outcomes, for every fit (swapped pairs the X side)
+        episodes = 2 * scenes
+    elif fit == "swapped":  # the known correspondence: no rollout
+        episodes = 0
+    elif fit in CROSSED_FITS:  # the task source's outcomes, the robot source on them, both on the anchors
+        episodes = scenes + candidates + 2 * anchors
+    else:  # the task source's outcomes and the robot source on the anchors
+        episodes = scenes + anchors
+    return episodes * EPISODE_STEPS
+
+
+def fit_cost(
+    kind: str,
+    fit: str,
+    task_source: tuple[str, EnvPart, EnvPart],
+    scenes: int,
+    anchors: int,
+    cache: str | None,
+) -> int:
+    """:func:`fit_env_steps` of a pair's fit, its candidates counted from the task source's
+    outcomes (the cached rollouts the fit itself read)."""
+    candidates = 0
+    if kind == "anchors" and fit in CROSSED_FITS:
+        path, robot, task = task_source
+        candidates = len(_source_outcomes(path, robot.text, task.text, scenes, cache).task_in)
+    return fit_env_steps(kind, fit, scenes, anchors, candidates)
 
 
 def match_anchors(mine: Outcomes, ends: np.ndarray) -> np.ndarray:

@@ -35,6 +35,12 @@ class TaskSpec:
         return self.family.state_width(self.options) + GOAL_DIM
 
     @property
+    def candidate_count(self) -> int:
+        """Candidate targets per scene: above 1, the family's tasks share a scene and differ in
+        which target they name (a task-blind floor exists)."""
+        return self.family.candidate_count(self.options)
+
+    @property
     def has_object(self) -> bool:
         """Whether the task moves an object (so touching it means something)."""
         return self.family.has_object

@@ -48,6 +48,11 @@ class Task(ABC):
         """Width of ``task_state`` for these options (a family may size it from its options)."""
         return cls.state_dim
 
+    @classmethod
+    def candidate_count(cls, options: TaskOptions) -> int:
+        """How many candidate targets a scene holds (:meth:`candidate_targets`; 1: none to choose)."""
+        return 1
+
     def __init__(self, sim: Sim, options: TaskOptions) -> None:
         self.sim, self.options = sim, options
         self.goal = np.zeros(3)
@@ -93,6 +98,14 @@ class Task(ABC):
 
     def _set(self, task_input: np.ndarray) -> None:  # noqa: B027 (only families that pass _settable)
         """Set the scene a checked task input describes."""
+
+    def candidate_targets(self) -> np.ndarray | None:
+        """Every target the scene holds for the tasks of its family (rows, world frame), the named
+        one at :attr:`named_candidate`; None where the family's tasks do not share a scene (each
+        task draws its own target), so a task-blind policy has nothing to choose between."""
+        return None
+
+    named_candidate: int = 0
 
     @abstractmethod
     def target_region(self) -> tuple[np.ndarray, np.ndarray]:

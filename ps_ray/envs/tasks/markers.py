@@ -69,6 +69,10 @@ class Markers(Task):
     def state_width(cls, options: TaskOptions) -> int:
         return 3 * options.markers  # type: ignore[attr-defined]
 
+    @classmethod
+    def candidate_count(cls, options: TaskOptions) -> int:
+        return options.markers  # type: ignore[attr-defined]
+
     def _build(self) -> None:
         self._bodies = [
             self.sim.add_shape(p.GEOM_SPHERE, (MARKER_RADIUS,), (0.0, 0.0, -1.0), rgba=rgba, ghost=True)
@@ -79,6 +83,14 @@ class Markers(Task):
     def target_position(self) -> np.ndarray:
         """Where the end effector must go: the named marker plus the desired offset."""
         return self.positions[self.options.target] + self.goal
+
+    def candidate_targets(self) -> np.ndarray:
+        """Every marker plus the desired offset: what each task of the family would reach here."""
+        return self.positions + self.goal
+
+    @property
+    def named_candidate(self) -> int:
+        return self.options.target
 
     def target_region(self) -> tuple[np.ndarray, np.ndarray]:
         """The marker box: every marker, the named one too, is drawn in it."""

@@ -95,7 +95,19 @@ def _train_spec_flags(p, skip: tuple[str, ...] = ()) -> None:
 
 def _bench_parser(sub) -> None:
     p = sub.add_parser("bench", help="print speed figures")
-    benchmarks = ["env", "her", "train", "update", "grid", "learn", "tracking", "evaluate", "rates", "state"]
+    benchmarks = [
+        "env",
+        "her",
+        "train",
+        "update",
+        "grid",
+        "learn",
+        "tracking",
+        "evaluate",
+        "rates",
+        "state",
+        "outcomes",
+    ]
     p.add_argument("what", choices=benchmarks)
     p.add_argument("options", nargs=argparse.REMAINDER, help="passed to the benchmark (see --help)")
 

@@ -70,10 +70,9 @@ def summary_section(report: Report, spec: SweepSpec, target: float) -> None:
         if tr is not None:
             for _, r in tr[tr["method"] == method].iterrows():
                 if r["gain_diff"] == r["gain_diff"]:
+                    p = "units share runs" if r["gain_p"] != r["gain_p"] else f"p {r['gain_p']:.2g}"
                     row[f"transfer gain, {r['pairing'].replace('_', ' ')}"] = (
-                        f"{r['gain_diff']:+.2f} "
-                        + tables.ci(r["gain_lo"], r["gain_hi"])
-                        + f", p {r['gain_p']:.2g}"
+                        f"{r['gain_diff']:+.2f} " + tables.ci(r["gain_lo"], r["gain_hi"]) + f", {p}"
                     )
         al = h.alignment
         if al is not None:

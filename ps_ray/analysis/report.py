@@ -303,20 +303,15 @@ def _transfer(report: Report, table: pd.DataFrame) -> None:
     section = report.section(
         "Transfer: stitching against its controls",
         "Each stitched pair (task module of (X, Ra), robot module of (Y, Rb), run on (X, Rb)) beside "
-        "its robot source run unstitched on (X, Rb), its task source run on robot Rb, and the "
-        "oracle trained on (X, Rb), chance (the better of two policies with no task knowledge: "
-        "the end effector driven to a random point of the task's target region; random actions) "
-        "and the task-blind floor (a policy that can do every task sharing the target's scene but "
-        "is not told which: the end effector driven to one of the scene's candidate targets drawn "
-        "at random; absent where the tasks do not share a scene), all on the pair's evaluation "
-        "episodes. Wrong target: the stitched policy ended within the success distance of a "
-        "target the task does not name. Transfer gain: stitched success minus the best of the "
-        "unstitched sources, chance and the floor, averaged per seed; mean with a t interval over "
-        "seeds (df = n - 1) and an exact sign-flip p-value; the gain over the sources and chance "
-        "alone beside it. Same-seed pairs join modules of one training seed; cross-seed pairs "
-        "seed i's task modules with seed i+1's robot modules, so neighbouring units share a run: "
-        "their intervals are widened for the worst case of that sharing and carry no p-value. "
-        "Rows whose translation reads the task's target (@swapped) are upper bounds, listed last.",
+        "its robot source run on (X, Rb), its task source run on robot Rb, the oracle trained on "
+        "(X, Rb), chance (no task knowledge: a random point of the target region; random actions) "
+        "and the task-blind floor (every task of the scene but not told which: a candidate target "
+        "drawn at random; absent where the tasks do not share a scene), all on the pair's episodes. "
+        "Wrong target: ended at a target the task does not name. Transfer gain: stitched minus the "
+        "best of the sources, chance and the floor, per seed; t interval over seeds and sign-flip "
+        "p-value; the gain over the sources and chance alone beside it. Cross-seed units (seed i's "
+        "task modules, seed i+1's robot modules) share runs: their intervals are widened for it, "
+        "without a p-value. Rows that read the task's target (@swapped) are upper bounds, last.",
         first=True,
     )
     report.table(

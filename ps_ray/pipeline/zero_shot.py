@@ -133,9 +133,12 @@ def chance_levels(trials: list[StitchedPair], settings: dict[str, Any], progress
             levels[key] = chance(pair.robot, pair.task, settings)
             if progress:
                 found = levels[key]
+                floor = found["task_blind_success"]
+                floor_text = "absent" if floor != floor else f"{floor:.3f}"
                 print(
                     f"[zero_shot] chance on {pair.task.short}/{pair.robot.short}: "
-                    f"{found['chance_success']:.3f} ({found['chance_policy']})",
+                    f"{found['chance_success']:.3f} ({found['chance_policy']}); "
+                    f"task-blind floor {floor_text}",
                     flush=True,
                 )
     return levels

@@ -153,3 +153,10 @@ def test_bad_input_is_one_line_exit_2_and_writes_nothing(files, tmp_path, args, 
     assert "Traceback" not in proc.stderr and "usage:" not in proc.stderr
     assert not out.exists() and not (files / "sweeps").exists()
     assert not (tmp_path / "PICKLE_RAN").exists()
+
+
+def test_version_names_the_installed_package():
+    from importlib.metadata import version
+
+    proc = subprocess.run([sys.executable, "-m", "ps_ray.cli", "--version"], capture_output=True, text=True)
+    assert proc.returncode == 0 and proc.stdout.strip() == f"ps-ray {version('ps_ray')}"

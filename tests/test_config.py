@@ -110,6 +110,8 @@ seeds: [1]
     "text, message",
     [
         (GOOD + "colour: red\n", "unknown key 'colour'; valid keys: name, methods"),
+        (GOOD + "seeds: [2]\n", "at line 6, column 1: duplicate key 'seeds' (a key may be given once)"),
+        (GOOD + "train: {hidden: 64, hidden: 32}\n", "duplicate key 'hidden'"),
         (GOOD.replace("[ps]", "[ps, nope]"), "unknown method 'nope'"),
         (
             GOOD.replace("[panda]", "[{base: panda, locked_joints: [8]}]"),

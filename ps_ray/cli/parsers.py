@@ -10,7 +10,10 @@ from ps_ray.specs.train import TrainSpec
 
 
 def build_parser(description: str | None) -> argparse.ArgumentParser:
+    from importlib.metadata import version
+
     parser = Parser(prog="ps-ray", description=description)
+    parser.add_argument("--version", action="version", version=f"ps-ray {version('ps_ray')}")
     sub = parser.add_subparsers(dest="command", required=True)
     for add in (
         _train_parser,

@@ -190,13 +190,34 @@ def _sub_spec(cls, data: Any, where: str):
         raise SpecError(f"{where}: {e}") from None
 
 
+def _strict_yaml(text: str):
+    """``yaml.safe_load`` that refuses a key given twice in one mapping (PyYAML keeps the last)."""
+    import yaml
+
+    class Strict(yaml.SafeLoader):
+        def construct_mapping(self, node, deep=False):
+            seen = set()
+            for key_node, _ in node.value:
+                key = self.construct_object(key_node, deep=True)
+                if key in seen:
+                    raise yaml.constructor.ConstructorError(
+                        problem=f"duplicate key {key!r} (a key may be given once)",
+                        problem_mark=key_node.start_mark,
+                    )
+                seen.add(key)
+            return super().construct_mapping(node, deep)
+
+    return yaml.load(text, Loader=Strict)  # noqa: S506 (a SafeLoader)
+
+
 def load_sweep(path: str | Path) -> SweepSpec:
-    """Strict YAML loading: malformed YAML, unknown keys and bad values fail with one line."""
+    """Strict YAML loading: malformed YAML, duplicate or unknown keys and bad values fail with one
+    line."""
     import yaml
 
     path = Path(path)
     try:
-        data = yaml.safe_load(path.read_text())
+        data = _strict_yaml(path.read_text())
     except FileNotFoundError:
         raise SpecError(f"{path}: no such sweep file") from None
     except IsADirectoryError:

@@ -111,6 +111,10 @@ seeds: [1]
     [
         (GOOD + "colour: red\n", "unknown key 'colour'; valid keys: name, methods"),
         (GOOD + "seeds: [2]\n", "at line 6, column 1: duplicate key 'seeds' (a key may be given once)"),
+        (
+            GOOD + "stages: [zero_shot, train]\n",
+            "stages ['zero_shot', 'train'] are not in the pipeline's order; write [train, zero_shot]",
+        ),
         (GOOD + "train: {hidden: 64, hidden: 32}\n", "duplicate key 'hidden'"),
         (GOOD.replace("[ps]", "[ps, nope]"), "unknown method 'nope'"),
         (

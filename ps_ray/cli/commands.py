@@ -313,6 +313,8 @@ def cmd_stitch(args: argparse.Namespace) -> int:
 
     if args.episodes < 0:
         raise UserError(f"--episodes must be >= 0, got {args.episodes}")
+    if args.episodes == 0 and not args.save:
+        raise UserError("--episodes 0 without --save does nothing; give --save FILE or --episodes N > 0")
     zoo = ModuleZoo.from_sweep(*args.sweep) if args.sweep else None
     task_src, robot_src = resolve_source(args.task_from, zoo), resolve_source(args.robot_from, zoo)
     robot, task = resolve_target(

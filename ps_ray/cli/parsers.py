@@ -134,7 +134,7 @@ def _sweep_parser(sub) -> None:
     )
     p.add_argument(
         "--cores",
-        type=int,
+        type=positive_int,
         default=64,
         help="ideal cores (one trial each) for --check; cluster.yaml's kinds are projected too",
     )

@@ -74,6 +74,10 @@ class SweepSpec:
         for stage in self.stages:
             if stage not in STAGES:
                 raise SpecError(f"unknown stage {stage!r}; valid stages: {', '.join(STAGES)}")
+        ordered = [s for s in STAGES if s in self.stages]
+        if list(dict.fromkeys(self.stages)) != ordered:  # they run in the pipeline's order: say so
+            order = ", ".join(ordered)
+            raise SpecError(f"stages {list(self.stages)} are not in the pipeline's order; write [{order}]")
         for key in ("robots", "tasks"):  # one type; a value of another type is named by the trials' specs
             parts = (EnvPart(v) if isinstance(v, (str, Mapping)) else v for v in getattr(self, key))
             object.__setattr__(self, key, tuple(parts))

@@ -132,15 +132,17 @@ def co_training_numbers(table: pd.DataFrame) -> pd.DataFrame:
         alone = table[table["method"] == method.removesuffix(suffix)]
         both = table[table["method"] == method].merge(alone, on=keys, suffixes=("", "_alone"))
         for pairing, part in both.groupby("pairing", sort=False):
-            diff = paired(part["success_mean"], part["success_mean_alone"], part["seed"])
+            shared = pairing == "cross_seed"  # cyclic units share runs
+            diff = paired(part["success_mean"], part["success_mean_alone"], part["seed"], shared)
+            seeds = part["seed"].to_numpy()
             rows.append(
                 {
                     "method": method,
                     "pairing": pairing,
                     "pairs": len(part),
-                    "co-trained": estimate(part["success_mean"].to_numpy(), part["seed"].to_numpy()).text(),
+                    "co-trained": estimate(part["success_mean"].to_numpy(), seeds, shared_runs=shared).text(),
                     "trained alone": estimate(
-                        part["success_mean_alone"].to_numpy(), part["seed"].to_numpy()
+                        part["success_mean_alone"].to_numpy(), seeds, shared_runs=shared
                     ).text(),
                     "co-trained minus alone (paired over seeds)": diff.text(),
                 }

@@ -123,7 +123,6 @@ CASES = [  # (arguments, with {f} the input folder and {out} a path that must no
         "stitch --task-from {f}/reach.safetensors --robot-from {f}/reach.safetensors --episodes 0",
         "--episodes 0 without --save does nothing; give --save FILE or --episodes N > 0",
     ),
-    ("sweep {f}/sweep.yaml --check --cores 0", "argument --cores: expected a positive integer, got 0"),
     ('train --robot {{"name":"panda","mount":"left"}} --run-dir {out}', "bad mount 'left'; valid mounts"),
     ('train --task {{"name":"reach_red","target":2}} --run-dir {out}', "bad target 2; valid targets: 0..1"),
     ("bench env --steps 0", "argument --steps: expected a positive integer, got 0"),

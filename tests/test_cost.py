@@ -144,8 +144,9 @@ def test_check_prints_the_projection_and_refuses_a_bad_core_count(tmp_path):
         text=True,
         timeout=120,
     )
-    assert bad.returncode == 2
-    assert bad.stderr.strip().splitlines()[-1].endswith("--cores must be a positive number of cores, got 0")
+    assert bad.returncode == 2 and not bad.stdout  # refused before a trial line is printed
+    (line,) = bad.stderr.strip().splitlines()
+    assert line.endswith("argument --cores: expected a positive integer, got 0")
 
 
 def test_a_success_target_makes_the_budget_a_cap(tmp_path):

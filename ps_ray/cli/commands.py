@@ -110,6 +110,9 @@ def _load(args: argparse.Namespace):
     from ps_ray.specs.sweep import load_sweep
 
     path = Path(args.sweep)
+    sets = getattr(args, "set", None) or []
+    if path.is_dir() and sets:
+        raise UserError(f"{path}: --set applies to a sweep file; a sweep folder keeps the spec it ran")
     if path.is_dir():  # a sweep folder: its resolved spec, stored where the folder is
         from ps_ray.store.layout import SweepLayout
 
@@ -123,7 +126,7 @@ def _load(args: argparse.Namespace):
                 f"sweep's name (rename it back to {spec.name!r})"
             )
     else:
-        spec = load_sweep(path)
+        spec = load_sweep(path, sets)
     overrides = {
         k: v
         for k, v in (("storage", args.storage), ("tracking_uri", getattr(args, "tracking_uri", None)))

@@ -115,6 +115,18 @@ def _bench_parser(sub) -> None:
     p.add_argument("options", nargs=argparse.REMAINDER, help="passed to the benchmark (see --help)")
 
 
+def _sweep_arg(p, help_text: str) -> None:
+    """The SWEEP positional, and ``--set`` overrides of its keys."""
+    p.add_argument("sweep", help=help_text)
+    p.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="override a key of the sweep file (dotted, the value as YAML), e.g. --set zero_shot.episodes=10",
+    )
+
+
 def _verbose_flag(p) -> None:
     help_text = "Tune's tables and Ray's warnings on the terminal (default: a log file)"
     p.add_argument("--verbose", action="store_true", help=help_text)
@@ -123,7 +135,7 @@ def _verbose_flag(p) -> None:
 def _sweep_parser(sub) -> None:
     p = sub.add_parser("sweep", help="run a sweep YAML's training trials on Ray Tune")
     _verbose_flag(p)
-    p.add_argument("sweep", help="path to a sweep YAML, e.g. sweeps/smoke.yaml")
+    _sweep_arg(p, "path to a sweep YAML, e.g. sweeps/smoke.yaml")
     p.add_argument(
         "--resume", action="store_true", help="finish only the missing trials of an interrupted sweep"
     )
@@ -143,7 +155,7 @@ def _sweep_parser(sub) -> None:
 def _zero_shot_parser(sub) -> None:
     p = sub.add_parser("zero-shot", help="evaluate every stitched pair of a trained sweep (Tune)")
     _verbose_flag(p)
-    p.add_argument("sweep", help="the sweep YAML whose trained policies are stitched")
+    _sweep_arg(p, "the sweep YAML whose trained policies are stitched")
     p.add_argument("--methods", nargs="+", default=None, help="default: the spec's zero_shot.methods")
     p.add_argument("--episodes", type=int, default=None, help="default: the spec's (200)")
     p.add_argument("--repeats", type=int, default=None, help="default: the spec's (5)")
@@ -167,7 +179,7 @@ def _zero_shot_parser(sub) -> None:
 def _few_shot_parser(sub) -> None:
     p = sub.add_parser("few-shot", help="fine-tune stitched policies of a sweep, beside from-scratch runs")
     _verbose_flag(p)
-    p.add_argument("sweep", help="the sweep YAML whose trained policies are stitched")
+    _sweep_arg(p, "the sweep YAML whose trained policies are stitched")
     p.add_argument("--env-steps", type=int, default=None, help="fine-tuning budget per trial")
     p.add_argument(
         "--collect-steps",
@@ -200,14 +212,14 @@ def _run_parser(sub) -> None:
         "report (its 'stages'); finished stages are skipped",
     )
     _verbose_flag(p)
-    p.add_argument("sweep", help="path to a sweep YAML, e.g. sweeps/smoke.yaml")
+    _sweep_arg(p, "path to a sweep YAML, e.g. sweeps/smoke.yaml")
     p.add_argument("--storage", default=None, help="override the spec's storage directory")
     p.add_argument("--tracking-uri", default=None, help="override the MLflow tracking URI")
 
 
 def _report_parser(sub) -> None:
     p = sub.add_parser("report", help="rebuild a sweep's report from its stored results")
-    p.add_argument("sweep", help="a sweep YAML, or a sweep folder (<storage>/<name>)")
+    _sweep_arg(p, "a sweep YAML, or a sweep folder (<storage>/<name>)")
     p.add_argument("--storage", default=None, help="override the spec's storage directory")
     p.add_argument("--no-mlflow", action="store_true", help="write the folder only")
     p.add_argument(

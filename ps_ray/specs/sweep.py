@@ -6,7 +6,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import json
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -194,49 +194,23 @@ def _sub_spec(cls, data: Any, where: str):
         raise SpecError(f"{where}: {e}") from None
 
 
-def _strict_yaml(text: str):
-    """``yaml.safe_load`` that refuses a key given twice in one mapping (PyYAML keeps the last)."""
-    import yaml
-
-    class Strict(yaml.SafeLoader):
-        def construct_mapping(self, node, deep=False):
-            seen = set()
-            for key_node, _ in node.value:
-                key = self.construct_object(key_node, deep=True)
-                if key in seen:
-                    raise yaml.constructor.ConstructorError(
-                        problem=f"duplicate key {key!r} (a key may be given once)",
-                        problem_mark=key_node.start_mark,
-                    )
-                seen.add(key)
-            return super().construct_mapping(node, deep)
-
-    return yaml.load(text, Loader=Strict)  # noqa: S506 (a SafeLoader)
-
-
-def load_sweep(path: str | Path) -> SweepSpec:
-    """Strict YAML loading: malformed YAML, duplicate or unknown keys and bad values fail with one
-    line."""
-    import yaml
+def load_sweep(path: str | Path, sets: Sequence[str] = ()) -> SweepSpec:
+    """Strict loading of a sweep file (:mod:`ps_ray.specs.sweep_file`: its base merged under it,
+    ``sets`` over it): malformed YAML, duplicate or unknown keys and bad values fail with one line
+    naming the file."""
+    from ps_ray.specs.sweep_file import BASE_KEY, read_file, read_sweep
 
     path = Path(path)
+    data = read_sweep(path, sets)
+    top = read_file(path)
+    where = str(path)
+    if isinstance(top, Mapping) and BASE_KEY in top:  # a bad key may come from either file
+        where = f"{path} (with its base {top[BASE_KEY]})"
     try:
-        data = _strict_yaml(path.read_text())
-    except FileNotFoundError:
-        raise SpecError(f"{path}: no such sweep file") from None
-    except IsADirectoryError:
-        raise SpecError(f"{path}: is a folder, not a sweep file") from None
-    except UnicodeDecodeError as e:
-        raise SpecError(f"{path}: not a UTF-8 text file (byte {e.start}); a sweep is YAML text") from None
-    except yaml.YAMLError as e:
-        mark = getattr(e, "problem_mark", None)
-        where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""
-        raise SpecError(f"{path}: malformed YAML{where}: {getattr(e, 'problem', e)}") from None
-    try:
-        return SweepSpec.from_mapping(data, where=str(path))
+        return SweepSpec.from_mapping(data, where=where)
     except SpecError as e:
         message = str(e)
-        raise SpecError(message if message.startswith(str(path)) else f"{path}: {message}") from None
+        raise SpecError(message if message.startswith(where) else f"{where}: {message}") from None
 
 
 # -- what the grid implies ---------------------------------------------------------------------------

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -10,6 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from ps_ray.errors import UserError
 from ps_ray.specs.methods import PRESETS
 from ps_ray.specs.sweep import SweepSpec, load_sweep
 from ps_ray.specs.train import SpecError, TrainSpec
@@ -364,3 +366,44 @@ def test_a_mapping_holding_only_a_name_is_that_name():
 def test_a_robot_or_task_of_another_type_is_refused_naming_the_field(field):
     with pytest.raises(SpecError, match=rf"^{field} must be a name or a mapping, got 5$"):
         TrainSpec(**{field: 5})
+
+
+def test_a_sweep_on_a_base_file_is_the_base_with_its_keys_changed(tmp_path):
+    """Mappings merge key by key, lists and values replace; the result is the same spec as the
+    whole file written out; --set goes over both."""
+    (tmp_path / "base").mkdir()
+    (tmp_path / "base" / "family.yaml").write_text(
+        "methods: [ablation]\nrobots: [panda, panda_far]\ntasks: [reach_red, reach_blue]\nseeds: [1, 2]\n"
+        "train: {hidden: 64, env_steps: 800}\nzero_shot: {episodes: 6, repeats: 2}\n"
+    )
+    mine_text = "base: base/family.yaml\nname: mine\nseeds: [7]\ntrain: {hidden: 32}\n"
+    (tmp_path / "mine.yaml").write_text(mine_text)
+    (tmp_path / "whole.yaml").write_text(
+        "name: mine\nmethods: [ablation]\nrobots: [panda, panda_far]\ntasks: [reach_red, reach_blue]\n"
+        "seeds: [7]\ntrain: {hidden: 32, env_steps: 800}\nzero_shot: {episodes: 6, repeats: 2}\n"
+    )
+    mine, whole = load_sweep(tmp_path / "mine.yaml"), load_sweep(tmp_path / "whole.yaml")
+    assert mine == whole and mine.train["env_steps"] == 800 and mine.seeds == (7,)
+    overridden = load_sweep(tmp_path / "mine.yaml", ["zero_shot.episodes=3", "seeds=[1, 2, 3]"])
+    assert overridden.zero_shot.episodes == 3 and overridden.seeds == (1, 2, 3)
+
+
+@pytest.mark.parametrize(
+    "text, sets, message",
+    [
+        (
+            "base: base.yaml\nname: x\ncolour: red\n",
+            [],
+            "x.yaml (with its base base.yaml): unknown key 'colour'",
+        ),
+        ("base: x.yaml\nname: x\n", [], "x.yaml: base 'x.yaml' names a file already in its chain of bases"),
+        ("base: nowhere.yaml\nname: x\n", [], "nowhere.yaml: no such sweep file"),
+        ("base: base.yaml\nname: x\n", ["seeds"], "bad --set 'seeds'; write KEY=VALUE"),
+        ("base: base.yaml\nname: x\n", ["seeds=[1"], "bad --set 'seeds=[1': its value is not YAML"),
+    ],
+)
+def test_a_bad_base_or_override_is_one_line_naming_the_file(tmp_path, text, sets, message):
+    (tmp_path / "base.yaml").write_text("methods: [ablation]\nrobots: [panda]\ntasks: [reach]\nseeds: [1]\n")
+    (tmp_path / "x.yaml").write_text(text)
+    with pytest.raises(UserError, match=re.escape(message)):
+        load_sweep(tmp_path / "x.yaml", sets)

@@ -75,7 +75,10 @@ def test_sweep_tracks_one_mlflow_run_per_trial_with_artifacts(tmp_path, cli, tin
         assert run.data.params["method"] == name.split("/")[0]
         assert len(run.data.params) < 40  # our spec, not RLlib's hundreds of config keys
         assert run.data.tags["ps_ray.stage"] == "train"
-        assert history(path, run, "env_steps")[-1][1] >= 300
+        steps = history(path, run, "env_steps")
+        assert steps[-1][1] >= 300
+        # every metric is logged at the trial's env steps, the x axis of a training curve
+        assert all(step == value for step, value in steps) and len({s for s, _ in steps}) == len(steps)
         artifacts = {a.path for a in client.list_artifacts(run.info.run_id)}
         assert {"policy.safetensors", "signature.json", "spec.json"} <= artifacts
     ps_artifacts = {a.path for a in client.list_artifacts(found["ps/panda/reach/1/i8"].info.run_id)}

@@ -262,10 +262,11 @@ def run_tune(
         **({"key_fn": key_fn} if key_fn else {}),
         **({"params_fn": params_fn} if params_fn else {}),
         tags_fn=tags_fn,
-        # ps_ray's own iteration, restored with a checkpoint (Tune's restarts at 1 when a resumed
-        # stage relaunches a trial): a retried or relaunched trial re-reports the steps between
-        # its checkpoint and the kill, and the run keeps their first record
-        step_key="iteration",
+        # env steps, the x axis RL curves are read on (restored with a checkpoint, like ps_ray's
+        # own iteration; Tune's restarts at 1 when a resumed stage relaunches a trial): a retried
+        # or relaunched trial re-reports the steps between its checkpoint and the kill, and the
+        # run keeps their first record
+        step_key="env_steps",
         once_per_step=True,
     )
     return run_trials(

@@ -16,6 +16,7 @@ from ps_ray.nets.policy_file import load_policy
 from ps_ray.pipeline.sweep import sweep_dir
 from ps_ray.specs.sweep import load_sweep
 from ps_ray.store.checkpoint import latest as latest_checkpoint
+from ps_ray.store.tracking import git_commit
 
 
 def write_sweep(
@@ -75,6 +76,7 @@ def test_sweep_tracks_one_mlflow_run_per_trial_with_artifacts(tmp_path, cli, tin
         assert run.data.params["method"] == name.split("/")[0]
         assert len(run.data.params) < 40  # our spec, not RLlib's hundreds of config keys
         assert run.data.tags["ps_ray.stage"] == "train"
+        assert run.data.tags["mlflow.source.git.commit"] == git_commit()  # MLflow's own source tag
         steps = history(path, run, "env_steps")
         assert steps[-1][1] >= 300
         # every metric is logged at the trial's env steps, the x axis of a training curve

@@ -73,6 +73,13 @@ def test_ensure_experiment_creates_store_and_is_idempotent(store):
     assert experiment.name == "tracking-tests"
     assert experiment.artifact_location == (root / "artifacts").resolve().as_uri()
     assert [e.name for e in store["client"].search_experiments()].count("tracking-tests") == 1
+    # the UI opens an experiment of this kind on its runs, not on the GenAI overview
+    assert experiment.tags["mlflow.experimentKind"] == "custom_model_development"
+    # an experiment made before the tag gets it when it is opened again
+    store["client"].delete_experiment_tag(store["exp_id"], "mlflow.experimentKind")
+    ensure_experiment(store["uri"], "tracking-tests", root / "artifacts")
+    again = store["client"].get_experiment(store["exp_id"])
+    assert again.tags["mlflow.experimentKind"] == "custom_model_development"
 
 
 def test_ensure_experiment_errors_are_one_line(store, tmp_path):

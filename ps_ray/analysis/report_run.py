@@ -19,9 +19,9 @@ def log_report(spec: SweepSpec, report_dir: Path, metrics: dict[str, float]) -> 
     from ps_ray.store.tracking import (
         STAGE_TAG,
         TrialTracker,
+        code_tags,
         default_tracking_uri,
         ensure_experiment,
-        git_commit,
     )
 
     root = sweep_dir(spec)
@@ -32,7 +32,7 @@ def log_report(spec: SweepSpec, report_dir: Path, metrics: dict[str, float]) -> 
         experiment,
         REPORT_RUN,
         params={"sweep": spec.name},
-        tags={STAGE_TAG: "report", "ps_ray.sweep": spec.name, "git_commit": git_commit() or ""},
+        tags={STAGE_TAG: "report", "ps_ray.sweep": spec.name, **code_tags()},
     )
     tracker.log_metrics(metrics, step=0)
     for path in sorted(report_dir.iterdir()):

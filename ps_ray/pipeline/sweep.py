@@ -246,7 +246,7 @@ def run_tune(
     from ps_ray.pipeline.trials import run_trials
     from ps_ray.pipeline.tune_tracking import MLflowTuneCallback
     from ps_ray.specs.resources import device_tags
-    from ps_ray.store.tracking import git_commit
+    from ps_ray.store.tracking import code_tags
 
     resources = getattr(spec.resources, stage_record(stage).name)
     callback = MLflowTuneCallback(
@@ -255,7 +255,7 @@ def run_tune(
         tags={
             "ps_ray.sweep": spec.name,
             "ps_ray.stage": stage,
-            "git_commit": git_commit() or "",
+            **code_tags(),
             **device_tags(resources),
         },
         artifacts_fn=artifacts_fn or _trial_artifacts,

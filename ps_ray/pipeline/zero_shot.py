@@ -281,7 +281,7 @@ def _evaluate(
     from ps_ray.pipeline.trials import run_trials
     from ps_ray.pipeline.tune_tracking import RowRunsCallback
     from ps_ray.specs.resources import device_tags
-    from ps_ray.store.tracking import git_commit
+    from ps_ray.store.tracking import code_tags
 
     folder, by_key = layout(spec).tune_zero_shot, {pair.key: pair for pair in trials}
     evaluated = {"episodes": settings.episodes, "repeats": settings.repeats}
@@ -298,7 +298,7 @@ def _evaluate(
         tags={
             "ps_ray.sweep": spec.name,
             "ps_ray.stage": "zero_shot",
-            "git_commit": git_commit() or "",
+            **code_tags(),
             **device_tags(spec.resources.zero_shot),
             "ps_ray.device": "cpu",  # stitching and evaluation run on the CPU, whatever the grant
         },

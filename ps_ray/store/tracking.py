@@ -36,7 +36,8 @@ STAGE_TAG = "ps_ray.stage"
 TASK_SOURCE_TAG, ROBOT_SOURCE_TAG = "ps_ray.task_module", "ps_ray.robot_module"
 TASK_SOURCE_RUN_TAG, ROBOT_SOURCE_RUN_TAG = "ps_ray.task_module_run", "ps_ray.robot_module_run"
 ANCHOR_HASH_TAG = "ps_ray.anchor_hash"
-GIT_COMMIT_TAG = "git_commit"
+GIT_COMMIT_TAG = "mlflow.source.git.commit"  # MLflow's own source tags, which its UI shows
+EXPERIMENT_KIND = {"mlflow.experimentKind": "custom_model_development"}  # the UI opens on the runs
 MAX_METRICS_PER_CALL = 1000  # mlflow.utils.validation.MAX_METRICS_PER_BATCH
 MAX_PARAMS_TAGS_PER_CALL = 100  # mlflow.utils.validation.MAX_PARAMS_TAGS_PER_BATCH
 MAX_PARAM_CHARS = 6000  # mlflow.utils.validation.MAX_PARAM_VAL_LENGTH
@@ -90,7 +91,10 @@ def ensure_experiment(tracking_uri: str, name: str, artifact_root: str | Path) -
         client = _client(tracking_uri)
         experiment = client.get_experiment_by_name(name)
         if experiment is None:
-            return client.create_experiment(name, artifact_location=artifact_location)
+            return client.create_experiment(name, artifact_location=artifact_location, tags=EXPERIMENT_KIND)
+        for key, value in EXPERIMENT_KIND.items():  # an experiment made before the tag existed
+            if experiment.tags.get(key) != value:
+                client.set_experiment_tag(experiment.experiment_id, key, value)
     except Exception as e:  # noqa: BLE001 - any failure here means the URI is unusable
         raise UserError(f"cannot use MLflow tracking URI {tracking_uri!r}: {_first_line(e)}") from e
     if experiment.artifact_location != artifact_location:
@@ -101,6 +105,13 @@ def ensure_experiment(tracking_uri: str, name: str, artifact_root: str | Path) -
     if experiment.lifecycle_stage == "deleted":
         client.restore_experiment(experiment.experiment_id)
     return experiment.experiment_id
+
+
+def code_tags() -> dict[str, str]:
+    """MLflow's source tags of a ps_ray run: the command and the commit of the source tree."""
+    commit = git_commit()
+    tags = {"mlflow.source.name": "ps-ray", "mlflow.source.type": "JOB"}
+    return {**tags, GIT_COMMIT_TAG: commit} if commit else tags
 
 
 def git_commit(cwd: str | Path | None = None) -> str | None:

@@ -412,8 +412,11 @@ def test_mlflow_ui_lists_the_runs_and_the_report_artifact(smoke, visible_text):
         client = mlflow.MlflowClient(f"sqlite:///{root / 'mlflow.db'}")
         experiment = client.get_experiment_by_name("smoke").experiment_id
         runs = client.search_runs([experiment])
-        listing = visible_text(f"{base}/#/experiments/{experiment}/runs")
-        assert f"{len(runs)} matching runs" in listing
+        # the page `ps-ray run` prints lands on the runs, not on the GenAI overview
+        (page,) = [line.split("then open ")[1] for line in outs[-1].splitlines() if "then open " in line]
+        assert page.startswith("http://127.0.0.1:5000/#/experiments/")
+        listing = visible_text(page.replace("http://127.0.0.1:5000", base))
+        assert f"{len(runs)} matching runs" in listing and "Traces 0" not in listing
         for stage in ("report", "zero_shot/ps/", "few_shot/", "scratch/ps/"):
             assert stage in listing, stage
         report_run = next(r for r in runs if r.data.tags.get("ps_ray.stage") == "report")

@@ -29,6 +29,7 @@ from ps_ray.store.tracking import (
     default_tracking_uri,
     ensure_experiment,
     git_commit,
+    runs_page,
 )
 from tests.conftest import wait_until_serving
 
@@ -73,8 +74,10 @@ def test_ensure_experiment_creates_store_and_is_idempotent(store):
     assert experiment.name == "tracking-tests"
     assert experiment.artifact_location == (root / "artifacts").resolve().as_uri()
     assert [e.name for e in store["client"].search_experiments()].count("tracking-tests") == 1
-    # the UI opens an experiment of this kind on its runs, not on the GenAI overview
     assert experiment.tags["mlflow.experimentKind"] == "custom_model_development"
+    page = f"http://127.0.0.1:5000/#/experiments/{store['exp_id']}?workflowType=machine_learning"
+    assert runs_page(store["uri"], "tracking-tests") == page  # the UI's runs, not its GenAI overview
+    assert runs_page(store["uri"], "no-such-experiment") is None
     # an experiment made before the tag gets it when it is opened again
     store["client"].delete_experiment_tag(store["exp_id"], "mlflow.experimentKind")
     ensure_experiment(store["uri"], "tracking-tests", root / "artifacts")

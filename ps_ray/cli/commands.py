@@ -230,8 +230,12 @@ def cmd_run(args: argparse.Namespace) -> int:
     print(f"sweep {spec.name!r}: all stages done in {(time.time() - started) / 60:.1f} min")
     if "report" in summaries:
         print(f"report: {SweepLayout(sweep_dir(spec)).report / 'index.html'}")
+    from ps_ray.store.tracking import runs_page
+
     uri = spec.tracking_uri or default_tracking_uri(sweep_dir(spec))
     print(f"MLflow: mlflow ui --workers 1 --backend-store-uri {uri}")  # one reader (docs/cost.md)
+    if (page := runs_page(uri, spec.name)) is not None:
+        print(f"        then open {page}")
     note = budget_note(spec)
     if note:
         print(f"note: {note}")

@@ -107,6 +107,22 @@ def ensure_experiment(tracking_uri: str, name: str, artifact_root: str | Path) -
     return experiment.experiment_id
 
 
+def runs_page(tracking_uri: str, name: str, ui: str = "http://127.0.0.1:5000") -> str | None:
+    """The MLflow UI's page of an experiment's runs (``mlflow ui``'s default address). The 3.x UI
+    opens an experiment on its GenAI overview unless the page asks for the model-training view
+    (``workflowType=machine_learning``); the experiment's own kind tag does not decide it. None
+    when the store cannot be read."""
+    try:
+        experiment = _client(tracking_uri).get_experiment_by_name(name)
+    except Exception:  # noqa: BLE001 - a hint printed at the end; never fail a finished run on it
+        return None
+    return (
+        None
+        if experiment is None
+        else f"{ui}/#/experiments/{experiment.experiment_id}?workflowType=machine_learning"
+    )
+
+
 def code_tags() -> dict[str, str]:
     """MLflow's source tags of a ps_ray run: the command and the commit of the source tree."""
     commit = git_commit()

@@ -236,6 +236,7 @@ def test_the_task_blind_floor_raises_the_bar_and_the_old_gain_stays_beside_it():
                     "chance_success": 0.1,
                     "task_blind_success": 0.5,
                     "wrong_target_mean": 0.1,
+                    "fit_env_steps": 40_000 if "outcome" in method else 0,
                 }
                 row = {"method": method, "pairing": pairing, "seed": seed, "label": "a"}
                 rows.append(row | metrics | gain(metrics))
@@ -255,6 +256,7 @@ def test_the_task_blind_floor_raises_the_bar_and_the_old_gain_stays_beside_it():
     )
     shown = transfer_text(numbers)
     assert shown.loc[("ablation+affine@swapped", "same_seed"), "result"] == "upper bound (reads the target)"
+    assert shown.loc[("ablation+affine@outcome", "same_seed"), "env steps of the fit per stitch"] == "40,000"
     cross_shown = shown.loc[("ablation+affine@outcome", "cross_seed")]
     assert (
         "units share runs"

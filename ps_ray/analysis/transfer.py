@@ -72,6 +72,7 @@ def transfer_numbers(table: pd.DataFrame) -> pd.DataFrame:
         for field in ("diff", "lo", "hi"):
             row[f"chance_gain_{field}"] = np.nan if before is None else getattr(before, field)
         row["pairs_above_every_control"] = int((cells["transfer_gain"] > 0).sum())
+        row["fit_env_steps"] = part["fit_env_steps"].mean() if "fit_env_steps" in part.columns else np.nan
         rows.append(row)
     out = pd.DataFrame(rows)
     if out.empty:
@@ -112,6 +113,9 @@ def transfer_text(numbers: pd.DataFrame) -> pd.DataFrame:
         if np.isnan(r["chance_gain_diff"])
         else f"{r['chance_gain_diff']:+.2f} {ci(r['chance_gain_lo'], r['chance_gain_hi'])}"
         for _, r in numbers.iterrows()
+    ]
+    out["env steps of the fit per stitch"] = [
+        "–" if np.isnan(r["fit_env_steps"]) else f"{r['fit_env_steps']:,.0f}" for _, r in numbers.iterrows()
     ]
     out["pairs above every control"] = [
         f"{int(r['pairs_above_every_control'])}/{int(r['cells'])}" for _, r in numbers.iterrows()

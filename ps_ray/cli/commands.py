@@ -111,9 +111,9 @@ def _load(args: argparse.Namespace):
 
     path = Path(args.sweep)
     sets = getattr(args, "set", None) or []
-    if path.is_dir() and sets:
-        raise UserError(f"{path}: --set applies to a sweep file; a sweep folder keeps the spec it ran")
     if path.is_dir():  # a sweep folder: its resolved spec, stored where the folder is
+        if sets:
+            raise UserError(f"{path}: --set applies to a sweep file; a sweep folder keeps the spec it ran")
         from ps_ray.store.layout import SweepLayout
 
         spec_file = SweepLayout(path).spec_file
@@ -183,17 +183,8 @@ def cmd_zero_shot(args: argparse.Namespace) -> int:
         args, "zero_shot", "methods", "episodes", "repeats", "seed", "pairs", "pairs_per_trial"
     ) as spec:
         table = run_zero_shot(spec, resume=args.resume)
-    columns = [
-        "method",
-        "pairing",
-        "seed",
-        "label",
-        "success_mean",
-        "best_unstitched",
-        "chance_success",
-        "oracle_success",
-        "transfer_gain",
-    ]
+    columns = ["method", "pairing", "seed", "label", "success_mean", "best_unstitched", "chance_success"]
+    columns += ["task_blind_success", "wrong_target_mean", "oracle_success", "transfer_gain"]
     print(table[columns].to_string(index=False, float_format=lambda x: f"{x:.2f}"))
     print(summary(table).to_string(float_format=lambda x: f"{x:.2f}"))
     return 0
@@ -214,7 +205,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     from ps_ray.analysis.cost import budget_note, project
     from ps_ray.pipeline.run import run_pipeline
     from ps_ray.pipeline.sweep import check_inputs, sweep_dir
-    from ps_ray.store.tracking import default_tracking_uri
+    from ps_ray.store.tracking import default_tracking_uri, runs_page
 
     spec = _load(args)
     check_inputs(spec)  # the files it starts from, before any folder is made
@@ -230,14 +221,11 @@ def cmd_run(args: argparse.Namespace) -> int:
     print(f"sweep {spec.name!r}: all stages done in {(time.time() - started) / 60:.1f} min")
     if "report" in summaries:
         print(f"report: {SweepLayout(sweep_dir(spec)).report / 'index.html'}")
-    from ps_ray.store.tracking import runs_page
-
     uri = spec.tracking_uri or default_tracking_uri(sweep_dir(spec))
     print(f"MLflow: mlflow ui --workers 1 --backend-store-uri {uri}")  # one reader (docs/cost.md)
     if (page := runs_page(uri, spec.name)) is not None:
         print(f"        then open {page}")
-    note = budget_note(spec)
-    if note:
+    if note := budget_note(spec):
         print(f"note: {note}")
     return 0
 

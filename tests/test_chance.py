@@ -8,7 +8,7 @@ import pytest
 
 from ps_ray.envs import make
 from ps_ray.envs.goals import SUCCESS_DISTANCE
-from ps_ray.stitching.chance import RandomPoint, chance, has_floor
+from ps_ray.stitching.chance import RandomPoint, TaskBlind, chance, has_floor
 from ps_ray.stitching.evaluate import evaluate
 
 EPISODES = {"episodes": 30, "repeats": 1, "seed": 7}
@@ -60,6 +60,10 @@ def test_the_task_blind_floor_ends_at_one_marker_or_the_other_on_the_pair_s_epis
     other one otherwise, far above chance; it runs on the pair's episodes (chance() raises if its
     digest differs from the chance policies', which test above shares with any policy's)."""
     found = chance("panda_far", "reach_blue", EPISODES)
+    blind = evaluate(TaskBlind(), "panda_far", "reach_blue", **EPISODES)
+    pair = evaluate(lambda obs: np.zeros((len(obs["robot_state"]), 7)), "panda_far", "reach_blue", **EPISODES)
+    assert blind["episodes_digest"] == pair["episodes_digest"] == found["episodes_digest"]  # the pair's
+    assert blind["success_mean"] == found["task_blind_success"]  # the draws follow the episode seeds
     assert found["task_blind_success"] + found["task_blind_wrong_target"] == pytest.approx(1.0)
     assert 0.25 <= found["task_blind_success"] <= 0.75  # 30 episodes of a fair coin
     assert found["task_blind_success"] > found["chance_success"]

@@ -159,7 +159,9 @@ def _zero_shot_parser(sub) -> None:
     p.add_argument("--methods", nargs="+", default=None, help="default: the spec's zero_shot.methods")
     p.add_argument("--episodes", type=int, default=None, help="default: the spec's (200)")
     p.add_argument("--repeats", type=int, default=None, help="default: the spec's (5)")
-    p.add_argument("--seed", type=seed_int, default=None, help="first evaluation seed")
+    p.add_argument(
+        "--seed", type=seed_int, default=None, help="the episodes' seed in the zero-shot reset-seed block"
+    )
     p.add_argument(
         "--pairs",
         default=None,
@@ -257,7 +259,9 @@ def _stitch_parser(sub) -> None:
     p.add_argument("--task", default=None, help="target task (default: the task module's task)")
     p.add_argument("--episodes", type=int, default=200, help="episodes per repeat (0: no evaluation)")
     p.add_argument("--repeats", type=positive_int, default=5, help="repeats (mean +- std over them)")
-    p.add_argument("--seed", type=seed_int, default=0, help="first evaluation seed")
+    p.add_argument(
+        "--seed", type=seed_int, default=0, help="the episodes' seed in the zero-shot reset-seed block"
+    )
     p.add_argument("--num-envs", type=positive_int, default=8, help="envs stepped in lockstep")
     p.add_argument("--save", default=None, help="write the stitched policy (.safetensors) here")
     p.add_argument(

@@ -54,12 +54,8 @@ def run(sweep: Path, scenes: Sequence[int], pairs_per_seed: int, fit: str = "out
         started = time.perf_counter()
         success, seeds = [], []
         for pair in chosen:
-            sources = (
-                (pair.task_from_path, pair.task_from_robot, pair.task),
-                (pair.robot_from_path, pair.robot_from_robot, pair.robot_from_task),
-            )
             try:
-                states = fit_pairs(fit, *sources, n, z.outcome_points, z.seed)
+                states = fit_pairs(fit, *pair.sources, n, z.outcome_points, z.seed)
             except UserError:  # too few successful outcomes at this N: the fit cannot be made
                 success.append(np.nan)
                 seeds.append(pair.seed)

@@ -168,10 +168,7 @@ def evaluate_pair(
     outcome = outcome or {}
 
     kind, fit = split_translation(pair.translation) if pair.translation else (None, "")
-    sources = (
-        (pair.task_from_path, pair.task_from_robot, pair.task),
-        (pair.robot_from_path, pair.robot_from_robot, pair.robot_from_task),
-    )
+    sources = pair.sources
     if kind == "anchors":  # the robot module's anchors, matched in the task module's task
         anchors = source(pair.robot_from_path)[0].actor.anchors
         if anchors is None:

@@ -75,12 +75,6 @@ def grid_block(seed: int, cells: int) -> range:
     return range(seed * cells * RUN_STRIDE, (seed + 1) * cells * RUN_STRIDE)
 
 
-def check_run_seed(seed: object, where: str = "seed") -> None:
-    """A run seed keeps its block below every fixed stream's: one line naming the bad value."""
-    if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed <= MAX_RUN_SEED:
-        raise UserError(f"bad {where} {seed!r}; valid seeds: integers 0..{MAX_RUN_SEED}")
-
-
 def check_stage_seed(seed: object, where: str) -> None:
     """A stage's own seed setting stays inside its block."""
     if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed < MAX_STAGE_SEED:

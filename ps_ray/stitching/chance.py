@@ -40,10 +40,12 @@ class RandomPoint:
     def begin(self, envs: Sequence, seeds: Sequence[int]) -> None:
         """Called by :func:`ps_ray.stitching.evaluate.evaluate` once the batch's envs are reset."""
         self.envs = list(envs)
-        self.points = []
-        for env, seed in zip(envs, seeds):
-            low, high = env.target_region()
-            self.points.append(np.random.default_rng([_STREAM, seed]).uniform(low, high))
+        self.points = [self.point(env, seed) for env, seed in zip(envs, seeds)]
+
+    def point(self, env, seed: int) -> np.ndarray:
+        """The episode's target point, drawn from its seed."""
+        low, high = env.target_region()
+        return np.random.default_rng([_STREAM, seed]).uniform(low, high)
 
     def __call__(self, obs: Mapping[str, np.ndarray]) -> np.ndarray:
         return np.stack([env.action_toward(point) for env, point in zip(self.envs, self.points)])
@@ -60,21 +62,14 @@ class RandomActions:
         return np.stack([rng.uniform(-1.0, 1.0, self.dim) for rng in self.rngs])
 
 
-class TaskBlind:
+class TaskBlind(RandomPoint):
     """Each episode: one of the scene's candidate targets, drawn uniformly; every step moves toward it."""
 
-    def begin(self, envs: Sequence, seeds: Sequence[int]) -> None:
-        self.envs = list(envs)
-        self.points = []
-        for env, seed in zip(envs, seeds):
-            candidates = env.candidate_targets()
-            if candidates is None:
-                raise ValueError(f"{env.task_spec.name}: one target per scene, no task-blind floor")
-            pick = np.random.default_rng([_STREAM, 2, seed]).integers(len(candidates))
-            self.points.append(candidates[pick])
-
-    def __call__(self, obs: Mapping[str, np.ndarray]) -> np.ndarray:
-        return np.stack([env.action_toward(point) for env, point in zip(self.envs, self.points)])
+    def point(self, env, seed: int) -> np.ndarray:
+        candidates = env.candidate_targets()
+        if candidates is None:
+            raise ValueError(f"{env.task_spec.name}: one target per scene, no task-blind floor")
+        return candidates[np.random.default_rng([_STREAM, 2, seed]).integers(len(candidates))]
 
 
 POLICIES: dict[str, Callable[[], Any]] = {"random_point": RandomPoint, "random_actions": RandomActions}

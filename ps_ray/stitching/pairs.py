@@ -67,6 +67,14 @@ class StitchedPair:
             object.__setattr__(self, name, EnvPart(getattr(self, name)))
 
     @property
+    def sources(self) -> tuple[tuple[str, EnvPart, EnvPart], tuple[str, EnvPart, EnvPart]]:
+        """The task source and the robot source, each as (policy file, its robot, its task)."""
+        return (
+            (self.task_from_path, self.task_from_robot, self.task),
+            (self.robot_from_path, self.robot_from_robot, self.robot_from_task),
+        )
+
+    @property
     def fit_tasks(self) -> tuple[EnvPart, EnvPart]:
         """The tasks a latent translation is fit on: the task source's and the robot source's."""
         return self.task, self.robot_from_task

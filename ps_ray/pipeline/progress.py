@@ -18,6 +18,7 @@ from typing import IO, Any
 from ray.tune import Callback
 from tqdm import tqdm
 
+from ps_ray.store.attempts import STOPPED_FILE
 from ps_ray.store.terminal import others_to
 
 PLAIN_EVERY_S = 30.0
@@ -69,9 +70,11 @@ class StageProgress(Callback):
     # -- view ----------------------------------------------------------------------------------
     def _update(self, trials, force: bool = False) -> None:
         states = [t.status for t in trials]
+        stopped = sum(t.status == "TERMINATED" and (Path(t.path) / STOPPED_FILE).is_file() for t in trials)
         self.counts = {
             "total": max(self.total, len(trials)),
-            "done": states.count("TERMINATED"),
+            "done": states.count("TERMINATED") - stopped,
+            "stopped": stopped,  # by a search's scheduler (ps_ray.pipeline.search)
             "running": states.count("RUNNING"),
             "failed": states.count("ERROR"),
         }
@@ -80,15 +83,16 @@ class StageProgress(Callback):
 
     def status(self) -> str:
         c = self.counts
-        finished = c.get("done", 0) + c.get("failed", 0)
+        finished = c.get("done", 0) + c.get("failed", 0) + c.get("stopped", 0)
         pending = max(c.get("total", 0) - finished - c.get("running", 0), 0)
         elapsed = time.time() - self.started
         remaining = c.get("total", 0) - finished
         eta = elapsed / finished * remaining if finished else None
         best = "–" if self.best is None else f"{self.best:.2f}"
         steps = f"  env steps {self.env_steps:,}" if self.env_steps else ""
+        stopped = f"{c['stopped']} stopped early, " if c.get("stopped") else ""
         return (
-            f"{c.get('done', 0)} done, {c.get('running', 0)} running, {c.get('failed', 0)} "
+            f"{c.get('done', 0)} done, {stopped}{c.get('running', 0)} running, {c.get('failed', 0)} "
             f"failed, {pending} pending{steps}  best success {best}  elapsed "
             f"{_clock(elapsed)}  ETA {'–' if eta is None else _clock(eta)}"
         )
@@ -105,7 +109,7 @@ class StageProgress(Callback):
                     leave=False,
                     dynamic_ncols=True,
                 )
-            self._bar.n = self.counts["done"] + self.counts["failed"]
+            self._bar.n = self.counts["done"] + self.counts["failed"] + self.counts["stopped"]
             self._bar.set_postfix_str(self.status(), refresh=True)
             return
         now = time.time()

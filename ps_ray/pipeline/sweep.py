@@ -23,7 +23,10 @@ from ps_ray.store.layout import SweepLayout, sweep_dir
 from ps_ray.store.run_layout import METRIC_FIELDS, POLICY_FILE, SIGNATURE_FILE, SPEC_FILE
 
 # What each training result sends to MLflow: the metrics.csv columns but the step and the clock.
-METRIC_KEYS = tuple(k for k in METRIC_FIELDS if k not in ("iteration", "wall_s"))
+METRIC_KEYS = tuple(k for k in METRIC_FIELDS if k not in ("iteration", "wall_s")) + ("alpha", "entropy")
+
+
+SCHEDULED_METRICS = {"eval_success": None, "best_eval_success": None}
 
 
 # -- anchors -------------------------------------------------------------------------------------
@@ -145,7 +148,8 @@ def report_ticks(run, config: dict[str, Any], key: str) -> None:
     for tick in run.ticks():  # the loop of `ps-ray train` too: it decides steps and checkpoints
         if tick.finished is None and run.done:
             continue  # the last step: reported once, by the last tick, with the checkpoint
-        row = {**tick.row, **(tick.finished or {}), "node_id": node_id}
+        # every row names the metrics a search's scheduler reads (None between evaluations)
+        row = {**SCHEDULED_METRICS, **tick.row, **(tick.finished or {}), "node_id": node_id}
         if tick.checkpoint:
             with tempfile.TemporaryDirectory() as directory:
                 run.save(Path(directory))
@@ -216,8 +220,26 @@ def run_sweep(spec: SweepSpec, *, resume: bool = False, progress: bool = True):
             TrainTrial.of(r.config["trial"]).spec.label(): r.checkpoint / "policy.safetensors" for r in grid
         }
     prepare_sweep_anchors(spec, plain_policies)
-    trials = [TrainTrial(t, anchor_file(spec, t)) for t in spec.trials()]
-    return run_tune(trials, folder=SweepLayout(root).tune_train, stage="train", **tune_args)
+    trials = [
+        TrainTrial(t, anchor_file(spec, t), key=f"{t.label()}/{name}" if name else "", label=name)
+        for name, t in spec.named_trials()
+    ]
+    folder = SweepLayout(root).tune_train
+    scheduler_fn = None
+    if spec.search.active:
+        from ps_ray.pipeline.search import search_scheduler
+
+        configs = [t.config() for t in trials]
+        max_steps = max(t.env_steps for t in spec.trials())
+        scheduler_fn = partial(search_scheduler, spec.search, max_steps, folder, configs)
+    return run_tune(
+        trials,
+        folder=folder,
+        stage="train",
+        key_fn=lambda trial: TrainTrial.of(trial.config["trial"]).run_name,  # a search: one per setting
+        scheduler_fn=scheduler_fn,
+        **tune_args,
+    )
 
 
 def _anchor_paths(spec: SweepSpec) -> list[Path]:
@@ -239,9 +261,11 @@ def run_tune(
     configs: list[dict] | None = None,
     params_fn=None,
     artifacts_fn=None,
+    scheduler_fn=None,
 ):
     """Training trials (sweep_trial) as one Tune experiment in ``folder``, tracked in MLflow;
-    another ``trainable`` takes ``configs`` (its ``config["trial"]``) instead of ``trials``."""
+    another ``trainable`` takes ``configs`` (its ``config["trial"]``) instead of ``trials``;
+    ``scheduler_fn``: :func:`ps_ray.pipeline.trials.run_trials`'."""
 
     from ps_ray.pipeline.trials import run_trials
     from ps_ray.pipeline.tune_tracking import MLflowTuneCallback
@@ -281,6 +305,7 @@ def run_tune(
         max_failures=spec.max_failures,
         resources=resources,
         constants={"compile": resources.compile},  # how to run, not what: not the trial's identity
+        scheduler_fn=scheduler_fn,
     )
 
 

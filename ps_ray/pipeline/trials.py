@@ -29,6 +29,7 @@ def run_trials(
     resources: StageResources = ONE_CPU,
     constants: dict | None = None,
     preemption_retries: int = PREEMPTION_RETRIES,
+    scheduler_fn=None,
 ) -> list[TrialOutcome]:
     """Run a grid over ``grid``'s one key (plus ``constants``) as the Tune experiment in
     ``folder``: ``resources`` per trial (one CPU by default), the sweep's retry policy, the MLflow
@@ -38,7 +39,8 @@ def run_trials(
 
     Trials that failed only because their node went away (:mod:`ps_ray.pipeline.preemption`)
     are launched again by the resume path, up to ``preemption_retries`` rounds: a training
-    trial continues from its checkpoint, and preemptions do not use up ``max_failures``."""
+    trial continues from its checkpoint, and preemptions do not use up ``max_failures``.
+    ``scheduler_fn()``: a fresh Tune trial scheduler for each launch (a search's ASHA)."""
     from ray import tune
 
     from ps_ray.pipeline.progress import StageProgress, quiet_tune
@@ -65,7 +67,11 @@ def run_trials(
             param_space={key: tune.grid_search(todo), **(constants or {}), STAGE_DIR_KEY: str(path)},
             # a finished trial's worker process runs the next one: no new process, imports and
             # lazy inits per trial (docs/cost.md "Per-trial overhead")
-            tune_config=tune.TuneConfig(max_concurrent_trials=max_concurrent, reuse_actors=True),
+            tune_config=tune.TuneConfig(
+                max_concurrent_trials=max_concurrent,
+                reuse_actors=True,
+                **({"scheduler": scheduler_fn()} if scheduler_fn else {}),
+            ),
             run_config=tune.RunConfig(
                 name=name,
                 storage_path=str(root),

@@ -67,6 +67,7 @@ def configure(
             critic_lr=spec.lr,
             alpha_lr=spec.lr,
             initial_alpha=spec.initial_alpha,
+            target_entropy="auto" if spec.target_entropy is None else spec.target_entropy,
             **{name: getattr(spec, name) for name in TRAIN_SETTINGS},
         )
         .reporting(metrics_num_episodes_for_smoothing=1)

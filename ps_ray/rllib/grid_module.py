@@ -20,9 +20,9 @@ from ray.rllib.core.rl_module.torch.torch_rl_module import TorchRLModule
 from ps_ray.envs.goals import ROBOT_KEY, TASK_KEYS
 from ps_ray.nets.grid import ACTOR_TABLES, GRID_TABLES, add_grid_modules, grid_critic_pairs
 from ps_ray.nets.obs import split_obs
-from ps_ray.nets.sac import SACHyper, polyak_pairs, sac_forward, sac_losses, squashed_sample
+from ps_ray.nets.sac import polyak_pairs, sac_forward, sac_losses, squashed_sample
 from ps_ray.rllib.episodes import train_batch
-from ps_ray.rllib.learner import ModularSACLearner
+from ps_ray.rllib.learner import ModularSACLearner, sac_hyper
 from ps_ray.rllib.private import learner_module
 from ps_ray.specs.dims import NetDims
 
@@ -116,7 +116,7 @@ class GridSACLearner(ModularSACLearner):
 
     def compute_loss_for_module(self, *, module_id, config, batch, fwd_out) -> torch.Tensor:
         module = learner_module(self, module_id)
-        hp = SACHyper(gamma=config.gamma, clip_targets=config.clip_targets, action_l2=config.action_l2)
+        hp = sac_hyper(config)
         log_alpha = self.curr_log_alpha[module_id]
         warm = self.updates_done(module_id) < config.critic_warmup_updates
         total = 0.0

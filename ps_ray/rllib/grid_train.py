@@ -170,7 +170,7 @@ def _train_grid(grid: GridSpec, run_dir: Path, progress: bool) -> dict[str, Any]
         write_text(spec_path, json.dumps(grid.cell_spec(cell).to_dict(), indent=2))
     metrics_up_to(run_dir, run.env_steps, run.metric_fields)
     with open(run_dir / METRICS_FILE, "a", newline="") as f:
-        writer = csv.DictWriter(f, run.metric_fields)
+        writer = csv.DictWriter(f, run.metric_fields, extrasaction="ignore")
         if f.tell() == 0:
             writer.writeheader()
         for tick in run.ticks():

@@ -18,6 +18,17 @@ OPTIMIZER_PREFIX = "optimizer."
 LOG_ALPHA = "log_alpha"
 
 
+def sac_hyper(config) -> SACHyper:
+    """The loss settings of an algorithm config (RLlib's ``target_entropy="auto"``: minus |A|)."""
+    entropy = None if config.target_entropy == "auto" else float(config.target_entropy)
+    return SACHyper(
+        gamma=config.gamma,
+        clip_targets=config.clip_targets,
+        action_l2=config.action_l2,
+        target_entropy=entropy,
+    )
+
+
 class ModularSACLearner(SACTorchLearner):
     def build(self) -> None:
         super().build()
@@ -58,7 +69,7 @@ class ModularSACLearner(SACTorchLearner):
     def compute_loss_for_module(
         self, *, module_id, config, batch: dict[str, Any], fwd_out: dict[str, torch.Tensor]
     ) -> torch.Tensor:
-        hp = SACHyper(gamma=config.gamma, clip_targets=config.clip_targets, action_l2=config.action_l2)
+        hp = sac_hyper(config)
         action_dim = batch["actions"].shape[-1]
         losses = sac_losses(fwd_out, batch["rewards"], self.curr_log_alpha[module_id], hp, action_dim)
         total = losses["total"]

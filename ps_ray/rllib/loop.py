@@ -157,6 +157,7 @@ class TrainingRun:
         ours = result.get("ps_ray", {})
         row = {k: ours.get(k) for k in self.metric_fields if k in ours}
         row.update(iteration=result["training_iteration"], wall_s=round(time.time() - self.start, 1))
+        row.update(learner_figures(result))
         if row.get("eval_success") is not None:
             self.best = max(self.best if self.best is not None else -1.0, row["eval_success"])
             if self.spec.target_success is not None:
@@ -261,6 +262,25 @@ def read_inputs(spec: TrainSpec):
 
         return anchors_from_file(spec.anchors, spec.interface_dim, seed=0)
     return None
+
+
+# The learner's figures a trial's result rows carry (Tune and MLflow; metrics.csv keeps its columns):
+# the entropy temperature and the policy's entropy, mean over the step's updates.
+LEARNER_FIGURES = ("alpha", "entropy")
+
+
+def learner_figures(result: dict[str, Any]) -> dict[str, float]:
+    """:data:`LEARNER_FIGURES` of an RLlib result (none before the first update; a grid: its
+    modules' mean)."""
+    from ray.rllib.utils.metrics import LEARNER_RESULTS
+
+    modules = [m for m in result.get(LEARNER_RESULTS, {}).values() if isinstance(m, dict)]
+    out = {}
+    for key in LEARNER_FIGURES:
+        values = [float(np.mean(m[key])) for m in modules if key in m]
+        if values:
+            out[key] = float(np.mean(values))
+    return out
 
 
 def format_figure(x: float | None) -> str:

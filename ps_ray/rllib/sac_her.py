@@ -63,6 +63,7 @@ TRAIN_SETTINGS = (
     "learning_starts",
     "action_l2",
     "critic_warmup_updates",
+    "relabel_prob",
     "eval_every",
     "eval_episodes",
 )
@@ -81,7 +82,6 @@ class ModularSACConfig(SACConfig):
         for name in TRAIN_SETTINGS:
             setattr(self, name, defaults[name])
         self.buffer_episodes = 20_000  # replay capacity in whole episodes
-        self.relabel_prob = 0.8  # HER 'future' with k = 4
         self.clip_targets = True  # critic targets clipped to the returns a -1/0 reward allows
         # Replay is HindsightReplay's: SAC's default prioritized buffer would be built and never
         # read (0.6 s and ~140 MB per trial; docs/reference.md, "Speed").
@@ -89,8 +89,8 @@ class ModularSACConfig(SACConfig):
 
     def training(self, **kwargs) -> ModularSACConfig:
         """``SACConfig.training`` that also takes :data:`TRAIN_SETTINGS`, ``buffer_episodes``,
-        ``relabel_prob`` and ``clip_targets``."""
-        for name in (*TRAIN_SETTINGS, "buffer_episodes", "relabel_prob", "clip_targets"):
+        and ``clip_targets``."""
+        for name in (*TRAIN_SETTINGS, "buffer_episodes", "clip_targets"):
             if name in kwargs:
                 setattr(self, name, kwargs.pop(name))
         return super().training(**kwargs)

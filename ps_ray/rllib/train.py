@@ -81,7 +81,7 @@ def _train(spec: TrainSpec, run_dir: Path, given, progress: bool, compile: bool)
     if best_file >= 0:
         run.best = max(best_file, run.best if run.best is not None else best_file)
     with open(run_dir / METRICS_FILE, "a", newline="") as f:
-        writer = csv.DictWriter(f, METRIC_FIELDS)
+        writer = csv.DictWriter(f, METRIC_FIELDS, extrasaction="ignore")
         if f.tell() == 0:
             writer.writeheader()
         best_before = run.best

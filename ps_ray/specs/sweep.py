@@ -18,6 +18,8 @@ from ps_ray.specs.defaults import INTERFACE_DIM
 from ps_ray.specs.grid import GridSettings
 from ps_ray.specs.names import EnvPart, plain_json, scene_fit
 from ps_ray.specs.resources import ResourcesSpec
+from ps_ray.specs.search import SearchSpec
+from ps_ray.specs.search import name as search_name
 from ps_ray.specs.stage_settings import (
     AnchorSpec,
     FewShotSpec,
@@ -36,7 +38,9 @@ SUB_SPECS = {
     "few_shot": FewShotSpec,
     "report": ReportSpec,
     "resources": ResourcesSpec,
+    "search": SearchSpec,
 }
+SEARCH_STAGES = ("train", "report")  # a searched trial is a candidate setting, not a source to stitch
 
 
 @dataclass(frozen=True)
@@ -58,6 +62,7 @@ class SweepSpec:
     few_shot: FewShotSpec = FewShotSpec()
     report: ReportSpec = ReportSpec()
     resources: ResourcesSpec = ResourcesSpec()  # per trial of each stage (ps_ray.specs.resources)
+    search: SearchSpec = SearchSpec()  # training settings searched over (ps_ray.specs.search)
     max_concurrent: int | None = None  # default: one trial per available CPU
     max_failures: int = 2  # retries of a crashed trial, from its last checkpoint
     storage: str = "runs/sweeps"
@@ -103,10 +108,23 @@ class SweepSpec:
                         f"{type(stage).__name__}: method {method!r} is not trained by "
                         f"this sweep; valid: {', '.join(self.methods)}"
                     )
+        if self.search.active:
+            self._check_search()
         self.trials()  # every trial's TrainSpec is validated before anything starts
         self._check_marker_scenes()
         if "grid" in self.stages:
             self.grid.grids(self)
+
+    def _check_search(self) -> None:
+        extra = [s for s in self.stages if s not in SEARCH_STAGES]
+        if extra:
+            raise SpecError(
+                f"stage {extra[0]!r} cannot follow a search (its trials are candidate settings, not "
+                f"sources); valid stages with a search: {', '.join(SEARCH_STAGES)}"
+            )
+        both = [k for k in self.search.space if k in self.train]
+        if both:
+            raise SpecError(f"search.space.{both[0]} is also set in 'train'; set it in one place")
 
     def _check_marker_scenes(self) -> None:
         """A stitch that sets a scene from a task input (``anchors@``) or swaps its markers
@@ -121,28 +139,42 @@ class SweepSpec:
             )
 
     def to_dict(self) -> dict[str, Any]:
-        """Plain JSON-able data (tuples as lists)."""
-        return json.loads(json.dumps(dataclasses.asdict(self), default=plain_json))
+        """Plain JSON-able data (tuples as lists); no ``search`` key without a search, so a
+        sweep recorded before searches existed keeps its identity."""
+        data = json.loads(json.dumps(dataclasses.asdict(self), default=plain_json))
+        if not self.search.active:
+            del data["search"]
+        return data
 
     def training_identity(self) -> dict[str, Any]:
         """What the training stage's outputs depend on (a resumed sweep must keep it)."""
         return {k: v for k, v in self.to_dict().items() if k not in NOT_TRAINING}
 
     def trials(self) -> list[TrainSpec]:
-        """Every training trial of the grid, validated (expanded once per spec)."""
+        """Every training trial of the grid, validated (expanded once per spec); with a search,
+        the grid once per drawn setting."""
+        return [spec for _, spec in self._trials]
+
+    def named_trials(self) -> list[tuple[str, TrainSpec]]:
+        """:meth:`trials` with the name of each one's drawn setting ("" without a search)."""
         return list(self._trials)
 
     @functools.cached_property
-    def _trials(self) -> tuple[TrainSpec, ...]:
+    def _trials(self) -> tuple[tuple[str, TrainSpec], ...]:
         overrides = dict(self.train)
         for key in ("method", "robot", "task", "seed", "interface_dim"):
             if key in overrides:
                 raise SpecError(f"train.{key} is set by the sweep grid; remove it from 'train'")
+        draws = dict(enumerate(self.search.draws())) if self.search.active else {None: {}}
         return tuple(
-            TrainSpec.from_mapping(
-                {**overrides, "method": m, "robot": r, "task": t, "seed": s, "interface_dim": d},
-                where="sweep 'train'",
+            (
+                "" if i is None else search_name(i),
+                TrainSpec.from_mapping(
+                    {**overrides, **draw, "method": m, "robot": r, "task": t, "seed": s, "interface_dim": d},
+                    where="sweep 'train'" if i is None else f"sweep 'train' with {search_name(i)} {draw}",
+                ),
             )
+            for i, draw in draws.items()
             for m in self.methods
             for r in self.robots
             for t in self.tasks

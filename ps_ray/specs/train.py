@@ -33,6 +33,10 @@ RESUMABLE_CHANGES = (
 )
 
 
+# Settings added after runs were recorded: written only where they differ from these defaults.
+LATER_SETTINGS = {"target_entropy": None, "relabel_prob": 0.8}
+
+
 class SpecError(UserError):
     """A spec that cannot run; the message is one line naming the bad key or value."""
 
@@ -101,6 +105,10 @@ class TrainSpec:
         "first gradient updates in which only the critics learn (actor and temperature frozen), so a "
         "stitched start's critics fit its actor before the actor follows them (few-shot)",
     )
+    target_entropy: float | None = setting(
+        None, "the policy entropy the temperature is tuned towards (None: minus the action dimension)"
+    )
+    relabel_prob: float = setting(0.8, "share of replayed transitions with a relabelled goal (HER k=4: 0.8)")
     random_episodes: int = setting(10, "warm-up episodes with uniform random actions")
     learning_starts: int = setting(1000, "transitions in the buffer before the first update")
     eval_every: int = setting(10, "training steps between greedy evaluations (0: never)")
@@ -156,6 +164,11 @@ class TrainSpec:
         for name in ("updates_per_step", "lr", "tau", "initial_alpha"):
             if not isinstance(getattr(self, name), (int, float)) or getattr(self, name) <= 0:
                 raise SpecError(f"{name} must be a positive number, got {getattr(self, name)!r}")
+        if not isinstance(self.relabel_prob, (int, float)) or not 0 <= self.relabel_prob <= 1:
+            raise SpecError(f"relabel_prob must be in [0, 1], got {self.relabel_prob!r}")
+        entropy = self.target_entropy
+        if entropy is not None and (isinstance(entropy, bool) or not isinstance(entropy, (int, float))):
+            raise SpecError(f"target_entropy must be a number or null, got {entropy!r}")
         if not 0 < self.gamma < 1:
             raise SpecError(f"gamma must be in (0, 1), got {self.gamma!r}")
         target = self.target_success
@@ -170,7 +183,13 @@ class TrainSpec:
         return cls(**data)
 
     def to_dict(self) -> dict[str, Any]:
-        return json.loads(json.dumps(dataclasses.asdict(self), default=plain_json))
+        """Plain JSON-able data; a setting added after runs were recorded is left out at its
+        default (:data:`LATER_SETTINGS`), so those runs keep their identity and resume."""
+        data = json.loads(json.dumps(dataclasses.asdict(self), default=plain_json))
+        for name, default in LATER_SETTINGS.items():
+            if data[name] == default:
+                del data[name]
+        return data
 
     @property
     def env_config(self) -> dict[str, Any]:

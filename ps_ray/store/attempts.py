@@ -26,6 +26,9 @@ from ps_ray.store import checkpoint
 from ps_ray.store.run_layout import REPLAY_FOLDER
 
 FINISHED = "ps_ray_finished"  # in the last result of a trial that ran to its end
+# beside the results of a trial a search's scheduler stopped early (ps_ray.pipeline.search): done too
+STOPPED_FILE = "stopped_early.json"
+STOPPED = "stopped_early"  # set in the last row of such a trial as outcomes() read it
 STAGE_DIR_KEY = "stage_dir"  # a constant of every grid: where earlier attempts lie
 PARAMS_FILE = "params.json"
 RESULT_FILE = "result.json"
@@ -131,8 +134,14 @@ class TrialOutcome:
 
 
 def _finished(attempt: Path) -> dict | None:
+    """The last row of an attempt that ran to its end or that a scheduler stopped early (marked
+    ``STOPPED``), else None."""
     rows = read_rows(attempt)
-    return rows[-1] if rows and rows[-1].get(FINISHED) else None
+    if rows and rows[-1].get(FINISHED):
+        return rows[-1]
+    if rows and (attempt / STOPPED_FILE).is_file():
+        return {**rows[-1], STOPPED: True}
+    return None
 
 
 def outcomes(

@@ -13,7 +13,6 @@ Layout under ``<sweep>/report/`` (rebuilt in ``report.partial/`` and swapped in 
 
 from __future__ import annotations
 
-import os
 import shutil
 from pathlib import Path
 
@@ -22,12 +21,13 @@ import pandas as pd
 from ps_ray.analysis import clips, latent, plots, results, tables, transfer
 from ps_ray.analysis.page import Report, Section, render_html
 from ps_ray.analysis.report_run import REPORT_RUN, log_report
+from ps_ray.analysis.search import search_section
 from ps_ray.analysis.summary import cost_section, summary_section
 from ps_ray.errors import UserError
 from ps_ray.specs import reset_seeds
 from ps_ray.specs.names import parse_spec_text, short_name
 from ps_ray.specs.sweep import SweepSpec
-from ps_ray.store.atomic import fsync_dir, write_text
+from ps_ray.store.atomic import swap_folder, write_text
 from ps_ray.store.layout import SweepLayout
 
 
@@ -44,6 +44,7 @@ def build_report(spec: SweepSpec, *, progress: bool = True, log_to_mlflow: bool 
     report = Report(partial)
     target = source_target(spec)
     _training(report, root, target, say)
+    search_section(report, spec, SweepLayout(root).tune_train)
     _latent(report, spec, root, say)
     _zero_shot(report, root, target, say)
     _few_shot(report, root, say)
@@ -51,23 +52,11 @@ def build_report(spec: SweepSpec, *, progress: bool = True, log_to_mlflow: bool 
     cost_section(report, spec, root)
     summary_section(report, spec, target)
     write_text(partial / "index.html", render_html(spec, report))
-    _swap_in(partial, final)
+    swap_folder(partial, final)
     if log_to_mlflow:
         log_report(spec, final, report.metrics)
         say(f"report: logged to MLflow run {REPORT_RUN!r} of experiment {spec.name!r}")
     return final / "index.html"
-
-
-def _swap_in(new: Path, final: Path) -> None:
-    """Replace the folder ``final`` by ``new`` with renames only: at every moment a complete
-    report exists (``final``, or ``<final>.old`` between the two renames)."""
-    old = final.with_name(f"{final.name}.old")
-    shutil.rmtree(old, ignore_errors=True)
-    if final.exists():
-        os.replace(final, old)
-    os.replace(new, final)
-    fsync_dir(final.parent)
-    shutil.rmtree(old, ignore_errors=True)
 
 
 def _success_curves(report: Report, section: Section, name: str, frame, panel: str, line: str, title: str):

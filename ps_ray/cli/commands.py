@@ -79,9 +79,9 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     print(f"sweep {spec.name!r}: {len(trials)} training trials")
     if args.check:
         from ps_ray.analysis.cost import describe, project
+        from ps_ray.specs.search import describe as describe_trials
 
-        for trial in trials:
-            print(f"  {trial.label()}  {trial.env_steps} env steps")
+        print("\n".join(describe_trials(spec.search, spec.named_trials())))
         print("\n".join(describe(project(spec, cores_on=args.cores))))
         return 0
     from ps_ray.pipeline.sweep import run_sweep, sweep_dir

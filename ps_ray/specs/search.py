@@ -85,7 +85,8 @@ class SearchSpec:
         if self.scheduler == "none" or self.grace_env_steps >= max_env_steps:
             return []
         count = int(math.log(max_env_steps / self.grace_env_steps) / math.log(self.reduction_factor) + 1)
-        return [self.grace_env_steps * self.reduction_factor**k for k in range(count)]
+        rungs = (self.grace_env_steps * self.reduction_factor**k for k in range(count))
+        return [r for r in rungs if r < max_env_steps]  # one at the budget ends a trial that ends anyway
 
     def nominal_env_steps(self, trials: int, max_env_steps: int) -> float:
         """Env steps of ``trials`` trials if ASHA keeps 1/reduction_factor at each rung (a trial
@@ -95,6 +96,39 @@ class SearchSpec:
             total += alive * (rung - start)
             alive, start = alive / self.reduction_factor, rung
         return total + alive * (max_env_steps - start)
+
+
+def describe(search: SearchSpec, named_trials: list[tuple[str, TrainSpec]]) -> list[str]:
+    """``--check``'s lines: every trial (with its drawn setting), then what the search costs."""
+    lines = []
+    for setting, trial in named_trials:
+        drawn = ""
+        if setting:
+            values = ", ".join(f"{k}={_short(getattr(trial, k))}" for k in search.space)
+            drawn = f"  {setting}: {values}"
+        lines.append(f"  {trial.label()}  {trial.env_steps} env steps{drawn}")
+    if not search.active:
+        return lines
+    cap = max(t.env_steps for _, t in named_trials)
+    grid = len(named_trials) // search.samples
+    lines.append(
+        f"search: {search.samples} settings drawn by Tune's random search (seed {search.seed}) x "
+        f"{grid} grid trial(s)"
+    )
+    rungs = search.rungs(cap)
+    if rungs:
+        nominal = search.nominal_env_steps(len(named_trials), cap)
+        lines.append(
+            f"  ASHA on {search.metric} stops a trial in the bottom {search.reduction_factor - 1}/"
+            f"{search.reduction_factor} at {', '.join(f'{r:,}' for r in rungs)} env steps: nominally "
+            f"{nominal:,.0f} env steps, {nominal / (cap * len(named_trials)):.0%} of the full budgets "
+            f"the cost below assumes"
+        )
+    return lines
+
+
+def _short(value: Any) -> str:
+    return f"{value:.3g}" if isinstance(value, float) else str(value)
 
 
 def name(index: int) -> str:

@@ -42,7 +42,7 @@ def stitch_pairs(
 ) -> list[tuple[TrainSpec, TrainSpec]]:
     """(task source, robot source) pairs the stitching stages will build for one method: the
     seeds that ``pairing`` joins (:func:`ps_ray.specs.sweep.seed_pairs`), then the one pairing
-    rule of the stitching stages (:func:`ps_ray.stitching.stitch.stitchable`) on the signatures
+    rule of the stitching stages (:func:`ps_ray.stitching.rule.stitchable`) on the signatures
     the trials' policy files will carry."""
     from ps_ray.specs.sweep import seed_pairs
     from ps_ray.stitching.rule import expected_signature, stitchable
@@ -88,7 +88,7 @@ def workload(spec: SweepSpec) -> list[StageLoad]:
             if co_trained:
                 found[f"{m} {CO_TRAINED}"] = co_trained
         n = sum(len(pairs) * (1 + len(spec.zero_shot.translations(_preset(m)))) for m, pairs in found.items())
-        # each trial evaluates its pair and up to three controls (ps_ray.stitching.stitch.controls);
+        # each trial evaluates its pair and up to three controls (ps_ray.stitching.matrix.controls);
         # chance, once per target env (the task source's task on the robot source's robot)
         targets = {(r.robot, t.task) for pairs in found.values() for t, r in pairs}
         # (a pair's translated stitches share its controls' evaluations)

@@ -42,7 +42,7 @@ RESULT_KEYS = (
     "episodes_per_s",
     "fit_env_steps",  # env steps the translation's fit rolled out (outcome matching; 0 for none)
 )
-# each control's success on the pair's episodes (ps_ray.stitching.stitch.controls), chance and the
+# each control's success on the pair's episodes (ps_ray.stitching.matrix.controls), chance and the
 # task-blind floor on them, the better unstitched source, the best of all those and the gain over
 # it; the gain over the best of the sources and chance alone, as before the floor, beside it
 CONTROL_KEYS = (

@@ -27,7 +27,7 @@ TRANSLATION_FITS = ("outcome", "shuffled", "swapped")
 # decode one from those two outcomes by an affine map fitted on the candidate scenes ("anchors@decoded")
 CROSSED_FITS = ("both", "decoded")  # fits that read both sources' outcomes in every scene
 ANCHOR_FITS = (*TRANSLATION_FITS, *CROSSED_FITS)
-# The unstitched controls and the oracle scored beside every stitched pair (ps_ray.stitching.stitch.controls)
+# The unstitched controls and the oracle scored beside every stitched pair (ps_ray.stitching.matrix.controls)
 CONTROL_ROLES = ("robot_source", "task_source", "oracle")
 # The desired goals of anchor states (ps_ray.data.collect): their own, or hindsight-relabelled.
 ANCHOR_GOALS = ("real", "relabelled")

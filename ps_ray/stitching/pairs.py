@@ -33,7 +33,7 @@ SHOWN = ("method", "translation", "pairing", "seed", "robot_seed", "label", "tas
 
 @dataclass(frozen=True)
 class Control:
-    """An unstitched policy scored beside a pair (:func:`ps_ray.stitching.stitch.controls`)."""
+    """An unstitched policy scored beside a pair (:func:`ps_ray.stitching.matrix.controls`)."""
 
     source: str  # its zoo key
     path: str  # its policy file
@@ -146,7 +146,7 @@ def pairs(
 ) -> list[StitchedPair]:
     """Every stitched pair of the sweep's trained policies (``pairing``: see :func:`seed_pairs`),
     from its zoo, with the zoo keys and files of its controls
-    (:func:`ps_ray.stitching.stitch.controls`); with ``translate``, also one per latent
+    (:func:`ps_ray.stitching.matrix.controls`); with ``translate``, also one per latent
     translation that ``spec.zero_shot.translate`` names for the method (its method shown as
     ``<method>+<translation>``, right after the untranslated pair)."""
     from ps_ray.stitching.matrix import combos, controls

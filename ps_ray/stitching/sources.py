@@ -1,6 +1,6 @@
 """Policies and target envs named on the ``ps-ray stitch`` command line: a policy file, a run
 folder or a key of a sweep's zoo, and the target env they imply
-(:func:`ps_ray.stitching.stitch.default_target`)."""
+(:func:`ps_ray.stitching.rule.default_target`)."""
 
 from __future__ import annotations
 

@@ -164,3 +164,31 @@ def test_version_names_the_installed_package():
 
     proc = subprocess.run([sys.executable, "-m", "ps_ray.cli", "--version"], capture_output=True, text=True)
     assert proc.returncode == 0 and proc.stdout.strip() == f"ps-ray {version('ps_ray')}"
+
+
+def test_every_command_flag_and_benchmark_has_help():
+    import argparse
+    import importlib.util
+
+    from ps_ray.cli.parsers import BENCHMARKS, build_parser
+
+    missing = []
+
+    def walk(parser: argparse.ArgumentParser, where: str) -> None:
+        for action in parser._actions:
+            if isinstance(action, argparse._SubParsersAction):
+                helps = {choice.dest: choice.help for choice in action._choices_actions}
+                for name, sub in action.choices.items():
+                    if not helps.get(name):
+                        missing.append(f"{where} {name}")
+                    walk(sub, f"{where} {name}")
+            elif not isinstance(action, argparse._HelpAction) and not action.help:
+                missing.append(f"{where} {'/'.join(action.option_strings) or action.dest}")
+
+    walk(build_parser("ps-ray"), "ps-ray")
+    assert not missing, f"without help: {', '.join(missing)}"
+    assert all(importlib.util.find_spec(f"ps_ray.bench.{name}") for name in BENCHMARKS)
+    bench = subprocess.run(
+        [sys.executable, "-m", "ps_ray.cli", "bench", "--help"], capture_output=True, text=True
+    )
+    assert "outcomes  how many outcome scenes" in bench.stdout  # one line per benchmark

@@ -39,7 +39,7 @@ def _train_parser(sub) -> None:
         default=None,
         help="where checkpoints, policy and metrics go (default runs/<method>-<robot>-...)",
     )
-    p.add_argument("--quiet", action="store_true")
+    p.add_argument("--quiet", action="store_true", help="no progress lines, only the final summary")
     p.add_argument(
         "--verbose",
         action="store_true",
@@ -68,7 +68,7 @@ def _grid_parser(sub) -> None:
     )
     _train_spec_flags(p, skip=("robot", "task", "init_policy", "anchors"))
     p.add_argument("--run-dir", required=True, help="where checkpoints, cell policies and metrics go")
-    p.add_argument("--quiet", action="store_true")
+    p.add_argument("--quiet", action="store_true", help="no progress lines, only the final summary")
     p.add_argument(
         "--verbose",
         action="store_true",
@@ -96,22 +96,30 @@ def _train_spec_flags(p, skip: tuple[str, ...] = ()) -> None:
         )
 
 
+# ps-ray bench WHAT: each a module of ps_ray.bench, and what it measures
+BENCHMARKS = {
+    "env": "env steps/s per task beside a bare PyBullet loop",
+    "her": "hindsight replay writes and samples per second",
+    "train": "the RLlib trainer beside a bare-torch loop doing the same work",
+    "update": "one SAC gradient update per method (--devices cuda on a GPU)",
+    "grid": "one co-trained grid update beside bare torch",
+    "learn": "env steps to a greedy success target per method, over seeds",
+    "tracking": "the driver-side cost of MLflow tracking per Tune result",
+    "evaluate": "zero-shot evaluation speed beside the env's own step rate",
+    "rates": "measure and cache the per-core rates --check prices with",
+    "state": "what crash safety costs: atomic writes, locks, sealing checkpoints",
+    "outcomes": "how many outcome scenes an affine@outcome fit needs, and their cost",
+}
+
+
 def _bench_parser(sub) -> None:
-    p = sub.add_parser("bench", help="print speed figures")
-    benchmarks = [
-        "env",
-        "her",
-        "train",
-        "update",
-        "grid",
-        "learn",
-        "tracking",
-        "evaluate",
-        "rates",
-        "state",
-        "outcomes",
-    ]
-    p.add_argument("what", choices=benchmarks)
+    p = sub.add_parser(
+        "bench",
+        help="print speed figures",
+        epilog="benchmarks:\n" + "\n".join(f"  {name:<9} {purpose}" for name, purpose in BENCHMARKS.items()),
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("what", choices=list(BENCHMARKS), metavar="WHAT", help="one of the benchmarks below")
     p.add_argument("options", nargs=argparse.REMAINDER, help="passed to the benchmark (see --help)")
 
 
@@ -189,7 +197,7 @@ def _few_shot_parser(sub) -> None:
         default=None,
         help="env steps collected before the first update (the paper: 10 epochs)",
     )
-    p.add_argument("--methods", nargs="+", default=None)
+    p.add_argument("--methods", nargs="+", default=None, help="default: the spec's few_shot.methods")
     p.add_argument("--max-pairs", type=int, default=None, help="stitched pairs per method")
     p.add_argument(
         "--pairs-per-seed",
@@ -203,8 +211,10 @@ def _few_shot_parser(sub) -> None:
         default=None,
         help="first updates of a trained start that fit its critics alone (actor frozen)",
     )
-    p.add_argument("--resume", action="store_true")
-    p.add_argument("--storage", default=None)
+    p.add_argument(
+        "--resume", action="store_true", help="finish only the missing trials of an interrupted stage"
+    )
+    p.add_argument("--storage", default=None, help="override the spec's storage directory")
 
 
 def _run_parser(sub) -> None:
@@ -231,12 +241,12 @@ def _report_parser(sub) -> None:
 
 def _render_parser(sub) -> None:
     p = sub.add_parser("render", help="roll out one episode headless and save a PNG and/or GIF")
-    p.add_argument("--robot", default="panda")
-    p.add_argument("--task", default="reach")
+    p.add_argument("--robot", default="panda", help="built-in robot name or a JSON mapping")
+    p.add_argument("--task", default="reach", help="built-in task name or a JSON mapping")
     p.add_argument("--policy", default=None, help="a policy.safetensors (default: random actions)")
-    p.add_argument("--seed", type=seed_int, default=0)
-    p.add_argument("--png", default=None)
-    p.add_argument("--gif", default=None)
+    p.add_argument("--seed", type=seed_int, default=0, help="the episode's reset seed")
+    p.add_argument("--png", default=None, help="save the last frame here")
+    p.add_argument("--gif", default=None, help="save the episode as an animated GIF here")
 
 
 def _stitch_parser(sub) -> None:

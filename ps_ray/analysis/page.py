@@ -7,6 +7,7 @@ import base64
 import html
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from datetime import UTC, datetime
 from pathlib import Path
 
 import pandas as pd
@@ -77,7 +78,7 @@ th, td { border: 1px solid #ccc; padding: 3px 8px; text-align: right; }
 th { background: #f0f0f0; } caption { font-weight: bold; text-align: left; padding: 4px 0; }
 img { max-width: 100%; display: block; margin: 1em 0; } .meta td { text-align: left; }
 .clips td { text-align: left; vertical-align: top; width: 240px; } .clips img { margin: 0; }
-.caption { font-size: 0.8em; }
+.caption { font-size: 0.8em; } .wide { overflow-x: auto; max-width: 100%; }
 """
 
 
@@ -94,6 +95,8 @@ def render_html(spec: SweepSpec, report: Report) -> str:
         "interface dims": ", ".join(map(str, spec.interface_dims)),
         "stages": ", ".join(spec.stages),
         "code": git_commit() or "unknown",
+        "built": datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC"),
+        "libraries": _versions(),
     }
     parts = [
         f"<!DOCTYPE html><html><head><meta charset='utf-8'>"
@@ -132,11 +135,36 @@ def render_html(spec: SweepSpec, report: Report) -> str:
                 parts.append("</table>")
             else:
                 caption, frame = item
-                shown = frame.rename(index=_readable, columns=_readable).map(_readable)
-                head, rest = shown.to_html(border=0, na_rep="–").split(">", 1)
-                parts.append(f"{head}><caption>{esc(caption)}</caption>{rest}")
+                head, rest = _table_html(frame).split(">", 1)
+                parts.append(f"<div class='wide'>{head}><caption>{esc(caption)}</caption>{rest}</div>")
     parts.append("</body></html>")
     return "\n".join(parts)
+
+
+def _table_html(frame: pd.DataFrame) -> str:
+    """A table as a reader sees it: labels in words, the index as ordinary columns (no index
+    column of row numbers, no header row of index names), numbers to three significant figures
+    (counts and env steps whole, with thousands separators), NaN as a dash."""
+    shown = frame if isinstance(frame.index, pd.RangeIndex) else frame.reset_index()
+    shown = shown.rename(columns=_readable).map(_readable)
+    return shown.to_html(border=0, na_rep="–", index=False, float_format=_number)
+
+
+def _number(x: float) -> str:
+    return f"{x:,.0f}" if abs(x) >= 1000 or (x == int(x) and abs(x) >= 100) else f"{x:.3g}"
+
+
+def _versions() -> str:
+    """The versions of the libraries a result depends on, as installed."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    found = []
+    for name in ("ps_ray", "ray", "torch", "pybullet", "gymnasium", "scikit-learn", "mlflow"):
+        try:
+            found.append(f"{name} {version(name)}")
+        except PackageNotFoundError:
+            continue
+    return ", ".join(found)
 
 
 def _readable(value: object) -> object:

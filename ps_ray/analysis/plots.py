@@ -23,9 +23,22 @@ QUADRANT_COLOURS = dict(zip(QUADRANTS, ("tab:red", "tab:blue", "tab:green", "tab
 METRIC_TITLES = {"cosine": "cosine distance", "l2": "L2 distance"}
 
 
+# Text a reader can read once the page scales a figure to its 1200-pixel column.
+plt.rcParams.update(
+    {
+        "font.size": 11,
+        "axes.titlesize": 12,
+        "axes.labelsize": 11,
+        "xtick.labelsize": 10,
+        "ytick.labelsize": 10,
+        "legend.fontsize": 9,
+    }
+)
+
+
 def _save(fig, path: Path) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=90, bbox_inches="tight", metadata={"Software": None})
+    fig.savefig(path, dpi=100, bbox_inches="tight", metadata={"Software": None})
     plt.close(fig)
     return path
 
@@ -86,11 +99,11 @@ def interface_scatter(group: Group, probes: Probes, title: str, path: Path) -> P
             mask = probes.labels == quadrant
             coords = [xy[mask, c] for c in range(xy.shape[1])]
             ax.scatter(*coords, s=4, color=QUADRANT_COLOURS[quadrant], label=quadrant)
-        ax.set_title(f"{group.comparison[:-1]} {name}", fontsize=9)
+        ax.set_title(f"{group.comparison[:-1]} {name}")
         ax.tick_params(labelsize=6)
         if index == 0:
-            ax.legend(fontsize=6, markerscale=2, loc="best")
-    fig.suptitle(title, fontsize=10)
+            ax.legend(fontsize=8, markerscale=2, loc="best")
+    fig.suptitle(title)
     fig.tight_layout()
     return _save(fig, path)
 
@@ -118,11 +131,11 @@ def learning_curves(
             stats = lines.groupby(x)[y].agg(["mean", "min", "max"])
             ax.plot(stats.index, stats["mean"], label=f"{readable(str(label))} ({lines['run'].nunique()})")
             ax.fill_between(stats.index, stats["min"], stats["max"], alpha=0.2)
-        ax.set_title(readable(str(name)), fontsize=9)
+        ax.set_title(readable(str(name)))
         ax.set_xlabel(x.replace("_", " "))
         ax.set_ylabel(ylabel)
         ax.set_ylim(-0.05, 1.05)
-        ax.legend(fontsize=7)
+        ax.legend(fontsize=8)
     for ax in list(axes.flat)[len(panels) :]:
         ax.axis("off")
     fig.suptitle(title)
@@ -147,14 +160,31 @@ def seed_interval_curves(table: pd.DataFrame, title: str, path: Path) -> Path:
             ax.fill_between(
                 line["env_steps"], line["low"], line["high"], color=drawn[0].get_color(), alpha=0.15
             )
-        ax.set_title(readable(str(method)), fontsize=9)
+        ax.set_title(readable(str(method)))
         ax.set_xlabel("env steps")
         ax.set_ylabel("greedy success")
         ax.set_ylim(-0.05, 1.05)
-        ax.legend(fontsize=7)
+        ax.legend(fontsize=8)
     fig.suptitle(title)
     fig.tight_layout()
     return _save(fig, path)
+
+
+_VERB = {"success": "reached the goal", "touching": "touched the object"}
+
+
+def _note(ax, text: str) -> None:
+    """A sentence in the middle of a panel whose data draw nothing."""
+    ax.text(
+        0.5,
+        0.5,
+        text,
+        transform=ax.transAxes,
+        ha="center",
+        va="center",
+        color="0.3",
+        bbox={"facecolor": "white", "edgecolor": "0.7"},
+    )
 
 
 def zero_shot_bars(table: pd.DataFrame, path: Path) -> Path:
@@ -185,11 +215,13 @@ def zero_shot_bars(table: pd.DataFrame, path: Path) -> Path:
                 label=method,
                 capsize=2,
             )
-        ax.set_yticks(np.arange(len(labels)) + 0.4 - height / 2, [readable(x) for x in labels], fontsize=7)
+        ax.set_yticks(np.arange(len(labels)) + 0.4 - height / 2, [readable(x) for x in labels])
         ax.set_xlim(0, 1)
         ax.set_xlabel(f"zero-shot {metric} rate")
         ax.invert_yaxis()
-    axes[0].legend(fontsize=8)
+        if not table[f"{metric}_mean"].fillna(0).any():  # bars of length 0 draw nothing: say so
+            _note(ax, f"every {metric} rate is 0: no stitched policy\n{_VERB[metric]} on any episode")
+    axes[0].legend()
     fig.tight_layout()
     return _save(fig, path)
 
@@ -224,12 +256,12 @@ def transfer_gain_bars(table: pd.DataFrame, path: Path) -> Path:
                 capsize=2,
             )
         ax.axvline(0.0, color="black", linewidth=0.8)
-        ax.set_yticks(np.arange(len(labels)) + 0.4 - height / 2, [readable(x) for x in labels], fontsize=7)
+        ax.set_yticks(np.arange(len(labels)) + 0.4 - height / 2, [readable(x) for x in labels])
         ax.set_xlim(-1.05, 1.05)
         ax.set_xlabel("transfer gain: stitched - best of (unstitched sources, chance)")
-        ax.set_title(pairing.replace("_", " "), fontsize=9)
+        ax.set_title(pairing.replace("_", " "))
         ax.invert_yaxis()
-    axes[0][0].legend(fontsize=8)
+    axes[0][0].legend()
     fig.tight_layout()
     return _save(fig, path)
 
@@ -262,10 +294,10 @@ def controls_bars(numbers: pd.DataFrame, path: Path) -> Path:
     for gap in np.arange(len(rows) - 1) + 0.9 - height / 2:  # a faint line between groups
         ax.axhline(gap, color="0.85", linewidth=0.8)
     names = [readable(f"{r.method}, {r.pairing.replace('_', ' ')}") for r in rows]
-    ax.set_yticks(np.arange(len(rows)) + 0.4 - height / 2, names, fontsize=8)
+    ax.set_yticks(np.arange(len(rows)) + 0.4 - height / 2, names)
     ax.set_xlim(0, 1.05)
     ax.set_xlabel("zero-shot success on the stitched pairs' episodes (mean over seeds, 95% t interval)")
     ax.invert_yaxis()
-    ax.legend(fontsize=8, loc="lower center", bbox_to_anchor=(0.5, 1.0), ncol=len(CONTROL_BARS))
+    ax.legend(loc="lower center", bbox_to_anchor=(0.5, 1.0), ncol=3)
     fig.tight_layout()
     return _save(fig, path)

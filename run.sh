@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # Set-up and entry points for a fresh machine; each command installs what it needs first.
-#   ./run.sh smoke   the whole smoke pipeline on 2 CPUs (train, zero-shot, few-shot, report; MLflow)
+#   ./run.sh smoke   ps-ray demo (a shipped stitch scored beside its controls), then the whole smoke
+#                    pipeline on 2 CPUs (train, zero-shot, few-shot, report; MLflow)
 #   ./run.sh test    the test suite (slow learning checks included; add -m "not slow" to skip),
 #                    in two pytest-xdist workers, a test file each at a time (-n 0: one process)
 #                    it also installs Debian's chromium (headless screenshot of the report)
@@ -39,6 +40,7 @@ case "$cmd" in
   smoke)
     setup
     out="${PS_RAY_OUT:-runs}"
+    "$VENV/bin/ps-ray" demo  # a stitch that works, from the shipped example modules (~20 s)
     "$VENV/bin/ps-ray" render --robot panda_l3 --task push --gif "$out/smoke_render/push_random.gif"
     "$VENV/bin/ps-ray" run sweeps/smoke.yaml --storage "$out/sweeps" "$@"
     ;;

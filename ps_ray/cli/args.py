@@ -32,3 +32,9 @@ class Parser(argparse.ArgumentParser):
 
     def error(self, message: str):
         self.exit(2, f"{self.prog}: error: {message}\n")
+
+
+def flag_of(message: str, fields) -> str | None:
+    """The field a spec error is about: the first field name the message mentions (None: none)."""
+    words = message.replace("'", " ").replace(".", " ").replace(":", " ").split()
+    return next((w for w in words if w in fields), None)

@@ -12,6 +12,7 @@ import tempfile
 import time
 from pathlib import Path
 
+from ps_ray.cli.args import flag_of
 from ps_ray.cli.parsers import build_parser
 from ps_ray.errors import UserError
 from ps_ray.pipeline.stage import StageError
@@ -37,7 +38,7 @@ def cmd_train(args: argparse.Namespace) -> int:
     try:
         spec = TrainSpec.from_mapping(fields)
     except UserError as e:  # name the flag the bad value came from
-        named = _flag_of(str(e), fields)
+        named = flag_of(str(e), fields)
         raise UserError(f"--{named.replace('_', '-')}: {e}" if named else str(e)) from None
     run_dir = Path(args.run_dir or Path("runs") / spec.slug())
     from ps_ray.rllib.train import train  # torch and Ray: only once the flags are good
@@ -54,7 +55,7 @@ def cmd_grid(args: argparse.Namespace) -> int:
     try:
         base = TrainSpec.from_mapping(fields)
     except UserError as e:  # name the flag the bad value came from
-        named = _flag_of(str(e), fields)
+        named = flag_of(str(e), fields)
         raise UserError(f"--{named.replace('_', '-')}: {e}" if named else str(e)) from None
     parts = {}
     for flag in ("robots", "tasks"):
@@ -97,12 +98,6 @@ def cmd_sweep(args: argparse.Namespace) -> int:
         f"results in {sweep_dir(spec)}"
     )
     return 1 if errors else 0
-
-
-def _flag_of(message: str, fields) -> str | None:
-    """The field a spec error is about: the first field name the message mentions (None: none)."""
-    words = message.replace("'", " ").replace(".", " ").replace(":", " ").split()
-    return next((w for w in words if w in fields), None)
 
 
 def _load(args: argparse.Namespace):
@@ -352,6 +347,14 @@ def cmd_stitch(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_demo(args: argparse.Namespace) -> int:
+    from ps_ray.stitching.example import ExampleZoo, demo_lines, run_demo
+
+    zoo = ExampleZoo.load(args.zoo)  # every file verified before it is read
+    print("\n".join(demo_lines(zoo, run_demo(zoo))))
+    return 0
+
+
 def cmd_bench(args: argparse.Namespace) -> int:
     import importlib
 
@@ -377,6 +380,7 @@ def main(argv: list[str] | None = None) -> int:
             "render": cmd_render,
             "bench": cmd_bench,
             "stitch": cmd_stitch,
+            "demo": cmd_demo,
         }[args.command](args)
     except (UserError, json.JSONDecodeError) as e:  # bad input: one line; any other error is a bug
         print(f"ps-ray {args.command}: error: {e}", file=sys.stderr)

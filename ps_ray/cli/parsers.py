@@ -16,6 +16,7 @@ def build_parser(description: str | None) -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"ps-ray {version('ps_ray')}")
     sub = parser.add_subparsers(dest="command", required=True)
     for add in (
+        _demo_parser,
         _train_parser,
         _grid_parser,
         _sweep_parser,
@@ -215,6 +216,17 @@ def _few_shot_parser(sub) -> None:
         "--resume", action="store_true", help="finish only the missing trials of an interrupted stage"
     )
     p.add_argument("--storage", default=None, help="override the spec's storage directory")
+
+
+def _demo_parser(sub) -> None:
+    from ps_ray.stitching.example import EXAMPLE_DIR
+
+    p = sub.add_parser(
+        "demo",
+        help="stitch the shipped example modules into a policy for a robot-task pair they were not "
+        "trained on and score it beside its controls (under a minute, no training)",
+    )
+    p.add_argument("--zoo", default=str(EXAMPLE_DIR), help="an example zoo folder (default: the shipped one)")
 
 
 def _run_parser(sub) -> None:

@@ -170,6 +170,16 @@ FLAT = {
 }
 
 
+def test_a_run_is_named_as_a_reader_writes_its_key_and_found_by_the_exact_key(store):
+    exp = new_experiment(store, "tracker-names")
+    key = 'zero_shot/ps/t: reach{"goal_region":"q3"}-panda_l3 & r: reach{"goal_region":"q1"}-panda/102'
+    tracker = TrialTracker(store["uri"], exp, key, params={}, tags={})
+    run = store["client"].get_run(tracker.run_id)
+    assert run.info.run_name == "zero_shot/ps/t: reach q3-panda_l3 & r: reach q1-panda/102"
+    assert run.data.tags[TRIAL_KEY_TAG] == key
+    assert TrialTracker(store["uri"], exp, key, params={}, tags={}).run_id == tracker.run_id  # resumed
+
+
 def test_tracker_params_tags_and_batched_metrics(store):
     exp = new_experiment(store, "tracker-basic")
     tracker = TrialTracker(

@@ -251,7 +251,11 @@ class TrialTracker:
         return find_run(self.client, self.experiment_id, self.trial_key)
 
     def _create_run(self, tags: Mapping[str, str]) -> str:
-        run = self.client.create_run(self.experiment_id, run_name=self.trial_key[:250], tags=tags)
+        """A new run, named as a reader would write its key (``reach q1``, not JSON); the key
+        itself, exact, is its ``ps_ray.trial_key`` tag."""
+        from ps_ray.specs.names import readable
+
+        run = self.client.create_run(self.experiment_id, run_name=readable(self.trial_key)[:250], tags=tags)
         return run.info.run_id
 
     def _check_params(self, logged: Mapping[str, str], wanted: Mapping[str, str]) -> None:

@@ -45,7 +45,8 @@ def build_report(spec: SweepSpec, *, progress: bool = True, log_to_mlflow: bool 
     target = source_target(spec)
     _training(report, root, target, say)
     search_section(report, spec, SweepLayout(root).tune_train)
-    _latent(report, spec, root, say)
+    if not spec.search.active:  # a search's trials are candidate settings, not sources to compare
+        _latent(report, spec, root, say)
     _zero_shot(report, root, target, say)
     _few_shot(report, root, say)
     _clips(report, spec, say)

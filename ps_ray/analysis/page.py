@@ -146,7 +146,9 @@ def _table_html(frame: pd.DataFrame) -> str:
     column of row numbers, no header row of index names), numbers to three significant figures
     (counts and env steps whole, with thousands separators), NaN as a dash."""
     shown = frame if isinstance(frame.index, pd.RangeIndex) else frame.reset_index()
-    shown = shown.rename(columns=_readable).map(_readable)
+    if isinstance(shown.columns, pd.MultiIndex):  # ("ps", "success") -> "ps success": one header row
+        shown.columns = [" ".join(str(part) for part in column if str(part)) for column in shown.columns]
+    shown = shown.rename_axis(columns=None).rename(columns=_readable).map(_readable)
     return shown.to_html(border=0, na_rep="–", index=False, float_format=_number)
 
 

@@ -27,7 +27,7 @@ import pytest
 
 from ps_ray.analysis.browser import find_chromium
 from ps_ray.analysis.cost import workload
-from ps_ray.specs.names import trial_key
+from ps_ray.specs.names import readable, trial_key
 from ps_ray.specs.sweep import load_sweep
 from ps_ray.store.checkpoint import latest as latest_checkpoint
 from ps_ray.store.layout import SweepLayout
@@ -176,6 +176,14 @@ def test_a_pipeline_killed_in_every_stage_resumes_without_redoing_finished_work(
         final_best[trial_key(json.loads(trial)["spec"])] = best[-1]
     train_runs = _runs(root, "train")
     assert len(train_runs) == 16  # one MLflow run per trial, none duplicated
+    # every few-shot run names its start and target; a start from a stitched pair names the pair
+    few_shot_runs = _runs(root, "few_shot")
+    kinds = {r.data.tags["ps_ray.start"] for r in few_shot_runs}
+    assert kinds >= {"stitched", "unstitched", "scratch"}
+    for run in few_shot_runs:
+        target = run.data.tags["ps_ray.target"]
+        assert target.count("/") >= 3 and run.info.run_name.endswith(readable(target)), run.info.run_name
+        assert ("ps_ray.pair" in run.data.tags) == (run.data.tags["ps_ray.start"] == "stitched")
     client = mlflow.MlflowClient(f"sqlite:///{root / 'mlflow.db'}")
     for run in train_runs:  # a trial cut short resumed from its checkpoint: no step logged twice
         steps = [m.step for m in client.get_metric_history(run.info.run_id, "env_steps")]

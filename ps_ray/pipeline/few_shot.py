@@ -158,16 +158,28 @@ def run_few_shot(spec: SweepSpec, *, resume: bool = False, progress: bool = True
     )
 
 
+# Every few-shot run names its start and its target (method, robot, task, seed), so the runs of
+# one target (stitched, halves, unstitched, scratch) group together; a start made from a stitched
+# pair (stitched, halves) names the pair too.
+START_TAG, TARGET_TAG, PAIR_TAG = "ps_ray.start", "ps_ray.target", "ps_ray.pair"
+
+
 def _source_tags(trial: TrainTrial, client, experiment_id: str) -> dict[str, str]:
-    """A fine-tuning run of a stitched start names its two sources (their runs) and anchor set."""
+    """A fine-tuning run's start, target and pair; a stitched start's also its two sources (their
+    runs) and anchor set."""
+    from ps_ray.stitching.halves import HALVES
     from ps_ray.store.signature import read_signature
     from ps_ray.store.tracking import source_tags
 
+    target = {k: v for k, v in trial.spec.to_dict().items() if k != "init_policy"}
+    tags = {START_TAG: trial.kind, TARGET_TAG: trial_key(target)}
+    if trial.kind in ("stitched", *HALVES):
+        tags[PAIR_TAG] = trial.label
     start = trial.spec.init_policy
     if trial.kind != "stitched" or not start:
-        return {}
+        return tags
     meta = read_signature(start)[1]
-    return source_tags(client, experiment_id, meta["task_from"], meta["robot_from"], start)
+    return {**tags, **source_tags(client, experiment_id, meta["task_from"], meta["robot_from"], start)}
 
 
 def curves(results) -> dict[str, list[tuple[int, float]]]:

@@ -19,8 +19,8 @@ from ps_ray.specs.stage_settings import FewShotSpec
 from ps_ray.specs.sweep import SweepSpec
 from ps_ray.stitching.pairs import Control, StitchedPair, evaluated_pairs, pairs, pairs_from_table
 from ps_ray.store.layout import SweepLayout, sweep_dir
-from tests.test_stitch import K, write_trial
-from tests.test_stitch import spec as train_spec
+from tests.stitch_sources import K, write_trial
+from tests.stitch_sources import spec as train_spec
 
 Q1, Q3 = {"name": "reach", "goal_region": "q1"}, {"name": "reach", "goal_region": "q3"}
 GRIPPER = {"name": "panda_l3", "gripper": True}

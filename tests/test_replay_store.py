@@ -11,7 +11,7 @@ import pytest
 
 from ps_ray.data.her import HindsightReplay
 from ps_ray.store import checkpoint, replay
-from tests.test_her import SPEC, A, T, batch, make, reward_fn
+from tests.her_batches import SPEC, A, T, batch, make, reward_fn
 
 
 @pytest.fixture(autouse=True)

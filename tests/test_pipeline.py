@@ -285,9 +285,9 @@ def test_report_embeds_every_figure_and_table(smoke):
         assert f">{section}</h2>" in page
     assert "Zero-shot results (Table 1 layout)" in page and "task module &amp; robot module" in page
     assert "near zero by design" in page  # the smoke budget says what it cannot show
-    # when and with what it was built; every table scrolls inside the page, with no index column of
-    # row numbers and no header row holding only index names
-    assert re.search(r"<th>built</th><td>\d{4}-\d\d-\d\d \d\d:\d\d UTC</td>", page)
+    # when it ran and with what; every table scrolls inside the page, with no index column of row
+    # numbers and no header row holding only index names
+    assert re.search(r"<th>ran</th><td>\d{4}-\d\d-\d\d \d\d:\d\d UTC</td>", page)
     assert re.search(r"<th>libraries</th><td>ps_ray [^<]*, ray 2\.\d+[^<]*, torch ", page)
     assert page.count("<div class='wide'><table class=\"dataframe\">") == page.count(
         '<table class="dataframe">'

@@ -95,7 +95,7 @@ def render_html(spec: SweepSpec, report: Report) -> str:
         "interface dims": ", ".join(map(str, spec.interface_dims)),
         "stages": ", ".join(spec.stages),
         "code": git_commit() or "unknown",
-        "built": datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC"),
+        "ran": _ran(spec),
         "libraries": _versions(),
     }
     parts = [
@@ -154,6 +154,17 @@ def _table_html(frame: pd.DataFrame) -> str:
 
 def _number(x: float) -> str:
     return f"{x:,.0f}" if abs(x) >= 1000 or (x == int(x) and abs(x) >= 100) else f"{x:.3g}"
+
+
+def _ran(spec: SweepSpec) -> str:
+    """When the sweep's last stage before the report finished (its marker's time; else when the
+    spec was recorded): a date a rebuilt report keeps, so the page stays the same bytes."""
+    from ps_ray.store.layout import SweepLayout
+
+    where = SweepLayout.of(spec.storage, spec.name)
+    marks = [p for p in where.stages.glob("*.json") if not p.name.startswith("report")]
+    times = [p.stat().st_mtime for p in marks or [where.spec_file] if p.exists()]
+    return datetime.fromtimestamp(max(times), UTC).strftime("%Y-%m-%d %H:%M UTC") if times else "–"
 
 
 def _versions() -> str:

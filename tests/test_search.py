@@ -179,6 +179,9 @@ def test_asha_stops_the_settings_that_do_not_learn_and_a_killed_search_resumes_w
     assert len(after["search00"]) == 1  # not run again
     assert (after["search00"][0] / "result.json").read_text() == learner_rows
     assert read_rows(after["search00"][0])[-1]["best_eval_success"] >= 0.5  # it learned
+    # every row after the first update carries the entropy temperature and the policy's entropy
+    learning = [r for r in read_rows(after["search00"][0]) if r["env_steps"] > 400 and not r.get(FINISHED)]
+    assert learning and all(0 < r["alpha"] < 1 and isinstance(r["entropy"], float) for r in learning)
     for name in ("search01", "search02"):
         marked = [f for f in after[name] if (f / STOPPED_FILE).is_file()]
         assert len(marked) == 1, name

@@ -369,7 +369,9 @@ def test_report_command_is_idempotent(smoke, rebuilt):
     assert len(_runs(root, "report")) == 1  # the same MLflow run, rebuilt
     client = mlflow.MlflowClient(f"sqlite:///{root / 'mlflow.db'}")
     logged = {a.path for a in client.list_artifacts(_runs(root, "report")[0].info.run_id)}
-    assert {"index.html", "figures", "tables", "interfaces.safetensors"} <= logged
+    assert {"index.html", "figures", "tables", "interfaces.safetensors", "sweep"} <= logged
+    (spec_artifact,) = client.list_artifacts(_runs(root, "report")[0].info.run_id, "sweep")
+    assert spec_artifact.path == "sweep/sweep.yaml"  # the resolved spec the stages ran
 
 
 def test_report_of_a_folder_that_is_not_a_sweep_fails_with_one_line(cli, tmp_path):

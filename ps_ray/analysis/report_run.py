@@ -1,6 +1,6 @@
-"""The report's MLflow run: one per sweep, holding the report folder, the headline numbers and
-``runs.json``, an index of every run of the sweep with the links between stitched pairs and
-their sources."""
+"""The report's MLflow run: one per sweep, holding the report folder, the headline numbers, the
+resolved sweep spec (``sweep/``) and ``runs.json``, an index of every run of the sweep with the
+links between stitched pairs and their sources."""
 
 from __future__ import annotations
 
@@ -37,6 +37,9 @@ def log_report(spec: SweepSpec, report_dir: Path, metrics: dict[str, float]) -> 
     tracker.log_metrics(metrics, step=0)
     for path in sorted(report_dir.iterdir()):
         tracker.log_artifact(path)
+    spec_file = SweepLayout(root).spec_file  # the resolved sweep spec the stages ran (base merged)
+    if spec_file.is_file():
+        tracker.log_artifact(spec_file, "sweep")
     tracker.log_dict(_run_index(tracker.client, experiment, tracker.run_id), "runs.json")
     tracker.close()
     return tracker.run_id

@@ -301,3 +301,19 @@ def controls_bars(numbers: pd.DataFrame, path: Path) -> Path:
     ax.legend(loc="lower center", bbox_to_anchor=(0.5, 1.0), ncol=3)
     fig.tight_layout()
     return _save(fig, path)
+
+
+def search_curves(curves: pd.DataFrame, path: Path) -> Path:
+    """A search's trials (ps_ray.analysis.search): greedy success and the entropy temperature
+    against env steps, a line per drawn setting."""
+    fig, (success, alpha) = plt.subplots(1, 2, figsize=(11, 3.8))
+    for name, part in curves.groupby("setting", sort=True):
+        evals = part.dropna(subset=["eval_success"])
+        (line,) = success.plot(evals["env_steps"], evals["eval_success"], label=name, linewidth=1.2)
+        temps = part.dropna(subset=["alpha"])
+        alpha.plot(temps["env_steps"], temps["alpha"], color=line.get_color(), linewidth=1.2)
+    success.set(xlabel="env steps", ylabel="greedy success", ylim=(-0.05, 1.05), title="greedy success")
+    alpha.set(xlabel="env steps", ylabel="entropy temperature (alpha)", yscale="log", title="temperature")
+    success.legend(fontsize=8, ncol=2)
+    fig.tight_layout()
+    return _save(fig, path)

@@ -8,15 +8,12 @@ import json
 import math
 from pathlib import Path
 
-import matplotlib
+import pandas as pd
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import pandas as pd  # noqa: E402
-
-from ps_ray.specs.sweep import SweepSpec  # noqa: E402
-from ps_ray.specs.trial import TrainTrial  # noqa: E402
-from ps_ray.store.attempts import PARAMS_FILE, STOPPED, outcomes, read_rows  # noqa: E402
+from ps_ray.analysis.plots import search_curves
+from ps_ray.specs.sweep import SweepSpec
+from ps_ray.specs.trial import TrainTrial
+from ps_ray.store.attempts import PARAMS_FILE, STOPPED, outcomes, read_rows
 
 LEVELS = (0.5, 0.9)  # greedy success levels whose first crossing the table gives
 CURVE_KEYS = ("eval_success", "best_eval_success", "alpha", "entropy")
@@ -67,24 +64,6 @@ def _ended(outcome, last: dict) -> str:
     return "reached the target" if last.get("converged") else "ran its budget"
 
 
-def curves_figure(curves: pd.DataFrame, path: Path) -> Path:
-    """Greedy success and the entropy temperature against env steps, a line per setting."""
-    fig, (success, alpha) = plt.subplots(1, 2, figsize=(11, 3.8))
-    for name, part in curves.groupby("setting", sort=True):
-        evals = part.dropna(subset=["eval_success"])
-        (line,) = success.plot(evals["env_steps"], evals["eval_success"], label=name, linewidth=1.2)
-        temps = part.dropna(subset=["alpha"])
-        alpha.plot(temps["env_steps"], temps["alpha"], color=line.get_color(), linewidth=1.2)
-    success.set(xlabel="env steps", ylabel="greedy success", ylim=(-0.05, 1.05), title="greedy success")
-    alpha.set(xlabel="env steps", ylabel="entropy temperature (alpha)", yscale="log", title="temperature")
-    success.legend(fontsize=7, ncol=2)
-    fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
-
-
 def search_section(report, spec: SweepSpec, stage_dir: Path) -> None:
     """The report's "Search" section: the trials' table (best first) and their curves."""
     if not spec.search.active:
@@ -99,7 +78,7 @@ def search_section(report, spec: SweepSpec, stage_dir: Path) -> None:
     if table.empty:
         section.intro = "No search trials yet."
         return
-    report.figure(section, "search_curves", lambda p: curves_figure(curves, p))
+    report.figure(section, "search_curves", lambda p: search_curves(curves, p))
     report.table(section, "search_trials", "Every drawn setting, best first", table.set_index("setting"))
     best = table.iloc[0]
     for key in ("best_eval", "final_success"):

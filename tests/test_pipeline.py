@@ -184,6 +184,8 @@ def test_a_pipeline_killed_in_every_stage_resumes_without_redoing_finished_work(
         target = run.data.tags["ps_ray.target"]
         assert target.count("/") >= 3 and run.info.run_name.endswith(readable(target)), run.info.run_name
         assert ("ps_ray.pair" in run.data.tags) == (run.data.tags["ps_ray.start"] == "stitched")
+        start = run.data.params["init_policy"]  # the file it started from, inside the sweep folder
+        assert start == "null" if run.data.tags["ps_ray.start"] == "scratch" else (root / start).is_file()
     client = mlflow.MlflowClient(f"sqlite:///{root / 'mlflow.db'}")
     for run in train_runs:  # a trial cut short resumed from its checkpoint: no step logged twice
         steps = [m.step for m in client.get_metric_history(run.info.run_id, "env_steps")]
@@ -435,8 +437,14 @@ def test_mlflow_ui_lists_the_runs_and_the_report_artifact(smoke, visible_text):
         assert page.startswith("http://127.0.0.1:5000/#/experiments/")
         listing = visible_text(page.replace("http://127.0.0.1:5000", base))
         assert f"{len(runs)} matching runs" in listing and "Traces 0" not in listing
-        for stage in ("report", "zero_shot/ps/", "few_shot/", "scratch/ps/"):
-            assert stage in listing, stage
+        # the list is the stages, each run of a stage nested under its stage's run
+        for stage in ("train", "zero_shot", "few_shot", "report"):
+            assert f"{stage} " in listing, stage
+        parents = {r.info.run_id: r.info.run_name for r in runs if "ps_ray.stage_run" in r.data.tags}
+        assert sorted(parents.values()) == ["few_shot", "train", "zero_shot"]
+        for run in runs:
+            if "ps_ray.stage" in run.data.tags and run.data.tags["ps_ray.stage"] != "report":
+                assert parents[run.data.tags["mlflow.parentRunId"]] == run.data.tags["ps_ray.stage"]
         report_run = next(r for r in runs if r.data.tags.get("ps_ray.stage") == "report")
         artifacts = visible_text(f"{base}/#/experiments/{experiment}/runs/{report_run.info.run_id}/artifacts")
         for name in ("index.html", "figures", "tables", "runs.json"):

@@ -23,13 +23,16 @@ from ps_ray.pipeline.tune_tracking import (
     spec_key,
 )
 from ps_ray.store.tracking import (
+    PARENT_TAG,
     TRIAL_KEY_TAG,
     TrialTracker,
     check_tracking_uri,
     default_tracking_uri,
     ensure_experiment,
     git_commit,
+    relative_paths,
     runs_page,
+    stage_tags,
 )
 from tests.conftest import wait_until_serving
 
@@ -229,6 +232,45 @@ def test_tracker_params_tags_and_batched_metrics(store):
     tracker.close()
     assert len(store["client"].get_metric_history(tracker.run_id, "big")) == 2500
     assert store["client"].get_run(tracker.run_id).info.status == "FINISHED"
+
+
+def test_a_stages_runs_are_children_of_one_stage_run_found_again_on_resume(store):
+    exp_id = new_experiment(store, "stages")
+    train = stage_tags(store["uri"], exp_id, "sweep1", "train")
+    assert stage_tags(store["uri"], exp_id, "sweep1", "train") == train  # a resume: the same parent
+    few_shot = stage_tags(store["uri"], exp_id, "sweep1", "few_shot")
+    assert few_shot[PARENT_TAG] != train[PARENT_TAG]
+    for tags, key in ((train, "ps/panda/reach/1"), (few_shot, "few_shot/ps/panda/reach/1")):
+        TrialTracker(store["uri"], exp_id, key, params={}, tags=tags).close()
+    runs = {r.info.run_name: r for r in runs_of(store, exp_id)}
+    assert sorted(runs) == ["few_shot", "few_shot/ps/panda/reach/1", "ps/panda/reach/1", "train"]
+    for parent, child in (("train", "ps/panda/reach/1"), ("few_shot", "few_shot/ps/panda/reach/1")):
+        assert runs[child].data.tags[PARENT_TAG] == runs[parent].info.run_id
+        assert (
+            runs[child].data.tags["ps_ray.stage"] == parent
+            and runs[child].data.tags["ps_ray.sweep"] == "sweep1"
+        )
+        # the stage run is not a trial: counted by no stage, indexed by no report
+        assert "ps_ray.stage" not in runs[parent].data.tags and TRIAL_KEY_TAG not in runs[parent].data.tags
+        assert runs[parent].info.status == "FINISHED"
+
+
+def test_start_files_are_logged_relative_to_the_sweep_and_old_absolute_runs_still_resume(store, tmp_path):
+    root = tmp_path / "sweeps" / "s"
+    start = root / "stitched" / "ab.safetensors"
+    elsewhere = tmp_path / "anchors.npz"
+    params = {"init_policy": str(start), "anchors": str(elsewhere), "lr": "0.001"}
+    assert relative_paths(params, root) == {
+        "init_policy": "stitched/ab.safetensors",  # inside the sweep folder: relative
+        "anchors": str(elsewhere),  # a file outside it stays as given
+        "lr": "0.001",
+    }
+    exp_id = new_experiment(store, "paths")
+    TrialTracker(store["uri"], exp_id, "few_shot/x", params=params, tags={}).close()  # an older run
+    again = TrialTracker(store["uri"], exp_id, "few_shot/x", params=relative_paths(params, root), tags={})
+    assert again.resumed and store["client"].get_run(again.run_id).data.params["init_policy"] == str(start)
+    with pytest.raises(ValueError, match="param init_policy="):
+        TrialTracker(store["uri"], exp_id, "few_shot/x", params={"init_policy": "other.safetensors"}, tags={})
 
 
 def test_tracker_resume_reuses_run_and_keys_separate_runs(store):

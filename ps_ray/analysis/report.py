@@ -245,7 +245,9 @@ def _zero_shot(report: Report, root: Path, target: float, say) -> None:
         "Stitched policies (task module of one "
         "robot-task pair, robot module of another) in their target env "
         "without training: touching and success, mean ± std over repeats "
-        "and seeds, identical evaluation episodes for every method.",
+        "and seeds, identical evaluation episodes for every method. A pair reads "
+        "'t: X-Ra & r: Y-Rb': the task module trained on task X with robot Ra, the robot module on "
+        "task Y with robot Rb, run on task X with robot Rb.",
     )
     report.table(
         section,

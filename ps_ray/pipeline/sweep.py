@@ -268,23 +268,18 @@ def run_tune(
     ``scheduler_fn``: :func:`ps_ray.pipeline.trials.run_trials`'."""
 
     from ps_ray.pipeline.trials import run_trials
-    from ps_ray.pipeline.tune_tracking import MLflowTuneCallback
+    from ps_ray.pipeline.tune_tracking import MLflowTuneCallback, default_params_fn
     from ps_ray.specs.resources import device_tags
-    from ps_ray.store.tracking import code_tags
+    from ps_ray.store.tracking import relative_paths, stage_tags
 
     resources = getattr(spec.resources, stage_record(stage).name)
     callback = MLflowTuneCallback(
         *tracking,
         metric_keys=METRIC_KEYS + ("final_success", "final_touching"),
-        tags={
-            "ps_ray.sweep": spec.name,
-            "ps_ray.stage": stage,
-            **code_tags(),
-            **device_tags(resources),
-        },
+        tags={**stage_tags(*tracking, spec.name, stage), **device_tags(resources)},
         artifacts_fn=artifacts_fn or _trial_artifacts,
         **({"key_fn": key_fn} if key_fn else {}),
-        **({"params_fn": params_fn} if params_fn else {}),
+        params_fn=lambda trial: relative_paths((params_fn or default_params_fn)(trial), sweep_dir(spec)),
         tags_fn=tags_fn,
         # env steps, the x axis RL curves are read on (restored with a checkpoint, like ps_ray's
         # own iteration; Tune's restarts at 1 when a resumed stage relaunches a trial): a retried

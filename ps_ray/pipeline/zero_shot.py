@@ -278,7 +278,7 @@ def _evaluate(
     from ps_ray.pipeline.trials import run_trials
     from ps_ray.pipeline.tune_tracking import RowRunsCallback
     from ps_ray.specs.resources import device_tags
-    from ps_ray.store.tracking import code_tags
+    from ps_ray.store.tracking import stage_tags
 
     folder, by_key = layout(spec).tune_zero_shot, {pair.key: pair for pair in trials}
     evaluated = {"episodes": settings.episodes, "repeats": settings.repeats}
@@ -293,9 +293,7 @@ def _evaluate(
         metric_keys=(*RESULT_KEYS, *CONTROL_KEYS),
         params_fn=lambda key: by_key[key].shown() | evaluated,
         tags={
-            "ps_ray.sweep": spec.name,
-            "ps_ray.stage": "zero_shot",
-            **code_tags(),
+            **stage_tags(tracking_uri, experiment_id, spec.name, "zero_shot"),
             **device_tags(spec.resources.zero_shot),
             "ps_ray.device": "cpu",  # stitching and evaluation run on the CPU, whatever the grant
         },

@@ -32,6 +32,9 @@ log = logging.getLogger(__name__)
 
 TRIAL_KEY_TAG = "ps_ray.trial_key"
 STAGE_TAG = "ps_ray.stage"
+# A stage's runs are the children of one run per stage (MLflow's own nesting tag), so the UI lists
+# the stages, each unfolding into its trials; the stage run is found again by its own tag.
+PARENT_TAG, STAGE_RUN_TAG = "mlflow.parentRunId", "ps_ray.stage_run"
 # a stitched policy's run names its sources' trial keys and MLflow runs, and its anchor set
 TASK_SOURCE_TAG, ROBOT_SOURCE_TAG = "ps_ray.task_module", "ps_ray.robot_module"
 TASK_SOURCE_RUN_TAG, ROBOT_SOURCE_RUN_TAG = "ps_ray.task_module_run", "ps_ray.robot_module_run"
@@ -130,6 +133,28 @@ def code_tags() -> dict[str, str]:
     return {**tags, GIT_COMMIT_TAG: commit} if commit else tags
 
 
+def stage_tags(tracking_uri: str, experiment_id: str, sweep: str, stage: str) -> dict[str, str]:
+    """The tags every run of a sweep's stage carries: the sweep, the stage, the source, and the
+    stage's run as its parent (made once, found again by :data:`STAGE_RUN_TAG` on a resume)."""
+    from mlflow.entities import ViewType
+
+    client = _client(tracking_uri)
+    tags = {"ps_ray.sweep": sweep, STAGE_TAG: stage, **code_tags()}
+    found = client.search_runs(
+        [experiment_id],
+        filter_string=f"tags.`{STAGE_RUN_TAG}` = '{stage}'",
+        run_view_type=ViewType.ACTIVE_ONLY,
+        order_by=["attributes.start_time ASC"],
+        max_results=1,
+    )
+    if found:
+        return {**tags, PARENT_TAG: found[0].info.run_id}
+    run_tags = {"ps_ray.sweep": sweep, STAGE_RUN_TAG: stage, **code_tags()}
+    run = client.create_run(experiment_id, run_name=stage, tags=run_tags)
+    client.set_terminated(run.info.run_id, status="FINISHED")  # a folder of runs: it has no work of its own
+    return {**tags, PARENT_TAG: run.info.run_id}
+
+
 def git_commit(cwd: str | Path | None = None) -> str | None:
     """``git rev-parse HEAD`` of ``cwd`` (default: the ps_ray source tree), or None."""
     try:
@@ -159,6 +184,27 @@ def flatten_params(params: Mapping[str, Any], prefix: str = "") -> dict[str, str
         else:
             flat[name] = _param_str(value)
     return flat
+
+
+PATH_PARAMS = ("init_policy", "anchors")  # files a run starts from: logged relative to its sweep
+
+
+def relative_paths(params: Mapping[str, str], root: str | Path) -> dict[str, str]:
+    """``params`` with each file of :data:`PATH_PARAMS` under the sweep folder ``root`` written
+    relative to it, so a run reads the same wherever the sweep folder is moved or mounted."""
+    base = Path(root).expanduser().resolve()
+    out = dict(params)
+    for key in PATH_PARAMS:
+        path = Path(out.get(key) or "")
+        if path.is_absolute() and path.resolve().is_relative_to(base):
+            out[key] = path.resolve().relative_to(base).as_posix()
+    return out
+
+
+def same_param(logged: str, wanted: str) -> bool:
+    """Whether a run's logged param is ``wanted``: also a path logged absolute by a run made before
+    paths were relative (:func:`relative_paths`), so that run still resumes."""
+    return logged == wanted or (logged.startswith("/") and logged.endswith("/" + wanted))
 
 
 def _param_str(value: Any) -> str:
@@ -260,7 +306,7 @@ class TrialTracker:
 
     def _check_params(self, logged: Mapping[str, str], wanted: Mapping[str, str]) -> None:
         for key, value in wanted.items():
-            if key in logged and logged[key] != value:
+            if key in logged and not same_param(logged[key], value):
                 raise UserError(
                     f"trial {self.trial_key!r} already has run {self.run_id} with param "
                     f"{key}={logged[key]!r}, not {value!r}; use another trial key"

@@ -187,6 +187,42 @@ def test_a_policy_file_whose_settings_disagree_with_its_name_is_refused(tmp_path
         load_policy(tmp_path / "bad.safetensors")
 
 
+def test_every_format_version_reads_as_the_current_one_and_files_are_written_in_it(tmp_path):
+    """Version 1 (settings may be absent, menu names of the time) and version 2 files read as the
+    signature version 2 writes; a version this code does not know, or a version-2 file without
+    its settings, is refused in one line."""
+    from safetensors import safe_open
+    from safetensors.torch import save_file
+
+    old = OLD / "ps_ref_light_0.safetensors"
+    signature, metadata = read_signature(old)
+    assert metadata["format"] == "ps_ray.policy/1" and not json.loads(metadata["signature"]).get("settings")
+    assert signature.method == "ps+norm=layer+norm_reg=1+ref_weight=0.1" and signature.settings
+    nets, _ = load_policy(old)
+    rewritten = save_policy(tmp_path / "now.safetensors", nets, signature)
+    again, now = read_signature(rewritten)
+    assert now["format"] == "ps_ray.policy/2" and again == signature
+    with safe_open(str(old), framework="pt") as f:
+        state = {k: f.get_tensor(k) for k in f.keys()}
+    for fmt, record, message in [
+        (
+            "ps_ray.policy/3",
+            json.loads(now["signature"]),
+            "format 'ps_ray.policy/3'; this code reads ps_ray.policy/1, ps_ray.policy/2",
+        ),
+        (
+            "ps_ray.policy/2",
+            json.loads(metadata["signature"]),
+            "a ps_ray.policy/2 file must hold its method's settings",
+        ),
+    ]:
+        bad = tmp_path / "bad.safetensors"
+        save_file(state, str(bad), metadata={"format": fmt, "signature": json.dumps(record)})
+        with pytest.raises(UserError, match=message) as info:
+            read_signature(bad)
+        assert "\n" not in str(info.value)
+
+
 def test_a_run_folder_written_before_the_menu_joins_a_zoo_under_its_key(tmp_path):
     """An old sweep's run folder names an old row in its spec.json and its policy file alike."""
     from ps_ray.stitching.zoo import read_entry

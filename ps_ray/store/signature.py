@@ -1,6 +1,9 @@
 """A policy file's signature: what must agree for two modules to be stitched, stored in the
 safetensors metadata of the file (``ps_ray.nets.policy_file`` writes and loads the tensors). Read here
 without torch: the metadata alone, never a tensor, never a pickle.
+
+The one place that knows the format's versions: every reader gets a current :class:`Signature`
+from :func:`read_signature`, whatever version the file is (:func:`upgrade`).
 """
 
 from __future__ import annotations
@@ -17,7 +20,12 @@ from ps_ray.specs.defaults import MAX_WIDTH
 from ps_ray.specs.dims import NetDims
 from ps_ray.specs.methods import MethodSpec, method_spec, spec_from_dict, spec_json
 
-FORMAT = "ps_ray.policy/1"
+FORMAT_NAME = "ps_ray.policy"
+# 1: ``settings`` may be "" (the method is then a preset or an older menu name, resolved when read)
+# 2: ``settings`` always holds the resolved method
+VERSION = 2
+FORMAT = f"{FORMAT_NAME}/{VERSION}"
+FORMATS = tuple(f"{FORMAT_NAME}/{v}" for v in range(1, VERSION + 1))  # the versions this code reads
 
 
 @dataclass(frozen=True)
@@ -72,23 +80,31 @@ def read_signature(path: str | Path) -> tuple[Signature, dict[str, str]]:
             metadata = f.metadata() or {}
     except (SafetensorError, OSError, ValueError) as e:
         raise UserError(f"{path}: not a ps_ray policy file ({e})") from None
-    if metadata.get("format") != FORMAT:
+    fmt = metadata.get("format")
+    if fmt not in FORMATS:
         raise UserError(
-            f"{path}: not a ps_ray policy file (format {metadata.get('format')!r}, expected {FORMAT!r})"
+            f"{path}: not a ps_ray policy file (format {fmt!r}; this code reads {', '.join(FORMATS)})"
         )
     try:
         signature = Signature(**json.loads(metadata["signature"]))
     except (KeyError, TypeError, json.JSONDecodeError) as e:
         raise UserError(f"{path}: corrupt policy signature ({e})") from None
     problem = signature_problem(signature)
+    if problem is None and fmt != FORMATS[0] and not signature.settings:
+        problem = f"a {fmt} file must hold its method's settings"
     if problem:
         raise UserError(f"{path}: bad policy signature: {problem}")
-    if not signature.settings:  # written before the resolved method was stored: resolve its name
+    return upgrade(signature), metadata
+
+
+def upgrade(signature: Signature) -> Signature:
+    """A signature read from any version as the current version writes it: a version-1 file
+    without settings names a preset or an older menu name, resolved here; a setting added after
+    a file was written takes its default, as the nets it was trained with were built."""
+    if not signature.settings:
         spec = method_spec(signature.method)
-        signature = dataclasses.replace(signature, method=spec.name, settings=spec_json(spec))
-    else:  # written before a setting existed: the setting at its default, as the nets are built
-        signature = dataclasses.replace(signature, settings=spec_json(signature.spec))
-    return signature, metadata
+        return dataclasses.replace(signature, method=spec.name, settings=spec_json(spec))
+    return dataclasses.replace(signature, settings=spec_json(signature.spec))
 
 
 def signature_problem(signature: Signature) -> str | None:

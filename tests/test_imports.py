@@ -140,11 +140,12 @@ FLOORS = {
     "data": 4,
     "nets": 5,
     "stitching": 6,
-    "analysis": 7,
-    "rllib": 7,
-    "pipeline": 8,
-    "cli": 9,
-    "bench": 10,
+    "plan": 7,
+    "analysis": 8,
+    "rllib": 8,
+    "pipeline": 9,
+    "cli": 10,
+    "bench": 11,
 }
 
 

@@ -12,12 +12,15 @@ import pytest
 
 from ps_ray.analysis.clips import stitched_clips
 from ps_ray.analysis.page import Report
-from ps_ray.pipeline.few_shot import selected_pairs
 from ps_ray.pipeline.zero_shot import CONTROL_KEYS, RESULT_KEYS, table_of, write_atomic_csv
+from ps_ray.plan import zero_shot as zero_shot_plan
+from ps_ray.plan.catalogue import trained
+from ps_ray.plan.few_shot import selected_pairs
+from ps_ray.plan.zero_shot import evaluated_pairs
 from ps_ray.specs.names import short_name
 from ps_ray.specs.stage_settings import FewShotSpec
 from ps_ray.specs.sweep import SweepSpec
-from ps_ray.stitching.pairs import Control, StitchedPair, evaluated_pairs, pairs, pairs_from_table
+from ps_ray.stitching.pairs import Control, StitchedPair, pairs_from_table
 from ps_ray.store.layout import SweepLayout, sweep_dir
 from tests.stitch_sources import K, write_trial
 from tests.stitch_sources import spec as train_spec
@@ -103,7 +106,7 @@ def sweep_spec(tmp_path) -> SweepSpec:
 
 def test_few_shot_reads_the_pairs_zero_shot_wrote_in_the_zoos_order(sweep_spec):
     spec, table_path = sweep_spec, SweepLayout(sweep_dir(sweep_spec)).zero_shot_table
-    matrix = pairs(spec, translate=True, pairing="both")
+    matrix = zero_shot_plan.matrix(spec, trained(spec), translate=True, pairing="both")
     # per method: 4 seed pairings (2 same-seed, 2 cross-seed) x 4 stitchable pairs; ps translated too
     assert len(matrix) == 4 * 4 * 2 + 4 * 4
     write_atomic_csv(table_of([(p, {"success_mean": 0.5}) for p in matrix]), table_path)
@@ -121,11 +124,11 @@ def test_few_shot_reads_the_pairs_zero_shot_wrote_in_the_zoos_order(sweep_spec):
         p for m in ("ablation", "ps") for p in same_seed if p.method == m
     ]
     settings = FewShotSpec(max_pairs=3, pairs_per_seed=2)
-    from_table = selected_pairs(spec, settings)
+    from_table = selected_pairs(evaluated_pairs(spec), settings)
     shutil.move(zoo.with_name("elsewhere"), zoo)
 
     table_path.unlink()  # a sweep that skips zero-shot: the same pairs, from the zoo
-    assert [p.key for p in selected_pairs(spec, settings)] == [p.key for p in from_table]
+    assert [p.key for p in selected_pairs(evaluated_pairs(spec), settings)] == [p.key for p in from_table]
     assert [(p.method, p.seed) for p in from_table] == [("ps", 1), ("ps", 1), ("ps", 2)] + [
         ("ablation", 1),
         ("ablation", 1),
@@ -139,7 +142,7 @@ def test_few_shot_reads_the_pairs_zero_shot_wrote_in_the_zoos_order(sweep_spec):
 
 def write_table(spec: SweepSpec) -> list[StitchedPair]:
     """zero_shot.csv of the sweep's same-seed pairs, every figure 0.5; returns the pairs."""
-    matrix = pairs(spec)
+    matrix = zero_shot_plan.matrix(spec, trained(spec))
     figures = {k: 0.5 for k in (*RESULT_KEYS, *CONTROL_KEYS)}
     write_atomic_csv(table_of([(p, figures) for p in matrix]), SweepLayout(sweep_dir(spec)).zero_shot_table)
     return matrix

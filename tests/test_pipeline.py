@@ -34,6 +34,7 @@ from ps_ray.store.layout import SweepLayout
 from ps_ray.store.stages import stage_state
 from ps_ray.store.tracking import TRIAL_KEY_TAG
 from tests.conftest import own_ray_env, wait_until_serving
+from tests.plan_checks import assert_stages_launched_their_plans
 
 SMOKE = Path(__file__).resolve().parents[1] / "sweeps" / "smoke.yaml"
 FIGURES = {
@@ -201,12 +202,13 @@ def test_a_pipeline_killed_in_every_stage_resumes_without_redoing_finished_work(
     ]
     assert relaunched and all(read_rows(f)[0]["iteration"] > 1 for f in relaunched)
     # the report covers exactly the trials and stitched pairs an uninterrupted run would have
-    from ps_ray.stitching.pairs import pairs
+    from ps_ray.plan.catalogue import trained
+    from ps_ray.plan.zero_shot import matrix
 
     tables = root / "report" / "tables"
     sources = pd.read_csv(tables / "training_sources.csv")["run"]
     assert sorted(sources) == sorted(t.label() for t in spec.trials())  # each once
-    expected = {(p.method, p.label) for p in pairs(spec)}  # a row per pair, over its seeds
+    expected = {(p.method, p.label) for p in matrix(spec, trained(spec))}  # a row per pair, over its seeds
     zero_shot = pd.read_csv(tables / "zero_shot.csv")
     assert sorted(zip(zero_shot["method"], zero_shot["label"])) == sorted(expected)
     assert (zero_shot["seeds"] == len(spec.seeds)).all()
@@ -215,7 +217,8 @@ def test_a_pipeline_killed_in_every_stage_resumes_without_redoing_finished_work(
     assert len(_runs(root, "few_shot")) == 6
     assert len(pd.read_csv(root / "zero_shot.csv")) == 16
     assert all(stage_state(spec, s) == "done" for s in spec.stages)
-    # the cost projection (`--check`) counted, from the spec alone, the trials each stage ran
+    # every stage launched the trials its plan lists from the spec alone, as `--check` prices them
+    assert_stages_launched_their_plans(spec)
     projected = {load.stage: len(load.trials) for load in workload(spec)}
     assert projected == {
         "anchors_plain": len(_runs(root, "anchors_plain")),

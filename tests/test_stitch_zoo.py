@@ -160,7 +160,8 @@ def test_combos_is_the_valid_matrix(sweep):
 def test_the_cost_model_counts_the_pairs_the_zoo_stitches(sweep):
     """One pairing rule: the pairs the cost model counts from a sweep's spec, before training, are
     the zoo's matrix after it; a pick task module never meets a robot module without a gripper."""
-    from ps_ray.analysis.workload import stitch_pairs
+    from ps_ray.plan.catalogue import planned
+    from ps_ray.plan.zero_shot import matrix
     from ps_ray.specs.sweep import SweepSpec
 
     grid = SweepSpec(
@@ -173,8 +174,8 @@ def test_the_cost_model_counts_the_pairs_the_zoo_stitches(sweep):
         train={"hidden": 16},
     )
     counted = {
-        (str(t.robot.short), str(t.task.short), str(r.robot.short), str(r.task.short))
-        for t, r in stitch_pairs(grid, "ablation")
+        (p.task_from_robot.short, p.task.short, p.robot_from_robot.short, p.robot_from_task.short)
+        for p in matrix(grid, planned(grid), ["ablation"])
     }
     stitched = {
         (c.task_from.key.robot, c.task_from.key.task, c.robot_from.key.robot, c.robot_from.key.task)

@@ -45,7 +45,8 @@ def runs(path: Path) -> dict[str, mlflow.entities.Run]:
     experiment = client.get_experiment_by_name(spec.name)
     if experiment is None:
         return {}
-    return {r.info.run_name: r for r in client.search_runs([experiment.experiment_id])}
+    found = client.search_runs([experiment.experiment_id])
+    return {r.info.run_name: r for r in found if "ps_ray.stage_run" not in r.data.tags}  # trials, not stages
 
 
 def history(path: Path, run, key: str) -> list[tuple[int, float]]:
@@ -66,11 +67,14 @@ def test_sweep_tracks_one_mlflow_run_per_trial_with_artifacts(tmp_path, cli, tin
     consolidated = f"{distilled}/panda/reach/1/i8"
     assert sorted(found) == ["ablation/panda/reach/1/i8", plain, "ps/panda/reach/1/i8", consolidated]
     assert found[plain].data.tags["ps_ray.stage"] == "anchors_plain"
+    client = mlflow.MlflowClient(f"sqlite:///{sweep_dir(load_sweep(path)) / 'mlflow.db'}")
+    for run in found.values():  # each nested under its stage's run
+        parent = client.get_run(run.data.tags["mlflow.parentRunId"])
+        assert parent.data.tags["ps_ray.stage_run"] == run.data.tags["ps_ray.stage"] == parent.info.run_name
     # every run names the device its trial trained on (the default request: one CPU, no GPU)
     on_cpu = {"ps_ray.device": "cpu", "ps_ray.cpus": "1", "ps_ray.gpu_share": "0"}
     assert all({k: r.data.tags.get(k) for k in on_cpu} == on_cpu for r in found.values())
     found.pop(plain)
-    client = mlflow.MlflowClient(f"sqlite:///{sweep_dir(load_sweep(path)) / 'mlflow.db'}")
     for name, run in found.items():
         assert run.info.status == "FINISHED"
         assert run.data.params["method"] == name.split("/")[0]

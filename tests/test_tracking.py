@@ -22,6 +22,7 @@ from ps_ray.pipeline.tune_tracking import (
     lookup,
     spec_key,
 )
+from ps_ray.store.mlflow_values import relative_paths
 from ps_ray.store.tracking import (
     PARENT_TAG,
     TRIAL_KEY_TAG,
@@ -30,7 +31,6 @@ from ps_ray.store.tracking import (
     default_tracking_uri,
     ensure_experiment,
     git_commit,
-    relative_paths,
     runs_page,
     stage_tags,
 )

@@ -16,9 +16,12 @@ from ps_ray.nets.policy_file import load_policy
 from ps_ray.pipeline.few_shot import curves, run_few_shot
 from ps_ray.pipeline.sweep import run_sweep, sweep_dir
 from ps_ray.pipeline.zero_shot import run_zero_shot, summary
+from ps_ray.plan.catalogue import trained
+from ps_ray.plan.zero_shot import matrix
 from ps_ray.specs.sweep import load_sweep
-from ps_ray.stitching.pairs import pairs, pairs_from_table
+from ps_ray.stitching.pairs import pairs_from_table
 from ps_ray.store.signature import read_signature
+from tests.plan_checks import assert_stages_launched_their_plans
 
 
 @pytest.fixture(scope="module")
@@ -47,7 +50,7 @@ def trained_matrix(tmp_path_factory, ray_local, tiny_train):
 
 def test_zero_shot_matrix_of_a_sweep(trained_matrix):
     spec = trained_matrix
-    found = pairs(spec)
+    found = matrix(spec, trained(spec))
     # task module of (region X, arm A) with robot module of (region Y != X, arm B != A)
     assert len(found) == 4
     for pair in found:
@@ -92,7 +95,9 @@ def test_zero_shot_matrix_of_a_sweep(trained_matrix):
 
     client = mlflow.MlflowClient(f"sqlite:///{sweep_dir(spec) / 'mlflow.db'}")
     experiment = client.get_experiment_by_name("matrix")
-    found_runs = client.search_runs([experiment.experiment_id])
+    found_runs = [
+        r for r in client.search_runs([experiment.experiment_id]) if "ps_ray.trial_key" in r.data.tags
+    ]
     stages = [r.data.tags["ps_ray.stage"] for r in found_runs]
     # one run per stitched pair, its controls' figures among its metrics
     assert stages.count("zero_shot") == 4 and stages.count("train") == 4
@@ -212,6 +217,8 @@ def test_a_grid_s_held_out_cell_is_stitched_from_its_modules_beside_its_controls
     )
     assert row["transfer_gain"] == pytest.approx(row["success_mean"] - row["best_control"])
     assert co_training_numbers(table)["pairs"].tolist() == [1]  # beside the same pair trained alone
+    # the grid and zero-shot stages launched the trials their plans list from the spec alone
+    assert_stages_launched_their_plans(spec, dataclasses.replace(spec.zero_shot, episodes=3, repeats=1))
     client = mlflow.MlflowClient(f"sqlite:///{copy / spec.name / 'mlflow.db'}")
     experiment = client.get_experiment_by_name("matrix")
     (grid_run,) = client.search_runs([experiment.experiment_id], "tags.`ps_ray.stage` = 'grid'")
@@ -238,7 +245,7 @@ def test_few_shot_trials_start_from_stitched_weights_beside_unstitched_and_scrat
     assert not any(r.error for r in results)
     by_kind = {r.config["trial"]["kind"]: r.config["trial"] for r in results}
     assert sorted(by_kind) == ["robot_module", "scratch", "stitched", "task_module", "unstitched"]
-    first = pairs(spec)[0]
+    first = matrix(spec, trained(spec))[0]
     start = by_kind["stitched"]["spec"]["init_policy"]
     assert start and Path(start).exists()
     assert read_signature(start)[1]["task_from"] == first.task_from

@@ -6,10 +6,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
+from ps_ray.plan.zero_shot import evaluated_pairs
 from ps_ray.specs import reset_seeds
 from ps_ray.specs.names import short_name
 from ps_ray.specs.sweep import SweepSpec
-from ps_ray.stitching.pairs import StitchedPair, evaluated_pairs
+from ps_ray.stitching.pairs import StitchedPair
 
 CLIP_SIZE = (240, 180)  # pixels; every second step, so a clip is about 26 frames
 START_SEED = reset_seeds.fixed("clips")  # the env reset every clip starts from
@@ -50,7 +51,7 @@ def stitched_clips(spec: SweepSpec, out_dir: Path, pairs_per_method: int = 2) ->
     """Rows of clips: per chosen pair (the first ``pairs_per_method`` that every method has, at the
     first seed), each method's stitched policy in the target env, then its two sources in their
     own envs. The pairs and their sources' files and envs are the zero-shot table's records
-    (:func:`ps_ray.stitching.pairs.evaluated_pairs`). Returns (pair label, clips) rows; empty when
+    (:func:`ps_ray.plan.zero_shot.evaluated_pairs`). Returns (pair label, clips) rows; empty when
     the sweep has no stitchable pairs."""
     from ps_ray.stitching.stitch import stitch_policies
 

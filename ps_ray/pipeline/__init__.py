@@ -1,9 +1,11 @@
 """The orchestration: every module here runs or records the sweep's stages with Ray Tune and
-MLflow. ``run`` (``ps-ray run``: the stages in order), ``sweep`` (the train stage: plain sources,
-anchors, the grid), ``zero_shot``, ``few_shot``, ``trials`` (the one Tune runner), ``progress``
-(the live view), ``layout`` (every path of a sweep folder), ``tracking`` (MLflow, no Ray),
-``tune_tracking`` (the Tune callback that feeds it) and ``cost`` (a sweep's projected cost).
+MLflow, each stage running its plan (:mod:`ps_ray.plan`). ``run`` (``ps-ray run``: the stages in
+order), ``stage`` (what every stage shares), ``sweep`` (the train stage: plain sources, anchors,
+sources), ``grid``, ``zero_shot``, ``few_shot``, ``trials`` (the one Tune runner), ``search`` (a
+search's scheduler), ``progress`` (the live view), ``tune_tracking`` (the Tune callback that feeds
+MLflow), ``heap`` and ``preemption``.
 
-Importing this package loads no Ray: the report reads stored results through ``layout`` and
-``tracking`` alone. Everything the stages build on (envs, nets, policy files, stitching,
-evaluation) lives outside it and never imports Ray or MLflow."""
+Importing this package loads no Ray. The folder layout and MLflow are the store's
+(:mod:`ps_ray.store.layout`, :mod:`ps_ray.store.tracking`), the cost model analysis'
+(:mod:`ps_ray.analysis.cost`); everything the stages build on (envs, nets, policy files,
+stitching, evaluation) lives outside this package and never imports Ray."""

@@ -2,7 +2,7 @@
 
 For each stitched pair of one seed without a translation, of the methods named (read from
 ``zero_shot.csv`` where the zero-shot stage wrote it, else from the zoo:
-:func:`ps_ray.stitching.pairs.evaluated_pairs`), the stitched actor, critics and target critics
+:func:`ps_ray.plan.zero_shot.evaluated_pairs`), the stitched actor, critics and target critics
 are saved and a training trial starts from them: first `collect_steps` of data collection
 without updates (the paper: 10 epochs), then training. The same target env trained
 from scratch runs beside it, so MLflow holds both learning curves (success vs env steps), and,
@@ -13,109 +13,41 @@ with ``few_shot.halves``, each half of the stitch beside a fresh other half
 from __future__ import annotations
 
 import dataclasses
-import hashlib
-from collections import Counter
-from pathlib import Path
 from typing import Any
 
 from ps_ray.errors import UserError
 from ps_ray.pipeline.stage import layout
-from ps_ray.pipeline.sweep import anchor_file
+from ps_ray.plan import few_shot as few_shot_plan
+from ps_ray.plan.catalogue import trained
+from ps_ray.plan.zero_shot import evaluated_pairs
 from ps_ray.specs.names import trial_key
 from ps_ray.specs.stage_settings import FewShotSpec
 from ps_ray.specs.sweep import SweepSpec
-from ps_ray.specs.train import TrainSpec
-from ps_ray.specs.trial import TrainTrial
-from ps_ray.stitching.pairs import StitchedPair, evaluated_pairs
+from ps_ray.specs.trial import STITCHED_STARTS, TrainTrial
+from ps_ray.stitching.pairs import StitchedPair
 from ps_ray.store.layout import sweep_dir
 
 
-def selected_pairs(spec: SweepSpec, settings: FewShotSpec) -> list[StitchedPair]:
-    """The pairs few-shot starts from: per method, the first ``max_pairs``, at most
-    ``pairs_per_seed`` of each seed, in the matrix's order."""
-    selected, taken, per_seed = [], Counter(), Counter()
-    for pair in evaluated_pairs(spec, list(settings.methods) or None):
-        seed_key = (pair.method, pair.seed)
-        if settings.max_pairs is not None and taken[pair.method] >= settings.max_pairs:
-            continue
-        if settings.pairs_per_seed is not None and per_seed[seed_key] >= settings.pairs_per_seed:
-            continue
-        taken[pair.method] += 1
-        per_seed[seed_key] += 1
-        selected.append(pair)
-    return selected
-
-
 def few_shot_trials(spec: SweepSpec, settings: FewShotSpec) -> list[TrainTrial]:
-    """The trials of `sweep_trial`: stitched starts (:func:`selected_pairs`), with
-    ``halves`` each half of the stitch beside a fresh other half, each pair's robot source
-    fine-tuned as it is (unstitched), and from-scratch baselines. Starts from
-    trained weights fit their critics alone for ``critic_warmup_updates`` updates first."""
-    from ps_ray.stitching.halves import HALVES
-    from ps_ray.store.signature import read_signature
-
-    trials, targets, seen = [], {}, set()
-    for pair in selected_pairs(spec, settings):
-        path = _start_file(spec, pair, "stitched")
-        signature = read_signature(path)[0]
-        base = TrainSpec.from_mapping(
-            {
-                **dict(spec.train),
-                "method": pair.method,
-                "robot": pair.robot,
-                "task": pair.task,
-                "seed": pair.seed,
-                "interface_dim": signature.interface_dim,
-                "env_steps": settings.env_steps,
-                "learning_starts": settings.collect_steps,
-                "random_episodes": 0,
-            }
-        )
-        warm = {"critic_warmup_updates": settings.critic_warmup_updates}
-        stitched = TrainSpec.from_mapping({**base.to_dict(), **warm, "init_policy": str(path)})
-        trials.append(
-            TrainTrial(
-                stitched,
-                key=f"few_shot/{pair.label}/{trial_key(base.to_dict())}",
-                label=pair.label,
-                kind="stitched",
-            )
-        )
-        for kind in HALVES if settings.halves else ():  # one half of the stitch, the other fresh
-            start = TrainSpec.from_mapping(
-                {**base.to_dict(), **warm, "init_policy": str(_start_file(spec, pair, kind))}
-            )
-            trials.append(
-                TrainTrial(
-                    start, key=f"{kind}/{pair.label}/{trial_key(base.to_dict())}", label=pair.label, kind=kind
-                )
-            )
-        own = pair.controls.get("robot_source")
-        if settings.unstitched and own is not None:  # the robot source as it is, fine-tuned
-            unstitched = TrainSpec.from_mapping({**base.to_dict(), **warm, "init_policy": own.path})
-            key = f"unstitched/{own.source}/{trial_key(base.to_dict())}"
-            if key not in seen:
-                seen.add(key)
-                trials.append(TrainTrial(unstitched, key=key, label=key, kind="unstitched"))
-        targets.setdefault(trial_key(base.to_dict()), base)
-    if settings.scratch:  # PS from scratch uses the sweep's anchor set, as its stitched sources
-        trials += [
-            TrainTrial(base, anchor_file(spec, base), key=f"scratch/{key}", label=key, kind="scratch")
-            for key, base in targets.items()
-        ]
-    return trials
+    """The stage's plan (:func:`ps_ray.plan.few_shot.plan`) on the trained zoo and the pairs the
+    zero-shot stage evaluated, with the policy file of every stitched start written."""
+    zoo = trained(spec)
+    pairs = evaluated_pairs(spec, list(settings.methods) or None)
+    for pair in few_shot_plan.selected_pairs(pairs, settings):
+        for kind in few_shot_plan.starts(settings):
+            _write_start(spec, pair, kind)
+    return few_shot_plan.plan(spec, zoo, pairs, settings)
 
 
-def _start_file(spec: SweepSpec, pair: StitchedPair, kind: str) -> Path:
-    """The policy file a start of the pair begins from: its stitch, or (``kind`` one of
-    :data:`HALVES`) the stitch with one half fresh, drawn from the pair's seed; written once, so a
-    resumed stage keeps the files its trials started from."""
+def _write_start(spec: SweepSpec, pair: StitchedPair, kind: str) -> None:
+    """The policy file a start of the pair begins from (:func:`ps_ray.plan.few_shot.start_file`):
+    its stitch, or (``kind`` one of the halves) the stitch with one half fresh, drawn from the
+    pair's seed; written once, so a resumed stage keeps the files its trials started from."""
     from ps_ray.nets.policy_file import save_policy
     from ps_ray.stitching.halves import half_stitch
     from ps_ray.stitching.stitch import stitch_policies
 
-    name = f"{pair.task_from}|{pair.robot_from}" + ("" if kind == "stitched" else f"|{kind}")
-    path = layout(spec).stitched / f"{hashlib.sha256(name.encode()).hexdigest()[:16]}.safetensors"
+    path = few_shot_plan.start_file(spec, pair, kind)
     if not path.exists():
         if kind == "stitched":
             nets, signature = stitch_policies(pair.task_from_path, pair.robot_from_path)
@@ -123,7 +55,6 @@ def _start_file(spec: SweepSpec, pair: StitchedPair, kind: str) -> Path:
             nets, signature = half_stitch(pair.task_from_path, pair.robot_from_path, kind, pair.seed)
         extra = {"task_from": pair.task_from, "robot_from": pair.robot_from, "start": kind}
         save_policy(path, nets, signature, extra=extra)
-    return path
 
 
 def run_few_shot(spec: SweepSpec, *, resume: bool = False, progress: bool = True, **overrides: Any):
@@ -167,13 +98,12 @@ START_TAG, TARGET_TAG, PAIR_TAG = "ps_ray.start", "ps_ray.target", "ps_ray.pair"
 def _source_tags(trial: TrainTrial, client, experiment_id: str) -> dict[str, str]:
     """A fine-tuning run's start, target and pair; a stitched start's also its two sources (their
     runs) and anchor set."""
-    from ps_ray.stitching.halves import HALVES
     from ps_ray.store.signature import read_signature
     from ps_ray.store.tracking import source_tags
 
     target = {k: v for k, v in trial.spec.to_dict().items() if k != "init_policy"}
     tags = {START_TAG: trial.kind, TARGET_TAG: trial_key(target)}
-    if trial.kind in ("stitched", *HALVES):
+    if trial.kind in STITCHED_STARTS:
         tags[PAIR_TAG] = trial.label
     start = trial.spec.init_policy
     if trial.kind != "stitched" or not start:

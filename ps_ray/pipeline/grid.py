@@ -9,9 +9,10 @@ from __future__ import annotations
 from typing import Any
 
 from ps_ray.pipeline.stage import connect, record_spec, require_same_sweep
-from ps_ray.pipeline.sweep import anchor_file, prepare_sweep_anchors, report_ticks, run_tune
-from ps_ray.specs.grid import GridSpec
+from ps_ray.pipeline.sweep import prepare_sweep_anchors, report_ticks, run_tune
+from ps_ray.plan import grid as grid_plan
 from ps_ray.specs.sweep import SweepSpec
+from ps_ray.specs.trial import GridTrial
 from ps_ray.store.layout import SweepLayout, sweep_dir
 
 
@@ -22,11 +23,12 @@ def grid_trial(config: dict[str, Any]) -> None:
     from ps_ray.data.anchor_file import load_anchor_set
     from ps_ray.rllib.grid_train import GridRun
 
-    trial = config["trial"]
-    grid = GridSpec.from_mapping(trial["grid"])
-    anchor_sets = [None if path is None else load_anchor_set(path) for path in trial["anchors"]]
+    trial = GridTrial.of(config["trial"])
+    anchor_sets = [None if path is None else load_anchor_set(path) for path in trial.anchors]
     granted = ray.get_runtime_context().get_assigned_resources()
-    report_ticks(GridRun(grid, anchor_sets, threads=max(1, int(granted.get("CPU", 1)))), config, "trial")
+    report_ticks(
+        GridRun(trial.grid, anchor_sets, threads=max(1, int(granted.get("CPU", 1)))), config, "trial"
+    )
 
 
 def run_grids(spec: SweepSpec, *, resume: bool = False, progress: bool = True):
@@ -39,19 +41,8 @@ def run_grids(spec: SweepSpec, *, resume: bool = False, progress: bool = True):
     # a sweep that co-trains without training alone makes its anchor sets here (policy random or
     # a file; policy plain needs the train stage, as the spec says); made ones are kept
     prepare_sweep_anchors(spec)
-    configs = [
-        {
-            "grid": grid.to_dict(),
-            "anchors": [
-                anchor_file(spec, grid.cell_spec(next(c for c in grid.cells if c[1] == t)))
-                for t in grid.tasks
-            ],
-            "key": grid.run_key,
-        }
-        for grid in spec.grid.grids(spec)
-    ]
     return run_tune(
-        [],
+        grid_plan.plan(spec),
         folder=SweepLayout(sweep_dir(spec)).tune_grid,
         stage="grid",
         spec=spec,
@@ -59,15 +50,13 @@ def run_grids(spec: SweepSpec, *, resume: bool = False, progress: bool = True):
         resume=resume,
         progress=progress,
         trainable=grid_trial,
-        configs=configs,
-        key_fn=lambda trial: trial.config["trial"]["key"],
-        params_fn=lambda trial: _params(trial.config["trial"]),
+        key_fn=lambda trial: GridTrial.of(trial.config["trial"]).run_name,
+        params_fn=lambda trial: _params(GridTrial.of(trial.config["trial"])),
         artifacts_fn=lambda trial: [],
     )
 
 
-def _params(config: dict[str, Any]) -> dict[str, str]:
+def _params(trial: GridTrial) -> dict[str, str]:
     from ps_ray.pipeline.tune_tracking import spec_params
 
-    grid = GridSpec.from_mapping(config["grid"])
-    return {**spec_params(grid.base.to_dict()), "held_out": grid.held_out_text}
+    return {**spec_params(trial.grid.base.to_dict()), "held_out": trial.grid.held_out_text}

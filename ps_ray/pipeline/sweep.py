@@ -13,12 +13,13 @@ from functools import partial
 from pathlib import Path
 from typing import Any
 
-from ps_ray.pipeline.stage import connect, layout, raise_on_errors, record_spec, require_same_sweep
+from ps_ray.pipeline.stage import connect, raise_on_errors, record_spec, require_same_sweep
+from ps_ray.plan import train as train_plan
+from ps_ray.plan.train import anchor_file
 from ps_ray.specs import reset_seeds
 from ps_ray.specs.stages import stage as stage_record
 from ps_ray.specs.sweep import SweepSpec, anchor_sources, task_input_dim
-from ps_ray.specs.train import TrainSpec
-from ps_ray.specs.trial import TrainTrial
+from ps_ray.specs.trial import GridTrial, TrainTrial
 from ps_ray.store.layout import SweepLayout, sweep_dir
 from ps_ray.store.run_layout import METRIC_FIELDS, POLICY_FILE, SIGNATURE_FILE, SPEC_FILE
 
@@ -30,15 +31,6 @@ SCHEDULED_METRICS = {"eval_success": None, "best_eval_success": None}
 
 
 # -- anchors -------------------------------------------------------------------------------------
-def anchor_file(spec: SweepSpec, trial: TrainSpec) -> str | None:
-    """The one place that decides where a PS trial of this sweep (train, few-shot scratch) gets
-    its anchors: the sweep's anchor set for the trial's task-input width and K. None for methods
-    without anchors. (A stitched start carries its anchors in its policy file.)"""
-    if not trial.resolved.uses_anchors:
-        return None
-    return str(layout(spec).anchor_set(task_input_dim(trial.task), trial.interface_dim))
-
-
 def prepare_sweep_anchors(
     spec: SweepSpec, plain_policies: dict[str, Path] | None = None
 ) -> dict[tuple[int, int], str]:
@@ -205,10 +197,9 @@ def run_sweep(spec: SweepSpec, *, resume: bool = False, progress: bool = True):
 
     plain_policies = None
     needs_anchors = any(not Path(p).exists() for p in _anchor_paths(spec))
-    if spec.anchors.policy == "plain" and needs_anchors and not spec.anchors.file:
-        sources = anchor_sources(spec)
+    if needs_anchors and (sources := train_plan.plain_sources(spec)):
         grid = run_tune(
-            [TrainTrial(s) for s in sources],
+            sources,
             folder=SweepLayout(root).tune_plain,
             stage="anchors_plain",
             # its own runs: the same plain spec may also be a trial of the grid
@@ -220,10 +211,7 @@ def run_sweep(spec: SweepSpec, *, resume: bool = False, progress: bool = True):
             TrainTrial.of(r.config["trial"]).spec.label(): r.checkpoint / "policy.safetensors" for r in grid
         }
     prepare_sweep_anchors(spec, plain_policies)
-    trials = [
-        TrainTrial(t, anchor_file(spec, t), key=f"{t.label()}/{name}" if name else "", label=name)
-        for name, t in spec.named_trials()
-    ]
+    trials = train_plan.plan(spec)
     folder = SweepLayout(root).tune_train
     scheduler_fn = None
     if spec.search.active:
@@ -247,7 +235,7 @@ def _anchor_paths(spec: SweepSpec) -> list[Path]:
 
 
 def run_tune(
-    trials: list[TrainTrial],
+    trials: list[TrainTrial] | list[GridTrial],
     *,
     folder: Path,
     stage: str,
@@ -258,19 +246,19 @@ def run_tune(
     key_fn=None,
     tags_fn=None,
     trainable=None,
-    configs: list[dict] | None = None,
     params_fn=None,
     artifacts_fn=None,
     scheduler_fn=None,
 ):
-    """Training trials (sweep_trial) as one Tune experiment in ``folder``, tracked in MLflow;
-    another ``trainable`` takes ``configs`` (its ``config["trial"]``) instead of ``trials``;
+    """Training trials (sweep_trial; a grid's: ``trainable`` grid_trial) as one Tune experiment in
+    ``folder``, tracked in MLflow, each trial's record as its ``config["trial"]``;
     ``scheduler_fn``: :func:`ps_ray.pipeline.trials.run_trials`'."""
 
     from ps_ray.pipeline.trials import run_trials
     from ps_ray.pipeline.tune_tracking import MLflowTuneCallback, default_params_fn
     from ps_ray.specs.resources import device_tags
-    from ps_ray.store.tracking import relative_paths, stage_tags
+    from ps_ray.store.mlflow_values import relative_paths
+    from ps_ray.store.tracking import stage_tags
 
     resources = getattr(spec.resources, stage_record(stage).name)
     callback = MLflowTuneCallback(
@@ -290,7 +278,7 @@ def run_tune(
     )
     return run_trials(
         trainable or sweep_trial,
-        {"trial": configs if configs is not None else [t.config() for t in trials]},
+        {"trial": [t.config() for t in trials]},
         folder=folder,
         stage=stage,
         callback=callback,

@@ -12,12 +12,12 @@ from typing import TYPE_CHECKING, Any
 from ray.tune import Callback
 
 from ps_ray.specs.names import trial_key
+from ps_ray.store.mlflow_values import flatten_params
 from ps_ray.store.tracking import (
     GIT_COMMIT_TAG,
     TrialTracker,
     _client,
     _first_line,
-    flatten_params,
     git_commit,
 )
 

@@ -24,11 +24,13 @@ import pandas as pd
 
 from ps_ray.errors import UserError
 from ps_ray.pipeline.stage import layout, raise_on_errors
+from ps_ray.plan import zero_shot as zero_shot_plan
+from ps_ray.plan.catalogue import trained
 from ps_ray.specs import reset_seeds
 from ps_ray.specs.names import CONTROL_ROLES, split_translation
 from ps_ray.specs.stage_settings import ZeroShotSpec
 from ps_ray.specs.sweep import SweepSpec
-from ps_ray.stitching.pairs import StitchedPair, pairs
+from ps_ray.stitching.pairs import StitchedPair
 from ps_ray.store.atomic import atomic_path
 from ps_ray.store.layout import sweep_dir
 
@@ -246,7 +248,7 @@ def run_zero_shot(
     root, folder = sweep_dir(spec), layout(spec).tune_zero_shot
     if not resume:
         require_fresh(folder, "batch", "zero_shot")
-    trials = pairs(spec, list(settings.methods) or None, translate=True, pairing=settings.pairs)
+    trials = zero_shot_plan.plan(spec, trained(spec), settings)
     if not trials:
         raise UserError(f"{root}: no stitchable pairs (train the sweep first: ps-ray sweep)")
     check_sources(trials)

@@ -1,7 +1,8 @@
-"""One training trial as the stages hand it to Tune and read it back: the :class:`TrainTrial`
-record. Its Tune config is plain JSON (``TrainTrial.config``), the same a stage wrote before the
-record existed, so a resumed stage finds its trials and stored ``params.json`` files still read
-(``TrainTrial.of``)."""
+"""The trials the training stages hand to Tune and read back, as typed records: a
+:class:`TrainTrial` (a source, an anchor policy or a few-shot start) and a :class:`GridTrial` (a
+co-trained grid). Their Tune configs are plain JSON (``config``), the same a stage wrote before the
+records existed, so a resumed stage finds its trials and stored ``params.json`` files still read
+(``of``). A zero-shot trial's record is :class:`ps_ray.stitching.pairs.StitchedPair`."""
 
 from __future__ import annotations
 
@@ -10,13 +11,16 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
+from ps_ray.specs.grid import GridSpec
 from ps_ray.specs.names import trial_key
 from ps_ray.specs.train import TrainSpec
 
 # What a training trial is: a source of the grid or of the anchors, or a few-shot start
 # (ps_ray.pipeline.few_shot): the stitched pair, one half of it beside a fresh other half, the
 # pair's robot source as it is, or the target env from scratch.
-KINDS = ("train", "stitched", "robot_module", "task_module", "unstitched", "scratch")
+HALVES = ("robot_module", "task_module")  # which half of the stitch a start keeps (the other fresh)
+KINDS = ("train", "stitched", *HALVES, "unstitched", "scratch")
+STITCHED_STARTS = ("stitched", *HALVES)  # the starts made from a stitched pair
 
 
 @dataclass(frozen=True)
@@ -53,3 +57,23 @@ class TrainTrial:
         fields = {f.name for f in dataclasses.fields(cls)}
         given = {k: v for k, v in config.items() if k in fields and k != "spec"}
         return cls(spec=TrainSpec.from_mapping(config["spec"]), **given)
+
+
+@dataclass(frozen=True)
+class GridTrial:
+    """One co-trained grid: its spec and the anchor-set file of each of its tasks (None where the
+    method has no anchors), in ``grid.tasks`` order."""
+
+    grid: GridSpec
+    anchors: tuple[str | None, ...]
+
+    @property
+    def run_name(self) -> str:
+        return self.grid.run_key
+
+    def config(self) -> dict[str, Any]:
+        return {"grid": self.grid.to_dict(), "anchors": list(self.anchors), "key": self.run_name}
+
+    @classmethod
+    def of(cls, config: Mapping[str, Any]) -> GridTrial:
+        return cls(GridSpec.from_mapping(config["grid"]), tuple(config["anchors"]))

@@ -14,11 +14,10 @@ import torch
 
 from ps_ray.nets.from_signature import build_nets
 from ps_ray.nets.sac import SACNets
+from ps_ray.specs.trial import HALVES
 from ps_ray.stitching.rule import check_stitchable
 from ps_ray.stitching.stitch import PolicySource, load_source, stitch_policies
 from ps_ray.store.signature import Signature
-
-HALVES = ("robot_module", "task_module")  # which half of the pair a start keeps
 
 
 def half_stitch(

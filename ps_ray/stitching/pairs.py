@@ -1,7 +1,8 @@
-"""The stitching matrix of a sweep: one :class:`StitchedPair` per stitched pair, with its sources,
-target env and controls. The zero-shot trials' configs (:meth:`StitchedPair.to_dict`), the rows of
-``zero_shot.csv`` (:meth:`StitchedPair.to_row`), few-shot's starts and the report's clips are this
-one record; few-shot and the clips read it back from the table (:func:`evaluated_pairs`).
+"""A stitched pair as one record, :class:`StitchedPair`, with its sources, target env and controls
+(the zero-shot stage's plan makes them: :mod:`ps_ray.plan.zero_shot`). The zero-shot trials'
+configs (:meth:`StitchedPair.to_dict`), the rows of ``zero_shot.csv`` (:meth:`StitchedPair.to_row`),
+few-shot's starts and the report's clips are this one record; few-shot and the clips read it back
+from the table (:func:`pairs_from_table`).
 
 Ray- and torch-free at import: the report reads the table through it."""
 
@@ -17,8 +18,6 @@ from typing import Any
 
 from ps_ray.errors import UserError
 from ps_ray.specs.names import CONTROL_ROLES, EnvPart, parse_spec_text, plain_json
-from ps_ray.specs.sweep import SweepSpec, seed_pairs
-from ps_ray.store.layout import SweepLayout, sweep_dir
 
 # fields that are a robot or task (an EnvPart; its text in a row)
 ENV_FIELDS = ("robot", "task", "task_from_robot", "robot_from_robot", "robot_from_task")
@@ -141,54 +140,6 @@ def _text(value: Any) -> str:
     return "" if value is None or value != value else str(value)
 
 
-def pairs(
-    spec: SweepSpec, methods: list[str] | None = None, translate: bool = False, pairing: str = "same_seed"
-) -> list[StitchedPair]:
-    """Every stitched pair of the sweep's trained policies (``pairing``: see :func:`seed_pairs`),
-    from its zoo, with the zoo keys and files of its controls
-    (:func:`ps_ray.stitching.matrix.controls`); with ``translate``, also one per latent
-    translation that ``spec.zero_shot.translate`` names for the method (its method shown as
-    ``<method>+<translation>``, right after the untranslated pair)."""
-    from ps_ray.stitching.matrix import combos, controls
-    from ps_ray.stitching.zoo import ModuleZoo
-
-    zoo = ModuleZoo.from_sweep(sweep_dir(spec))
-    out = []
-    for method, grid in ((m, g) for m in methods or spec.methods for g in ("", *zoo.grids(m))):
-        kinds = ("", *spec.zero_shot.translations(method)) if translate else ("",)
-        shown = f"{method} {CO_TRAINED}" if grid else method  # a co-trained grid's pairs: their own rows
-        for kind_of_pair, seed, robot_seed in seed_pairs(spec.seeds, pairing):
-            for combo in combos(zoo, method, seed, robot_seed=robot_seed, grid=grid):
-                seeds = str(seed) if kind_of_pair == "same_seed" else f"{seed}x{robot_seed}"
-                t, r = combo.task_from, combo.robot_from
-                found = {role: Control(str(e.key), str(e.path)) for role, e in controls(zoo, combo).items()}
-                for kind in kinds:
-                    name = f"{shown}+{kind}" if kind else shown
-                    out.append(
-                        StitchedPair(
-                            key=f"zero_shot/{name}/{combo.label}/{seeds}"
-                            + (f"/held_out={grid}" if grid else ""),
-                            method=name,
-                            translation=kind,
-                            pairing=kind_of_pair,
-                            seed=seed,
-                            robot_seed=robot_seed,
-                            label=combo.label,
-                            task_from=str(t.key),
-                            robot_from=str(r.key),
-                            task_from_path=str(t.path),
-                            robot_from_path=str(r.path),
-                            robot=combo.robot,
-                            task=combo.task,
-                            task_from_robot=t.robot,
-                            robot_from_robot=r.robot,
-                            robot_from_task=r.task,
-                            controls=found,
-                        )
-                    )
-    return out
-
-
 def pairs_from_table(path: Path) -> list[StitchedPair] | None:
     """The pairs of a ``zero_shot.csv``, in its order (the matrix's, :func:`pairs`); None when
     there is no table, or it was written before its rows carried the sources' files."""
@@ -203,20 +154,3 @@ def pairs_from_table(path: Path) -> list[StitchedPair] | None:
         return [StitchedPair.from_row(row, path.parent) for row in rows]
     except (KeyError, ValueError) as e:  # a damaged table: one line naming it
         raise UserError(f"{path}: unreadable pair row ({e})") from None
-
-
-def evaluated_pairs(spec: SweepSpec, methods: list[str] | None = None) -> list[StitchedPair]:
-    """The same-seed pairs without a translation of ``methods`` (default: the sweep's), in
-    :func:`pairs` order: read from ``zero_shot.csv`` for the methods the zero-shot stage
-    evaluated, built from the zoo only for the others (a sweep that skips zero-shot)."""
-    methods = list(methods or spec.methods)
-    table = pairs_from_table(SweepLayout(sweep_dir(spec)).zero_shot_table) or []
-    by_method = {
-        m: [p for p in table if p.method == m and p.pairing == "same_seed" and not p.translation]
-        for m in methods
-    }
-    missing = [m for m in methods if not by_method[m]]
-    if missing:
-        built = pairs(spec, missing)
-        by_method.update({m: [p for p in built if p.method == m] for m in missing})
-    return [pair for m in methods for pair in by_method[m]]

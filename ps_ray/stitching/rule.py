@@ -138,7 +138,7 @@ def meets(task_from: Mapping, robot_from: Mapping) -> EnvSpec | None:
 def expected_signature(spec: Mapping) -> Signature:
     """The signature a training spec's policy file will carry, from the spec alone; the anchor
     set stands as the task-input width it is drawn for (a sweep draws one per width and K:
-    ps_ray.pipeline.sweep.anchor_file)."""
+    ps_ray.plan.train.anchor_file)."""
     from ps_ray.specs.methods import method_spec, spec_json, uses_anchors
 
     method = method_spec(str(spec["method"]))

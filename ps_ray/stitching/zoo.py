@@ -269,4 +269,7 @@ def _grid_cells(stage_dir: Path) -> tuple[list[ZooEntry], list[str]]:
 
 
 def _preference(entry: ZooEntry) -> tuple[int, float]:
-    return STAGE_RANK.get(entry.stage, 2), -entry.path.stat().st_mtime
+    """Lower wins a duplicate key: the stage's rank, then the newest file (a planned module has
+    no file: the first planned stays)."""
+    newest = -entry.path.stat().st_mtime if entry.path.exists() else 0.0
+    return STAGE_RANK.get(entry.stage, 2), newest

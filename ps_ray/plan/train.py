@@ -1,0 +1,37 @@
+"""The training stages' trials: the plain policies the anchors are drawn from, and the sweep's
+sources (one per drawn setting of a search)."""
+
+from __future__ import annotations
+
+from ps_ray.specs.sweep import SweepSpec, anchor_sources, task_input_dim
+from ps_ray.specs.train import TrainSpec
+from ps_ray.specs.trial import TrainTrial
+from ps_ray.store.layout import SweepLayout
+
+
+def anchor_file(spec: SweepSpec, trial: TrainSpec) -> str | None:
+    """The one place that decides where a PS trial of this sweep (train, grid, few-shot scratch)
+    gets its anchors: the sweep's anchor set for the trial's task-input width and K. None for
+    methods without anchors. (A stitched start carries its anchors in its policy file.)"""
+    if not trial.resolved.uses_anchors:
+        return None
+    return str(
+        SweepLayout.of(spec.storage, spec.name).anchor_set(task_input_dim(trial.task), trial.interface_dim)
+    )
+
+
+def plain_sources(spec: SweepSpec) -> list[TrainTrial]:
+    """The plain policies whose greedy rollouts give the anchor states (anchors.policy plain,
+    without an anchor file); none otherwise."""
+    if spec.anchors.policy != "plain" or spec.anchors.file:
+        return []
+    return [TrainTrial(source) for source in anchor_sources(spec)]
+
+
+def plan(spec: SweepSpec) -> list[TrainTrial]:
+    """The train stage's trials: each source with its anchor set; a search's, each named by its
+    drawn setting (run ``<trial key>/searchNN``)."""
+    return [
+        TrainTrial(t, anchor_file(spec, t), key=f"{t.label()}/{name}" if name else "", label=name)
+        for name, t in spec.named_trials()
+    ]

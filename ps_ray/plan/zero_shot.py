@@ -1,0 +1,91 @@
+"""The zero-shot stage's trials: the sweep's stitching matrix, one :class:`StitchedPair` per
+stitched pair (and per latent translation), with its sources, target env and controls."""
+
+from __future__ import annotations
+
+from ps_ray.specs.stage_settings import ZeroShotSpec
+from ps_ray.specs.sweep import SweepSpec, seed_pairs
+from ps_ray.stitching.matrix import combos, controls
+from ps_ray.stitching.pairs import CO_TRAINED, Control, StitchedPair, pairs_from_table
+from ps_ray.stitching.zoo import ModuleZoo
+from ps_ray.store.layout import SweepLayout, sweep_dir
+
+
+def plan(spec: SweepSpec, zoo: ModuleZoo, settings: ZeroShotSpec | None = None) -> list[StitchedPair]:
+    """The stage's pairs: of ``settings.methods`` (default: the sweep's), in the pairing it names,
+    each untranslated and then once per translation it names for the method."""
+    settings = settings or spec.zero_shot
+    return matrix(spec, zoo, list(settings.methods) or None, translate=True, pairing=settings.pairs)
+
+
+def matrix(
+    spec: SweepSpec,
+    zoo: ModuleZoo,
+    methods: list[str] | None = None,
+    translate: bool = False,
+    pairing: str = "same_seed",
+) -> list[StitchedPair]:
+    """Every stitched pair of the zoo's modules of ``methods`` (``pairing``: see :func:`seed_pairs`),
+    with the zoo keys and files of its controls (:func:`ps_ray.stitching.matrix.controls`); a
+    co-trained grid's pairs as their own rows (``<method> co-trained``); with ``translate``, also
+    one per latent translation that ``spec.zero_shot.translate`` names for the method (its method
+    shown as ``<method>+<translation>``, right after the untranslated pair)."""
+    out = []
+    for method, grid in ((m, g) for m in methods or spec.methods for g in ("", *zoo.grids(m))):
+        kinds = ("", *spec.zero_shot.translations(method)) if translate else ("",)
+        shown = f"{method} {CO_TRAINED}" if grid else method
+        for kind_of_pair, seed, robot_seed in seed_pairs(spec.seeds, pairing):
+            for combo in combos(zoo, method, seed, robot_seed=robot_seed, grid=grid):
+                seeds = str(seed) if kind_of_pair == "same_seed" else f"{seed}x{robot_seed}"
+                t, r = combo.task_from, combo.robot_from
+                found = {role: Control(str(e.key), str(e.path)) for role, e in controls(zoo, combo).items()}
+                for kind in kinds:
+                    name = f"{shown}+{kind}" if kind else shown
+                    out.append(
+                        StitchedPair(
+                            key=f"zero_shot/{name}/{combo.label}/{seeds}"
+                            + (f"/held_out={grid}" if grid else ""),
+                            method=name,
+                            translation=kind,
+                            pairing=kind_of_pair,
+                            seed=seed,
+                            robot_seed=robot_seed,
+                            label=combo.label,
+                            task_from=str(t.key),
+                            robot_from=str(r.key),
+                            task_from_path=str(t.path),
+                            robot_from_path=str(r.path),
+                            robot=combo.robot,
+                            task=combo.task,
+                            task_from_robot=t.robot,
+                            robot_from_robot=r.robot,
+                            robot_from_task=r.task,
+                            controls=found,
+                        )
+                    )
+    return out
+
+
+def alone_pairs(spec: SweepSpec, zoo: ModuleZoo, methods: list[str] | None = None) -> list[StitchedPair]:
+    """The same-seed pairs without a translation of sources trained alone (no grid's), of
+    ``methods`` (default: the sweep's), in :func:`matrix` order: the pairs few-shot starts from."""
+    methods = list(methods or spec.methods)
+    return [p for p in matrix(spec, zoo, methods) if p.method in methods]
+
+
+def evaluated_pairs(spec: SweepSpec, methods: list[str] | None = None) -> list[StitchedPair]:
+    """:func:`alone_pairs` as the zero-shot stage ran them: read from its ``zero_shot.csv`` for the
+    methods it evaluated, planned on the trained zoo for the others (a sweep that skips zero-shot)."""
+    from ps_ray.plan.catalogue import trained
+
+    methods = list(methods or spec.methods)
+    table = pairs_from_table(SweepLayout(sweep_dir(spec)).zero_shot_table) or []
+    by_method = {
+        m: [p for p in table if p.method == m and p.pairing == "same_seed" and not p.translation]
+        for m in methods
+    }
+    missing = [m for m in methods if not by_method[m]]
+    if missing:
+        built = alone_pairs(spec, trained(spec), missing)
+        by_method.update({m: [p for p in built if p.method == m] for m in missing})
+    return [pair for m in methods for pair in by_method[m]]

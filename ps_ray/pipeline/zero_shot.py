@@ -27,7 +27,7 @@ from ps_ray.pipeline.stage import layout, raise_on_errors
 from ps_ray.plan import zero_shot as zero_shot_plan
 from ps_ray.plan.catalogue import trained
 from ps_ray.specs import reset_seeds
-from ps_ray.specs.names import CONTROL_ROLES, split_translation
+from ps_ray.specs.names import CONTROL_ROLES, readable, split_translation
 from ps_ray.specs.stage_settings import ZeroShotSpec
 from ps_ray.specs.sweep import SweepSpec
 from ps_ray.stitching.pairs import StitchedPair
@@ -138,7 +138,7 @@ def chance_levels(trials: list[StitchedPair], settings: dict[str, Any], progress
                 floor = found["task_blind_success"]
                 floor_text = "absent" if floor != floor else f"{floor:.3f}"
                 print(
-                    f"[zero_shot] chance on {pair.task.short}/{pair.robot.short}: "
+                    f"[zero_shot] chance on {readable(pair.task.short)}/{pair.robot.short}: "
                     f"{found['chance_success']:.3f} ({found['chance_policy']}); "
                     f"task-blind floor {floor_text}",
                     flush=True,

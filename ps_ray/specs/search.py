@@ -16,6 +16,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
+from ps_ray.specs.names import readable
 from ps_ray.specs.train import SpecError, TrainSpec, check_types
 
 # How a setting is drawn: the Tune sample function each one maps to (ray.tune.search.sample).
@@ -106,7 +107,7 @@ def describe(search: SearchSpec, named_trials: list[tuple[str, TrainSpec]]) -> l
         if setting:
             values = ", ".join(f"{k}={_short(getattr(trial, k))}" for k in search.space)
             drawn = f"  {setting}: {values}"
-        lines.append(f"  {trial.label()}  {trial.env_steps} env steps{drawn}")
+        lines.append(f"  {readable(trial.label())}  {trial.env_steps} env steps{drawn}")
     if not search.active:
         return lines
     cap = max(t.env_steps for _, t in named_trials)

@@ -137,7 +137,7 @@ def test_check_lists_each_drawn_setting_and_prices_the_search(tmp_path, cli):
     assert proc.returncode == 0, out
     assert "plain/panda/reach/1  3000 env steps  search00: lr=0.003" in out
     assert "search01: lr=1e-09" in out and "search02: lr=1e-09" in out
-    assert "search: 3 settings drawn by Tune's random search (seed 0) x 1 grid trial(s)" in out
+    assert "search: 3 settings drawn by Tune's random search (seed 0), each on 1 trial(s) of the sweep" in out
     # ASHA at 2,000: 3 trials to it, 1.5 on to 3,000 -> 7,500 of 9,000
     assert "bottom 1/2 at 2,000 env steps: nominally 7,500 env steps, 83% of the full budgets" in out
 

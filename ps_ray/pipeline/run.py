@@ -1,7 +1,7 @@
 """`ps-ray run`: every stage of a sweep in order, skipping finished ones, resuming a killed one.
 
 Stages (``SweepSpec.stages``, run in the order of ``specs.stages.STAGES``):
-  train      plain sources -> anchors -> the grid's trials (ps_ray.pipeline.sweep)
+  train      plain sources -> anchors -> the sweep's sources (ps_ray.pipeline.sweep)
   grid       co-trained robot x task grids, a held-out cell each (ps_ray.pipeline.grid)
   zero_shot  every stitched pair evaluated (ps_ray.pipeline.zero_shot)
   few_shot   stitched starts fine-tuned beside from-scratch runs (ps_ray.pipeline.few_shot)
@@ -30,9 +30,9 @@ def _train(spec: SweepSpec, resume: bool, progress: bool) -> str:
     from ps_ray.pipeline.sweep import run_sweep
 
     # the training stage always resumes: run_sweep refuses a folder trained with other settings
-    grid = run_sweep(spec, resume=True, progress=progress)
-    raise_on_errors(grid, "training trials")
-    return f"{len(grid)} training trials"
+    results = run_sweep(spec, resume=True, progress=progress)
+    raise_on_errors(results, "training trials")
+    return f"{len(results)} training trials"
 
 
 def _grid(spec: SweepSpec, resume: bool, progress: bool) -> str:
@@ -58,9 +58,9 @@ def _few_shot(spec: SweepSpec, resume: bool, progress: bool) -> str:
 
     if not resume:
         shutil.rmtree(layout(spec).few_shot, ignore_errors=True)
-    grid = run_few_shot(spec, resume=resume, progress=progress)
-    raise_on_errors(grid, "few-shot trials")
-    return f"{len(grid)} fine-tuning trials"
+    results = run_few_shot(spec, resume=resume, progress=progress)
+    raise_on_errors(results, "few-shot trials")
+    return f"{len(results)} fine-tuning trials"
 
 
 def _report(spec: SweepSpec, resume: bool, progress: bool) -> str:

@@ -198,17 +198,17 @@ def run_sweep(spec: SweepSpec, *, resume: bool = False, progress: bool = True):
     plain_policies = None
     needs_anchors = any(not Path(p).exists() for p in _anchor_paths(spec))
     if needs_anchors and (sources := train_plan.plain_sources(spec)):
-        grid = run_tune(
+        results = run_tune(
             sources,
             folder=SweepLayout(root).tune_plain,
             stage="anchors_plain",
-            # its own runs: the same plain spec may also be a trial of the grid
+            # its own runs: the same plain spec may also be a trial of the sweep
             key_fn=lambda trial: "anchors_plain/" + default_key_fn(trial),
             **tune_args,
         )
-        raise_on_errors(grid, "plain source policies")
+        raise_on_errors(results, "plain source policies")
         plain_policies = {
-            TrainTrial.of(r.config["trial"]).spec.label(): r.checkpoint / "policy.safetensors" for r in grid
+            TrainTrial.of(r.config["trial"]).spec.label(): r.checkpoint / "policy.safetensors" for r in results
         }
     prepare_sweep_anchors(spec, plain_policies)
     trials = train_plan.plan(spec)

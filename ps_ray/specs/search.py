@@ -111,10 +111,10 @@ def describe(search: SearchSpec, named_trials: list[tuple[str, TrainSpec]]) -> l
     if not search.active:
         return lines
     cap = max(t.env_steps for _, t in named_trials)
-    grid = len(named_trials) // search.samples
+    per_setting = len(named_trials) // search.samples
     lines.append(
-        f"search: {search.samples} settings drawn by Tune's random search (seed {search.seed}) x "
-        f"{grid} grid trial(s)"
+        f"search: {search.samples} settings drawn by Tune's random search (seed {search.seed}), "
+        f"each on {per_setting} trial(s) of the sweep"
     )
     rungs = search.rungs(cap)
     if rungs:

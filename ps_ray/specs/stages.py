@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 @dataclass(frozen=True)
 class Stage:
     name: str
-    # the sweep key of its settings; None: the training grid's own keys (methods, train, ...)
+    # the sweep key of its settings; None: the sweep's own training keys (methods, train, ...)
     settings: str | None = None
     # its Tune experiments: the name its trials are tagged and costed under -> folder under the
     # sweep folder; none: it runs no Tune trials (and has no per-trial resources)

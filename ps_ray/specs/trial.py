@@ -45,7 +45,7 @@ class TrainTrial:
 
     def config(self) -> dict[str, Any]:
         """The Tune config: spec and anchors, and key, label and kind where they are not the
-        defaults (a grid trial's config is ``{"spec", "anchors"}``, as it always was)."""
+        defaults (a source's config is ``{"spec", "anchors"}``, as it always was)."""
         config: dict[str, Any] = {"spec": self.spec.to_dict(), "anchors": self.anchors}
         if (self.key, self.label, self.kind) != ("", "", "train"):
             config.update(key=self.key, label=self.label, kind=self.kind)

@@ -32,7 +32,7 @@ class StageProgress(Callback):
     restart too. The output stream is looked up when printing, never stored (it is not picklable)."""
 
     def __init__(self, stage: str, total: int = 0) -> None:
-        self.stage, self.total = stage, total  # Tune creates the trials of a grid search lazily: count them all
+        self.stage, self.total = stage, total  # Tune makes a grid search's trials lazily: count them all
         self.started = time.time()
         self.best: float | None = None
         self.last_plain = 0.0

@@ -208,7 +208,8 @@ def run_sweep(spec: SweepSpec, *, resume: bool = False, progress: bool = True):
         )
         raise_on_errors(results, "plain source policies")
         plain_policies = {
-            TrainTrial.of(r.config["trial"]).spec.label(): r.checkpoint / "policy.safetensors" for r in results
+            TrainTrial.of(r.config["trial"]).spec.label(): r.checkpoint / "policy.safetensors"
+            for r in results
         }
     prepare_sweep_anchors(spec, plain_policies)
     trials = train_plan.plan(spec)

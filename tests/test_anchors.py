@@ -109,7 +109,7 @@ def test_colliding_centroids_get_distinct_nearest_rows():
     centers = np.array([[0.2, 0.0], [0.1, 0.0], [2.9, 0.0]], np.float32)
     idx, dist = pairwise_distances_argmin_min(centers, states)
     assert idx[0] == idx[1] == 0  # both want the origin
-    out = A._make_distinct(centers, states, idx, dist)
+    out = A.distinct_nearest_rows(centers, states, idx, dist)
     # centroid 1 is closer to the origin and keeps it; centroid 0 takes its nearest free row
     # ([1, 0]), not the duplicate origin at row 3
     np.testing.assert_array_equal(states[out], [[1, 0], [0, 0], [3, 0]])

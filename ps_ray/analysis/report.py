@@ -47,7 +47,7 @@ def build_report(spec: SweepSpec, *, progress: bool = True, log_to_mlflow: bool 
     search_section(report, spec, SweepLayout(root).tune_train)
     if not spec.search.active:  # a search's trials are candidate settings, not sources to compare
         _latent(report, spec, root, say)
-    _zero_shot(report, root, target, say)
+    zero_shot_section(report, root, target, say)
     _few_shot(report, root, say)
     _clips(report, spec, say)
     cost_section(report, spec, root)
@@ -233,7 +233,7 @@ def _latent(report: Report, spec: SweepSpec, root: Path, say) -> None:
     say(f"report: latent distances of {sum(map(len, all_groups.values()))} groups")
 
 
-def _zero_shot(report: Report, root: Path, target: float, say) -> None:
+def zero_shot_section(report: Report, root: Path, target: float, say) -> None:
 
     table = results.zero_shot_results(SweepLayout(root).zero_shot_table)
     if table is None:

@@ -71,7 +71,9 @@ def _as_states(states: Any, name: str = "states") -> np.ndarray:
     return arr
 
 
-def _make_distinct(centers: np.ndarray, states: np.ndarray, idx: np.ndarray, dist: np.ndarray) -> np.ndarray:
+def distinct_nearest_rows(
+    centers: np.ndarray, states: np.ndarray, idx: np.ndarray, dist: np.ndarray
+) -> np.ndarray:
     """Reassign centroids whose nearest state is already taken (by value) by a closer centroid.
 
     Centroids are served in order of their distance to their nearest state; a centroid whose
@@ -135,7 +137,7 @@ def select_anchor_indices(
     idx, dist = pairwise_distances_argmin_min(centers, x)
     idx = np.asarray(idx, dtype=np.int64)
     if distinct:
-        idx = _make_distinct(centers, x, idx, np.asarray(dist))
+        idx = distinct_nearest_rows(centers, x, idx, np.asarray(dist))
     return idx
 
 

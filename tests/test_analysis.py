@@ -125,6 +125,20 @@ def test_zero_shot_table_has_combinations_as_rows_and_methods_as_columns():
     # reach has nothing to touch: the report blanks touching, and the table leaves it out
     reach = tables.zero_shot_table(frame.assign(touching_mean=float("nan"), touching_std=float("nan")))
     assert list(reach.columns) == [("ps", "success"), ("ablation", "success")]
+    # the paper's Table 1 beside ours, for the E-combinations only (E1 here), as fractions
+    paper = tables.paper_zero_shot(frame)
+    assert list(paper.index) == [
+        ("E1 (t: Pu1-R1 & r: Pu2-R2)", "ps_ray"),
+        ("E1 (t: Pu1-R1 & r: Pu2-R2)", "paper"),
+    ]
+    e1 = paper.loc["E1 (t: Pu1-R1 & r: Pu2-R2)"]
+    assert (
+        e1.loc["paper", ("ps", "success")] == "0.27 ± 0.04"
+        and e1.loc["paper", ("ps", "touching")] == "0.73 ± 0.01"
+    )
+    assert e1.loc["paper", ("ablation", "success")] == "0.14 ± 0.04"
+    assert e1.loc["ps_ray", ("ps", "success")] == table.loc["E1 (t: Pu1-R1 & r: Pu2-R2)", ("ps", "success")]
+    assert tables.paper_zero_shot(frame[frame["label"] != label_e1]) is None  # no E-combination
 
 
 def test_goal_quadrants_follow_the_reach_regions():

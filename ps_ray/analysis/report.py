@@ -256,6 +256,10 @@ def zero_shot_section(report: Report, root: Path, target: float, say) -> None:
         tables.zero_shot_table(table),
         numbers=tables.pool_seeds(table),
     )
+    paper = tables.paper_zero_shot(table)
+    if paper is not None:
+        caption = "The paper's figures beside ours (its Table 1: 200 x 5 episodes; ours as above)"
+        report.table(section, "zero_shot_paper", caption, paper)
     sources = report.headline.sources
     if sources is not None:
         weak = set(sources.index[sources["below_target"]])

@@ -71,6 +71,35 @@ def paper_names() -> dict[str, str]:
     return names
 
 
+def paper_zero_shot(table: pd.DataFrame) -> pd.DataFrame | None:
+    """The paper's zero-shot figures beside ours for every E-combination the table holds: rows
+    (combination, ps_ray | paper), columns (method, touching | success), ``mean ± std`` as
+    fractions (the paper's % / 100); None when the table holds none of them."""
+    from ps_ray.stitching.paper import PAPER_ZERO_SHOT
+
+    pooled, names = pool_seeds(table), paper_names()
+    pooled = pooled[pooled["label"].isin(names) & pooled["method"].isin(PAPER_ZERO_SHOT["E1"])]
+    if pooled.empty:
+        return None
+    methods = method_order(pooled["method"])
+    rows = {}
+    for label in sorted(pooled["label"].unique(), key=names.get):
+        paper = PAPER_ZERO_SHOT[names[label].split()[0]]
+        ours = {r["method"]: r for _, r in pooled[pooled["label"] == label].iterrows()}
+        for source in ("ps_ray", "paper"):
+            cells = {}
+            for m in methods:
+                for i, metric in enumerate(("touching", "success")):
+                    if source == "paper":
+                        cells[(m, metric)] = pm(paper[m][2 * i] / 100, paper[m][2 * i + 1] / 100)
+                    elif m in ours:
+                        cells[(m, metric)] = pm(ours[m][f"{metric}_mean"], ours[m][f"{metric}_std"])
+            rows[(names[label], source)] = cells
+    frame = pd.DataFrame.from_dict(rows, orient="index").fillna("–")
+    frame.index.names = ["combination", "figures"]
+    return frame
+
+
 def zero_shot_table(table: pd.DataFrame) -> pd.DataFrame:
     """Table 1 layout: one row per stitched combination (paper E-names where they apply), columns
     (method, touching | success) holding ``mean ± std`` pooled over seeds. Touching is left out

@@ -92,3 +92,57 @@ PAPER_COMBOS: tuple[PaperCombo, ...] = (
     _paper("E7", "t: Pi2-R1 & r: Pi1-R3", ("Pi2", "panda_l5"), 40),
     _paper("E8", "t: Pi1-R3 & r: Pi2-R1", ("Pi1", "panda"), 190),
 )
+
+
+# The paper's zero-shot table ("Success rates and touching rates of zero-shot transfer"): per
+# combination and method, touching and success in %, each mean and ± as printed.
+PAPER_ZERO_SHOT: dict[str, dict[str, tuple[float, float, float, float]]] = {
+    "E1": {
+        "ps": (73.0, 1.4, 26.9, 3.6),
+        "ablation": (75.8, 4.4, 13.9, 3.5),
+        "devin": (44.8, 3.1, 11.7, 2.6),
+        "plain": (0.0, 0.0, 6.5, 2.5),
+    },
+    "E2": {
+        "ps": (99.9, 0.2, 24.4, 1.5),
+        "ablation": (93.5, 2.0, 6.8, 0.7),
+        "devin": (78.3, 5.4, 10.0, 0.9),
+        "plain": (17.9, 2.7, 9.3, 2.1),
+    },
+    "E3": {
+        "ps": (90.8, 2.3, 16.5, 1.9),
+        "ablation": (95.6, 0.8, 7.2, 1.5),
+        "devin": (82.6, 1.6, 9.8, 2.5),
+        "plain": (0.0, 0.0, 8.4, 3.7),
+    },
+    "E4": {
+        "ps": (95.4, 1.9, 13.2, 1.1),
+        "ablation": (88.7, 1.1, 14.9, 1.0),
+        "devin": (49.6, 1.1, 11.8, 2.4),
+        "plain": (1.6, 1.0, 9.0, 1.4),
+    },
+    "E5": {
+        "ps": (14.7, 2.7, 2.1, 0.4),
+        "ablation": (9.6, 1.6, 4.0, 1.9),
+        "devin": (8.6, 0.3, 2.9, 1.0),
+        "plain": (2.8, 0.9, 3.8, 1.6),
+    },
+    "E6": {
+        "ps": (55.6, 2.4, 8.8, 1.9),
+        "ablation": (80.8, 3.4, 11.6, 2.0),
+        "devin": (30.5, 4.2, 10.5, 2.1),
+        "plain": (0.1, 0.2, 9.0, 0.7),
+    },
+    "E7": {
+        "ps": (41.8, 1.7, 4.7, 1.6),
+        "ablation": (13.1, 2.9, 3.6, 0.8),
+        "devin": (9.8, 1.3, 3.0, 1.6),
+        "plain": (0.0, 0.0, 3.2, 1.4),
+    },
+    "E8": {
+        "ps": (18.4, 1.3, 5.3, 1.7),
+        "ablation": (18.8, 2.6, 3.0, 0.7),
+        "devin": (13.6, 1.1, 3.1, 0.5),
+        "plain": (0.0, 0.0, 3.0, 0.7),
+    },
+}

@@ -441,10 +441,10 @@ def test_mlflow_ui_lists_the_runs_and_the_report_artifact(smoke, visible_text):
         listing = visible_text(page.replace("http://127.0.0.1:5000", base))
         assert f"{len(runs)} matching runs" in listing and "Traces 0" not in listing
         # the list is the stages, each run of a stage nested under its stage's run
-        for stage in ("train", "zero_shot", "few_shot", "report"):
+        for stage in ("anchors_plain", "train", "zero_shot", "few_shot", "report"):
             assert f"{stage} " in listing, stage
         parents = {r.info.run_id: r.info.run_name for r in runs if "ps_ray.stage_run" in r.data.tags}
-        assert sorted(parents.values()) == ["few_shot", "train", "zero_shot"]
+        assert sorted(parents.values()) == ["anchors_plain", "few_shot", "train", "zero_shot"]
         for run in runs:
             if "ps_ray.stage" in run.data.tags and run.data.tags["ps_ray.stage"] != "report":
                 assert parents[run.data.tags["mlflow.parentRunId"]] == run.data.tags["ps_ray.stage"]

@@ -91,6 +91,10 @@ CASES = [  # (arguments, with {f} the input folder and {out} a path that must no
     ("run {f}/sweep.yaml --tracking-uri ftp://nowhere", "tracking_uri 'ftp://nowhere': not an MLflow"),
     ("run {f}/sweep.yaml --tracking-uri {f}/mlruns", "mlruns': not an MLflow tracking store; valid: http"),
     ("sweep {f}/typed.yaml --check", "task 'reach_red' option min_separation: expected a number, got 'x'"),
+    (
+        "sweep {f}/sweep.yaml --check --storage {f}/garbage.safetensors/runs",
+        "garbage.safetensors/runs/never: cannot write the sweep folder (",
+    ),
     ("zero-shot {f}/sweep.yaml --methods ps", "method 'ps' is not trained by this sweep; valid: ablation"),
     ("zero-shot {f}/sweep.yaml", "sweeps/never: no trained sweep there; train it first"),
     ("few-shot {f}/sweep.yaml --env-steps 0", "few_shot.env_steps must be positive, got 0"),

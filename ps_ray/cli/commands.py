@@ -8,12 +8,12 @@ import dataclasses
 import json
 import os
 import sys
-import tempfile
 import time
 from pathlib import Path
 
 from ps_ray.cli.args import flag_of
 from ps_ray.cli.parsers import build_parser
+from ps_ray.cli.paths import output_file, writable_folder
 from ps_ray.errors import UserError
 from ps_ray.pipeline.stage import StageError
 from ps_ray.specs import reset_seeds
@@ -81,6 +81,9 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     if args.check:
         from ps_ray.analysis.cost import describe, project
         from ps_ray.specs.search import describe as describe_trials
+        from ps_ray.store.layout import sweep_dir
+
+        writable_folder(sweep_dir(spec))  # what a run would need, refused now; nothing is left
 
         print("\n".join(describe_trials(spec.search, spec.named_trials())))
         print("\n".join(describe(project(spec, cores_on=args.cores))))
@@ -229,7 +232,7 @@ def cmd_report(args: argparse.Namespace) -> int:
     from ps_ray.analysis.report import build_report
 
     if args.screenshot:  # a place that cannot hold it is refused before the report is built
-        _output_file(args.screenshot)
+        output_file(args.screenshot)
     with _trained_sweep(args, "report") as spec:
         page = build_report(spec, log_to_mlflow=not args.no_mlflow)
     print(f"report: {page}")
@@ -265,33 +268,12 @@ def cmd_render(args: argparse.Namespace) -> int:
             )
     for path in (args.png, args.gif):
         if path:
-            _output_file(path)
+            output_file(path)
     from ps_ray.envs.render import record  # torch: only once the flags are good
 
     record(robot, task, policy, seed=args.seed, png=args.png, gif=args.gif)
     print(f"wrote {' and '.join(p for p in (args.png, args.gif) if p)}")
     return 0
-
-
-def _output_file(path: str) -> Path:
-    """An output file's folder, made now that the inputs are checked; a place that cannot hold a
-    file (under a file, a read-only or pseudo file system, a folder by that name) is bad input."""
-    path = Path(path)
-    blocking = next((p for p in path.parents if p.exists() and not p.is_dir()), None)
-    if blocking is not None:
-        raise UserError(f"{path}: cannot write here ({blocking} is a file, not a folder)")
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-    except OSError as e:
-        raise UserError(f"{path}: cannot write here ({e.strerror})") from None
-    if path.is_dir():
-        raise UserError(f"{path}: is a folder; give a file name")
-    try:  # the one sure test: a file made and removed beside it
-        with tempfile.NamedTemporaryFile(dir=path.parent, prefix=f".{path.name}."):
-            pass
-    except OSError as e:
-        raise UserError(f"{path}: cannot write here ({e.strerror})") from None
-    return path
 
 
 def cmd_stitch(args: argparse.Namespace) -> int:
@@ -324,7 +306,7 @@ def cmd_stitch(args: argparse.Namespace) -> int:
     )
     if args.save:
         extra = stitch_metadata(args.task_from, args.robot_from)
-        path = save_policy(_output_file(args.save), nets, signature, extra=extra)
+        path = save_policy(output_file(args.save), nets, signature, extra=extra)
         print(f"wrote {path}")
     if args.episodes > 0:
         result = evaluate(

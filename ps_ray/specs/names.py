@@ -12,6 +12,7 @@ from typing import Any
 
 from ps_ray.errors import UserError
 from ps_ray.specs.defaults import INTERFACE_DIM
+from ps_ray.specs.modes import AnchorGoals
 
 # How a stitch aligns its interface, by name: a latent translation fitted between the two task
 # modules (ps_ray.nets.translation), or "anchors": the task module's relative projection re-anchored
@@ -29,8 +30,7 @@ CROSSED_FITS = ("both", "decoded")  # fits that read both sources' outcomes in e
 ANCHOR_FITS = (*TRANSLATION_FITS, *CROSSED_FITS)
 # The unstitched controls and the oracle scored beside every stitched pair (ps_ray.stitching.matrix.controls)
 CONTROL_ROLES = ("robot_source", "task_source", "oracle")
-# The desired goals of anchor states (ps_ray.data.collect): their own, or hindsight-relabelled.
-ANCHOR_GOALS = ("real", "relabelled")
+ANCHOR_GOALS = tuple(AnchorGoals)  # the desired goals of anchor states (ps_ray.data.collect)
 
 
 # Every valid spelling, in the order error messages list them

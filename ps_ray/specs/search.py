@@ -16,13 +16,15 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
+from ps_ray.errors import UserError
+from ps_ray.specs.modes import Scheduler, SearchMetric
 from ps_ray.specs.names import readable
 from ps_ray.specs.train import SpecError, TrainSpec, check_types
 
 # How a setting is drawn: the Tune sample function each one maps to (ray.tune.search.sample).
 DISTRIBUTIONS = ("choice", "uniform", "loguniform", "randint")
-SCHEDULERS = ("asha", "none")
-METRICS = ("eval_success", "best_eval_success")  # columns of a trial's result rows
+SCHEDULERS = tuple(Scheduler)
+METRICS = tuple(SearchMetric)  # columns of a trial's result rows
 # Settings a search may not draw: the grid's own keys and the budget every trial shares.
 NOT_SEARCHED = ("method", "robot", "task", "seed", "interface_dim", "env_steps", "target_success", "anchors")
 SEARCHABLE = tuple(f.name for f in dataclasses.fields(TrainSpec) if f.name not in NOT_SEARCHED)
@@ -36,16 +38,18 @@ class SearchSpec:
     space: Mapping[str, Any] = dataclasses.field(default_factory=dict)
     samples: int = 8  # settings drawn; every trial of the grid runs once per setting
     seed: int = 0  # random state of the draws
-    scheduler: str = "asha"  # Tune's ASHA on ``metric`` over env steps, or "none": every trial runs out
-    metric: str = "eval_success"  # what ASHA compares at a rung (greedy success of that evaluation)
+    scheduler: Scheduler = Scheduler.ASHA  # Tune's ASHA on ``metric`` over env steps, or none
+    metric: SearchMetric = SearchMetric.EVAL_SUCCESS  # what ASHA compares at a rung
     grace_env_steps: int = 25_000  # no trial is stopped before this many env steps (ASHA's first rung)
     reduction_factor: int = 3  # ASHA keeps the top 1/reduction_factor of each rung
 
     def __post_init__(self) -> None:
+        for key, mode in (("scheduler", Scheduler), ("metric", SearchMetric)):
+            try:
+                object.__setattr__(self, key, mode.of(getattr(self, key), f"search.{key}"))
+            except UserError as e:
+                raise SpecError(str(e)) from None
         check_types(self, "search")
-        for key, valid in (("scheduler", SCHEDULERS), ("metric", METRICS)):
-            if getattr(self, key) not in valid:
-                raise SpecError(f"unknown search.{key} {getattr(self, key)!r}; valid: {', '.join(valid)}")
         for key in ("samples", "grace_env_steps"):
             if getattr(self, key) <= 0:
                 raise SpecError(f"search.{key} must be a positive integer, got {getattr(self, key)}")

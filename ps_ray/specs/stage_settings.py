@@ -13,10 +13,18 @@ from ps_ray.envs.robots import resolve_robot
 from ps_ray.envs.tasks import resolve_task
 from ps_ray.errors import UserError
 from ps_ray.specs.methods import method_key, reanchoring_problem
-from ps_ray.specs.names import ANCHOR_GOALS, EnvPart, translations_problem
+from ps_ray.specs.modes import AnchorGoals, AnchorPolicy, Mode, Pairing
+from ps_ray.specs.names import EnvPart, translations_problem
 from ps_ray.specs.train import SpecError, check_types
 
-ANCHOR_POLICIES = ("plain", "random")
+ANCHOR_POLICIES = tuple(AnchorPolicy)
+
+
+def _mode(mode: type[Mode], value: Any, where: str) -> Mode:
+    try:
+        return mode.of(value, where)
+    except UserError as e:
+        raise SpecError(str(e)) from None
 
 
 def method_keys(where: str, methods: Any) -> Any:
@@ -40,10 +48,12 @@ class AnchorSpec:
     episodes: int = 200
     steps: tuple[int, ...] = (5, 6, 7, 8, 9)
     seed: int = 0
-    policy: str = "plain"  # roll out trained plain policies (paper) or "random"
-    goals: str = "real"  # the states' desired goals: their own (paper) or "relabelled" (ps_ray.data.collect)
+    policy: AnchorPolicy = AnchorPolicy.PLAIN  # roll out trained plain policies (paper) or random actions
+    goals: AnchorGoals = AnchorGoals.REAL  # the states' desired goals (ps_ray.data.collect)
 
     def __post_init__(self) -> None:
+        for key, mode in (("policy", AnchorPolicy), ("goals", AnchorGoals)):
+            object.__setattr__(self, key, _mode(mode, getattr(self, key), f"anchors.{key}"))
         check_types(self, "anchors")
         unique_entries("anchors", source_tasks=self.source_tasks, steps=self.steps)
         if not isinstance(self.robot, (str, Mapping)):
@@ -53,9 +63,6 @@ class AnchorSpec:
             resolve_robot(self.robot)
         except (ValueError, TypeError) as e:
             raise SpecError(f"anchors.robot: {e}") from None
-        for key, valid in (("policy", ANCHOR_POLICIES), ("goals", ANCHOR_GOALS)):
-            if getattr(self, key) not in valid:
-                raise SpecError(f"unknown anchors.{key} {getattr(self, key)!r}; valid: {', '.join(valid)}")
         for task in self.source_tasks:
             try:
                 resolve_task(task)
@@ -79,7 +86,7 @@ def positive(where: str, **values: int | None) -> None:
             raise SpecError(f"{where}.{key} must be positive, got {value}")
 
 
-PAIRINGS = ("same_seed", "cross_seed", "both")
+PAIRINGS = tuple(Pairing)
 
 
 @dataclass(frozen=True)
@@ -98,7 +105,7 @@ class ZeroShotSpec:
     outcome_points: int = 256  # reference points (k-means over the outcomes): matched pairs
     # which modules meet: of one training seed, of two seeds (seed i's task modules with seed
     # i+1's robot modules, cyclically: separate training runs), or both
-    pairs: str = "same_seed"
+    pairs: Pairing = Pairing.SAME_SEED
     # at most this many pairs evaluated one after another in one Tune trial: a trial's start
     # (process, imports, reading the sources) is paid once per batch (see batch_sizes)
     pairs_per_trial: int = 8
@@ -108,9 +115,8 @@ class ZeroShotSpec:
         if isinstance(self.translate, Mapping):
             keys = method_keys("zero_shot.translate", tuple(self.translate))
             object.__setattr__(self, "translate", dict(zip(keys, self.translate.values(), strict=True)))
+        object.__setattr__(self, "pairs", _mode(Pairing, self.pairs, "zero_shot.pairs"))
         check_types(self, "zero_shot")
-        if self.pairs not in PAIRINGS:
-            raise SpecError(f"unknown zero_shot.pairs {self.pairs!r}; valid: {', '.join(PAIRINGS)}")
         unique_entries("zero_shot", methods=self.methods)
         positive(
             "zero_shot",

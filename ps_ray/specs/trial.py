@@ -12,15 +12,16 @@ from dataclasses import dataclass
 from typing import Any
 
 from ps_ray.specs.grid import GridSpec
+from ps_ray.specs.modes import TrialKind
 from ps_ray.specs.names import trial_key
 from ps_ray.specs.train import TrainSpec
 
 # What a training trial is: a source of the grid or of the anchors, or a few-shot start
 # (ps_ray.pipeline.few_shot): the stitched pair, one half of it beside a fresh other half, the
 # pair's robot source as it is, or the target env from scratch.
-HALVES = ("robot_module", "task_module")  # which half of the stitch a start keeps (the other fresh)
-KINDS = ("train", "stitched", *HALVES, "unstitched", "scratch")
-STITCHED_STARTS = ("stitched", *HALVES)  # the starts made from a stitched pair
+HALVES = (TrialKind.ROBOT_MODULE, TrialKind.TASK_MODULE)  # which half of the stitch a start keeps
+KINDS = tuple(TrialKind)
+STITCHED_STARTS = (TrialKind.STITCHED, *HALVES)  # the starts made from a stitched pair
 
 
 @dataclass(frozen=True)
@@ -29,11 +30,10 @@ class TrainTrial:
     anchors: str | None = None  # the anchor-set file of a PS trial (None: none, or the init policy's)
     key: str = ""  # its MLflow run name ("": the spec's trial key)
     label: str = ""  # the row a table puts it in ("": its key)
-    kind: str = "train"
+    kind: TrialKind = TrialKind.TRAIN
 
     def __post_init__(self) -> None:
-        if self.kind not in KINDS:
-            raise ValueError(f"unknown trial kind {self.kind!r}; kinds: {', '.join(KINDS)}")
+        object.__setattr__(self, "kind", TrialKind.of(self.kind, "trial kind", "kinds"))
 
     @property
     def run_name(self) -> str:

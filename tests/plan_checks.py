@@ -12,7 +12,7 @@ from ps_ray.plan.catalogue import planned
 from ps_ray.specs.sweep import SweepSpec
 from ps_ray.specs.trial import STITCHED_STARTS, TrainTrial
 from ps_ray.store.attempts import attempts, identity, rows_naming
-from ps_ray.store.layout import SweepLayout, sweep_dir
+from ps_ray.store.layout import sweep_layout
 
 
 def _launched(folder: Path) -> set[str]:
@@ -32,7 +32,7 @@ def _start_free(config: dict) -> str:
 def assert_stages_launched_their_plans(
     spec: SweepSpec, zero_shot_settings=None, few_shot_settings=None
 ) -> None:
-    layout = SweepLayout(sweep_dir(spec))
+    layout = sweep_layout(spec)
     zoo = planned(spec)
     if "train" in spec.stages:
         assert _launched(layout.tune_train) == {identity(t.config()) for t in train.plan(spec)}

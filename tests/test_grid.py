@@ -14,6 +14,7 @@ from ps_ray.envs.robots import resolve_robot
 from ps_ray.envs.tasks import resolve_task
 from ps_ray.specs.grid import GridSpec
 from ps_ray.specs.train import TrainSpec
+from ps_ray.store.layout import sweep_layout
 
 ROBOTS, TASKS = ["panda", "panda_far"], ["reach_red", "reach_blue"]
 HELD_OUT = "panda_far/reach_blue"
@@ -227,7 +228,7 @@ def test_a_ps_grid_stage_without_a_train_stage_makes_and_uses_its_anchor_set(tmp
     from ps_ray.data.anchor_file import load_anchor_set
     from ps_ray.specs.sweep import load_sweep, task_input_dim
     from ps_ray.stitching.zoo import ModuleZoo
-    from ps_ray.store.layout import SweepLayout, sweep_dir
+    from ps_ray.store.layout import sweep_dir
 
     train = {
         k: v for k, v in SMALL.items() if k not in ("method", "seed", "interface_dim", "anchor_episodes")
@@ -255,7 +256,7 @@ def test_a_ps_grid_stage_without_a_train_stage_makes_and_uses_its_anchor_set(tmp
     )
     assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
     spec = load_sweep(path)
-    anchor_set = load_anchor_set(SweepLayout(sweep_dir(spec)).anchor_set(task_input_dim(TASKS[0]), 8))
+    anchor_set = load_anchor_set(sweep_layout(spec).anchor_set(task_input_dim(TASKS[0]), 8))
     cells = ModuleZoo.from_sweep(sweep_dir(spec)).select(grid=HELD_OUT)
     assert sorted(f"{e.key.robot}/{e.key.task}" for e in cells) == [
         "panda/reach_blue",
@@ -264,7 +265,7 @@ def test_a_ps_grid_stage_without_a_train_stage_makes_and_uses_its_anchor_set(tmp
     ]
     assert {e.signature.anchor_hash for e in cells} == {anchor_set.hash}
     # the folder records its spec, as a trained sweep's does: zero-shot, few-shot and report take it
-    recorded = yaml.safe_load(SweepLayout(sweep_dir(spec)).spec_file.read_text())
+    recorded = yaml.safe_load(sweep_layout(spec).spec_file.read_text())
     assert recorded == spec.to_dict()
 
 

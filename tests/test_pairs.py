@@ -21,7 +21,7 @@ from ps_ray.specs.names import short_name
 from ps_ray.specs.stage_settings import FewShotSpec
 from ps_ray.specs.sweep import SweepSpec
 from ps_ray.stitching.pairs import Control, StitchedPair, pairs_from_table
-from ps_ray.store.layout import SweepLayout, sweep_dir
+from ps_ray.store.layout import SweepLayout, sweep_dir, sweep_layout
 from tests.stitch_sources import K, write_trial
 from tests.stitch_sources import spec as train_spec
 
@@ -144,7 +144,7 @@ def write_table(spec: SweepSpec) -> list[StitchedPair]:
     """zero_shot.csv of the sweep's same-seed pairs, every figure 0.5; returns the pairs."""
     matrix = zero_shot_plan.matrix(spec, trained(spec))
     figures = {k: 0.5 for k in (*RESULT_KEYS, *CONTROL_KEYS)}
-    write_atomic_csv(table_of([(p, figures) for p in matrix]), SweepLayout(sweep_dir(spec)).zero_shot_table)
+    write_atomic_csv(table_of([(p, figures) for p in matrix]), sweep_layout(spec).zero_shot_table)
     return matrix
 
 

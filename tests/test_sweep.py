@@ -16,6 +16,7 @@ from ps_ray.nets.policy_file import load_policy
 from ps_ray.pipeline.sweep import sweep_dir
 from ps_ray.specs.sweep import load_sweep
 from ps_ray.store.checkpoint import latest as latest_checkpoint
+from ps_ray.store.layout import sweep_layout
 from ps_ray.store.tracking import git_commit
 
 
@@ -291,10 +292,9 @@ def test_a_stage_run_afresh_on_a_folder_with_earlier_attempts_is_refused_before_
     from ps_ray.pipeline.few_shot import run_few_shot
     from ps_ray.pipeline.zero_shot import run_zero_shot
     from ps_ray.store.attempts import PARAMS_FILE, StageExistsError
-    from ps_ray.store.layout import SweepLayout
 
     spec = load_sweep(write_sweep(tmp_path, "again", {"env_steps": 400}))
-    layout = SweepLayout(sweep_dir(spec))
+    layout = sweep_layout(spec)
     folder, key = {
         "train": (layout.tune_train, "trial"),
         "zero_shot": (layout.tune_zero_shot, "batch"),

@@ -15,6 +15,7 @@ import pandas as pd
 from ps_ray.analysis import clips
 from ps_ray.specs.names import readable, short_name
 from ps_ray.specs.sweep import SweepSpec
+from ps_ray.store.layout import sweep_layout
 
 
 @dataclass
@@ -159,9 +160,8 @@ def _number(x: float) -> str:
 def _ran(spec: SweepSpec) -> str:
     """When the sweep's last stage before the report finished (its marker's time; else when the
     spec was recorded): a date a rebuilt report keeps, so the page stays the same bytes."""
-    from ps_ray.store.layout import SweepLayout
 
-    where = SweepLayout.of(spec.storage, spec.name)
+    where = sweep_layout(spec)
     marks = [p for p in where.stages.glob("*.json") if not p.name.startswith("report")]
     times = [p.stat().st_mtime for p in marks or [where.spec_file] if p.exists()]
     return datetime.fromtimestamp(max(times), UTC).strftime("%Y-%m-%d %H:%M UTC") if times else "–"

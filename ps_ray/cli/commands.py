@@ -19,7 +19,7 @@ from ps_ray.pipeline.stage import StageError
 from ps_ray.specs import reset_seeds
 from ps_ray.specs.names import parse_spec_text
 from ps_ray.specs.train import POINT_TASK, TrainSpec
-from ps_ray.store.layout import SweepLayout
+from ps_ray.store.layout import sweep_layout
 from ps_ray.store.lock import folder_lock
 
 
@@ -158,7 +158,6 @@ def _trained_sweep(args: argparse.Namespace, stage: str, *flags: str):
     under the sweep's lock. An untrained sweep is refused in one line and no folder is made; a
     sweep another driver holds is refused as locked, even while its training is still starting."""
     from ps_ray.pipeline.sweep import sweep_dir
-    from ps_ray.store.layout import SweepLayout
 
     spec = _load(args)
     settings = dataclasses.replace(getattr(spec, stage), **_given(args, *flags))
@@ -169,7 +168,7 @@ def _trained_sweep(args: argparse.Namespace, stage: str, *flags: str):
     if not sweep_dir(spec).is_dir():
         raise untrained
     with _sweep_lock(spec):
-        if not SweepLayout(sweep_dir(spec)).spec_file.exists():
+        if not sweep_layout(spec).spec_file.exists():
             raise untrained
         yield spec
 
@@ -218,7 +217,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         summaries = run_pipeline(spec)
     print(f"sweep {spec.name!r}: all stages done in {(time.time() - started) / 60:.1f} min")
     if "report" in summaries:
-        print(f"report: {SweepLayout(sweep_dir(spec)).report / 'index.html'}")
+        print(f"report: {sweep_layout(spec).report / 'index.html'}")
     uri = spec.tracking_uri or default_tracking_uri(sweep_dir(spec))
     print(f"MLflow: mlflow ui --workers 1 --backend-store-uri {uri}")  # one reader (docs/cost.md)
     if (page := runs_page(uri, spec.name)) is not None:

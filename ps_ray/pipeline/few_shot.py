@@ -16,7 +16,6 @@ import dataclasses
 from typing import Any
 
 from ps_ray.errors import UserError
-from ps_ray.pipeline.stage import layout
 from ps_ray.plan import few_shot as few_shot_plan
 from ps_ray.plan.catalogue import trained
 from ps_ray.plan.zero_shot import evaluated_pairs
@@ -25,7 +24,7 @@ from ps_ray.specs.stage_settings import FewShotSpec
 from ps_ray.specs.sweep import SweepSpec
 from ps_ray.specs.trial import STITCHED_STARTS, TrainTrial
 from ps_ray.stitching.pairs import StitchedPair
-from ps_ray.store.layout import sweep_dir
+from ps_ray.store.layout import sweep_dir, sweep_layout
 
 
 def few_shot_trials(spec: SweepSpec, settings: FewShotSpec) -> list[TrainTrial]:
@@ -67,18 +66,18 @@ def run_few_shot(spec: SweepSpec, *, resume: bool = False, progress: bool = True
     settings = dataclasses.replace(spec.few_shot, **overrides)
     root = sweep_dir(spec)
     if not resume:  # refused before the stitched starts are written
-        require_fresh(layout(spec).tune_few_shot, "trial", "few_shot")
+        require_fresh(sweep_layout(spec).tune_few_shot, "trial", "few_shot")
     trials = few_shot_trials(spec, settings)
     if not trials:
         raise UserError(f"{root}: no stitchable pairs (train the sweep first: ps-ray sweep)")
     if resume:
-        finished = outcomes(layout(spec).tune_few_shot, "trial", [trial.config() for trial in trials])
+        finished = outcomes(sweep_layout(spec).tune_few_shot, "trial", [trial.config() for trial in trials])
         if not any(outcome.error for outcome in finished):
             return finished
     tracking = connect(spec)
     return run_tune(
         trials,
-        folder=layout(spec).tune_few_shot,
+        folder=sweep_layout(spec).tune_few_shot,
         stage="few_shot",
         spec=spec,
         tracking=tracking,

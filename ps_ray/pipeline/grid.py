@@ -13,7 +13,7 @@ from ps_ray.pipeline.sweep import prepare_sweep_anchors, report_ticks, run_tune
 from ps_ray.plan import grid as grid_plan
 from ps_ray.specs.sweep import SweepSpec
 from ps_ray.specs.trial import GridTrial
-from ps_ray.store.layout import SweepLayout, sweep_dir
+from ps_ray.store.layout import sweep_layout
 
 
 def grid_trial(config: dict[str, Any]) -> None:
@@ -43,7 +43,7 @@ def run_grids(spec: SweepSpec, *, resume: bool = False, progress: bool = True):
     prepare_sweep_anchors(spec)
     return run_tune(
         grid_plan.plan(spec),
-        folder=SweepLayout(sweep_dir(spec)).tune_grid,
+        folder=sweep_layout(spec).tune_grid,
         stage="grid",
         spec=spec,
         tracking=connect(spec),

@@ -19,9 +19,10 @@ import shutil
 import time
 from collections.abc import Callable
 
-from ps_ray.pipeline.stage import layout, raise_on_errors, require_same_sweep
+from ps_ray.pipeline.stage import raise_on_errors, require_same_sweep
 from ps_ray.specs.stages import STAGES
 from ps_ray.specs.sweep import SweepSpec
+from ps_ray.store.layout import sweep_layout
 from ps_ray.store.stages import finished_summary, mark_finished, mark_started, stage_state
 
 
@@ -47,7 +48,7 @@ def _zero_shot(spec: SweepSpec, resume: bool, progress: bool) -> str:
     from ps_ray.pipeline.zero_shot import run_zero_shot, summary
 
     if not resume:
-        shutil.rmtree(layout(spec).tune_zero_shot, ignore_errors=True)
+        shutil.rmtree(sweep_layout(spec).tune_zero_shot, ignore_errors=True)
     table = run_zero_shot(spec, resume=resume, progress=progress)
     means = summary(table)["success"].to_dict()
     return f"{len(table)} stitched pairs; mean success " + ", ".join(f"{m} {v:.2f}" for m, v in means.items())
@@ -57,7 +58,7 @@ def _few_shot(spec: SweepSpec, resume: bool, progress: bool) -> str:
     from ps_ray.pipeline.few_shot import run_few_shot
 
     if not resume:
-        shutil.rmtree(layout(spec).few_shot, ignore_errors=True)
+        shutil.rmtree(sweep_layout(spec).few_shot, ignore_errors=True)
     results = run_few_shot(spec, resume=resume, progress=progress)
     raise_on_errors(results, "few-shot trials")
     return f"{len(results)} fine-tuning trials"

@@ -1,4 +1,4 @@
-"""What every stage of the pipeline shares: the sweep's folder (:func:`layout`), Ray and the
+"""What every stage of the pipeline shares: Ray and the
 sweep's MLflow experiment (:func:`connect`), the check that a folder keeps one sweep's work
 (:func:`require_same_sweep`), and a stage's failed trials as one error (:func:`raise_on_errors`)."""
 
@@ -6,11 +6,7 @@ from __future__ import annotations
 
 from ps_ray.specs.sweep import SweepSpec
 from ps_ray.specs.train import require_same
-from ps_ray.store.layout import SweepLayout, sweep_dir
-
-
-def layout(spec: SweepSpec) -> SweepLayout:
-    return SweepLayout.of(spec.storage, spec.name)
+from ps_ray.store.layout import SweepLayout, sweep_dir, sweep_layout
 
 
 def require_same_sweep(spec: SweepSpec) -> None:
@@ -21,7 +17,7 @@ def require_same_sweep(spec: SweepSpec) -> None:
 
     from ps_ray.store.attempts import attempts
 
-    layout = SweepLayout(sweep_dir(spec))
+    layout = sweep_layout(spec)
     spec_file = layout.spec_file
     holds_work = (
         attempts(layout.tune_train, "trial")
@@ -60,7 +56,7 @@ def connect(spec: SweepSpec) -> tuple[str, str]:
     from ps_ray.store.terminal import others_to
     from ps_ray.store.tracking import default_tracking_uri, ensure_experiment
 
-    where = layout(spec)
+    where = sweep_layout(spec)
     with others_to(where.root / LOG_FOLDER / "driver.log"):  # Ray's and MLflow's start-up messages
         init_ray(cluster_address() or "local")
         tracking_uri = spec.tracking_uri or default_tracking_uri(where.root)

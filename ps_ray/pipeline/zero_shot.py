@@ -23,7 +23,7 @@ import numpy as np
 import pandas as pd
 
 from ps_ray.errors import UserError
-from ps_ray.pipeline.stage import layout, raise_on_errors
+from ps_ray.pipeline.stage import raise_on_errors
 from ps_ray.plan import zero_shot as zero_shot_plan
 from ps_ray.plan.catalogue import trained
 from ps_ray.specs import reset_seeds
@@ -32,7 +32,7 @@ from ps_ray.specs.stage_settings import ZeroShotSpec
 from ps_ray.specs.sweep import SweepSpec
 from ps_ray.stitching.pairs import StitchedPair
 from ps_ray.store.atomic import atomic_path
-from ps_ray.store.layout import sweep_dir
+from ps_ray.store.layout import sweep_dir, sweep_layout
 
 RESULT_KEYS = (
     "success_mean",
@@ -245,7 +245,7 @@ def run_zero_shot(
     from ps_ray.store.attempts import require_fresh, rows_naming
 
     settings = dataclasses.replace(spec.zero_shot, **overrides)
-    root, folder = sweep_dir(spec), layout(spec).tune_zero_shot
+    root, folder = sweep_dir(spec), sweep_layout(spec).tune_zero_shot
     if not resume:
         require_fresh(folder, "batch", "zero_shot")
     trials = zero_shot_plan.plan(spec, trained(spec), settings)
@@ -262,7 +262,7 @@ def run_zero_shot(
     if missing:  # every batch finished, so each of its pairs reported: a bug, never bad input
         raise RuntimeError(f"{len(missing)} pairs have no result row, e.g. {missing[0]}")
     table = table_of([(pair, rows[pair.key]) for pair in trials], root)
-    write_atomic_csv(table, layout(spec).zero_shot_table)
+    write_atomic_csv(table, sweep_layout(spec).zero_shot_table)
     return table
 
 
@@ -282,7 +282,7 @@ def _evaluate(
     from ps_ray.specs.resources import device_tags
     from ps_ray.store.tracking import stage_tags
 
-    folder, by_key = layout(spec).tune_zero_shot, {pair.key: pair for pair in trials}
+    folder, by_key = sweep_layout(spec).tune_zero_shot, {pair.key: pair for pair in trials}
     evaluated = {"episodes": settings.episodes, "repeats": settings.repeats}
     first = reset_seeds.fixed("zero_shot", settings.seed)  # episodes no other stage draws
     episodes = {"episodes": settings.episodes, "repeats": settings.repeats, "seed": first}
@@ -319,7 +319,7 @@ def _evaluate(
             "outcome": {
                 "scenes": settings.outcome_scenes,
                 "points": settings.outcome_points,
-                "cache": str(layout(spec).outcomes),
+                "cache": str(sweep_layout(spec).outcomes),
                 "seed": settings.seed,
                 "fit_seed": reset_seeds.fixed("fit", settings.seed),
             },

@@ -16,7 +16,7 @@ from ps_ray.specs.train import TrainSpec
 from ps_ray.specs.trial import HALVES, TrainTrial
 from ps_ray.stitching.pairs import StitchedPair
 from ps_ray.stitching.zoo import ModuleZoo
-from ps_ray.store.layout import SweepLayout
+from ps_ray.store.layout import sweep_layout
 
 
 def selected_pairs(pairs: list[StitchedPair], settings: FewShotSpec) -> list[StitchedPair]:
@@ -45,7 +45,7 @@ def start_file(spec: SweepSpec, pair: StitchedPair, kind: str) -> Path:
     """Where the policy file of a start of the pair (``kind``: one of :func:`starts`) stands: one
     name per (sources, kind), so a resumed stage finds the files its trials started from."""
     name = f"{pair.task_from}|{pair.robot_from}" + ("" if kind == "stitched" else f"|{kind}")
-    folder = SweepLayout.of(spec.storage, spec.name).stitched
+    folder = sweep_layout(spec).stitched
     return folder / f"{hashlib.sha256(name.encode()).hexdigest()[:16]}.safetensors"
 
 

@@ -6,7 +6,7 @@ from __future__ import annotations
 from ps_ray.specs.sweep import SweepSpec, anchor_sources, task_input_dim
 from ps_ray.specs.train import TrainSpec
 from ps_ray.specs.trial import TrainTrial
-from ps_ray.store.layout import SweepLayout
+from ps_ray.store.layout import sweep_layout
 
 
 def anchor_file(spec: SweepSpec, trial: TrainSpec) -> str | None:
@@ -15,9 +15,7 @@ def anchor_file(spec: SweepSpec, trial: TrainSpec) -> str | None:
     methods without anchors. (A stitched start carries its anchors in its policy file.)"""
     if not trial.resolved.uses_anchors:
         return None
-    return str(
-        SweepLayout.of(spec.storage, spec.name).anchor_set(task_input_dim(trial.task), trial.interface_dim)
-    )
+    return str(sweep_layout(spec).anchor_set(task_input_dim(trial.task), trial.interface_dim))
 
 
 def plain_sources(spec: SweepSpec) -> list[TrainTrial]:

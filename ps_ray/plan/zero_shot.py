@@ -8,7 +8,7 @@ from ps_ray.specs.sweep import SweepSpec, seed_pairs
 from ps_ray.stitching.matrix import combos, controls
 from ps_ray.stitching.pairs import CO_TRAINED, Control, StitchedPair, pairs_from_table
 from ps_ray.stitching.zoo import ModuleZoo
-from ps_ray.store.layout import SweepLayout, sweep_dir
+from ps_ray.store.layout import sweep_layout
 
 
 def plan(spec: SweepSpec, zoo: ModuleZoo, settings: ZeroShotSpec | None = None) -> list[StitchedPair]:
@@ -79,7 +79,7 @@ def evaluated_pairs(spec: SweepSpec, methods: list[str] | None = None) -> list[S
     from ps_ray.plan.catalogue import trained
 
     methods = list(methods or spec.methods)
-    table = pairs_from_table(SweepLayout(sweep_dir(spec)).zero_shot_table) or []
+    table = pairs_from_table(sweep_layout(spec).zero_shot_table) or []
     by_method = {
         m: [p for p in table if p.method == m and p.pairing == "same_seed" and not p.translation]
         for m in methods

@@ -15,7 +15,7 @@ from pathlib import Path
 from ps_ray.specs.stages import earlier_and
 from ps_ray.specs.sweep import SweepSpec
 from ps_ray.store.atomic import write_text
-from ps_ray.store.layout import SweepLayout
+from ps_ray.store.layout import sweep_layout
 
 
 def fingerprint(spec: SweepSpec, stage: str) -> str:
@@ -30,7 +30,7 @@ def fingerprint(spec: SweepSpec, stage: str) -> str:
 
 
 def _marker(spec: SweepSpec, stage: str, suffix: str = "") -> Path:
-    return SweepLayout.of(spec.storage, spec.name).stages / f"{stage}{suffix}.json"
+    return sweep_layout(spec).stages / f"{stage}{suffix}.json"
 
 
 def _read(path: Path) -> dict:

@@ -63,6 +63,21 @@ def test_an_outcome_is_where_the_arm_ended_not_where_the_target_was():
     assert np.ptp(targets, axis=0).max() > 0.05  # the scenes themselves differ
 
 
+def test_a_push_outcome_is_where_the_object_ended_a_marker_outcome_where_the_arm_did():
+    """Push's own outcome is the pushed object's final position; a task without an object keeps
+    the end effector's (so every marker-family figure stands)."""
+    from ps_ray.stitching.evaluate import outcome_point
+
+    def still(obs):
+        return np.zeros((len(obs["robot_state"]), 7))
+
+    for r in evaluate(still, "panda", "push", episodes=4, repeats=1)["records"]:
+        np.testing.assert_allclose(outcome_point(r), r["start"], atol=1e-3)  # untouched: where it was
+        assert np.linalg.norm(np.subtract(outcome_point(r), r["end_effector"])) > 0.05
+    for r in evaluate(still, "panda", "reach_red", episodes=2, repeats=1)["records"]:
+        assert r["object_end"] == () and outcome_point(r) == tuple(r["end_effector"])
+
+
 def test_the_swapped_scene_trades_the_two_tasks_markers():
     states = np.arange(18, dtype=np.float32).reshape(2, 9)
     swapped = colour_swapped(states, EnvPart("reach_red"), EnvPart("reach_blue"))

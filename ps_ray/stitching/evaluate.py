@@ -65,6 +65,13 @@ class EpisodeRecord:
     # where the scene holds one), and whether it ended within the success distance of another one
     candidate_distances: tuple[float, ...] = ()
     wrong_target: bool = False
+    object_end: tuple[float, ...] = ()  # where the object ended (world frame); () for tasks without one
+
+
+def outcome_point(record: Mapping[str, Any]) -> tuple[float, ...]:
+    """What an episode (an :class:`EpisodeRecord` as a dict) did, as a point: where the object
+    ended, or, in a task without one (reach, the markers), where the end effector ended."""
+    return tuple(record.get("object_end") or ()) or tuple(record["end_effector"])
 
 
 # -- the policy -----------------------------------------------------------------------------------
@@ -228,6 +235,7 @@ def _run_batch(
             tuple(map(float, task_input(o))),
             tuple(map(float, envs[i].ee_position)),
             *ends[i],
+            tuple(map(float, obs[i]["achieved_goal"])) if envs[i].task.has_object else (),
         )
         for i, (s, (o, info)) in enumerate(zip(seeds, resets))
     ]

@@ -9,9 +9,10 @@ data instead: inputs that mean the same in both spaces. Three ways to pair a tas
 task-Y scene, each spelt as a translation's fit (``affine@outcome``):
 
 - ``outcome``: roll out each task's own trained source on scenes disjoint from evaluation
-  (:data:`OUTCOME_SEED`), keep the successful episodes, describe each by where its end effector
-  ended (world frame; the env's target is never read), pick reference points by k-means over the
-  pooled end points, and pair, per point, the X scene and the Y scene whose end points are nearest;
+  (:data:`OUTCOME_SEED`), keep the successful episodes, describe each by where it ended (world
+  frame: the object, in a task with one such as push; else the end effector; the env's target is
+  never read), pick reference points by k-means over the pooled end points, and pair, per point,
+  the X scene and the Y scene whose end points are nearest;
 - ``shuffled``: the same pairs with the Y side permuted (a control: as many pairs, no meaning);
 - ``swapped``: the known correspondence of the marker family, each X scene with the scene whose
   two tasks' markers trade places (an upper bound no outcome matching can beat).
@@ -49,22 +50,23 @@ class Outcomes:
     """The successful greedy episodes of one policy in its own env."""
 
     task_in: np.ndarray  # (N, task_dim): the task input at reset
-    end: np.ndarray  # (N, 3): where the end effector ended, world frame
+    end: np.ndarray  # (N, 3): where each episode ended, world frame (evaluate.outcome_point)
 
 
 def outcomes(policy, robot, task, scenes: int) -> Outcomes:
     """Greedy rollouts of a policy (anything :func:`ps_ray.stitching.evaluate.evaluate` takes) in its own
     env from ``scenes`` reset seeds starting at :data:`OUTCOME_SEED`: the successful ones, each
-    described by its first task input and where the end effector ended (the env's target is never
-    read: success only decides which episodes are kept)."""
-    from ps_ray.stitching.evaluate import evaluate
+    described by its first task input and where it ended (:func:`ps_ray.stitching.evaluate.outcome_point`:
+    the object, or the end effector in a task without one; the env's target is never read: success
+    only decides which episodes are kept)."""
+    from ps_ray.stitching.evaluate import evaluate, outcome_point
 
     result = evaluate(policy, robot, task, episodes=scenes, repeats=1, seed=OUTCOME_SEED)
     won = [r for r in result["records"] if r["success"]]
     if len(won) < 2:
         raise UserError(f"{policy}: {len(won)} of {scenes} outcome rollouts succeeded; too few to match")
     return Outcomes(
-        np.array([r["task_input"] for r in won], np.float32), np.array([r["end_effector"] for r in won])
+        np.array([r["task_input"] for r in won], np.float32), np.array([outcome_point(r) for r in won])
     )
 
 
@@ -73,9 +75,11 @@ def _source_outcomes(path: str, robot: str, task: str, scenes: int, cache: str |
     """:func:`outcomes` of a policy file in its env (spec texts), cached per process (the pairs
     of a zero-shot batch share their sources) and, given a ``cache`` folder, on disk, keyed by the
     file's bytes, its env and the scenes (every batch of a stage reads the same sources)."""
+    # an object task's outcome is where its object ended (before, its end effector's end): its own key
+    kind = "|object" if resolve_task(parse_spec_text(task)).family.has_object else ""
     found = _disk_cached(
         cache,
-        (path, f"|{robot}|{task}|{scenes}|{OUTCOME_SEED}".encode()),
+        (path, f"|{robot}|{task}|{scenes}|{OUTCOME_SEED}{kind}".encode()),
         lambda: vars(outcomes(path, parse_spec_text(robot), parse_spec_text(task), scenes)),
     )
     return Outcomes(found["task_in"], found["end"])
@@ -84,12 +88,12 @@ def _source_outcomes(path: str, robot: str, task: str, scenes: int, cache: str |
 def anchor_ends(policy, robot, task, anchors: np.ndarray) -> np.ndarray:
     """Where a policy's greedy rollouts in its env end (world frame), one per anchor, each reset to
     the anchor's scene; every episode is kept (success is not read, nor is the env's target)."""
-    from ps_ray.stitching.evaluate import evaluate
+    from ps_ray.stitching.evaluate import evaluate, outcome_point
 
     result = evaluate(
         policy, robot, task, episodes=len(anchors), repeats=1, seed=OUTCOME_SEED, scenes=anchors
     )
-    return np.array([r["end_effector"] for r in result["records"]])
+    return np.array([outcome_point(r) for r in result["records"]])
 
 
 def fit_env_steps(kind: str, fit: str, scenes: int, anchors: int = 0, candidates: int = 0) -> int:

@@ -335,8 +335,8 @@ def _transfer(report: Report, table: pd.DataFrame) -> None:
 
 def _has_object(tasks: pd.Series) -> bool:
     """Whether any of these tasks (spec text, ``{"goal_region": "east", "name": "reach"}``, or
-    a short name of an older table, ``reach{"goal_region":"east"}``) has an object, i.e. a task
-    state beyond the goal."""
+    a short name of an older table, ``reach{"goal_region":"east"}``) moves an object (push, pick:
+    touching means something; the markers are not moved)."""
     from ps_ray.envs.tasks import resolve_task
 
     names = {str(parse_spec_text(str(t)).name).split("{")[0].split("#")[0] for t in tasks.unique()}

@@ -134,6 +134,30 @@ def test_resume_after_sigkill_reruns_only_missing_trials_and_never_unpickles(
     assert not planted.marker.exists(), "a planted pickle was loaded on resume"
 
 
+def test_ctrl_c_stops_a_sweep_in_one_line_and_resume_finishes_it(tmp_path, cli, tiny_train):
+    path = write_sweep(tmp_path, "ctrlc", tiny_train, seeds=(1, 2), max_concurrent=1)
+    proc = cli("sweep", str(path))
+    deadline = time.time() + 300
+    while not any(r.info.status == "FINISHED" for r in runs(path).values()):
+        assert time.time() < deadline and proc.poll() is None, "no trial finished in time"
+        time.sleep(0.5)
+    proc.send_signal(signal.SIGINT)  # what Ctrl-C or `kill -INT` sends the driver
+    out, _ = proc.communicate(timeout=300)
+    assert proc.returncode == 130, out[-3000:]
+    assert "Traceback" not in out
+    assert out.strip().splitlines()[-1] == (
+        "ps-ray sweep: interrupted: 1 of 2 training trials finished, 1 not; "
+        "the same command with --resume finishes it"
+    )
+    assert "train: 1 done, 1 interrupted, 0 running, 0 failed, 0 pending" in out  # the live view
+
+    resumed = cli("sweep", str(path), "--resume")
+    out, _ = resumed.communicate(timeout=600)
+    assert resumed.returncode == 0, out[-3000:]
+    assert "2/2 trials finished" in out
+    assert all(r.info.status == "FINISHED" for r in runs(path).values())
+
+
 def _trial_workers(tag: str) -> list[int]:
     """PIDs of Tune trial workers (``ray::ImplicitFunc``) started under the environment ``tag``."""
     found = []

@@ -15,7 +15,7 @@ from ps_ray.cli.args import flag_of
 from ps_ray.cli.parsers import build_parser
 from ps_ray.cli.paths import output_file, writable_folder
 from ps_ray.errors import UserError
-from ps_ray.pipeline.stage import StageError
+from ps_ray.pipeline.stage import StageError, StageInterrupted, raise_on_errors
 from ps_ray.specs import reset_seeds
 from ps_ray.specs.names import parse_spec_text
 from ps_ray.specs.train import POINT_TASK, TrainSpec
@@ -100,7 +100,8 @@ def cmd_sweep(args: argparse.Namespace) -> int:
         f"sweep {spec.name!r}: {len(results) - len(errors)}/{len(results)} trials finished; "
         f"results in {sweep_dir(spec)}"
     )
-    return 1 if errors else 0
+    raise_on_errors(results, "training trials")
+    return 0
 
 
 def _load(args: argparse.Namespace):
@@ -195,7 +196,8 @@ def cmd_few_shot(args: argparse.Namespace) -> int:
         results = run_few_shot(spec, resume=args.resume)
     for key, points in sorted(curves(results).items()):
         print(key, " ".join(f"{steps}:{success:.2f}" for steps, success in points))
-    return 1 if any(r.error for r in results) else 0
+    raise_on_errors(results, "few-shot trials")
+    return 0
 
 
 def cmd_run(args: argparse.Namespace) -> int:
@@ -343,6 +345,13 @@ def cmd_bench(args: argparse.Namespace) -> int:
     return 0
 
 
+# what goes on after Ctrl-C (Tune stops a stage's trials cleanly; their checkpoints are kept)
+RESUMED_BY = {
+    **dict.fromkeys(("train", "grid", "run"), "the same command resumes"),
+    **dict.fromkeys(("sweep", "zero-shot", "few-shot"), "the same command with --resume finishes it"),
+}
+
+
 def main(argv: list[str] | None = None) -> int:
     args = build_parser(__doc__).parse_args(argv)
     if getattr(args, "verbose", False):
@@ -366,6 +375,11 @@ def main(argv: list[str] | None = None) -> int:
     except (UserError, json.JSONDecodeError) as e:  # bad input: one line; any other error is a bug
         print(f"ps-ray {args.command}: error: {e}", file=sys.stderr)
         return 2
+    except (StageInterrupted, KeyboardInterrupt) as e:  # stopped by its user: no traceback
+        said = str(e) if isinstance(e, StageInterrupted) else "interrupted"
+        resume = f"; {RESUMED_BY[args.command]}" if args.command in RESUMED_BY else ""
+        print(f"ps-ray {args.command}: {said}{resume}", file=sys.stderr)
+        return 130
     except StageError as e:  # trials failed: the first error's last line, the rest is in Tune's logs
         lines = str(e).strip().splitlines()
         print(

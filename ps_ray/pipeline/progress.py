@@ -18,7 +18,7 @@ from typing import IO, Any
 from ray.tune import Callback
 from tqdm import tqdm
 
-from ps_ray.store.attempts import STOPPED_FILE
+from ps_ray.store.attempts import FINISHED, STOPPED_FILE, identity
 from ps_ray.store.terminal import others_to
 
 PLAIN_EVERY_S = 30.0
@@ -29,15 +29,22 @@ class StageProgress(Callback):
 
     Counts are read from the trials' own states at every event, so a restored stage (whose
     callbacks come back from Tune's experiment state) counts the trials finished before the
-    restart too. The output stream is looked up when printing, never stored (it is not picklable)."""
+    restart too. A trial Tune ended without its finished mark was interrupted (Ctrl-C). The ETA
+    counts work, not trials: a trial with a budget (``budgets``: env steps by the identity of its
+    ``key`` value) is done by the share of its env steps run, so a few long trials give a steady
+    estimate. The output stream is looked up when printing, never stored (it is not picklable)."""
 
-    def __init__(self, stage: str, total: int = 0) -> None:
+    def __init__(
+        self, stage: str, total: int = 0, key: str = "", budgets: dict[str, int] | None = None
+    ) -> None:
         self.stage, self.total = stage, total  # Tune makes a grid search's trials lazily: count them all
+        self.key, self.budgets = key, budgets or {}
         self.started = time.time()
         self.best: float | None = None
         self.last_plain = 0.0
         self.counts: dict[str, int] = {}
         self.env_steps = 0
+        self.shares: dict[str, tuple[float, float]] = {}  # trial id -> (share done at first sight, now)
         self._bar = None
 
     def __getstate__(self) -> dict:
@@ -69,31 +76,52 @@ class StageProgress(Callback):
 
     # -- view ----------------------------------------------------------------------------------
     def _update(self, trials, force: bool = False) -> None:
-        states = [t.status for t in trials]
-        stopped = sum(t.status == "TERMINATED" and (Path(t.path) / STOPPED_FILE).is_file() for t in trials)
+        ended = [t for t in trials if t.status == "TERMINATED"]
+        stopped = sum((Path(t.path) / STOPPED_FILE).is_file() for t in ended)
+        done = sum(bool((t.last_result or {}).get(FINISHED)) for t in ended)
         self.counts = {
             "total": max(self.total, len(trials)),
-            "done": states.count("TERMINATED") - stopped,
+            "done": done,
             "stopped": stopped,  # by a search's scheduler (ps_ray.pipeline.search)
-            "running": states.count("RUNNING"),
-            "failed": states.count("ERROR"),
+            "interrupted": len(ended) - done - stopped,
+            "running": sum(t.status == "RUNNING" for t in trials),
+            "failed": sum(t.status == "ERROR" for t in trials),
         }
         self.env_steps = sum(int((t.last_result or {}).get("env_steps") or 0) for t in trials)
+        for trial in trials:
+            share = self._share(trial)
+            if share is not None:
+                first, _ = self.shares.get(trial.trial_id, (share, share))
+                self.shares[trial.trial_id] = (first, share)
         self._show(force)
+
+    def _share(self, trial) -> float | None:
+        """The share of a trial's work done: 1 once ended, its env steps over its budget while it
+        runs; None while it waits, and before its first result (a resumed trial starts from its
+        checkpoint's steps)."""
+        if trial.status in ("TERMINATED", "ERROR"):
+            return 1.0
+        if trial.status != "RUNNING":
+            return None
+        budget = self.budgets.get(identity((trial.config or {}).get(self.key)))
+        steps = (trial.last_result or {}).get("env_steps")
+        if not budget:
+            return 0.0
+        return None if steps is None else min(int(steps) / budget, 1.0)
 
     def status(self) -> str:
         c = self.counts
-        finished = c.get("done", 0) + c.get("failed", 0) + c.get("stopped", 0)
+        finished = sum(c.get(k, 0) for k in ("done", "failed", "stopped", "interrupted"))
         pending = max(c.get("total", 0) - finished - c.get("running", 0), 0)
         elapsed = time.time() - self.started
-        remaining = c.get("total", 0) - finished
-        eta = elapsed / finished * remaining if finished else None
+        eta = eta_s(elapsed, list(self.shares.values()), pending)
         best = "–" if self.best is None else f"{self.best:.2f}"
         steps = f"  env steps {self.env_steps:,}" if self.env_steps else ""
         stopped = f"{c['stopped']} stopped early, " if c.get("stopped") else ""
+        interrupted = f"{c['interrupted']} interrupted, " if c.get("interrupted") else ""
         return (
-            f"{c.get('done', 0)} done, {stopped}{c.get('running', 0)} running, {c.get('failed', 0)} "
-            f"failed, {pending} pending{steps}  best success {best}  elapsed "
+            f"{c.get('done', 0)} done, {stopped}{interrupted}{c.get('running', 0)} running, "
+            f"{c.get('failed', 0)} failed, {pending} pending{steps}  best success {best}  elapsed "
             f"{_clock(elapsed)}  ETA {'–' if eta is None else _clock(eta)}"
         )
 
@@ -109,7 +137,7 @@ class StageProgress(Callback):
                     leave=False,
                     dynamic_ncols=True,
                 )
-            self._bar.n = self.counts["done"] + self.counts["failed"] + self.counts["stopped"]
+            self._bar.n = sum(self.counts[k] for k in ("done", "failed", "stopped", "interrupted"))
             self._bar.set_postfix_str(self.status(), refresh=True)
             return
         now = time.time()
@@ -123,6 +151,15 @@ _VIEW_STREAM: list[IO[str]] = []  # the terminal while quiet_tune redirects stdo
 
 def view_stream() -> IO[str]:
     return _VIEW_STREAM[-1] if _VIEW_STREAM else sys.stdout
+
+
+def eta_s(elapsed_s: float, shares: list[tuple[float, float]], pending: int) -> float | None:
+    """Seconds left at the pace so far: ``shares`` holds each trial seen, as the share of its work
+    done when first seen and now (1: ended); ``pending`` trials not seen yet have all theirs left.
+    None until some work is done."""
+    done = sum(now - first for first, now in shares)
+    left = sum(1.0 - now for _, now in shares) + pending
+    return elapsed_s * left / done if done > 0 else None
 
 
 def _clock(seconds: float) -> str:

@@ -67,8 +67,20 @@ class StageError(RuntimeError):
     """Trials of a stage failed; the message names how many and the first error."""
 
 
-def raise_on_errors(grid, what: str) -> None:
-    """StageError if any trial of a Tune ResultGrid failed."""
-    errors = [r for r in grid if r.error]
-    if errors:
-        raise StageError(f"{len(errors)} of {len(grid)} {what} failed: {errors[0].error}")
+class StageInterrupted(StageError):
+    """A stage was stopped (Ctrl-C, ``ray job stop``) before all its trials finished and none
+    failed: what finished is kept, and a resume runs the rest."""
+
+
+def raise_on_errors(outcomes, what: str) -> None:
+    """StageError if any trial failed; StageInterrupted if none failed but some did not finish
+    (``outcomes``: :func:`ps_ray.store.attempts.outcomes` of a stage's trials)."""
+    from ps_ray.store.attempts import UNFINISHED
+
+    unfinished = [r for r in outcomes if r.error]
+    failed = [r for r in unfinished if r.error != UNFINISHED]
+    if failed:
+        raise StageError(f"{len(failed)} of {len(outcomes)} {what} failed: {failed[0].error}")
+    if unfinished:
+        done, total = len(outcomes) - len(unfinished), len(outcomes)
+        raise StageInterrupted(f"interrupted: {done} of {total} {what} finished, {len(unfinished)} not")

@@ -290,6 +290,7 @@ def run_tune(
         resources=resources,
         constants={"compile": resources.compile},  # how to run, not what: not the trial's identity
         scheduler_fn=scheduler_fn,
+        budgets=[t.spec.env_steps if isinstance(t, TrainTrial) else None for t in trials],
     )
 
 

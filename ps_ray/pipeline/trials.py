@@ -30,6 +30,7 @@ def run_trials(
     constants: dict | None = None,
     preemption_retries: int = PREEMPTION_RETRIES,
     scheduler_fn=None,
+    budgets: list[int] | None = None,
 ) -> list[TrialOutcome]:
     """Run a grid over ``grid``'s one key (plus ``constants``) as the Tune experiment in
     ``folder``: ``resources`` per trial (one CPU by default), the sweep's retry policy, the MLflow
@@ -40,7 +41,8 @@ def run_trials(
     Trials that failed only because their node went away (:mod:`ps_ray.pipeline.preemption`)
     are launched again by the resume path, up to ``preemption_retries`` rounds: a training
     trial continues from its checkpoint, and preemptions do not use up ``max_failures``.
-    ``scheduler_fn()``: a fresh Tune trial scheduler for each launch (a search's ASHA)."""
+    ``scheduler_fn()``: a fresh Tune trial scheduler for each launch (a search's ASHA).
+    ``budgets``: each trial's env steps, in ``grid``'s order, for the live view's ETA."""
     from ray import tune
 
     from ps_ray.pipeline.progress import StageProgress, quiet_tune
@@ -53,6 +55,7 @@ def run_trials(
     todo = [o.config[key] for o in outcomes(path, key, trials) if o.error] if resume else trials
     errors: dict[str, str] = {}
     quiet = progress and not verbose()
+    budget_of = {identity(trial): steps for trial, steps in zip(trials, budgets or [])}
     for attempt in range(preemption_retries + 1):
         if not todo:
             break
@@ -77,7 +80,7 @@ def run_trials(
                 storage_path=str(root),
                 failure_config=tune.FailureConfig(max_failures=max_failures),
                 checkpoint_config=tune.CheckpointConfig(num_to_keep=1),
-                callbacks=[callback, *([StageProgress(stage, len(todo))] if quiet else [])],
+                callbacks=[callback, *([StageProgress(stage, len(todo), key, budget_of)] if quiet else [])],
                 verbose=1 if progress else 0,
             ),
         )

@@ -28,6 +28,7 @@ from ps_ray.store.run_layout import REPLAY_FOLDER
 FINISHED = "ps_ray_finished"  # in the last result of a trial that ran to its end
 # beside the results of a trial a search's scheduler stopped early (ps_ray.pipeline.search): done too
 STOPPED_FILE = "stopped_early.json"
+UNFINISHED = "did not finish"  # the error of a trial that ended neither finished nor failed: interrupted
 STOPPED = "stopped_early"  # set in the last row of such a trial as outcomes() read it
 STAGE_DIR_KEY = "stage_dir"  # a constant of every grid: where earlier attempts lie
 PARAMS_FILE = "params.json"
@@ -149,7 +150,7 @@ def outcomes(
 ) -> list[TrialOutcome]:
     """The outcome of every trial in ``trials`` (grid values under ``key``), read from
     ``stage_dir``: finished if an attempt finished, else failed with ``errors``' message or
-    "did not finish"."""
+    ``UNFINISHED`` (the stage was stopped before it: Ctrl-C, ``ray job stop``)."""
     found = attempts(stage_dir, key)
     out = []
     for trial in trials:
@@ -160,7 +161,7 @@ def outcomes(
             out.append(TrialOutcome(_params(folder) or {key: trial}, row, folder, None, folders))
             continue
         last = folders[-1] if folders else None
-        error = (errors or {}).get(identity(trial)) or "did not finish"
+        error = (errors or {}).get(identity(trial)) or UNFINISHED
         metrics = read_rows(last)[-1:] if last else []
         out.append(TrialOutcome({key: trial}, metrics[0] if metrics else {}, last, error, folders))
     return out

@@ -213,7 +213,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     projection = project(spec)
     print(
         f"sweep {spec.name!r}: projected {projection.core_s / 3600:.2f} core-hours, about "
-        f"{projection.wall_s_here / 60:.0f} min on this machine ({projection.rates.source})"
+        f"{projection.wall_s_here / 60:.0f} min on this machine; rates: {projection.rates.source}"
     )
     with _sweep_lock(spec):
         summaries = run_pipeline(spec)

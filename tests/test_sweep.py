@@ -135,12 +135,12 @@ def test_resume_after_sigkill_reruns_only_missing_trials_and_never_unpickles(
 
 
 def test_ctrl_c_stops_a_sweep_in_one_line_and_resume_finishes_it(tmp_path, cli, tiny_train):
-    path = write_sweep(tmp_path, "ctrlc", tiny_train, seeds=(1, 2), max_concurrent=1)
+    path = write_sweep(tmp_path, "ctrlc", {**tiny_train, "env_steps": 600}, seeds=(1, 2), max_concurrent=1)
     proc = cli("sweep", str(path))
     deadline = time.time() + 300
-    while not any(r.info.status == "FINISHED" for r in runs(path).values()):
+    while sorted(r.info.status for r in runs(path).values()) != ["FINISHED", "RUNNING"]:
         assert time.time() < deadline and proc.poll() is None, "no trial finished in time"
-        time.sleep(0.5)
+        time.sleep(0.5)  # the first finished, the second started
     proc.send_signal(signal.SIGINT)  # what Ctrl-C or `kill -INT` sends the driver
     out, _ = proc.communicate(timeout=300)
     assert proc.returncode == 130, out[-3000:]

@@ -13,7 +13,7 @@ import pandas as pd
 from ps_ray.analysis.plots import search_curves
 from ps_ray.specs.sweep import SweepSpec
 from ps_ray.specs.trial import TrainTrial
-from ps_ray.store.attempts import PARAMS_FILE, STOPPED, outcomes, read_rows
+from ps_ray.store.attempts import PARAMS_FILE, STOPPED, UNFINISHED, outcomes, read_rows
 
 LEVELS = (0.5, 0.9)  # greedy success levels whose first crossing the table gives
 CURVE_KEYS = ("eval_success", "best_eval_success", "alpha", "entropy")
@@ -58,7 +58,7 @@ def trial_rows(spec: SweepSpec, stage_dir: Path) -> tuple[pd.DataFrame, pd.DataF
 
 def _ended(outcome, last: dict) -> str:
     if outcome.error:
-        return "did not finish"
+        return "did not finish" if outcome.error == UNFINISHED else "failed"
     if last.get(STOPPED):
         return f"stopped by ASHA at {int(last['env_steps']):,}"
     return "reached the target" if last.get("converged") else "ran its budget"

@@ -44,7 +44,9 @@ class StageProgress(Callback):
         self.last_plain = 0.0
         self.counts: dict[str, int] = {}
         self.env_steps = 0
-        self.shares: dict[str, tuple[float, float]] = {}  # trial id -> (share done at first sight, now)
+        # trial id -> (share of its work done at its first result, now); None: started, no result yet
+        self.shares: dict[str, tuple[float, float] | None] = {}
+        self.unmeasured = 0
         self._bar = None
 
     def __getstate__(self) -> dict:
@@ -88,11 +90,19 @@ class StageProgress(Callback):
             "failed": sum(t.status == "ERROR" for t in trials),
         }
         self.env_steps = sum(int((t.last_result or {}).get("env_steps") or 0) for t in trials)
+        self.unmeasured = 0  # running trials with a budget and no result yet: all their work left
         for trial in trials:
-            share = self._share(trial)
-            if share is not None:
-                first, _ = self.shares.get(trial.trial_id, (share, share))
-                self.shares[trial.trial_id] = (first, share)
+            share, seen = self._share(trial), self.shares.get(trial.trial_id)
+            if share is None:
+                if trial.status == "RUNNING":
+                    self.unmeasured += 1
+                    self.shares.setdefault(trial.trial_id, None)  # a start seen: its work is this run's
+                continue
+            if seen is None:  # first result; a trial that ended before any ran all of it here
+                first = 0.0 if share == 1.0 and trial.trial_id in self.shares else share
+            else:
+                first, share = seen[0], max(share, seen[1])  # a retry from a checkpoint redoes steps
+            self.shares[trial.trial_id] = (first, share)
         self._show(force)
 
     def _share(self, trial) -> float | None:
@@ -114,7 +124,8 @@ class StageProgress(Callback):
         finished = sum(c.get(k, 0) for k in ("done", "failed", "stopped", "interrupted"))
         pending = max(c.get("total", 0) - finished - c.get("running", 0), 0)
         elapsed = time.time() - self.started
-        eta = eta_s(elapsed, list(self.shares.values()), pending)
+        measured = [share for share in self.shares.values() if share is not None]
+        eta = eta_s(elapsed, measured, pending + self.unmeasured)
         best = "–" if self.best is None else f"{self.best:.2f}"
         steps = f"  env steps {self.env_steps:,}" if self.env_steps else ""
         stopped = f"{c['stopped']} stopped early, " if c.get("stopped") else ""

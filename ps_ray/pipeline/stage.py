@@ -68,7 +68,7 @@ class StageError(RuntimeError):
 
 
 class StageInterrupted(StageError):
-    """A stage was stopped (Ctrl-C, ``ray job stop``) before all its trials finished and none
+    """A stage was stopped (Ctrl-C) before all its trials finished and none
     failed: what finished is kept, and a resume runs the rest."""
 
 

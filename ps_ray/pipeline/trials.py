@@ -9,7 +9,14 @@ from pathlib import Path
 from ps_ray.pipeline.heap import releasing
 from ps_ray.pipeline.preemption import PREEMPTION_RETRIES, failures, preempted
 from ps_ray.specs.resources import StageResources
-from ps_ray.store.attempts import STAGE_DIR_KEY, TrialOutcome, identity, outcomes, require_fresh
+from ps_ray.store.attempts import (
+    STAGE_DIR_KEY,
+    UNFINISHED,
+    TrialOutcome,
+    identity,
+    outcomes,
+    require_fresh,
+)
 from ps_ray.store.layout import LOG_FOLDER
 
 ONE_CPU = StageResources()
@@ -59,6 +66,8 @@ def run_trials(
     for attempt in range(preemption_retries + 1):
         if not todo:
             break
+        for trial in todo:  # relaunched: a lost node is no longer its error
+            errors.pop(identity(trial), None)
         if attempt:
             print(
                 f"{stage}: {len(todo)} trial(s) lost their node; launching them again "
@@ -88,6 +97,8 @@ def run_trials(
             grid_results = tuner.fit()  # quiet: Tune's tables go to the log
         failed = [r for r in grid_results if r.error]
         errors.update({identity(r.config[key]): str(r.error) for r in failed})
+        if any(o.error == UNFINISHED for o in outcomes(path, key, todo, errors)):
+            break  # stopped by its user (Ctrl-C): nothing is relaunched
         todo = [r.config[key] for r in failed if preempted(_failures(r))]
     return outcomes(path, key, trials, errors)
 

@@ -150,7 +150,7 @@ def outcomes(
 ) -> list[TrialOutcome]:
     """The outcome of every trial in ``trials`` (grid values under ``key``), read from
     ``stage_dir``: finished if an attempt finished, else failed with ``errors``' message or
-    ``UNFINISHED`` (the stage was stopped before it: Ctrl-C, ``ray job stop``)."""
+    ``UNFINISHED`` (the stage was stopped before it: Ctrl-C)."""
     found = attempts(stage_dir, key)
     out = []
     for trial in trials:

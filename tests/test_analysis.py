@@ -139,6 +139,12 @@ def test_zero_shot_table_has_combinations_as_rows_and_methods_as_columns():
     assert e1.loc["paper", ("ablation", "success")] == "0.14 ± 0.04"
     assert e1.loc["ps_ray", ("ps", "success")] == table.loc["E1 (t: Pu1-R1 & r: Pu2-R2)", ("ps", "success")]
     assert tables.paper_zero_shot(frame[frame["label"] != label_e1]) is None  # no E-combination
+    # beside ours, the control the paper lacks: the better unstitched source, our seeds' mean
+    controls = tables.paper_zero_shot(frame.assign(best_unstitched=frame["seed"] * 0.1 + 0.2))
+    e1 = controls.loc["E1 (t: Pu1-R1 & r: Pu2-R2)"]
+    assert e1.loc["ps_ray", ("ps", "best unstitched")] == "0.35"  # seeds 1 and 2: 0.3 and 0.4
+    assert e1.loc["paper", ("ablation", "best unstitched")] == "not reported"
+    assert ("ps", "best unstitched") not in paper.columns  # a table without controls: no column
 
 
 def test_goal_quadrants_follow_the_reach_regions():

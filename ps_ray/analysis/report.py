@@ -258,7 +258,11 @@ def zero_shot_section(report: Report, root: Path, target: float, say) -> None:
     )
     paper = tables.paper_zero_shot(table)
     if paper is not None:
-        caption = "The paper's figures beside ours (its Table 1: 200 x 5 episodes; ours as above)"
+        caption = (
+            "The paper's figures beside ours (its Table 1: 200 x 5 episodes; ours as above). Best "
+            "unstitched: the better of the pair's two sources as they are in the target env, which "
+            "the paper does not report; a stitch below it transferred nothing its sources lacked"
+        )
         report.table(section, "zero_shot_paper", caption, paper)
     sources = report.headline.sources
     if sources is not None:

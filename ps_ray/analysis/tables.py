@@ -71,10 +71,16 @@ def paper_names() -> dict[str, str]:
     return names
 
 
+UNSTITCHED, UNSTITCHED_KEY = "best unstitched", "best_unstitched"  # the control the paper lacks
+NOT_REPORTED = "not reported"
+
+
 def paper_zero_shot(table: pd.DataFrame) -> pd.DataFrame | None:
     """The paper's zero-shot figures beside ours for every E-combination the table holds: rows
-    (combination, ps_ray | paper), columns (method, touching | success), ``mean ± std`` as
-    fractions (the paper's % / 100); None when the table holds none of them."""
+    (combination, ps_ray | paper), columns (method, touching | success | best unstitched),
+    ``mean ± std`` as fractions (the paper's % / 100); best unstitched: the better of the pair's
+    two sources run as they are in the target env, our seeds' mean (the paper reports none).
+    None when the table holds none of them."""
     from ps_ray.stitching.paper import PAPER_ZERO_SHOT
 
     pooled, names = pool_seeds(table), paper_names()
@@ -82,6 +88,8 @@ def paper_zero_shot(table: pd.DataFrame) -> pd.DataFrame | None:
     if pooled.empty:
         return None
     methods = method_order(pooled["method"])
+    has_controls = UNSTITCHED_KEY in table
+    controls = table.groupby(["method", "label"])[UNSTITCHED_KEY].mean() if has_controls else None
     rows = {}
     for label in sorted(pooled["label"].unique(), key=names.get):
         paper = PAPER_ZERO_SHOT[names[label].split()[0]]
@@ -94,6 +102,10 @@ def paper_zero_shot(table: pd.DataFrame) -> pd.DataFrame | None:
                         cells[(m, metric)] = pm(paper[m][2 * i] / 100, paper[m][2 * i + 1] / 100)
                     elif m in ours:
                         cells[(m, metric)] = pm(ours[m][f"{metric}_mean"], ours[m][f"{metric}_std"])
+                if controls is not None:
+                    found = m in ours and (m, label) in controls
+                    mean = f"{controls[(m, label)]:.2f}" if found else "–"
+                    cells[(m, UNSTITCHED)] = NOT_REPORTED if source == "paper" else mean
             rows[(names[label], source)] = cells
     frame = pd.DataFrame.from_dict(rows, orient="index").fillna("–")
     frame.index.names = ["combination", "figures"]

@@ -88,8 +88,7 @@ def paper_zero_shot(table: pd.DataFrame) -> pd.DataFrame | None:
     if pooled.empty:
         return None
     methods = method_order(pooled["method"])
-    has_controls = UNSTITCHED_KEY in table
-    controls = table.groupby(["method", "label"])[UNSTITCHED_KEY].mean() if has_controls else None
+    controls = table.groupby(["method", "label"])[UNSTITCHED_KEY].mean() if UNSTITCHED_KEY in table else None
     rows = {}
     for label in sorted(pooled["label"].unique(), key=names.get):
         paper = PAPER_ZERO_SHOT[names[label].split()[0]]
@@ -103,8 +102,7 @@ def paper_zero_shot(table: pd.DataFrame) -> pd.DataFrame | None:
                     elif m in ours:
                         cells[(m, metric)] = pm(ours[m][f"{metric}_mean"], ours[m][f"{metric}_std"])
                 if controls is not None:
-                    found = m in ours and (m, label) in controls
-                    mean = f"{controls[(m, label)]:.2f}" if found else "–"
+                    mean = f"{controls[(m, label)]:.2f}" if (m, label) in controls else "–"
                     cells[(m, UNSTITCHED)] = NOT_REPORTED if source == "paper" else mean
             rows[(names[label], source)] = cells
     frame = pd.DataFrame.from_dict(rows, orient="index").fillna("–")

@@ -5,7 +5,9 @@ from __future__ import annotations
 import json
 import os
 import signal
+import sqlite3
 import time
+from contextlib import closing
 from pathlib import Path
 
 import mlflow
@@ -42,12 +44,27 @@ def write_sweep(
 
 def runs(path: Path) -> dict[str, mlflow.entities.Run]:
     spec = load_sweep(path)
-    client = mlflow.MlflowClient(f"sqlite:///{sweep_dir(spec) / 'mlflow.db'}")
+    db = sweep_dir(spec) / "mlflow.db"
+    if not _has_experiment(db, spec.name):  # a client opened first would make the store itself
+        return {}
+    client = mlflow.MlflowClient(f"sqlite:///{db}")
     experiment = client.get_experiment_by_name(spec.name)
     if experiment is None:
         return {}
     found = client.search_runs([experiment.experiment_id])
     return {r.info.run_name: r for r in found if "ps_ray.stage_run" not in r.data.tags}  # trials, not stages
+
+
+def _has_experiment(db: Path, name: str) -> bool:
+    """Whether the sweep's driver made its store and experiment yet (read only: a test polling a
+    running sweep never races the driver to make the tables)."""
+    if not db.exists():
+        return False
+    try:
+        with closing(sqlite3.connect(f"file:{db}?mode=ro", uri=True)) as con:
+            return con.execute("SELECT 1 FROM experiments WHERE name = ?", (name,)).fetchone() is not None
+    except sqlite3.OperationalError:  # tables not made yet, or the driver holds a write lock
+        return False
 
 
 def history(path: Path, run, key: str) -> list[tuple[int, float]]:

@@ -8,6 +8,7 @@ import signal
 import socket
 import subprocess
 import sys
+import time
 from pathlib import Path
 from urllib.parse import urlparse
 
@@ -479,3 +480,36 @@ def test_a_checkpoint_flushes_the_trials_metrics(store):
     callback.on_checkpoint(0, [trial], trial, checkpoint=None)
     history = store["client"].get_metric_history(run_id, "score")
     assert [(m.step, m.value) for m in history] == [(1, 1.0), (2, 2.0), (3, 3.0)]
+
+
+ENSURE_WHEN_TOLD = """
+import sys, time
+from pathlib import Path
+from ps_ray.store.tracking import ensure_experiment
+go = Path(sys.argv[2])
+while not go.exists():
+    time.sleep(0.01)
+print(ensure_experiment(sys.argv[1], "shared", Path(sys.argv[3])))
+"""
+
+
+def test_processes_that_open_a_new_store_at_once_all_get_its_one_experiment(tmp_path):
+    """A sweep's driver and an analyst's `mlflow ui` or script may make the same sqlite store at
+    the same moment: each gets the one experiment, none an error."""
+    uri = f"sqlite:///{tmp_path / 'store' / 'mlflow.db'}"
+    go = tmp_path / "go"
+    procs = [
+        subprocess.Popen(
+            [sys.executable, "-c", ENSURE_WHEN_TOLD, uri, str(go), str(tmp_path / "artifacts")],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
+        for _ in range(4)
+    ]
+    time.sleep(8)  # each has imported MLflow and waits
+    go.touch()
+    outs = [p.communicate(timeout=120) for p in procs]
+    assert [p.returncode for p in procs] == [0] * 4, [err[-800:] for _, err in outs]
+    (experiment,) = MlflowClient(uri).search_experiments(filter_string="name = 'shared'")
+    assert {out.strip().splitlines()[-1] for out, _ in outs} == {experiment.experiment_id}

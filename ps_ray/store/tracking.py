@@ -85,18 +85,29 @@ def ensure_experiment(tracking_uri: str, name: str, artifact_root: str | Path) -
     """Create (if needed) the store and the experiment ``name`` with its artifacts under
     ``artifact_root``; returns the experiment id. Idempotent; call it from the driver only."""
     artifact_location = Path(artifact_root).expanduser().resolve().as_uri()
-    try:
-        if tracking_uri.startswith("sqlite:///"):
-            Path(tracking_uri.removeprefix("sqlite:///")).parent.mkdir(parents=True, exist_ok=True)
-        client = _client(tracking_uri)
-        experiment = client.get_experiment_by_name(name)
-        if experiment is None:
-            return client.create_experiment(name, artifact_location=artifact_location, tags=EXPERIMENT_KIND)
-        for key, value in EXPERIMENT_KIND.items():  # an experiment made before the tag existed
-            if experiment.tags.get(key) != value:
-                client.set_experiment_tag(experiment.experiment_id, key, value)
-    except Exception as e:  # noqa: BLE001 - any failure here means the URI is unusable
-        raise UserError(f"cannot use MLflow tracking URI {tracking_uri!r}: {_first_line(e)}") from e
+    local = tracking_uri.startswith("sqlite:///")
+    # A sqlite store another process (`mlflow ui`, a script reading runs) opens for the first time
+    # while this one does gets its tables made twice: the loser fails once, then finds them.
+    tries = 3 if local else 1
+    for attempt in range(1, tries + 1):
+        try:
+            if local:
+                Path(tracking_uri.removeprefix("sqlite:///")).parent.mkdir(parents=True, exist_ok=True)
+            client = _client(tracking_uri)
+            experiment = client.get_experiment_by_name(name)
+            if experiment is None:
+                return client.create_experiment(
+                    name, artifact_location=artifact_location, tags=EXPERIMENT_KIND
+                )
+            for key, value in EXPERIMENT_KIND.items():  # an experiment made before the tag existed
+                if experiment.tags.get(key) != value:
+                    client.set_experiment_tag(experiment.experiment_id, key, value)
+            break
+        except Exception as e:  # noqa: BLE001 - any failure here means the URI is unusable
+            if attempt < tries:
+                time.sleep(1.0)
+                continue
+            raise UserError(f"cannot use MLflow tracking URI {tracking_uri!r}: {_first_line(e)}") from e
     if experiment.artifact_location != artifact_location:
         raise UserError(
             f"MLflow experiment {name!r} in {tracking_uri} keeps artifacts in "

@@ -79,13 +79,13 @@ class StageProgress(Callback):
     # -- view ----------------------------------------------------------------------------------
     def _update(self, trials, force: bool = False) -> None:
         ended = [t for t in trials if t.status == "TERMINATED"]
-        stopped = sum((Path(t.path) / STOPPED_FILE).is_file() for t in ended)
-        done = sum(bool((t.last_result or {}).get(FINISHED)) for t in ended)
+        interrupted = sum(_interrupted(t) for t in ended)
+        stopped = sum(_stopped(t) for t in ended)
         self.counts = {
             "total": max(self.total, len(trials)),
-            "done": done,
+            "done": len(ended) - interrupted - stopped,
             "stopped": stopped,  # by a search's scheduler (ps_ray.pipeline.search)
-            "interrupted": len(ended) - done - stopped,
+            "interrupted": interrupted,
             "running": sum(t.status == "RUNNING" for t in trials),
             "failed": sum(t.status == "ERROR" for t in trials),
         }
@@ -107,17 +107,19 @@ class StageProgress(Callback):
 
     def _share(self, trial) -> float | None:
         """The share of a trial's work done: 1 once ended, its env steps over its budget while it
-        runs; None while it waits, and before its first result (a resumed trial starts from its
-        checkpoint's steps)."""
-        if trial.status in ("TERMINATED", "ERROR"):
+        runs or once interrupted (what a resume has left); None while it waits, and before its
+        first result (a resumed trial starts from its checkpoint's steps)."""
+        if trial.status == "ERROR" or (trial.status == "TERMINATED" and not _interrupted(trial)):
             return 1.0
-        if trial.status != "RUNNING":
+        if trial.status not in ("RUNNING", "TERMINATED"):
             return None
         budget = self.budgets.get(identity((trial.config or {}).get(self.key)))
         steps = (trial.last_result or {}).get("env_steps")
         if not budget:
             return 0.0
-        return None if steps is None else min(int(steps) / budget, 1.0)
+        if steps is None:
+            return 0.0 if trial.status == "TERMINATED" else None  # interrupted before a result
+        return min(int(steps) / budget, 1.0)
 
     def status(self) -> str:
         c = self.counts
@@ -162,6 +164,15 @@ _VIEW_STREAM: list[IO[str]] = []  # the terminal while quiet_tune redirects stdo
 
 def view_stream() -> IO[str]:
     return _VIEW_STREAM[-1] if _VIEW_STREAM else sys.stdout
+
+
+def _stopped(trial) -> bool:
+    return (Path(trial.path) / STOPPED_FILE).is_file()
+
+
+def _interrupted(trial) -> bool:
+    """An ended trial that neither finished its work nor was stopped by a search's scheduler."""
+    return not (trial.last_result or {}).get(FINISHED) and not _stopped(trial)
 
 
 def eta_s(elapsed_s: float, shares: list[tuple[float, float]], pending: int) -> float | None:

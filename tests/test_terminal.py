@@ -4,8 +4,11 @@ from __future__ import annotations
 
 import io
 import logging
+import time
+from pathlib import Path
 
-from ps_ray.pipeline.progress import eta_s
+from ps_ray.pipeline.progress import StageProgress, eta_s
+from ps_ray.store.attempts import STOPPED_FILE, identity
 from ps_ray.store.terminal import VERBOSE_ENV, others_to
 
 
@@ -37,9 +40,61 @@ def test_verbose_leaves_everything_on_the_terminal(tmp_path, monkeypatch):
 
 def test_the_eta_counts_work_not_trials():
     # two long trials half way after an hour, two waiting: three trials' work left, one per hour
-    assert eta_s(3600, [(0.0, 0.5), (0.0, 0.5)], pending=2) == 3 * 3600
+    assert eta_s(3600, [(0.0, 0.5, 1.0), (0.0, 0.5, 1.0)], pending=2) == 3 * 3600
     # the steps a resumed trial brought from its checkpoint are not this run's pace
-    assert eta_s(3600, [(0.5, 0.75)], pending=0) == 3600  # a quarter in an hour, a quarter left
+    assert eta_s(3600, [(0.5, 0.75, 1.0)], pending=0) == 3600  # a quarter in an hour, a quarter left
+    # a trial a scheduler stopped (or that failed) at a tenth ran a tenth, and has nothing left
+    assert eta_s(3600, [(0.0, 0.1, 0.1), (0.0, 0.1, 1.0)], pending=1) == 3600 * 1.9 / 0.2
     # trials without a budget count whole when they end; nothing ended: no estimate yet
-    assert eta_s(60, [(1.0, 1.0), (0.0, 1.0), (0.0, 0.0)], pending=1) == 60 * 2
-    assert eta_s(60, [(0.0, 0.0)], pending=3) is None
+    assert eta_s(60, [(1.0, 1.0, 1.0), (0.0, 1.0, 1.0), (0.0, 0.0, 1.0)], pending=1) == 60 * 2
+    assert eta_s(60, [(0.0, 0.0, 1.0)], pending=3) is None
+
+
+def _trial(storage, n: int):
+    """A real Tune trial record (not run): its config names the grid value ``{"n": n}``."""
+    from ray.train._internal.storage import StorageContext
+    from ray.tune.experiment import Trial
+
+    context = StorageContext(storage_path=str(storage), experiment_dir_name="stage", trial_dir_name=f"t{n}")
+    trial = Trial("train", config={"trial": {"n": n}}, stub=True, storage=context)
+    Path(trial.path).mkdir(parents=True)
+    return trial
+
+
+def _eta_ratio(view: StageProgress) -> float:
+    """The view's ETA over its elapsed time (its clock started an hour ago)."""
+    clock = view.status().rsplit("ETA ", 1)[1].split(":")
+    return sum(int(part) * 60**i for i, part in enumerate(reversed(clock))) / 3600
+
+
+def test_the_live_view_counts_work_a_trial_will_never_do_as_not_left(tmp_path):
+    """Four trials of 1,000 env steps, one not made yet by Tune: a trial the scheduler stops at
+    200 steps has no work left, and one retried after a failure is counted once."""
+    from ray.tune.experiment import Trial
+
+    view = StageProgress("train", total=4, key="trial", budgets={identity({"n": n}): 1000 for n in range(4)})
+    view.started = time.time() - 3600
+    stopped, retried, waiting = trials = [_trial(tmp_path, n) for n in range(3)]
+
+    def result(trial, steps):
+        trial.update_last_result({"env_steps": steps})
+        view.on_trial_result(0, trials, trial, trial.last_result)
+
+    for trial in (stopped, retried):
+        trial.set_status(Trial.RUNNING)
+        view.on_trial_start(0, trials, trial)
+        result(trial, 100)
+    result(stopped, 200)
+    (Path(stopped.path) / STOPPED_FILE).write_text("{}")  # what the search's scheduler leaves
+    stopped.set_status(Trial.TERMINATED)
+    view.on_trial_complete(0, trials, stopped)
+    result(retried, 600)
+    # 0.1 + 0.5 of a trial's work in the hour; left: 0.4, the waiting one, the one not made
+    assert abs(_eta_ratio(view) - 2.4 / 0.6) < 0.01, view.status()
+    assert "1 done" not in view.status() and "1 stopped early" in view.status()
+
+    retried.set_status(Trial.ERROR)
+    view.on_trial_error(0, trials, retried)
+    retried.set_status(Trial.PENDING)  # Tune retries it from its checkpoint
+    view.on_trial_start(0, trials, retried)
+    assert abs(_eta_ratio(view) - 2.4 / 0.6) < 0.01, view.status()

@@ -100,6 +100,11 @@ def test_ensure_experiment_errors_are_one_line(store, tmp_path):
     assert "\n" not in str(info.value)
     with pytest.raises(ValueError, match="'bogus://nowhere'"):
         ensure_experiment("bogus://nowhere", "x", tmp_path)
+    foreign = tmp_path / "foreign.db"
+    foreign.write_bytes(b"not a sqlite file, " * 100)
+    with pytest.raises(ValueError, match=f"cannot use MLflow tracking URI 'sqlite:///{foreign}'") as info:
+        ensure_experiment(f"sqlite:///{foreign}", "x", tmp_path)
+    assert "\n" not in str(info.value)
 
 
 def test_a_tracking_server_as_docs_cluster_md_starts_it_takes_a_sweeps_runs(tmp_path):
@@ -487,6 +492,7 @@ import sys, time
 from pathlib import Path
 from ps_ray.store.tracking import ensure_experiment
 go = Path(sys.argv[2])
+Path(sys.argv[4]).touch()  # imported, ready
 while not go.exists():
     time.sleep(0.01)
 print(ensure_experiment(sys.argv[1], "shared", Path(sys.argv[3])))
@@ -500,15 +506,17 @@ def test_processes_that_open_a_new_store_at_once_all_get_its_one_experiment(tmp_
     go = tmp_path / "go"
     procs = [
         subprocess.Popen(
-            [sys.executable, "-c", ENSURE_WHEN_TOLD, uri, str(go), str(tmp_path / "artifacts")],
+            [sys.executable, "-c", ENSURE_WHEN_TOLD, uri, str(go), str(tmp_path / "artifacts"), str(ready)],
             stdout=subprocess.PIPE,
             stderr=subprocess.PIPE,
             text=True,
         )
-        for _ in range(4)
+        for ready in (tmp_path / f"ready{i}" for i in range(4))
     ]
-    time.sleep(8)  # each has imported MLflow and waits
-    go.touch()
+    deadline = time.time() + 120
+    while not all((tmp_path / f"ready{i}").exists() for i in range(4)) and time.time() < deadline:
+        time.sleep(0.1)
+    go.touch()  # all four make the store at once
     outs = [p.communicate(timeout=120) for p in procs]
     assert [p.returncode for p in procs] == [0] * 4, [err[-800:] for _, err in outs]
     (experiment,) = MlflowClient(uri).search_experiments(filter_string="name = 'shared'")

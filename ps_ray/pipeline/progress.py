@@ -44,9 +44,10 @@ class StageProgress(Callback):
         self.last_plain = 0.0
         self.counts: dict[str, int] = {}
         self.env_steps = 0
-        # trial id -> (share of its work done at its first result, now); None: started, no result yet
-        self.shares: dict[str, tuple[float, float] | None] = {}
-        self.unmeasured = 0
+        # trial id -> (share of its work done at its first result, now, share it ends at: 1, or
+        # less for a trial that failed or a scheduler stopped); None: started, no result yet
+        self.shares: dict[str, tuple[float, float, float] | None] = {}
+        self.unmeasured = 0  # trials Tune made with all their work left
         self._bar = None
 
     def __getstate__(self) -> dict:
@@ -54,6 +55,7 @@ class StageProgress(Callback):
 
     # -- Tune hooks ----------------------------------------------------------------------------
     def on_trial_start(self, iteration, trials, trial, **info) -> None:
+        self.shares.setdefault(trial.trial_id, None)  # a start seen: its work is this run's
         self._update(trials)
 
     def on_trial_result(self, iteration, trials, trial, result: dict[str, Any], **info) -> None:
@@ -83,6 +85,7 @@ class StageProgress(Callback):
         stopped = sum(_stopped(t) for t in ended)
         self.counts = {
             "total": max(self.total, len(trials)),
+            "made": len(trials),
             "done": len(ended) - interrupted - stopped,
             "stopped": stopped,  # by a search's scheduler (ps_ray.pipeline.search)
             "interrupted": interrupted,
@@ -90,36 +93,45 @@ class StageProgress(Callback):
             "failed": sum(t.status == "ERROR" for t in trials),
         }
         self.env_steps = sum(int((t.last_result or {}).get("env_steps") or 0) for t in trials)
-        self.unmeasured = 0  # running trials with a budget and no result yet: all their work left
+        self.unmeasured = 0
         for trial in trials:
-            share, seen = self._share(trial), self.shares.get(trial.trial_id)
-            if share is None:
-                if trial.status == "RUNNING":
+            measured, seen = self._share(trial), self.shares.get(trial.trial_id)
+            if measured is None:  # waiting, or started without a result yet
+                if seen is None:  # all its work left
                     self.unmeasured += 1
-                    self.shares.setdefault(trial.trial_id, None)  # a start seen: its work is this run's
+                    if trial.status == "RUNNING":
+                        self.shares.setdefault(trial.trial_id, None)
+                else:  # a failed trial Tune retries: its share so far stands, the rest is left again
+                    self.shares[trial.trial_id] = (*seen[:2], 1.0)
                 continue
+            share, ends_early = measured
             if seen is None:  # first result; a trial that ended before any ran all of it here
-                first = 0.0 if share == 1.0 and trial.trial_id in self.shares else share
+                over = trial.status in ("TERMINATED", "ERROR")
+                first = 0.0 if over and trial.trial_id in self.shares else share
             else:
                 first, share = seen[0], max(share, seen[1])  # a retry from a checkpoint redoes steps
-            self.shares[trial.trial_id] = (first, share)
+            self.shares[trial.trial_id] = (first, share, share if ends_early else 1.0)
         self._show(force)
 
-    def _share(self, trial) -> float | None:
-        """The share of a trial's work done: 1 once ended, its env steps over its budget while it
-        runs or once interrupted (what a resume has left); None while it waits, and before its
-        first result (a resumed trial starts from its checkpoint's steps)."""
-        if trial.status == "ERROR" or (trial.status == "TERMINATED" and not _interrupted(trial)):
-            return 1.0
-        if trial.status not in ("RUNNING", "TERMINATED"):
-            return None
+    def _share(self, trial) -> tuple[float, bool] | None:
+        """The share of a trial's work done (its env steps over its budget), and whether its run
+        ends there: a failure or a search's scheduler ended it, and the rest is never done (a
+        finished or interrupted trial's run ends at 1: a resume does the rest). A trial without
+        a budget counts whole once ended. None while it waits, and before its first result (a
+        resumed trial starts from its checkpoint's steps)."""
+        ended = trial.status in ("TERMINATED", "ERROR")
+        early = trial.status == "ERROR" or (trial.status == "TERMINATED" and _stopped(trial))
         budget = self.budgets.get(identity((trial.config or {}).get(self.key)))
         steps = (trial.last_result or {}).get("env_steps")
+        if ended and (not budget or not (early or _interrupted(trial))):
+            return 1.0, False  # finished, or ended without a budget to measure it by
+        if not ended and trial.status != "RUNNING":
+            return None
         if not budget:
-            return 0.0
+            return 0.0, False
         if steps is None:
-            return 0.0 if trial.status == "TERMINATED" else None  # interrupted before a result
-        return min(int(steps) / budget, 1.0)
+            return (0.0, early) if ended else None
+        return min(int(steps) / budget, 1.0), early
 
     def status(self) -> str:
         c = self.counts
@@ -127,7 +139,8 @@ class StageProgress(Callback):
         pending = max(c.get("total", 0) - finished - c.get("running", 0), 0)
         elapsed = time.time() - self.started
         measured = [share for share in self.shares.values() if share is not None]
-        eta = eta_s(elapsed, measured, pending + self.unmeasured)
+        not_made = max(c.get("total", 0) - c.get("made", 0), 0)  # Tune makes a grid's trials lazily
+        eta = eta_s(elapsed, measured, not_made + self.unmeasured)
         best = "–" if self.best is None else f"{self.best:.2f}"
         steps = f"  env steps {self.env_steps:,}" if self.env_steps else ""
         stopped = f"{c['stopped']} stopped early, " if c.get("stopped") else ""
@@ -175,12 +188,12 @@ def _interrupted(trial) -> bool:
     return not (trial.last_result or {}).get(FINISHED) and not _stopped(trial)
 
 
-def eta_s(elapsed_s: float, shares: list[tuple[float, float]], pending: int) -> float | None:
+def eta_s(elapsed_s: float, shares: list[tuple[float, float, float]], pending: int) -> float | None:
     """Seconds left at the pace so far: ``shares`` holds each trial seen, as the share of its work
-    done when first seen and now (1: ended); ``pending`` trials not seen yet have all theirs left.
-    None until some work is done."""
-    done = sum(now - first for first, now in shares)
-    left = sum(1.0 - now for _, now in shares) + pending
+    done when first seen, now, and where it ends (1, or less for a trial ended early); ``pending``
+    trials not measured yet have all theirs left. None until some work is done."""
+    done = sum(now - first for first, now, _ in shares)
+    left = sum(end - now for _, now, end in shares) + pending
     return elapsed_s * left / done if done > 0 else None
 
 

@@ -97,9 +97,12 @@ def run_trials(
             grid_results = tuner.fit()  # quiet: Tune's tables go to the log
         failed = [r for r in grid_results if r.error]
         errors.update({identity(r.config[key]): str(r.error) for r in failed})
+        relaunch = [r.config[key] for r in failed if preempted(_failures(r))]
         if any(o.error == UNFINISHED for o in outcomes(path, key, todo, errors)):
-            break  # stopped by its user (Ctrl-C): nothing is relaunched
-        todo = [r.config[key] for r in failed if preempted(_failures(r))]
+            for config in relaunch:  # stopped by its user (Ctrl-C): nothing is relaunched, and a
+                errors.pop(identity(config))  # trial a lost node stopped is unfinished, not failed
+            break
+        todo = relaunch
     return outcomes(path, key, trials, errors)
 
 

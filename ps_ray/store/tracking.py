@@ -81,18 +81,22 @@ def _first_line(exc: BaseException) -> str:
     return text.splitlines()[0]
 
 
+STORE_RETRY_S = 20.0
+
+
 def ensure_experiment(tracking_uri: str, name: str, artifact_root: str | Path) -> str:
     """Create (if needed) the store and the experiment ``name`` with its artifacts under
     ``artifact_root``; returns the experiment id. Idempotent; call it from the driver only."""
     artifact_location = Path(artifact_root).expanduser().resolve().as_uri()
-    local = tracking_uri.startswith("sqlite:///")
-    # A sqlite store another process (`mlflow ui`, a script reading runs) opens for the first time
-    # while this one does gets its tables made twice: the loser fails once, then finds them.
-    tries = 3 if local else 1
-    for attempt in range(1, tries + 1):
+    db = Path(tracking_uri.removeprefix("sqlite:///")) if tracking_uri.startswith("sqlite:///") else None
+    # A new sqlite store that another process (`mlflow ui`, a second driver, a script reading runs)
+    # opens at the same moment gets its tables made twice: the loser retries, while the file
+    # exists, until the winner has made them (at most STORE_RETRY_S).
+    deadline = time.monotonic() + STORE_RETRY_S
+    while True:
         try:
-            if local:
-                Path(tracking_uri.removeprefix("sqlite:///")).parent.mkdir(parents=True, exist_ok=True)
+            if db is not None:
+                db.parent.mkdir(parents=True, exist_ok=True)
             client = _client(tracking_uri)
             experiment = client.get_experiment_by_name(name)
             if experiment is None:
@@ -104,8 +108,9 @@ def ensure_experiment(tracking_uri: str, name: str, artifact_root: str | Path) -
                     client.set_experiment_tag(experiment.experiment_id, key, value)
             break
         except Exception as e:  # noqa: BLE001 - any failure here means the URI is unusable
-            if attempt < tries:
-                time.sleep(1.0)
+            making = db is not None and db.exists() and "not a database" not in str(e)
+            if making and time.monotonic() < deadline:
+                time.sleep(0.5)
                 continue
             raise UserError(f"cannot use MLflow tracking URI {tracking_uri!r}: {_first_line(e)}") from e
     if experiment.artifact_location != artifact_location:

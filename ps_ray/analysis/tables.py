@@ -102,7 +102,8 @@ def paper_zero_shot(table: pd.DataFrame) -> pd.DataFrame | None:
                     elif m in ours:
                         cells[(m, metric)] = pm(ours[m][f"{metric}_mean"], ours[m][f"{metric}_std"])
                 if controls is not None:
-                    mean = f"{controls[(m, label)]:.2f}" if (m, label) in controls else "–"
+                    value = controls.get((m, label))
+                    mean = "–" if value is None or pd.isna(value) else f"{value:.2f}"
                     cells[(m, UNSTITCHED)] = NOT_REPORTED if source == "paper" else mean
             rows[(names[label], source)] = cells
     frame = pd.DataFrame.from_dict(rows, orient="index").fillna("–")

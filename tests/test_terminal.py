@@ -98,3 +98,22 @@ def test_the_live_view_counts_work_a_trial_will_never_do_as_not_left(tmp_path):
     retried.set_status(Trial.PENDING)  # Tune retries it from its checkpoint
     view.on_trial_start(0, trials, retried)
     assert abs(_eta_ratio(view) - 2.4 / 0.6) < 0.01, view.status()
+
+
+def test_a_zero_shot_batch_s_eta_counts_its_pairs_scored(tmp_path):
+    """A zero-shot trial scores a batch of pairs, one result each: its ETA counts pairs."""
+    from ray.tune.experiment import Trial
+
+    view = StageProgress(
+        "zero_shot", total=1, key="trial", budgets={identity({"n": 0}): 4}, work="training_iteration"
+    )
+    view.started = time.time() - 3600
+    (trial,) = trials = [_trial(tmp_path, 0)]
+    trial.set_status(Trial.RUNNING)
+    view.on_trial_start(0, trials, trial)
+    for scored in (1, 2):
+        trial.update_last_result({"training_iteration": scored})
+        view.on_trial_result(0, trials, trial, trial.last_result)
+    # work counts from the first result seen (a resumed trial's carries earlier work): one pair
+    # scored in the hour, two left
+    assert abs(_eta_ratio(view) - 0.5 / 0.25) < 0.01, view.status()

@@ -30,15 +30,21 @@ class StageProgress(Callback):
     Counts are read from the trials' own states at every event, so a restored stage (whose
     callbacks come back from Tune's experiment state) counts the trials finished before the
     restart too. A trial Tune ended without its finished mark was interrupted (Ctrl-C). The ETA
-    counts work, not trials: a trial with a budget (``budgets``: env steps by the identity of its
-    ``key`` value) is done by the share of its env steps run, so a few long trials give a steady
-    estimate. The output stream is looked up when printing, never stored (it is not picklable)."""
+    counts work, not trials: a trial with a budget (``budgets``: units of ``work``, env steps by
+    default, by the identity of its ``key`` value) is done by the share of its budget run, so a few
+    long trials give a steady estimate. The output stream is looked up when printing, never stored
+    (it is not picklable)."""
 
     def __init__(
-        self, stage: str, total: int = 0, key: str = "", budgets: dict[str, int] | None = None
+        self,
+        stage: str,
+        total: int = 0,
+        key: str = "",
+        budgets: dict[str, int] | None = None,
+        work: str = "env_steps",
     ) -> None:
         self.stage, self.total = stage, total  # Tune makes a grid search's trials lazily: count them all
-        self.key, self.budgets = key, budgets or {}
+        self.key, self.budgets, self.work = key, budgets or {}, work
         self.started = time.time()
         self.best: float | None = None
         self.last_plain = 0.0
@@ -122,7 +128,7 @@ class StageProgress(Callback):
         ended = trial.status in ("TERMINATED", "ERROR")
         early = trial.status == "ERROR" or (trial.status == "TERMINATED" and _stopped(trial))
         budget = self.budgets.get(identity((trial.config or {}).get(self.key)))
-        steps = (trial.last_result or {}).get("env_steps")
+        steps = (trial.last_result or {}).get(self.work)
         if ended and (not budget or not (early or _interrupted(trial))):
             return 1.0, False  # finished, or ended without a budget to measure it by
         if not ended and trial.status != "RUNNING":

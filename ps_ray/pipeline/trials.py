@@ -38,6 +38,7 @@ def run_trials(
     preemption_retries: int = PREEMPTION_RETRIES,
     scheduler_fn=None,
     budgets: list[int] | None = None,
+    work: str = "env_steps",
 ) -> list[TrialOutcome]:
     """Run a grid over ``grid``'s one key (plus ``constants``) as the Tune experiment in
     ``folder``: ``resources`` per trial (one CPU by default), the sweep's retry policy, the MLflow
@@ -49,7 +50,8 @@ def run_trials(
     are launched again by the resume path, up to ``preemption_retries`` rounds: a training
     trial continues from its checkpoint, and preemptions do not use up ``max_failures``.
     ``scheduler_fn()``: a fresh Tune trial scheduler for each launch (a search's ASHA).
-    ``budgets``: each trial's env steps, in ``grid``'s order, for the live view's ETA."""
+    ``budgets``: each trial's work, in ``grid``'s order, counted by its results' ``work`` metric
+    (env steps by default), for the live view's ETA."""
     from ray import tune
 
     from ps_ray.pipeline.progress import StageProgress, quiet_tune
@@ -74,6 +76,7 @@ def run_trials(
                 f"({attempt}/{preemption_retries})",
                 flush=True,
             )
+        view = StageProgress(stage, len(todo), key, budget_of, work)
         tuner = tune.Tuner(
             tune.with_resources(releasing(trainable), resources.tune_request()),
             param_space={key: tune.grid_search(todo), **(constants or {}), STAGE_DIR_KEY: str(path)},
@@ -89,7 +92,7 @@ def run_trials(
                 storage_path=str(root),
                 failure_config=tune.FailureConfig(max_failures=max_failures),
                 checkpoint_config=tune.CheckpointConfig(num_to_keep=1),
-                callbacks=[callback, *([StageProgress(stage, len(todo), key, budget_of)] if quiet else [])],
+                callbacks=[callback, *([view] if quiet else [])],
                 verbose=1 if progress else 0,
             ),
         )

@@ -301,9 +301,10 @@ def _evaluate(
         },
         tags_fn=lambda key, client: _tags(client, experiment_id, by_key[key]),
     )
+    batches = _batches(todo, settings.batch_sizes(len(todo), spec.max_concurrent))
     results = run_trials(
         zero_shot_trial,
-        {"batch": _batches(todo, settings.batch_sizes(len(todo), spec.max_concurrent))},
+        {"batch": batches},
         folder=folder,
         stage="zero_shot",
         callback=callback,
@@ -312,6 +313,8 @@ def _evaluate(
         max_concurrent=spec.max_concurrent,
         max_failures=spec.max_failures,
         resources=spec.resources.zero_shot,
+        budgets=[len(batch) for batch in batches],  # the ETA by pairs scored (one result each)
+        work="training_iteration",
         constants={
             "eval": episodes,
             "chance": chance,

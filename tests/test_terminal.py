@@ -7,7 +7,7 @@ import logging
 import time
 from pathlib import Path
 
-from ps_ray.pipeline.progress import StageProgress, eta_s
+from ps_ray.pipeline.progress import PLAIN_EVERY_S, StageProgress, eta_s
 from ps_ray.store.attempts import STOPPED_FILE, identity
 from ps_ray.store.terminal import VERBOSE_ENV, others_to
 
@@ -117,3 +117,24 @@ def test_a_zero_shot_batch_s_eta_counts_its_pairs_scored(tmp_path):
     # work counts from the first result seen (a resumed trial's carries earlier work): one pair
     # scored in the hour, two left
     assert abs(_eta_ratio(view) - 0.5 / 0.25) < 0.01, view.status()
+
+
+def test_the_plain_view_prints_a_line_while_no_trial_reports(tmp_path, capsys):
+    """Without a terminal (CI, `ray job` logs) a line every PLAIN_EVERY_S, even when the trials
+    report once in many minutes; its clock moves."""
+    from ray.tune.experiment import Trial
+
+    view = StageProgress("zero_shot", total=2)
+    trials = [_trial(tmp_path, n) for n in range(2)]
+    trials[0].set_status(Trial.RUNNING)
+    view.on_trial_start(0, trials, trials[0])
+    first = capsys.readouterr().out
+    assert first.strip().startswith("zero_shot: 0 done, 1 running, 0 failed, 1 pending")
+    view.on_step_end(0, trials)
+    assert capsys.readouterr().out == ""  # printed less than PLAIN_EVERY_S ago
+    view.started -= 90
+    view.last_plain -= PLAIN_EVERY_S
+    view.last_step -= 1
+    view.on_step_end(0, trials)
+    later = capsys.readouterr().out
+    assert "elapsed 1:30" in later and later.replace("1:30", "0:00") == first

@@ -47,7 +47,7 @@ class StageProgress(Callback):
         self.key, self.budgets, self.work = key, budgets or {}, work
         self.started = time.time()
         self.best: float | None = None
-        self.last_plain = 0.0
+        self.last_plain = self.last_step = 0.0
         self.counts: dict[str, int] = {}
         self.env_steps = 0
         # trial id -> (share of its work done at its first result, now, share it ends at: 1, or
@@ -70,6 +70,14 @@ class StageProgress(Callback):
             if value is not None and value == value:
                 self.best = value if self.best is None else max(self.best, value)
         self._update(trials)
+
+    def on_step_end(self, iteration, trials, **info) -> None:
+        """Between events too (a trial may report once in many minutes): the bar's clock once a
+        second, a plain line every ``PLAIN_EVERY_S``."""
+        now = time.time()
+        if self.counts and now - self.last_step >= 1.0:
+            self.last_step = now
+            self._show()
 
     def on_trial_complete(self, iteration, trials, trial, **info) -> None:
         self._update(trials, force=all(t.status in ("TERMINATED", "ERROR") for t in trials))

@@ -235,6 +235,12 @@ def test_transfer_table_pairs_each_stitched_cell_with_its_controls():
     assert shown.iloc[0][gain_column].endswith("p 0.25, 3/3 seeds up")
     assert shown.iloc[0]["task-blind floor (every task, not told which)"].startswith("absent")
     assert shown.iloc[0]["result"] == "label-free"
+    # per pair, over its episodes: every stitch beats its best control by 0.3-0.5 at 200 episodes
+    # each, and none surely at 4 (where an interval spans about +-0.5)
+    surely = "pairs surely above / below every control (95% over a pair's episodes)"
+    assert shown.iloc[0][surely] == "–"  # the episodes not given
+    assert transfer_text(transfer_numbers(table, 200)).iloc[0][surely] == "6 / 0 of 6 (200 episodes each)"
+    assert transfer_text(transfer_numbers(table, 4)).iloc[0][surely] == "0 / 0 of 6 (4 episodes each)"
 
 
 def test_the_task_blind_floor_raises_the_bar_and_the_old_gain_stays_beside_it():

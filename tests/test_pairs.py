@@ -153,7 +153,7 @@ def test_the_reports_zero_shot_tables_show_no_files(sweep_spec, tmp_path):
 
     write_table(sweep_spec)
     page = Report(tmp_path / "report")
-    report.zero_shot_section(page, sweep_dir(sweep_spec), 0.8, lambda *a: None)
+    report.zero_shot_section(page, sweep_spec, 0.8, lambda *a: None)
     shown = [item[1] for section in page.sections for kind, item in section.items if kind == "table"]
     columns = {str(c) for frame in shown for c in [*frame.columns.to_flat_index(), *frame.index.names]}
     assert {"('ps', 'success')", "('ablation', 'success')", "oracle (trained on the target)"} <= columns

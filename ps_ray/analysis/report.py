@@ -28,7 +28,7 @@ from ps_ray.specs import reset_seeds
 from ps_ray.specs.names import parse_spec_text, short_name
 from ps_ray.specs.sweep import SweepSpec
 from ps_ray.store.atomic import swap_folder, write_text
-from ps_ray.store.layout import SweepLayout
+from ps_ray.store.layout import SweepLayout, sweep_layout
 
 
 def build_report(spec: SweepSpec, *, progress: bool = True, log_to_mlflow: bool = True) -> Path:
@@ -47,7 +47,7 @@ def build_report(spec: SweepSpec, *, progress: bool = True, log_to_mlflow: bool 
     search_section(report, spec, SweepLayout(root).tune_train)
     if not spec.search.active:  # a search's trials are candidate settings, not sources to compare
         _latent(report, spec, root, say)
-    zero_shot_section(report, root, target, say)
+    zero_shot_section(report, spec, target, say)
     _few_shot(report, root, say)
     _clips(report, spec, say)
     cost_section(report, spec, root)
@@ -233,9 +233,8 @@ def _latent(report: Report, spec: SweepSpec, root: Path, say) -> None:
     say(f"report: latent distances of {sum(map(len, all_groups.values()))} groups")
 
 
-def zero_shot_section(report: Report, root: Path, target: float, say) -> None:
-
-    table = results.zero_shot_results(SweepLayout(root).zero_shot_table)
+def zero_shot_section(report: Report, spec: SweepSpec, target: float, say) -> None:
+    table = results.zero_shot_results(sweep_layout(spec).zero_shot_table)
     if table is None:
         return
     if not _has_object(table["task"]):  # reach: nothing to touch, so touching means nothing
@@ -293,13 +292,13 @@ def zero_shot_section(report: Report, root: Path, target: float, say) -> None:
                     report.metrics[f"zero_shot.{method}.{name}"] = float(row[f"{metric}_{stat}"])
     report.figure(section, "zero_shot", lambda p: plots.zero_shot_bars(tables.pool_seeds(table), p))
     if transfer.has_controls(table):
-        _transfer(report, table)
+        _transfer(report, table, spec.zero_shot.episodes * spec.zero_shot.repeats)
     say(f"report: zero-shot table of {len(table)} stitched pairs")
 
 
-def _transfer(report: Report, table: pd.DataFrame) -> None:
+def _transfer(report: Report, table: pd.DataFrame, episodes: int) -> None:
     """Stitching against its controls: the transfer table and the transfer-gain figure, first."""
-    numbers = transfer.transfer_numbers(table)
+    numbers = transfer.transfer_numbers(table, episodes)
     section = report.section(
         "Transfer: stitching against its controls",
         "Each stitched pair (task module of (X, Ra), robot module of (Y, Rb), run on (X, Rb)) beside "
@@ -311,7 +310,8 @@ def _transfer(report: Report, table: pd.DataFrame) -> None:
         "best of the sources, chance and the floor, per seed; t interval over seeds and sign-flip "
         "p-value; the gain over the sources and chance alone beside it. Cross-seed units (seed i's "
         "task modules, seed i+1's robot modules) share runs: their intervals are widened for it, "
-        "without a p-value. Rows that read the task's target (@swapped) are upper bounds, last.",
+        "without a p-value. Rows that read the task's target (@swapped) are upper bounds, last. "
+        "Pairs surely above / below: by more than their episodes' 95% interval (Newcombe's).",
         first=True,
     )
     report.table(

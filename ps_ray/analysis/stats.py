@@ -120,6 +120,22 @@ def paired(a, b, seeds, shared_runs: bool = False) -> Paired:
     )
 
 
+def newcombe(a, b, episodes: int) -> tuple[np.ndarray, np.ndarray]:
+    """95% interval of ``a - b``, two success rates each over ``episodes`` episodes (Newcombe's
+    hybrid score interval from Wilson's: it keeps its coverage near 0 and 1, where the Wald
+    interval does not). For rates measured on the same episodes it is conservative."""
+    z = stats.norm.ppf(0.5 + CONFIDENCE / 2)
+    a, b = np.asarray(a, float), np.asarray(b, float)
+
+    def wilson(p):
+        centre, n = (p + z * z / (2 * episodes)) / (1 + z * z / episodes), episodes
+        half = z * np.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
+        return centre - half, centre + half
+
+    (a_lo, a_hi), (b_lo, b_hi) = wilson(a), wilson(b)
+    return a - b - np.hypot(a - a_lo, b_hi - b), a - b + np.hypot(a_hi - a, b - b_lo)
+
+
 def iqm(values: np.ndarray) -> float:
     """Interquartile mean: the mean of the middle 50% (robust to a few outlier cells)."""
     return float(stats.trim_mean(np.asarray(values, float), 0.25))

@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from ps_ray.analysis.stats import estimate, paired, t_interval
+from ps_ray.analysis.stats import estimate, newcombe, paired, t_interval
 from ps_ray.analysis.tables import ci, method_order
 from ps_ray.specs.names import CONTROL_ROLES
 
@@ -41,9 +41,11 @@ def has_controls(table: pd.DataFrame) -> bool:
     return "transfer_gain" in table.columns
 
 
-def transfer_numbers(table: pd.DataFrame) -> pd.DataFrame:
+def transfer_numbers(table: pd.DataFrame, episodes: int | None = None) -> pd.DataFrame:
     """One row per (method, pairing): success means with t intervals over seeds for the stitched
-    policies and each control, and the paired transfer gain with its sign-flip p-value."""
+    policies and each control, and the paired transfer gain with its sign-flip p-value. With the
+    ``episodes`` each cell was scored on, also how many cells are above (below) every control by
+    more than their episodes' chance: a verdict per pair where the seeds are too few for one."""
     rows = []
     for (method, pairing), part in table.groupby(["method", "pairing"], sort=False):
         seeds = part["seed"].to_numpy()
@@ -72,6 +74,10 @@ def transfer_numbers(table: pd.DataFrame) -> pd.DataFrame:
         for field in ("diff", "lo", "hi"):
             row[f"chance_gain_{field}"] = np.nan if before is None else getattr(before, field)
         row["pairs_above_every_control"] = int((cells["transfer_gain"] > 0).sum())
+        lo, hi = newcombe(cells["success_mean"], cells[best], episodes or 1)
+        row["pairs_surely_above"] = int((lo > 0).sum()) if episodes else np.nan
+        row["pairs_surely_below"] = int((hi < 0).sum()) if episodes else np.nan
+        row["episodes"] = episodes or np.nan
         row["fit_env_steps"] = part["fit_env_steps"].mean() if "fit_env_steps" in part.columns else np.nan
         rows.append(row)
     out = pd.DataFrame(rows)
@@ -119,6 +125,13 @@ def transfer_text(numbers: pd.DataFrame) -> pd.DataFrame:
     ]
     out["pairs above every control"] = [
         f"{int(r['pairs_above_every_control'])}/{int(r['cells'])}" for _, r in numbers.iterrows()
+    ]
+    out["pairs surely above / below every control (95% over a pair's episodes)"] = [
+        "–"
+        if np.isnan(r.get("episodes", np.nan))
+        else f"{int(r['pairs_surely_above'])} / {int(r['pairs_surely_below'])} of {int(r['cells'])} "
+        f"({int(r['episodes'])} episodes each)"
+        for _, r in numbers.iterrows()
     ]
     return out
 

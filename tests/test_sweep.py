@@ -17,6 +17,7 @@ import yaml
 from ps_ray.nets.policy_file import load_policy
 from ps_ray.pipeline.sweep import sweep_dir
 from ps_ray.specs.sweep import load_sweep
+from ps_ray.store.attempts import START_STEPS
 from ps_ray.store.checkpoint import latest as latest_checkpoint
 from ps_ray.store.layout import sweep_layout
 from ps_ray.store.tracking import git_commit
@@ -219,7 +220,11 @@ def test_a_killed_trial_worker_is_retried_from_its_checkpoint(tmp_path, cli, tin
     # The retry was restored from the checkpoint saved before the crash, not started over: the
     # trial's results hold iteration 1 once.
     (trial_dir,) = tune_dir.glob("*/params.json")
-    assert [r["training_iteration"] for r in _rows(trial_dir.parent)].count(1) == 1
+    rows = _rows(trial_dir.parent)
+    assert [r["training_iteration"] for r in rows].count(1) == 1
+    # ... and its rows say what it restored (the live view's ETA counts only the steps it ran)
+    starts = sorted({r[START_STEPS] for r in rows})
+    assert starts[0] == 0 and len(starts) == 2 and 0 < starts[1] < 1500, starts
 
 
 def test_trials_spread_over_two_nodes(tmp_path, tiny_train, two_node_cluster):

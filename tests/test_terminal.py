@@ -8,7 +8,7 @@ import time
 from pathlib import Path
 
 from ps_ray.pipeline.progress import PLAIN_EVERY_S, StageProgress, eta_s
-from ps_ray.store.attempts import STOPPED_FILE, identity
+from ps_ray.store.attempts import START_STEPS, STOPPED_FILE, identity
 from ps_ray.store.terminal import VERBOSE_ENV, others_to
 
 
@@ -138,3 +138,20 @@ def test_the_plain_view_prints_a_line_while_no_trial_reports(tmp_path, capsys):
     view.on_step_end(0, trials)
     later = capsys.readouterr().out
     assert "elapsed 1:30" in later and later.replace("1:30", "0:00") == first
+
+
+def test_the_eta_counts_a_trial_s_own_steps_from_its_first_result_not_its_checkpoint_s(tmp_path):
+    """Two trials of 1,000 env steps after an hour, each at its first result: a fresh one at 300
+    steps, one resumed from a checkpoint at 500 and now at 600 (its rows say what it restored)."""
+    from ray.tune.experiment import Trial
+
+    view = StageProgress("train", total=2, key="trial", budgets={identity({"n": n}): 1000 for n in range(2)})
+    view.started = time.time() - 3600
+    fresh, resumed = trials = [_trial(tmp_path, n) for n in range(2)]
+    for trial, start, steps in ((fresh, 0, 300), (resumed, 500, 600)):
+        trial.set_status(Trial.RUNNING)
+        view.on_trial_start(0, trials, trial)
+        trial.update_last_result({"env_steps": steps, START_STEPS: start})
+        view.on_trial_result(0, trials, trial, trial.last_result)
+    # 0.3 + 0.1 of a trial's work in the hour, 0.7 + 0.4 left
+    assert abs(_eta_ratio(view) - 1.1 / 0.4) < 0.01, view.status()

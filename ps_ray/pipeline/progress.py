@@ -18,7 +18,7 @@ from typing import IO, Any
 from ray.tune import Callback
 from tqdm import tqdm
 
-from ps_ray.store.attempts import FINISHED, STOPPED_FILE, identity
+from ps_ray.store.attempts import FINISHED, START_STEPS, STOPPED_FILE, identity
 from ps_ray.store.terminal import others_to
 
 PLAIN_EVERY_S = 30.0
@@ -119,13 +119,23 @@ class StageProgress(Callback):
                     self.shares[trial.trial_id] = (*seen[:2], 1.0)
                 continue
             share, ends_early = measured
-            if seen is None:  # first result; a trial that ended before any ran all of it here
-                over = trial.status in ("TERMINATED", "ERROR")
-                first = 0.0 if over and trial.trial_id in self.shares else share
+            if seen is None:  # first result: it may carry steps a checkpoint restored
+                first = self._restored(trial, share)
             else:
                 first, share = seen[0], max(share, seen[1])  # a retry from a checkpoint redoes steps
             self.shares[trial.trial_id] = (first, share, share if ends_early else 1.0)
         self._show(force)
+
+    def _restored(self, trial, share: float) -> float:
+        """The share of a trial's work it brought from a checkpoint, at its first result seen: as
+        its rows say, else that result's share (a trial that ended before any result was seen
+        ran all of its work here)."""
+        start = (trial.last_result or {}).get(START_STEPS)
+        budget = self.budgets.get(identity((trial.config or {}).get(self.key)))
+        if start is not None and budget and self.work == "env_steps":
+            return min(int(start) / budget, share)
+        over = trial.status in ("TERMINATED", "ERROR")
+        return 0.0 if over and trial.trial_id in self.shares else share
 
     def _share(self, trial) -> tuple[float, bool] | None:
         """The share of a trial's work done (its env steps over its budget), and whether its run

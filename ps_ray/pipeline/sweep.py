@@ -128,7 +128,7 @@ def report_ticks(run, config: dict[str, Any], key: str) -> None:
     import ray
     from ray import tune
 
-    from ps_ray.store.attempts import FINISHED, earlier_checkpoint
+    from ps_ray.store.attempts import FINISHED, START_STEPS, earlier_checkpoint
 
     checkpoint = tune.get_checkpoint()
     if checkpoint is not None:
@@ -142,6 +142,7 @@ def report_ticks(run, config: dict[str, Any], key: str) -> None:
             continue  # the last step: reported once, by the last tick, with the checkpoint
         # every row names the metrics a search's scheduler reads (None between evaluations)
         row = {**SCHEDULED_METRICS, **tick.row, **(tick.finished or {}), "node_id": node_id}
+        row[START_STEPS] = run.start_steps  # the live view's ETA counts only this attempt's steps
         if tick.checkpoint:
             with tempfile.TemporaryDirectory() as directory:
                 run.save(Path(directory))

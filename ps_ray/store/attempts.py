@@ -28,6 +28,7 @@ from ps_ray.store.run_layout import REPLAY_FOLDER
 FINISHED = "ps_ray_finished"  # in the last result of a trial that ran to its end
 # beside the results of a trial a search's scheduler stopped early (ps_ray.pipeline.search): done too
 STOPPED_FILE = "stopped_early.json"
+START_STEPS = "start_env_steps"  # in a training trial's rows: the env steps it restored, not ran
 UNFINISHED = "did not finish"  # the error of a trial that ended neither finished nor failed: interrupted
 STOPPED = "stopped_early"  # set in the last row of such a trial as outcomes() read it
 STAGE_DIR_KEY = "stage_dir"  # a constant of every grid: where earlier attempts lie

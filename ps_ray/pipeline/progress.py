@@ -126,12 +126,15 @@ class StageProgress(Callback):
             self.shares[trial.trial_id] = (first, share, share if ends_early else 1.0)
         self._show(force)
 
+    def _budget(self, trial) -> int | None:
+        return self.budgets.get(identity((trial.config or {}).get(self.key)))
+
     def _restored(self, trial, share: float) -> float:
         """The share of a trial's work it brought from a checkpoint, at its first result seen: as
         its rows say, else that result's share (a trial that ended before any result was seen
         ran all of its work here)."""
         start = (trial.last_result or {}).get(START_STEPS)
-        budget = self.budgets.get(identity((trial.config or {}).get(self.key)))
+        budget = self._budget(trial)
         if start is not None and budget and self.work == "env_steps":
             return min(int(start) / budget, share)
         over = trial.status in ("TERMINATED", "ERROR")
@@ -145,7 +148,7 @@ class StageProgress(Callback):
         resumed trial starts from its checkpoint's steps)."""
         ended = trial.status in ("TERMINATED", "ERROR")
         early = trial.status == "ERROR" or (trial.status == "TERMINATED" and _stopped(trial))
-        budget = self.budgets.get(identity((trial.config or {}).get(self.key)))
+        budget = self._budget(trial)
         steps = (trial.last_result or {}).get(self.work)
         if ended and (not budget or not (early or _interrupted(trial))):
             return 1.0, False  # finished, or ended without a budget to measure it by

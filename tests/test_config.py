@@ -75,6 +75,8 @@ def test_resumable_changes_keep_the_identity():
         ("few_shot", 375),
         ("alignment_reach", 72),
         ("stitch_push", 32),
+        ("push_paper", 36),
+        ("push_confirm", 3),
     ],
 )
 def test_shipped_sweeps_load_and_expand_to_trials(name, n_trials):

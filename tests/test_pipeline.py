@@ -215,6 +215,9 @@ def test_a_pipeline_killed_in_every_stage_resumes_without_redoing_finished_work(
     assert len(_runs(root, "zero_shot")) == 16
     # one stitched pair per method, its robot source fine-tuned unstitched, and their scratch runs
     assert len(_runs(root, "few_shot")) == 6
+    steps = pd.read_csv(tables / "few_shot_steps.csv")
+    assert set(steps["start"]) == {"stitched", "unstitched", "scratch"}
+    assert f"env steps to {spec.report.few_shot_threshold} [95% CI]" in steps.columns  # the sweep's threshold
     assert len(pd.read_csv(root / "zero_shot.csv")) == 16
     assert all(stage_state(spec, s) == "done" for s in spec.stages)
     # every stage launched the trials its plan lists from the spec alone, as `--check` prices them

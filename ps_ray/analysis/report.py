@@ -48,7 +48,7 @@ def build_report(spec: SweepSpec, *, progress: bool = True, log_to_mlflow: bool 
     if not spec.search.active:  # a search's trials are candidate settings, not sources to compare
         _latent(report, spec, root, say)
     zero_shot_section(report, spec, target, say)
-    _few_shot(report, root, say)
+    _few_shot(report, root, spec.report.few_shot_threshold, say)
     _clips(report, spec, say)
     cost_section(report, spec, root)
     summary_section(report, spec, target)
@@ -347,7 +347,7 @@ def _has_object(tasks: pd.Series) -> bool:
     return any(resolve_task(name).has_object for name in names)
 
 
-def _few_shot(report: Report, root: Path, say) -> None:
+def _few_shot(report: Report, root: Path, threshold: float, say) -> None:
     frame = results.curves(SweepLayout(root).tune_few_shot)
     if frame.empty:
         return
@@ -376,8 +376,8 @@ def _few_shot(report: Report, root: Path, say) -> None:
     report.table(
         section,
         "few_shot_steps",
-        "Env steps to 0.8 greedy success per start: stitched, the robot source unstitched, scratch",
-        transfer.few_shot_steps(frame, 0.8),
+        f"Env steps to {threshold} greedy success per start (report.few_shot_threshold), paired with scratch",
+        transfer.few_shot_steps(frame, threshold),
     )
     say(f"report: few-shot curves of {frame['run'].nunique()} runs")
 

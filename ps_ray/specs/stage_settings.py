@@ -186,7 +186,10 @@ class ReportSpec:
 
     probes_per_group: int = 250  # task states per goal quadrant
     seed: int = 0  # probe-state seed
+    few_shot_threshold: float = 0.8  # the few-shot table's "env steps to" this greedy success
 
     def __post_init__(self) -> None:
         check_types(self, "report")
         positive("report", probes_per_group=self.probes_per_group)
+        if not 0 < self.few_shot_threshold <= 1:
+            raise SpecError(f"report.few_shot_threshold must be in (0, 1], got {self.few_shot_threshold!r}")

@@ -196,7 +196,10 @@ seeds: [1]
         ),
         (GOOD + "few_shot: {scratch: maybe}\n", "few_shot.scratch must be true or false, got 'maybe'"),
         (GOOD + "report: {seed: 1.5}\n", "report.seed must be an integer, got 1.5"),
-        (GOOD + "report: {few_shot_threshold: 1.5}\n", "report.few_shot_threshold must be in (0, 1], got 1.5"),
+        (
+            GOOD + "report: {few_shot_threshold: 1.5}\n",
+            "report.few_shot_threshold must be in (0, 1], got 1.5",
+        ),
         (GOOD + "anchors: {robot: pandaa}\n", "anchors.robot: unknown robot 'pandaa'; valid robots: panda"),
         (GOOD + "anchors: {goals: future}\n", "unknown anchors.goals 'future'; valid: real, relabelled"),
         (GOOD + "train: {hidden: 100000}\n", "hidden must be at most 8192, got 100000"),

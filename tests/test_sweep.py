@@ -178,6 +178,49 @@ def test_ctrl_c_stops_a_sweep_in_one_line_and_resume_finishes_it(tmp_path, cli, 
     assert all(r.info.status == "FINISHED" for r in runs(path).values())
 
 
+# One Tune run through the stages' runner, then Ctrl-C (SIGINT to itself) while the driver does
+# other work, as in a report stage after the few-shot stage.
+AFTER_TUNE = """
+import os, signal, sys, time
+from pathlib import Path
+import ray
+from ray import tune
+from ps_ray.pipeline.trials import run_trials
+from ps_ray.store.attempts import FINISHED
+
+ray.init(num_cpus=1, include_dashboard=False, log_to_driver=False)
+run_trials(lambda config: tune.report({FINISHED: True}), {"n": [0]}, folder=Path(sys.argv[1]),
+           stage="one", callback=tune.Callback(), resume=False, progress=False, max_concurrent=None,
+           max_failures=0)
+try:
+    os.kill(os.getpid(), signal.SIGINT)
+    time.sleep(10)
+    print("still running after Ctrl-C")
+except KeyboardInterrupt:
+    print("interrupted")
+"""
+
+
+def test_ctrl_c_after_a_tune_stage_interrupts_the_driver_at_once(tmp_path):
+    """Tune leaves its own SIGINT handler set when its run ends, which swallowed the first Ctrl-C
+    of a later stage (the report) with Tune's "Stop signal received" and ran on."""
+    import subprocess
+    import sys
+
+    from tests.conftest import own_ray_env
+
+    proc = subprocess.run(
+        [sys.executable, "-c", AFTER_TUNE, str(tmp_path / "tune" / "one")],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        env=own_ray_env(),
+    )
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert proc.stdout.strip().splitlines()[-1] == "interrupted"
+    assert "Stop signal received" not in proc.stdout + proc.stderr
+
+
 def _trial_workers(tag: str) -> list[int]:
     """PIDs of Tune trial workers (``ray::ImplicitFunc``) started under the environment ``tag``."""
     found = []

@@ -4,6 +4,9 @@ the stage folder's plain JSON says (:mod:`ps_ray.store.attempts`), never from Tu
 from __future__ import annotations
 
 import contextlib
+import signal
+import threading
+from collections.abc import Iterator
 from pathlib import Path
 
 from ps_ray.pipeline.heap import releasing
@@ -96,7 +99,10 @@ def run_trials(
                 verbose=1 if progress else 0,
             ),
         )
-        with quiet_tune(root / LOG_FOLDER / f"{name}.log") if quiet else contextlib.nullcontext():
+        with (
+            quiet_tune(root / LOG_FOLDER / f"{name}.log") if quiet else contextlib.nullcontext(),
+            _signal_handlers_kept(),
+        ):
             grid_results = tuner.fit()  # quiet: Tune's tables go to the log
         failed = [r for r in grid_results if r.error]
         errors.update({identity(r.config[key]): str(r.error) for r in failed})
@@ -107,6 +113,22 @@ def run_trials(
             break
         todo = relaunch
     return outcomes(path, key, trials, errors)
+
+
+@contextlib.contextmanager
+def _signal_handlers_kept() -> Iterator[None]:
+    """Tune's run sets its own SIGINT (and SIGUSR1) handler and leaves it set when it ends: the
+    first Ctrl-C of a later stage (the report) would only print Tune's "Stop signal received" and
+    be lost. The driver's handlers are put back once Tune returns."""
+    names = [name for name in ("SIGINT", "SIGUSR1") if hasattr(signal, name)]
+    kept = {name: signal.getsignal(getattr(signal, name)) for name in names}
+    try:
+        yield
+    finally:
+        if threading.current_thread() is threading.main_thread():  # only it may set handlers
+            for name, handler in kept.items():
+                if handler is not None:  # set outside Python: not restorable from here
+                    signal.signal(getattr(signal, name), handler)
 
 
 def _failures(result) -> list[str]:

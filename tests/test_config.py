@@ -76,7 +76,7 @@ def test_resumable_changes_keep_the_identity():
         ("alignment_reach", 72),
         ("stitch_push", 32),
         ("push_paper", 36),
-        ("push_confirm", 3),
+        ("push_confirm", 12),
     ],
 )
 def test_shipped_sweeps_load_and_expand_to_trials(name, n_trials):

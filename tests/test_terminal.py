@@ -48,6 +48,9 @@ def test_the_eta_counts_work_not_trials():
     # trials without a budget count whole when they end; nothing ended: no estimate yet
     assert eta_s(60, [(1.0, 1.0, 1.0), (0.0, 1.0, 1.0), (0.0, 0.0, 1.0)], pending=1) == 60 * 2
     assert eta_s(60, [(0.0, 0.0, 1.0)], pending=3) is None
+    # 100 env steps of 150k after 31 s of start-up: too early to tell (not 158 hours)
+    assert eta_s(31, [(0.0, 100 / 150_000, 1.0), (0.0, 0.0, 1.0)], pending=10) is None
+    assert eta_s(600, [(0.0, 0.2, 1.0), (0.0, 0.2, 1.0)], pending=10) == 600 * 11.6 / 0.4
 
 
 def _trial(storage, n: int):

@@ -22,6 +22,7 @@ from ps_ray.store.attempts import FINISHED, START_STEPS, STOPPED_FILE, identity
 from ps_ray.store.terminal import others_to
 
 PLAIN_EVERY_S = 30.0
+EARLIEST_ETA = 0.02  # share of a stage's work done before its ETA is shown
 
 
 class StageProgress(Callback):
@@ -218,10 +219,11 @@ def _interrupted(trial) -> bool:
 def eta_s(elapsed_s: float, shares: list[tuple[float, float, float]], pending: int) -> float | None:
     """Seconds left at the pace so far: ``shares`` holds each trial seen, as the share of its work
     done when first seen, now, and where it ends (1, or less for a trial ended early); ``pending``
-    trials not measured yet have all theirs left. None until some work is done."""
+    trials not measured yet have all theirs left. None until ``EARLIEST_ETA`` of the work is done:
+    the first results follow the trials' start-up, and a pace read from them is off by hours."""
     done = sum(now - first for first, now, _ in shares)
     left = sum(end - now for _, now, end in shares) + pending
-    return elapsed_s * left / done if done > 0 else None
+    return elapsed_s * left / done if done > 0 and done >= EARLIEST_ETA * (done + left) else None
 
 
 def _clock(seconds: float) -> str:

@@ -66,6 +66,19 @@ def test_a_killed_run_refuses_a_second_writer_while_alive_and_resumes_from_its_c
     assert signature.method == "ps" and signature.interface_dim == 8
     assert signature.anchor_hash and (run_dir / "anchors.npz").exists()
 
+    # The kill lost nothing: the same run without one ends with the same weights, bit for bit
+    # (replay sampling, reset seeds and torch's generator all go on from the checkpoint).
+    straight_dir = tmp_path / "straight"
+    straight = subprocess.run(
+        train_cmd(straight_dir, saved + 400), capture_output=True, text=True, timeout=300
+    )
+    assert straight.returncode == 0, straight.stdout[-2000:] + straight.stderr[-2000:]
+    resumed, uninterrupted = (load_file(d / "policy.safetensors") for d in (run_dir, straight_dir))
+    assert resumed.keys() == uninterrupted.keys()
+    assert all(torch.equal(resumed[k], uninterrupted[k]) for k in resumed)
+    straight_metrics = pd.read_csv(straight_dir / "metrics.csv")
+    assert metrics.drop(columns="wall_s").equals(straight_metrics.drop(columns="wall_s"))
+
 
 def test_a_run_directory_refuses_another_policy(tmp_path, train_cmd):
     run_dir = tmp_path / "run"

@@ -53,6 +53,9 @@ from ps_ray.store.signature import Signature
 
 LEARNER_FILE = "learner.safetensors"
 REPLAY_FILE = "replay.npz"
+# The process's torch generator (exploration noise, the actor's reparameterised samples), kept in
+# the learner file so that a resumed run draws what the uninterrupted one would have drawn.
+TORCH_RNG = "ps_ray.torch_rng_state"
 
 
 # TrainSpec fields the training step reads; their defaults and docs live in TrainSpec alone.
@@ -309,7 +312,8 @@ class ModularSAC(SAC):
         directory = Path(checkpoint_dir)
         directory.mkdir(parents=True, exist_ok=True)
         tensors = self.learner_group.foreach_learner(lambda learner: learner.training_state())
-        save_file(tensors.result_or_errors[0].get(), directory / LEARNER_FILE)
+        tensors = {**tensors.result_or_errors[0].get(), TORCH_RNG: torch.get_rng_state()}
+        save_file(tensors, directory / LEARNER_FILE)
         self.save_replay(directory)
         state = {"counters": self.counters, "iteration": self.iteration}
         (directory / STATE_FILE).write_text(json.dumps(state))
@@ -327,6 +331,7 @@ class ModularSAC(SAC):
         """Restore from a checkpoint folder that :func:`ps_ray.store.checkpoint.verify` accepted."""
         directory = Path(checkpoint_dir)
         tensors = load_file(directory / LEARNER_FILE)
+        rng = tensors.pop(TORCH_RNG, None)  # absent from checkpoints written before it was kept
         self.learner_group.foreach_learner(lambda learner: learner.load_training_state(tensors))
         self.env_runner_group.sync_weights(
             from_worker_or_learner_group=self.learner_group, inference_only=True
@@ -335,6 +340,8 @@ class ModularSAC(SAC):
         state = json.loads((directory / STATE_FILE).read_text())
         self.counters = {k: int(state["counters"][k]) for k in self.counters}
         set_training_iteration(self, int(state["iteration"]))
+        if rng is not None:  # last: nothing of the restore may draw after it
+            torch.set_rng_state(rng)
 
     def load_replay(self, directory: Path) -> None:
         if (directory / replay_segments.MANIFEST_FILE).is_file():

@@ -1,7 +1,7 @@
 """A training checkpoint is ps_ray's own, non-executable state, sealed by a manifest.
 
 Files of a checkpoint folder (docs/state.md):
-  learner.safetensors  the five SAC nets, log alpha and every Adam slot
+  learner.safetensors  the five SAC nets, log alpha, every Adam slot and torch's generator state
   replay.json          the replay buffer's state and the segment files that hold its episodes,
                        outside the folder (:mod:`ps_ray.store.replay`); a checkpoint written
                        without a segment store, or by ps_ray before them, has replay.npz instead

@@ -131,6 +131,25 @@ def test_a_grid_resumes_from_its_checkpoint_and_refuses_another_grid(trained_gri
     assert "holds another grid (changed: held_out); use another --run-dir" in done.stderr
 
 
+def test_a_resumed_grid_ends_with_the_weights_of_one_never_stopped(trained_grid, tmp_path):
+    """Trained to 300 env steps per cell and resumed to 500, or trained to 500 at once: the same
+    cell policies, bit for bit (the checkpoint keeps torch's generator; writing a checkpoint's cell
+    files draws nothing from it)."""
+    from safetensors.torch import load_file
+
+    run_dir, _, _ = trained_grid
+    straight = subprocess.run(grid_args(tmp_path / "straight", 500), capture_output=True, text=True)
+    assert straight.returncode == 0, straight.stderr[-3000:]
+    cells = sorted(p.name for p in (run_dir / "cells").iterdir())
+    assert cells == sorted(p.name for p in (tmp_path / "straight" / "cells").iterdir())
+    for cell in cells:
+        resumed, uninterrupted = (
+            load_file(d / "cells" / cell / "policy.safetensors") for d in (run_dir, tmp_path / "straight")
+        )
+        assert resumed.keys() == uninterrupted.keys()
+        assert all(torch.equal(resumed[k], uninterrupted[k]) for k in resumed), cell
+
+
 def test_a_held_out_cell_is_never_built_stepped_or_replayed(trained_grid, ray_local):
     """The trained grid's folders, and a grid algorithm's own envs and replays: trained cells only."""
     from ps_ray.rllib.grid_train import GridRun

@@ -159,7 +159,8 @@ class GridSAC(ModularSAC):
         module_dims = self.learner_group.foreach_learner(
             lambda learner: learner.module[DEFAULT_MODULE_ID].dims
         )
-        views = grid_modules(owner, cfg, module_dims.result_or_errors[0].get())
+        with torch.random.fork_rng(devices=[]):  # throw-away initial weights: not from the run's stream
+            views = grid_modules(owner, cfg, module_dims.result_or_errors[0].get())
         GridSACLearner.load_module_tensors(owner, state)
         return views
 

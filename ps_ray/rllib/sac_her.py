@@ -53,8 +53,9 @@ from ps_ray.store.signature import Signature
 
 LEARNER_FILE = "learner.safetensors"
 REPLAY_FILE = "replay.npz"
-# The process's torch generator (exploration noise, the actor's reparameterised samples), kept in
-# the learner file so that a resumed run draws what the uninterrupted one would have drawn.
+# The process's torch CPU generator (exploration noise, the actor's reparameterised samples on a
+# CPU learner), kept in the learner file so that a resumed run draws what the uninterrupted one
+# would have drawn. A GPU learner's samples come from the CUDA generator, which is not kept.
 TORCH_RNG = "ps_ray.torch_rng_state"
 
 

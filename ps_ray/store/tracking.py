@@ -12,10 +12,14 @@ after a driver restart, or a second ``TrialTracker`` with the same key, continue
 
 from __future__ import annotations
 
+import fcntl
+import hashlib
 import logging
 import subprocess
+import tempfile
 import time
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
+from contextlib import contextmanager
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -84,6 +88,21 @@ def _first_line(exc: BaseException) -> str:
 STORE_RETRY_S = 20.0
 
 
+@contextmanager
+def _one_maker(db: Path | None) -> Iterator[None]:
+    """One ps_ray process of this machine at a time opens a sqlite store here: two that made a new
+    store at once could both run MLflow's table migrations, and a migration cut across by the
+    other's left the store unusable for good (``table _alembic_tmp_experiments already exists``).
+    The lock file lives in the temp folder, keyed by the store's path, never beside the store."""
+    if db is None:
+        yield
+        return
+    key = hashlib.sha256(str(db.expanduser().resolve()).encode()).hexdigest()[:16]
+    with open(Path(tempfile.gettempdir()) / f"ps_ray-mlflow-{key}.lock", "a") as handle:
+        fcntl.flock(handle, fcntl.LOCK_EX)  # released when the file closes, or the process dies
+        yield
+
+
 def ensure_experiment(tracking_uri: str, name: str, artifact_root: str | Path) -> str:
     """Create (if needed) the store and the experiment ``name`` with its artifacts under
     ``artifact_root``; returns the experiment id. Idempotent; call it from the driver only."""
@@ -97,12 +116,13 @@ def ensure_experiment(tracking_uri: str, name: str, artifact_root: str | Path) -
         try:
             if db is not None:
                 db.parent.mkdir(parents=True, exist_ok=True)
-            client = _client(tracking_uri)
-            experiment = client.get_experiment_by_name(name)
-            if experiment is None:
-                return client.create_experiment(
-                    name, artifact_location=artifact_location, tags=EXPERIMENT_KIND
-                )
+            with _one_maker(db):  # the store's tables are made on the first call, not by the client
+                client = _client(tracking_uri)
+                experiment = client.get_experiment_by_name(name)
+                if experiment is None:
+                    return client.create_experiment(
+                        name, artifact_location=artifact_location, tags=EXPERIMENT_KIND
+                    )
             for key, value in EXPERIMENT_KIND.items():  # an experiment made before the tag existed
                 if experiment.tags.get(key) != value:
                     client.set_experiment_tag(experiment.experiment_id, key, value)

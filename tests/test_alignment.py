@@ -36,25 +36,58 @@ def test_translation_recovers_a_known_orthogonal_map():
     x = latents()
     q, _ = np.linalg.qr(np.random.default_rng(1).normal(size=(16, 16)))
     y = 2.5 * x @ q + 4.0  # rotation/reflection, isotropic scale, offset
-    weight, bias = fit_translation(x, y, "orthogonal")
+    weight, bias, _ = fit_translation(x, y, "orthogonal")
     assert np.abs(x @ weight + bias - y).max() < 1e-4
     # fitted on part of the states, it maps states it has not seen
-    weight, bias = fit_translation(x[:200], y[:200], "orthogonal")
+    weight, bias, _ = fit_translation(x[:200], y[:200], "orthogonal")
     assert np.abs(x[200:] @ weight + bias - y[200:]).max() < 1e-4
 
 
 def test_translation_recovers_a_known_affine_map_between_widths():
     x = latents(d=16)
     a, b = np.random.default_rng(2).normal(size=(16, 8)), np.random.default_rng(3).normal(size=8)
-    weight, bias = fit_translation(x[:300], x[:300] @ a + b, "affine")
-    assert weight.shape == (16, 8)
-    assert np.abs(x[300:] @ weight + bias - (x[300:] @ a + b)).max() < 1e-4
+    for kind in ("affine", "affine_lstsq"):
+        weight, bias, ridge = fit_translation(x[:300], x[:300] @ a + b, kind)
+        assert weight.shape == (16, 8)
+        assert np.abs(x[300:] @ weight + bias - (x[300:] @ a + b)).max() < 1e-4
+        assert ridge <= 1e-6  # nothing to regularise: cross-validation picks the weakest ridge
+
+
+def low_rank_latents(n: int, seed: int, d: int = 128, rank: int = 48, noise: float = 0.05) -> np.ndarray:
+    """Latents as trained ones are: 128 wide, of effective rank 48 (one fixed subspace), noisy."""
+    scales = np.random.default_rng(10).uniform(0.2, 2, (rank, 1))
+    basis = np.random.default_rng(9).normal(size=(rank, d)) * scales
+    g = np.random.default_rng(seed)
+    return g.normal(size=(n, rank)) @ basis / np.sqrt(rank) + noise * g.normal(size=(n, d)) + 1.0
+
+
+def test_the_ridge_fit_predicts_held_out_latents_at_as_many_rows_as_unknowns():
+    """129 unknowns per output (128 weights and an offset) from 129 noisy rows of rank-48 latents:
+    the point where plain least squares interpolates the noise (its held-out error peaks). The
+    map cannot be identified outside the latents' subspace, so predictions on held-out latents of
+    the same subspace are what is checked: the cross-validated ridge stays within 2% of the
+    target's variance; plain least squares, the old fit, is many times worse there."""
+    a = np.random.default_rng(5).normal(size=(128, 128)) / np.sqrt(128)
+    b = np.random.default_rng(6).normal(size=128)
+    x = low_rank_latents(129, seed=0)
+    y = x @ a + b + 0.05 * np.random.default_rng(7).normal(size=x.shape)
+    x_new = low_rank_latents(1000, seed=1)
+    y_new = x_new @ a + b
+
+    def held_out_error(kind: str) -> float:
+        weight, bias, _ = fit_translation(x, y, kind)
+        return float(np.mean((x_new @ weight + bias - y_new) ** 2) / y_new.var(axis=0).sum() * 128)
+
+    ridge, plain = held_out_error("affine"), held_out_error("affine_lstsq")
+    assert ridge < 0.02 and plain > 5 * ridge
+    chosen = fit_translation(x, y, "affine").ridge
+    assert 0 < chosen < 1  # the strength the fit chose is returned, to be recorded with the stitch
 
 
 def test_orthogonal_translation_cannot_fit_a_shear():
     x = latents()
     shear = np.eye(16) + np.triu(np.random.default_rng(4).normal(size=(16, 16)), 1)
-    weight, bias = fit_translation(x, x @ shear, "orthogonal")
+    weight, bias, _ = fit_translation(x, x @ shear, "orthogonal")
     assert np.abs(x @ weight + bias - x @ shear).max() > 0.1
 
 

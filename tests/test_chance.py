@@ -8,7 +8,7 @@ import pytest
 
 from ps_ray.envs import make
 from ps_ray.envs.goals import SUCCESS_DISTANCE
-from ps_ray.stitching.chance import RandomPoint, TaskBlind, chance, has_floor
+from ps_ray.stitching.chance import DriveTo, RandomPoint, chance, has_floor, task_blind
 from ps_ray.stitching.evaluate import evaluate
 
 EPISODES = {"episodes": 30, "repeats": 1, "seed": 7}
@@ -54,20 +54,48 @@ def test_chance_on_the_marker_family_is_scored_on_the_pair_s_episodes():
     assert found["random_point_success"] <= 0.25 and found["random_actions_success"] <= 0.25
 
 
-def test_the_task_blind_floor_ends_at_one_marker_or_the_other_on_the_pair_s_episodes():
+def test_the_task_blind_floor_is_the_mean_over_the_markers_on_the_pair_s_episodes():
     """The floor for a transfer claim on the marker family: it can reach every marker but is not
-    told which one the task names, so it ends at the named one about half the time and at the
-    other one otherwise, far above chance; it runs on the pair's episodes (chance() raises if its
-    digest differs from the chance policies', which test above shares with any policy's)."""
+    told which one the task names. Taken in expectation, each episode is driven to both markers:
+    the named marker's term is exactly a policy that always drives to the named marker, the other
+    term reaches the named one almost never, so the floor is half of the named term, per episode
+    one of 0, 1/2, 1, and no draw enters it (the same figure on any repeat of the evaluation)."""
     found = chance("panda_far", "reach_blue", EPISODES)
-    blind = evaluate(TaskBlind(), "panda_far", "reach_blue", **EPISODES)
+    floor = task_blind("panda_far", "reach_blue", EPISODES)
+    named = evaluate(NamedMarker(), "panda_far", "reach_blue", **EPISODES)
+    other = evaluate(OtherMarker(), "panda_far", "reach_blue", **EPISODES)
     pair = evaluate(lambda obs: np.zeros((len(obs["robot_state"]), 7)), "panda_far", "reach_blue", **EPISODES)
-    assert blind["episodes_digest"] == pair["episodes_digest"] == found["episodes_digest"]  # the pair's
-    assert blind["success_mean"] == found["task_blind_success"]  # the draws follow the episode seeds
-    assert found["task_blind_success"] + found["task_blind_wrong_target"] == pytest.approx(1.0)
-    assert 0.25 <= found["task_blind_success"] <= 0.75  # 30 episodes of a fair coin
+    assert named["episodes_digest"] == pair["episodes_digest"] == floor["episodes_digest"]  # the pair's
+    assert floor["task_blind_per_candidate"][1] == named["success_mean"]  # reach_blue names marker 1
+    assert floor["task_blind_per_candidate"] == [other["success_mean"], named["success_mean"]]
+    assert floor["task_blind_success"] == pytest.approx((named["success_mean"] + other["success_mean"]) / 2)
+    assert named["success_mean"] >= 0.9 and other["success_mean"] <= 0.1  # the arm reaches what it aims at
+    assert set(floor["task_blind_per_episode"]) <= {0.0, 0.5, 1.0}
+    assert found["task_blind_success"] == floor["task_blind_success"]  # chance() reports the same floor
+    again = task_blind("panda_far", "reach_blue", EPISODES)
+    assert found["task_blind_success"] == again["task_blind_success"]
+    assert found["task_blind_wrong_target"] == pytest.approx((named["wrong_target_mean"] + 1.0) / 2)
     assert found["task_blind_success"] > found["chance_success"]
     assert has_floor("reach_blue") and not has_floor("reach") and not has_floor("push")
+
+
+def test_drive_to_aims_at_one_candidate_whatever_the_task_names():
+    env = make("panda", "reach_red")
+    env.reset(seed=3)
+    policy = DriveTo(1)
+    policy.begin([env], [3])
+    np.testing.assert_array_equal(policy.points[0], env.candidate_targets()[1])
+    env.close()
+
+
+class NamedMarker:
+    """Drives to the marker the task names, every episode."""
+
+    def begin(self, envs, seeds) -> None:
+        self.envs = list(envs)
+
+    def __call__(self, obs):
+        return np.stack([e.action_toward(e.candidate_targets()[e.named_candidate]) for e in self.envs])
 
 
 class OtherMarker:

@@ -1,10 +1,12 @@
 """How many outcome scenes a translation fitted on outcome-matched pairs needs, and what they cost.
 
-For the stitched pairs of a finished zero-shot stage whose translation is ``<kind>@outcome``, the
+For the stitched pairs of a finished zero-shot stage whose translation is ``affine@outcome``, the
 fit is redone from the first N outcome scenes of each source (N of ``--scenes``; the smaller sets
-are prefixes of the larger, the same reset seeds) and the stitch is scored on the stage's own
-zero-shot episodes. Prints per N: the fit's env steps, the stitched success (mean over pairs, t
-interval over seeds) and the wall time; no Ray, no MLflow, nothing written.
+are prefixes of the larger, the same reset seeds) with each latent map of ``--fits`` (default:
+the ridge fit and the plain least squares it replaced) and the stitch is scored on the stage's
+own zero-shot episodes of the pair's seed. Prints per N: the fit's env steps, per fit the
+stitched success (mean over pairs, t interval over seeds) and the median ridge strength chosen,
+and the wall time; no Ray, no MLflow, nothing written.
 
     ps-ray bench outcomes runs/sweeps/confirm [--scenes 25 50 100 400] [--pairs-per-seed 1]
 """
@@ -23,16 +25,22 @@ from ps_ray.cli.args import Parser, positive_int
 from ps_ray.errors import UserError
 
 
-def run(sweep: Path, scenes: Sequence[int], pairs_per_seed: int, fit: str = "outcome") -> pd.DataFrame:
+def run(
+    sweep: Path,
+    scenes: Sequence[int],
+    pairs_per_seed: int,
+    fits: Sequence[str] = ("affine", "affine_lstsq"),
+    fit: str = "outcome",
+) -> pd.DataFrame:
     from ps_ray.analysis.stats import estimate
     from ps_ray.nets.policy_file import load_policy
-    from ps_ray.specs import reset_seeds
+    from ps_ray.pipeline.zero_shot import pair_episodes
     from ps_ray.specs.names import split_translation
     from ps_ray.specs.sweep import SweepSpec
     from ps_ray.stitching.evaluate import evaluate
     from ps_ray.stitching.outcomes import fit_env_steps, fit_pairs
     from ps_ray.stitching.pairs import pairs_from_table
-    from ps_ray.stitching.stitch import stitch_policies
+    from ps_ray.stitching.stitch import stitch_policies, translation_ridge
 
     table = sweep / "zero_shot.csv"
     found = pairs_from_table(table)
@@ -48,38 +56,42 @@ def run(sweep: Path, scenes: Sequence[int], pairs_per_seed: int, fit: str = "out
     if not chosen:
         raise UserError(f"{table}: no same-seed affine@{fit} pairs; valid: a sweep that translates with it")
     z = spec.zero_shot
-    episodes = {"episodes": z.episodes, "repeats": z.repeats, "seed": reset_seeds.fixed("zero_shot", z.seed)}
+    seeds = np.array([pair.seed for pair in chosen])
     rows = []
     for n in scenes:
         started = time.perf_counter()
-        success, seeds = [], []
+        row: dict = {"outcome scenes": n, "fit env steps per stitch": fit_env_steps("affine", fit, n)}
+        success = {kind: [] for kind in fits}
+        ridges = []
         for pair in chosen:
             try:
                 states = fit_pairs(fit, *pair.sources, n, z.outcome_points, z.seed)
             except UserError:  # too few successful outcomes at this N: the fit cannot be made
-                success.append(np.nan)
-                seeds.append(pair.seed)
-                continue
-            nets = stitch_policies(
-                load_policy(pair.task_from_path),
-                load_policy(pair.robot_from_path),
-                translation="affine",
-                fit_states=states,
-            )
-            success.append(evaluate(nets, pair.robot, pair.task, **episodes)["success_mean"])
-            seeds.append(pair.seed)
-        values, seeds = np.array(success), np.array(seeds)
-        made = ~np.isnan(values)
-        e = estimate(values[made], seeds[made]) if made.any() else None
-        rows.append(
-            {
-                "outcome scenes": n,
-                "fit env steps per stitch": fit_env_steps("affine", fit, n),
-                "pairs fitted": f"{int(made.sum())}/{len(values)}",
-                "stitched success [95% CI over seeds]": "–" if e is None else e.text(),
-                "wall s": round(time.perf_counter() - started, 1),
-            }
-        )
+                states = None
+            for kind in fits:
+                if states is None:
+                    success[kind].append(np.nan)
+                    continue
+                nets = stitch_policies(
+                    load_policy(pair.task_from_path),
+                    load_policy(pair.robot_from_path),
+                    translation=kind,
+                    fit_states=states,
+                )
+                episodes = pair_episodes(pair, z.episodes, z.repeats, z.seed)
+                success[kind].append(evaluate(nets, pair.robot, pair.task, **episodes)["success_mean"])
+                if kind == "affine":
+                    ridges.append(translation_ridge(nets[0]))
+        for kind in fits:
+            values = np.array(success[kind])
+            made = ~np.isnan(values)
+            e = estimate(values[made], seeds[made]) if made.any() else None
+            row["pairs fitted"] = f"{int(made.sum())}/{len(values)}"
+            row[f"{kind} stitched [95% CI over seeds]"] = "–" if e is None else e.text()
+        if ridges:
+            row["ridge chosen (median)"] = f"{np.median(ridges):.2g}"
+        row["wall s"] = round(time.perf_counter() - started, 1)
+        rows.append(row)
     return pd.DataFrame(rows)
 
 
@@ -88,7 +100,14 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument("sweep", type=Path, help="a sweep folder whose zero-shot stage finished")
     parser.add_argument("--scenes", type=positive_int, nargs="+", default=[25, 50, 100, 400])
     parser.add_argument("--pairs-per-seed", type=positive_int, default=1, help="same-seed pairs per seed")
+    parser.add_argument(
+        "--fits",
+        nargs="+",
+        choices=["affine", "affine_lstsq"],
+        default=["affine", "affine_lstsq"],
+        help="the latent maps to refit (affine: ridge, cross-validated; affine_lstsq: plain least squares)",
+    )
     args = parser.parse_args(argv)
-    out = run(args.sweep, sorted(args.scenes), args.pairs_per_seed)
+    out = run(args.sweep, sorted(args.scenes), args.pairs_per_seed, args.fits)
     print(f"affine@outcome refitted on the first N outcome scenes of each source ({args.sweep})")
     print(out.to_string(index=False))

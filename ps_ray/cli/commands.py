@@ -281,7 +281,7 @@ def cmd_stitch(args: argparse.Namespace) -> int:
     from ps_ray.nets.policy_file import save_policy
     from ps_ray.stitching.evaluate import evaluate, format_result
     from ps_ray.stitching.sources import resolve_source, resolve_target
-    from ps_ray.stitching.stitch import stitch_metadata, stitch_policies
+    from ps_ray.stitching.stitch import stitch_metadata, stitch_policies, translation_ridge
     from ps_ray.stitching.zoo import ModuleZoo
 
     if args.episodes < 0:
@@ -305,8 +305,13 @@ def cmd_stitch(args: argparse.Namespace) -> int:
     nets, signature = stitch_policies(
         task_src.path, robot_src.path, target=(robot, task), translation=args.translate, fit_states=states
     )
+    ridge = translation_ridge(nets)
+    if ridge is not None:
+        print(f"{args.translate} translation fitted; the actor's ridge strength {ridge:.3g}")
     if args.save:
         extra = stitch_metadata(args.task_from, args.robot_from)
+        if ridge is not None:
+            extra["translation_ridge"] = f"{ridge:.6g}"
         path = save_policy(output_file(args.save), nets, signature, extra=extra)
         print(f"wrote {path}")
     if args.episodes > 0:

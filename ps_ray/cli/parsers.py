@@ -6,6 +6,7 @@ import argparse
 import dataclasses
 
 from ps_ray.cli.args import Parser, positive_int, seed_int
+from ps_ray.specs.names import LATENT_TRANSLATIONS
 from ps_ray.specs.train import TrainSpec
 
 
@@ -289,9 +290,10 @@ def _stitch_parser(sub) -> None:
     p.add_argument(
         "--translate",
         default=None,
-        choices=["orthogonal", "affine"],
+        choices=list(LATENT_TRANSLATIONS),
         help="fit a latent translation from the task module's latent to the robot "
-        "module's on reset task states of both sources' tasks (no env steps)",
+        "module's on reset task states of both sources' tasks (no env steps; affine: ridge, "
+        "its strength cross-validated; affine_lstsq: plain least squares, the old fit)",
     )
     p.add_argument(
         "--fit-states",

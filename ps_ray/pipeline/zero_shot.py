@@ -2,11 +2,12 @@
 
 Every valid (task module, robot module) pair of each method (see `stitch.combos`), of one seed or,
 with ``zero_shot.pairs``, across seeds, is stitched, evaluated on fixed seeds (episodes x
-repeats), then the pair's controls are evaluated as they are on the same episodes (its robot source, its
-task source, the oracle: `stitch.controls`, docs/transfer.md), so that every method and control is
-scored on identical episodes; beside them, the chance level of the target env on those episodes
-(:mod:`ps_ray.stitching.chance`: a policy with no task knowledge, measured once per target env
-before the trials start). The table, one row per pair (its record, :meth:`StitchedPair.to_row`:
+repeats, a block of its own per training seed: :func:`pair_episodes`), then the pair's controls
+are evaluated as they are on the same episodes (its robot source, its task source, the oracle:
+`stitch.controls`, docs/transfer.md), so that every method and control is scored on identical
+episodes; beside them, the chance level and task-blind floor of the target env on those episodes
+(:mod:`ps_ray.stitching.chance`: policies with no task knowledge, measured once per target env
+and seed before the trials start). The table, one row per pair (its record, :meth:`StitchedPair.to_row`:
 the sources' and controls' keys and files) with its controls' figures and transfer gain, goes to
 <sweep>/zero_shot.csv, and to MLflow (stage zero_shot, one run per pair). Pairs run in
 batches (``zero_shot.pairs_per_trial`` per Tune trial), so that a trial's start is paid once per
@@ -43,6 +44,7 @@ RESULT_KEYS = (
     "wrong_target_mean",  # ended at a candidate target the task does not name (NaN: one per scene)
     "episodes_per_s",
     "fit_env_steps",  # env steps the translation's fit rolled out (outcome matching; 0 for none)
+    "translation_ridge",  # the ridge strength the actor's latent map chose (NaN: no latent map)
 )
 # each control's success on the pair's episodes (ps_ray.stitching.matrix.controls), chance and the
 # task-blind floor on them, the better unstitched source, the best of all those and the gain over
@@ -111,35 +113,48 @@ def zero_shot_trial(config: dict[str, Any]) -> None:
 
     batch = config["batch"]
     for i, pair in enumerate(map(StitchedPair.from_dict, batch)):
-        chance = config["chance"][target_key(pair)]
+        episodes = pair_episodes(pair, **config["eval"])
+        chance = config["chance"][target_key(pair, episodes)]
         metrics = evaluate_pair(
-            pair, config["eval"], config["fit_states_per_quadrant"], source, chance, config["outcome"], scored
+            pair, episodes, config["fit_states_per_quadrant"], source, chance, config["outcome"], scored
         )
         tune.report({**metrics, PAIR_KEY: pair.key, **({FINISHED: True} if i == len(batch) - 1 else {})})
 
 
-def target_key(pair: StitchedPair) -> str:
-    """The pair's target env, as the chance figures are keyed."""
-    return f"{pair.robot.text} {pair.task.text}"
+def pair_episodes(pair: StitchedPair, episodes: int, repeats: int, seed: int) -> dict[str, int]:
+    """``evaluate``'s episodes, repeats and first reset seed for a pair, given the stage's
+    ``seed`` setting: the training seed's own block of the zero-shot stream
+    (:func:`ps_ray.specs.reset_seeds.fixed_for_run`), so that each seed's pairs, controls, chance
+    and floor share their scenes and seeds see different ones. A cross-seed pair takes the block
+    of its task module's seed (``pair.seed``)."""
+    first = reset_seeds.fixed_for_run("zero_shot", seed, pair.seed, episodes * repeats)
+    return {"episodes": episodes, "repeats": repeats, "seed": first}
 
 
-def chance_levels(trials: list[StitchedPair], settings: dict[str, Any], progress: bool) -> dict[str, dict]:
-    """The chance control (:func:`ps_ray.stitching.chance.chance`) of every target env the pairs
-    run on, on the stage's episodes: it depends on nothing else, so it is measured once."""
+def target_key(pair: StitchedPair, episodes: dict[str, int]) -> str:
+    """The pair's target env and first reset seed, as the chance figures are keyed."""
+    return f"{pair.robot.text} {pair.task.text} @{episodes['seed']}"
+
+
+def chance_levels(trials: list[StitchedPair], settings: dict[str, int], progress: bool) -> dict[str, dict]:
+    """The chance control and task-blind floor (:func:`ps_ray.stitching.chance.chance`) of every
+    target env the pairs run on, on each seed's episodes (:func:`pair_episodes` of ``settings``):
+    they depend on nothing else, so each is measured once."""
     from ps_ray.stitching.chance import chance
 
     levels = {}
     for pair in trials:
-        key = target_key(pair)
+        episodes = pair_episodes(pair, **settings)
+        key = target_key(pair, episodes)
         if key not in levels:
-            levels[key] = chance(pair.robot, pair.task, settings)
+            levels[key] = chance(pair.robot, pair.task, episodes)
             if progress:
                 found = levels[key]
                 floor = found["task_blind_success"]
                 floor_text = "absent" if floor != floor else f"{floor:.3f}"
                 print(
-                    f"[zero_shot] chance on {readable(pair.task.short)}/{pair.robot.short}: "
-                    f"{found['chance_success']:.3f} ({found['chance_policy']}); "
+                    f"[zero_shot] chance on {readable(pair.task.short)}/{pair.robot.short}, seed "
+                    f"{pair.seed}'s episodes: {found['chance_success']:.3f} ({found['chance_policy']}); "
                     f"task-blind floor {floor_text}",
                     flush=True,
                 )
@@ -155,16 +170,16 @@ def evaluate_pair(
     outcome: dict[str, Any] | None = None,
     scored: dict[tuple, dict] | None = None,
 ) -> dict:
-    """Stitch one pair (translated, if the pair says so), evaluate it, then each of its controls
-    as it is, all on the stage's fixed episodes (``settings``: ``evaluate``'s episodes, repeats
-    and first reset seed); ``source(path)`` gives a loaded policy file, ``chance`` the chance level
-    and task-blind floor of the pair's target env on those episodes (:func:`chance_levels`),
-    ``outcome`` the scenes, reference points, cache folder, k-means ``seed`` and first reset seed
-    of the fit states (``fit_seed``) of a translation, ``scored`` the controls' evaluations so far
-    (by file and target env), to reuse."""
+    """Stitch one pair (translated, if the pair says so), evaluate it, then each of its controls as it is,
+    all on the pair's fixed episodes (``settings``: ``evaluate``'s episodes, repeats and first reset
+    seed, :func:`pair_episodes`); ``source(path)`` gives a loaded policy file, ``chance`` the chance
+    level and task-blind floor of the pair's target env on those episodes (:func:`chance_levels`),
+    ``outcome`` the scenes, reference points, cache folder, k-means ``seed`` and first reset seed of
+    the fit states (``fit_seed``) of a translation, ``scored`` the controls' evaluations so far (by
+    file and target env), to reuse."""
     from ps_ray.stitching.evaluate import evaluate
     from ps_ray.stitching.outcomes import fit_cost, fit_pairs, matched_anchors
-    from ps_ray.stitching.stitch import stitch_policies
+    from ps_ray.stitching.stitch import stitch_policies, translation_ridge
 
     scored = {} if scored is None else scored
     outcome = outcome or {}
@@ -192,6 +207,8 @@ def evaluate_pair(
     )
     result = evaluate(stitched, pair.robot, pair.task, **settings)
     metrics = {k: result[k] for k in RESULT_KEYS if k in result}
+    ridge = translation_ridge(stitched[0])
+    metrics["translation_ridge"] = np.nan if ridge is None else ridge
     if fit:  # what the fit rolled out, cached or not
         n_anchors = len(anchors) if kind == "anchors" else 0
         cache = outcome.get("cache")
@@ -199,7 +216,7 @@ def evaluate_pair(
     else:
         metrics["fit_env_steps"] = 0
     for role, control in pair.controls.items():
-        key = (control.path, pair.robot.text, pair.task.text)
+        key = (control.path, pair.robot.text, pair.task.text, settings["seed"])
         if key not in scored:  # the translated stitches of a pair share its controls
             scored[key] = evaluate(source(control.path), pair.robot, pair.task, **settings)
         unstitched = scored[key]
@@ -284,8 +301,7 @@ def _evaluate(
 
     folder, by_key = sweep_layout(spec).tune_zero_shot, {pair.key: pair for pair in trials}
     evaluated = {"episodes": settings.episodes, "repeats": settings.repeats}
-    first = reset_seeds.fixed("zero_shot", settings.seed)  # episodes no other stage draws
-    episodes = {"episodes": settings.episodes, "repeats": settings.repeats, "seed": first}
+    episodes = {**evaluated, "seed": settings.seed}  # each seed's block of the zero-shot stream
     chance = chance_levels(trials, episodes, progress)
     tracking_uri, experiment_id = connect(spec)
     callback = RowRunsCallback(

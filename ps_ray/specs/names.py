@@ -17,8 +17,10 @@ from ps_ray.specs.modes import AnchorGoals
 # How a stitch aligns its interface, by name: a latent translation fitted between the two task
 # modules (ps_ray.nets.translation), or "anchors": the task module's relative projection re-anchored
 # on task states matched to the robot module's anchors (ps_ray.stitching.outcomes; needs a fit).
-TRANSLATIONS = ("orthogonal", "affine", "anchors")
-LATENT_TRANSLATIONS = TRANSLATIONS[:2]
+# "affine" is ridge-regularised; "affine_lstsq" the plain least-squares fit it replaced
+# (ps_ray.nets.translation); "anchors" moves the anchors and adds no map
+TRANSLATIONS = ("orthogonal", "affine", "affine_lstsq", "anchors")
+LATENT_TRANSLATIONS = TRANSLATIONS[:3]
 # What a translation is fitted on, other than the same task states through both task modules
 # (ps_ray.stitching.outcomes): scenes matched by the outcome of each task's own policy, the same
 # pairs shuffled (a control), or the known correspondence of the marker family (an upper bound).

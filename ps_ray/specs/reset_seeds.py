@@ -15,6 +15,9 @@ both started at seed 0, and 36 of a study's 60 zero-shot scenes were anchor scen
   are checked apart by ``tests/test_reset_seeds.py`` for every shipped sweep.
 - The stages that draw fixed episodes take one block of :data:`BLOCK` seeds each, above every
   run's: :func:`fixed` gives the first reset seed of a stage given its own ``seed`` setting.
+  The zero-shot stage scores each training seed's pairs on episodes of their own
+  (:func:`fixed_for_run`: :data:`PER_RUN` seeds apart), so that seeds see different scenes and
+  an interval over seeds carries the scenes' variance.
 """
 
 from __future__ import annotations
@@ -31,6 +34,7 @@ MAX_GRID_CELLS = 1_000  # far above any grid: (MAX_RUN_SEED + 1) * 1000 * RUN_ST
 FIXED_BASE = 1 << 50  # above every run's and grid's block
 BLOCK = 1 << 44  # each fixed stream's width
 MAX_STAGE_SEED = 1 << 40  # a stage's own seed setting, with its episodes, stays inside its block
+PER_RUN = 1_000_000  # a training seed's own episodes of a fixed stream (MAX_RUN_SEED of them fit a BLOCK)
 
 # the stages that draw fixed episodes, in the order of their blocks (append only: a block's place
 # is part of every result measured on it)
@@ -50,6 +54,16 @@ def fixed(stream: str, seed: int = 0) -> int:
         raise ValueError(f"unknown reset-seed stream {stream!r}; valid: {', '.join(FIXED_STREAMS)}")
     check_stage_seed(seed, stream)
     return FIXED_BASE + FIXED_STREAMS.index(stream) * BLOCK + seed
+
+
+def fixed_for_run(stream: str, seed: int, run_seed: int, episodes: int) -> int:
+    """The first reset seed of ``episodes`` episodes of a fixed stream that are the training seed
+    ``run_seed``'s own (a block of :data:`PER_RUN` per training seed), given the stage's ``seed``."""
+    if not 0 <= run_seed <= MAX_RUN_SEED:
+        raise UserError(f"bad training seed {run_seed!r}; valid seeds: integers 0..{MAX_RUN_SEED}")
+    if episodes > PER_RUN:
+        raise UserError(f"{episodes} episodes per training seed; at most {PER_RUN} fit its block")
+    return fixed(stream, seed) + run_seed * PER_RUN
 
 
 def fixed_block(stream: str) -> range:

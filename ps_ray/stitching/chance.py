@@ -15,13 +15,17 @@ episodes, and the higher is the control:
 Chance is a floor for moving purposefully; the **task-blind floor** is the floor for a transfer
 claim: the best policy that lacks only the knowledge being transferred (docs/transfer.md, "The
 task-blind floor"). It can do every task that shares the target's scene on the target robot but
-is not told which one: each episode it drives the end effector to one of the scene's candidate
-targets (``env.candidate_targets()``: on the marker family every marker) drawn uniformly
-(``task_blind``). On the two-marker family it reaches the named marker about half the time, far
-above chance. Where the family's tasks do not share a scene (one candidate) it is absent (NaN).
+is not told which one: it drives the end effector to one of the scene's candidate targets
+(``env.candidate_targets()``: on the marker family every marker) chosen uniformly. Its success is
+taken in expectation over that choice, not from one draw: each episode is run once per candidate
+(:class:`DriveTo`), and the floor is the mean over candidates (``task_blind``), per episode and so
+over episodes, with no draw noise. On the two-marker family it is half of what driving to the
+named marker reaches (about 0.5). Its wrong-target rate is the same mean. Where the family's
+tasks do not share a scene (one candidate) it is absent (NaN).
 
-All draw from the episode's seed alone, so they are deterministic and every pair with the same
-target env and episodes gets the same figure. No torch, no Ray.
+Chance draws from the episode's seed alone, and the floor draws nothing, so both are
+deterministic and every pair with the same target env and episodes gets the same figure. No
+torch, no Ray.
 """
 
 from __future__ import annotations
@@ -62,14 +66,47 @@ class RandomActions:
         return np.stack([rng.uniform(-1.0, 1.0, self.dim) for rng in self.rngs])
 
 
-class TaskBlind(RandomPoint):
-    """Each episode: one of the scene's candidate targets, drawn uniformly; every step moves toward it."""
+class DriveTo(RandomPoint):
+    """Each episode: the scene's candidate target ``index`` (``env.candidate_targets()``, whatever
+    the task names); every step moves toward it. One term of the task-blind floor."""
+
+    def __init__(self, index: int) -> None:
+        self.index = index
 
     def point(self, env, seed: int) -> np.ndarray:
         candidates = env.candidate_targets()
         if candidates is None:
             raise ValueError(f"{env.task_spec.name}: one target per scene, no task-blind floor")
-        return candidates[np.random.default_rng([_STREAM, 2, seed]).integers(len(candidates))]
+        return candidates[self.index]
+
+
+def candidate_count(robot, task) -> int:
+    """How many candidate targets the target env's scene holds (1: no task-blind floor)."""
+    from ps_ray.envs.tasks import resolve_task
+    from ps_ray.specs.names import EnvPart
+
+    return resolve_task(EnvPart(task)).candidate_count
+
+
+def task_blind(robot, task, settings: Mapping[str, Any]) -> dict[str, Any]:
+    """The task-blind floor in expectation on the episodes ``settings`` name: each episode driven
+    to every candidate target in turn (:class:`DriveTo`), ``task_blind_success`` and
+    ``task_blind_wrong_target`` the means over candidates, ``task_blind_per_candidate`` each
+    candidate's success, ``task_blind_per_episode`` the floor of each episode (the mean over
+    candidates of reaching the named target from it) and the episodes' digest."""
+    from ps_ray.stitching.evaluate import evaluate
+
+    runs = [evaluate(DriveTo(i), robot, task, **settings) for i in range(candidate_count(robot, task))]
+    if len({run["episodes_digest"] for run in runs}) != 1:  # a bug, never bad input
+        raise RuntimeError("the task-blind floor's candidates ran on other episodes")
+    per_episode = np.mean([[r["success"] for r in run["records"]] for run in runs], axis=0)
+    return {
+        "task_blind_success": float(np.mean([run["success_mean"] for run in runs])),
+        "task_blind_wrong_target": float(np.mean([run["wrong_target_mean"] for run in runs])),
+        "task_blind_per_candidate": [run["success_mean"] for run in runs],
+        "task_blind_per_episode": per_episode.tolist(),
+        "episodes_digest": runs[0]["episodes_digest"],
+    }
 
 
 POLICIES: dict[str, Callable[[], Any]] = {"random_point": RandomPoint, "random_actions": RandomActions}
@@ -78,17 +115,14 @@ CHANCE_POLICIES = tuple(POLICIES)
 
 def has_floor(task) -> bool:
     """Whether the target's scene holds several candidate targets (a task-blind floor exists)."""
-    from ps_ray.envs.tasks import resolve_task
-    from ps_ray.specs.names import EnvPart
-
-    return resolve_task(EnvPart(task)).candidate_count > 1
+    return candidate_count(None, task) > 1
 
 
 def chance(robot, task, settings: Mapping[str, Any]) -> dict[str, Any]:
     """Each chance policy's success on the episodes ``settings`` (``evaluate``'s episodes, repeats,
     seed) name, ``chance_success`` (the higher), ``chance_policy`` (which), the task-blind floor's
     success and wrong-target rate (``task_blind_success``, ``task_blind_wrong_target``; NaN where
-    the scene holds one target) and the episodes' digest
+    the scene holds one target; the floor in expectation, :func:`task_blind`) and the episodes' digest
     (:func:`ps_ray.stitching.evaluate.episodes_digest`), to check a pair ran on the same ones."""
     from ps_ray.stitching.evaluate import evaluate
 
@@ -101,9 +135,9 @@ def chance(robot, task, settings: Mapping[str, Any]) -> dict[str, Any]:
     out.update(chance_success=out[f"{best}_success"], chance_policy=best)
     out.update(task_blind_success=np.nan, task_blind_wrong_target=np.nan)
     if has_floor(task):
-        blind = evaluate(TaskBlind(), robot, task, **settings)
+        blind = task_blind(robot, task, settings)
         if blind["episodes_digest"] != out["episodes_digest"]:  # a bug, never bad input
             raise RuntimeError("the task-blind floor ran on other episodes than chance")
-        out["task_blind_success"] = blind["success_mean"]
-        out["task_blind_wrong_target"] = blind["wrong_target_mean"]
+        out["task_blind_success"] = blind["task_blind_success"]
+        out["task_blind_wrong_target"] = blind["task_blind_wrong_target"]
     return out

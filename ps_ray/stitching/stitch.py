@@ -64,15 +64,15 @@ def stitch_policies(
 ) -> tuple[SACNets, Signature]:
     """New nets: every net's task module from ``task_from``, its robot module from ``robot_from``.
 
-    The results own copies of the tensors (normaliser statistics and anchors included); target
-    critics are stitched from the sources' target critics. Stitching a policy with itself gives
-    back exactly that policy. ``translation`` ("orthogonal" or "affine") fits a latent map per net
-    on ``fit_states`` between the two policies' task modules (:mod:`ps_ray.nets.translation`):
+    The results own copies of the tensors (normaliser statistics and anchors included); target critics
+    are stitched from the sources' target critics. Stitching a policy with itself gives back exactly
+    that policy. ``translation`` ("orthogonal", "affine" or "affine_lstsq") fits a latent map per
+    net on ``fit_states`` between the two policies' task modules (:mod:`ps_ray.nets.translation`):
     task inputs (N x task_dim) through both, or matched pairs (states of ``task_from``'s task,
-    states of ``robot_from``'s own task: :mod:`ps_ray.stitching.outcomes`). ``"anchors"``
-    re-anchors instead: ``fit_states`` (K x task_dim) replace the task modules' anchors, row j
-    the task-X state matched to the robot module's anchor j (:func:`ps_ray.stitching.outcomes.
-    matched_anchors`). The signature names either.
+    states of ``robot_from``'s own task: :mod:`ps_ray.stitching.outcomes`). ``"anchors"`` re-anchors
+    instead: ``fit_states`` (K x task_dim) replace the task modules' anchors, row j the task-X state
+    matched to the robot module's anchor j (:func:`ps_ray.stitching.outcomes. matched_anchors`). The
+    signature names either.
     """
     nets_t, sig_t = load_source(task_from)
     nets_r, sig_r = load_source(robot_from)
@@ -167,6 +167,13 @@ def fit_net_translation(
     src = net_t.task(task_in, robot_in, action).double().numpy()
     dst = net_r.task(task_in_r, robot_in, action).double().numpy()
     return LatentTranslation.fitted(src, dst, kind)
+
+
+def translation_ridge(nets: SACNets) -> float | None:
+    """The ridge strength the actor's latent translation chose (0 for a fit without one), or None
+    for a stitch without a latent map (:mod:`ps_ray.nets.translation`)."""
+    translate = getattr(nets.actor, "translate", None)
+    return None if translate is None else float(translate.ridge)
 
 
 def stitch_metadata(task_from: str, robot_from: str) -> dict[str, str]:

@@ -69,6 +69,29 @@ def test_paired_differences_are_per_seed_and_count_wins():
 def test_sign_flip_p_cannot_reach_five_percent_at_five_seeds():
     assert stats.sign_flip_p([0.3, 0.2, 0.4, 0.1, 0.25]) == pytest.approx(2 / 32)
     assert stats.sign_flip_p([0.3, -0.2, 0.4, 0.1, 0.25]) > 0.1
+    # so five seeds are said as seeds up, never as the test's floor "p 0.062"; six get their p
+    five = stats.paired([0.9, 0.8, 0.7, 0.9, 0.8], [0.5] * 5, [1, 2, 3, 4, 5])
+    assert five.text() == "+0.32 [+0.22, +0.42], 5/5 seeds up"
+    six = stats.paired([0.9, 0.8, 0.7, 0.9, 0.8, 0.8], [0.5] * 6, [1, 2, 3, 4, 5, 6])
+    assert six.text().endswith("p 0.031, 6/6 seeds up")
+
+
+@pytest.mark.parametrize("n", [3, 5, 8])
+def test_a_rate_s_interval_stays_in_0_1_and_keeps_its_coverage_near_1(n):
+    """Seed means of success near 0.9 (a seed effect, then 60 episodes): the interval on the logit
+    scale never leaves [0, 1] and covers the true rate about 95% of the time at 3-8 seeds; the
+    plain t interval passes 1 in a share of studies."""
+    g = np.random.default_rng(n)
+    true, covered, past_one = 0.9, 0, 0
+    for _ in range(2000):
+        values = g.binomial(60, g.beta(18, 2, size=n)) / 60
+        _, lo, hi = stats.t_interval(values, rate=True)
+        assert 0 <= lo <= hi <= 1  # [1, 1] only where every seed scored 1
+        covered += lo <= true <= hi
+        past_one += stats.t_interval(values)[2] > 1
+    assert 0.93 <= covered / 2000 <= 0.98
+    assert past_one > 0
+    assert stats.t_interval([1.0, 1.0, 1.0], rate=True) == (1.0, 1.0, 1.0)  # all at 1: no width
 
 
 @pytest.mark.parametrize("n", [3, 5])

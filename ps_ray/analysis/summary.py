@@ -11,6 +11,7 @@ from ps_ray.analysis import tables
 from ps_ray.analysis.alignment import chance_mrr
 from ps_ray.analysis.latent import QUADRANTS
 from ps_ray.analysis.page import Report, Section
+from ps_ray.analysis.stats import SIGN_TEST_MIN_SEEDS
 from ps_ray.specs.sweep import SweepSpec
 
 
@@ -70,9 +71,14 @@ def summary_section(report: Report, spec: SweepSpec, target: float) -> None:
         if tr is not None:
             for _, r in tr[tr["method"] == method].iterrows():
                 if r["gain_diff"] == r["gain_diff"]:
-                    p = "units share runs" if r["gain_p"] != r["gain_p"] else f"p {r['gain_p']:.2g}"
+                    if r["gain_p"] != r["gain_p"]:
+                        p = ", units share runs"
+                    elif r["seeds"] < SIGN_TEST_MIN_SEEDS:  # the sign-flip p cannot reach 0.05
+                        p = f", {int(r['gain_wins'])}/{int(r['seeds'])} seeds up"
+                    else:
+                        p = f", p {r['gain_p']:.2g}"
                     row[f"transfer gain, {r['pairing'].replace('_', ' ')}"] = (
-                        f"{r['gain_diff']:+.2f} " + tables.ci(r["gain_lo"], r["gain_hi"]) + f", {p}"
+                        f"{r['gain_diff']:+.2f} " + tables.ci(r["gain_lo"], r["gain_hi"]) + p
                     )
         al = h.alignment
         if al is not None:

@@ -151,7 +151,7 @@ def zero_shot_estimates(table: pd.DataFrame) -> pd.DataFrame:
         cells = table.dropna(subset=[f"{metric}_mean"])
         if cells.empty:
             continue
-        est = estimates(cells, f"{metric}_mean")
+        est = estimates(cells, f"{metric}_mean", rate=True)
         frames.append(est.drop(columns=["cells", "seeds"] if frames else []).add_prefix(f"{metric}_"))
     out = pd.concat(frames, axis=1) if frames else pd.DataFrame()
     return out.loc[method_order(out.index)] if not out.empty else out

@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from ps_ray.analysis.stats import estimate, newcombe, paired, t_interval
+from ps_ray.analysis.stats import SIGN_TEST_MIN_SEEDS, estimate, newcombe, paired, t_interval
 from ps_ray.analysis.tables import ci, method_order
 from ps_ray.specs.names import CONTROL_ROLES
 
@@ -57,7 +57,8 @@ def transfer_numbers(table: pd.DataFrame, episodes: int | None = None) -> pd.Dat
             if cells.empty:
                 row[column], row[f"{column}_lo"], row[f"{column}_hi"] = np.nan, np.nan, np.nan
                 continue
-            e = estimate(cells[column].to_numpy(), cells["seed"].to_numpy(), shared_runs=shared)
+            values = cells[column].to_numpy()
+            e = estimate(values, cells["seed"].to_numpy(), shared_runs=shared, rate=True)
             row[column], row[f"{column}_lo"], row[f"{column}_hi"] = e.mean, e.mean_lo, e.mean_hi
         best = best_control_column(part)
         cells = part.dropna(subset=[best])
@@ -105,12 +106,14 @@ def transfer_text(numbers: pd.DataFrame) -> pd.DataFrame:
         ]
 
     def p_text(r) -> str:
-        return "units share runs" if np.isnan(r["gain_p"]) else f"p {r['gain_p']:.2g}"
+        if np.isnan(r["gain_p"]):
+            return "units share runs, "
+        return f"p {r['gain_p']:.2g}, " if r["seeds"] >= SIGN_TEST_MIN_SEEDS else ""
 
     out["transfer gain over every control and the floor (paired over seeds)"] = [
         "–"
         if np.isnan(r["gain_diff"])
-        else f"{r['gain_diff']:+.2f} {ci(r['gain_lo'], r['gain_hi'])}, {p_text(r)}, "
+        else f"{r['gain_diff']:+.2f} {ci(r['gain_lo'], r['gain_hi'])}, {p_text(r)}"
         f"{int(r['gain_wins'])}/{int(r['seeds'])} seeds up"
         for _, r in numbers.iterrows()
     ]
@@ -263,7 +266,7 @@ def seed_curves(curves: pd.DataFrame) -> pd.DataFrame:
         seeds = part["seed"].nunique()
         for steps, at in per_seed.groupby(level="env_steps"):
             if len(at) == seeds:
-                mean, low, high = t_interval(at.to_numpy())
+                mean, low, high = t_interval(at.to_numpy(), rate=True)
                 rows.append(
                     dict(
                         kind=kind, method=method, env_steps=steps, mean=mean, low=low, high=high, seeds=seeds

@@ -85,7 +85,7 @@ def run(
         for kind in fits:
             values = np.array(success[kind])
             made = ~np.isnan(values)
-            e = estimate(values[made], seeds[made]) if made.any() else None
+            e = estimate(values[made], seeds[made], rate=True) if made.any() else None
             row["pairs fitted"] = f"{int(made.sum())}/{len(values)}"
             row[f"{kind} stitched [95% CI over seeds]"] = "–" if e is None else e.text()
         if ridges:

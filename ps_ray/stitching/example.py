@@ -31,7 +31,7 @@ ROWS = (
     ("robot_source", "robot module's source, as it is"),
     ("task_source", "task module's source, as it is"),
     ("chance", "chance (the better of random actions and a random point)"),
-    ("task_blind_floor", "task-blind floor (reaches a random marker)"),
+    ("task_blind_floor", "task-blind floor (either marker, in expectation)"),
     ("oracle", "oracle: trained on the target pair (reads it)"),
 )
 

@@ -70,8 +70,10 @@ def test_the_workload_of_the_smoke_sweep_is_counted_from_its_spec():
     # (the other half, the other arm): 4 pairs; 16 pairs run as 2 trials of 8
     assert len(loads["zero_shot"].trials) == 2
     # each pair evaluated with its three controls (robot source, task source, oracle), and chance
-    # (two policies) once on each of the 4 target envs (2 arms x 2 halves)
-    assert loads["zero_shot"].eval_steps == (16 * 4 + 4 * 2) * 4 * 2 * 50 and loads["zero_shot"].updates == 0
+    # (two policies) once on each of the 4 target envs (2 arms x 2 halves) per training seed (2:
+    # each seed's own episodes); reach holds one target per scene, so no task-blind floor
+    assert loads["zero_shot"].eval_steps == (16 * 4 + 4 * 2 * 2) * 4 * 2 * 50
+    assert loads["zero_shot"].updates == 0
     # max_pairs 1 per method, plus one from-scratch run per target
     # and one unstitched start (the pair's robot source as it is) per pair
     assert len(loads["few_shot"].trials) == 2 * 3 and loads["few_shot"].env_steps == 6 * 600
@@ -83,8 +85,9 @@ def test_the_grid_stage_is_priced_per_cell_and_its_held_out_pairs_beside_the_alo
     # 5 seeds x 2 held-out cells = 10 grids, each training its 3 other cells to the 16k cap
     assert len(loads["grid"].trials) == 10 and loads["grid"].env_steps == 10 * 3 * 16000
     # alone: 4 targets x 5 seeds, same and cross seed = 40 pairs; co-trained: 2 held-out targets x 5
-    # seeds x 2 pairings = 20 pairs; each with 3 controls, chance twice on each of 4 targets
-    assert loads["zero_shot"].eval_steps == ((40 + 20) * 4 + 4 * 2) * 30 * 2 * 50
+    # seeds x 2 pairings = 20 pairs; each with 3 controls; on each of 4 targets and for each of the 5
+    # seeds' episodes, chance (2 policies) and the task-blind floor (one run per marker, 2)
+    assert loads["zero_shot"].eval_steps == ((40 + 20) * 4 + 4 * 5 * (2 + 2)) * 30 * 2 * 50
 
 
 def test_projection_is_the_rates_times_the_work():
@@ -118,6 +121,7 @@ def test_rates_come_from_the_cache_or_stated_defaults(tmp_path):
     assert fallback.env_step_s == DEFAULT_RATES.env_step_s and str(path) in fallback.source
 
 
+@pytest.mark.e2e
 def test_check_prints_the_projection_and_refuses_a_bad_core_count(tmp_path):
     (tmp_path / "rates").mkdir()
     env = {"PS_RAY_CACHE": str(tmp_path / "rates")}

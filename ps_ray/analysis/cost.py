@@ -201,7 +201,7 @@ SMALLEST_TELLING_BUDGET = 5_000  # env steps: below this no method learns reach 
 # (docs/transfer.md "Confirmation on fresh seeds"), and the command that shows one of its stitches
 TELLING_STUDY = (
     "sweeps/confirm.yaml (a co-trained grid's held-out cell stitched zero-shot at 0.81 over five "
-    "fresh seeds, +0.38 over the best of its sources, chance and a task-blind floor of 0.43); "
+    "fresh seeds, against sources at 0.00, chance at 0.08 and a task-blind floor of about 0.50); "
     "`ps-ray demo` scores one of its stitches beside those controls in under a minute"
 )
 

@@ -12,7 +12,7 @@ from ps_ray.envs import EPISODE_STEPS
 from ps_ray.specs.names import CROSSED_FITS, split_translation
 from ps_ray.specs.sweep import SweepSpec
 from ps_ray.specs.train import TrainSpec
-from ps_ray.stitching.chance import CHANCE_POLICIES
+from ps_ray.stitching.chance import CHANCE_POLICIES, candidate_count
 from ps_ray.stitching.pairs import StitchedPair
 from ps_ray.stitching.zoo import ModuleZoo
 
@@ -68,12 +68,15 @@ def workload(spec: SweepSpec) -> list[StageLoad]:
 
 def zero_shot_load(spec: SweepSpec, zoo: ModuleZoo, pairs: list[StitchedPair]) -> StageLoad:
     """The evaluations of the planned pairs: each stitch, each untranslated pair's controls (its
-    translations share their evaluations), chance (its policies once per target env), and the
-    rollouts of the fits on scenes matched by outcome (:mod:`ps_ray.stitching.outcomes`)."""
+    translations share their evaluations), chance (its policies) and the task-blind floor (once
+    per candidate target) once per target env and training seed (each seed's own episodes), and
+    the rollouts of the fits on scenes matched by outcome (:mod:`ps_ray.stitching.outcomes`)."""
     settings = spec.zero_shot
-    targets = {(p.robot, p.task) for p in pairs}
+    targets = {(p.robot, p.task, p.seed) for p in pairs}
     evaluations = len(pairs) + sum(len(p.controls) for p in pairs if not p.translation)
-    evaluations += len(targets) * len(CHANCE_POLICIES)
+    for _, task, _ in targets:
+        candidates = candidate_count(None, task)
+        evaluations += len(CHANCE_POLICIES) + (candidates if candidates > 1 else 0)
     steps = evaluations * settings.episodes * settings.repeats * EPISODE_STEPS
     # a fit on scenes matched by outcome rolls each source out once: on `outcome_scenes` scenes,
     # except a re-anchored stitch's robot source, once per anchor (PS: as many as the interface is

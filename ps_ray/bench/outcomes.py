@@ -34,7 +34,7 @@ def run(
 ) -> pd.DataFrame:
     from ps_ray.analysis.stats import estimate
     from ps_ray.nets.policy_file import load_policy
-    from ps_ray.pipeline.zero_shot import pair_episodes
+    from ps_ray.plan.zero_shot import pair_episodes
     from ps_ray.specs.names import split_translation
     from ps_ray.specs.sweep import SweepSpec
     from ps_ray.stitching.evaluate import evaluate

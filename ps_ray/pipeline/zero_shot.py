@@ -27,6 +27,7 @@ from ps_ray.errors import UserError
 from ps_ray.pipeline.stage import raise_on_errors
 from ps_ray.plan import zero_shot as zero_shot_plan
 from ps_ray.plan.catalogue import trained
+from ps_ray.plan.zero_shot import pair_episodes, target_key
 from ps_ray.specs import reset_seeds
 from ps_ray.specs.names import CONTROL_ROLES, readable, split_translation
 from ps_ray.specs.stage_settings import ZeroShotSpec
@@ -119,21 +120,6 @@ def zero_shot_trial(config: dict[str, Any]) -> None:
             pair, episodes, config["fit_states_per_quadrant"], source, chance, config["outcome"], scored
         )
         tune.report({**metrics, PAIR_KEY: pair.key, **({FINISHED: True} if i == len(batch) - 1 else {})})
-
-
-def pair_episodes(pair: StitchedPair, episodes: int, repeats: int, seed: int) -> dict[str, int]:
-    """``evaluate``'s episodes, repeats and first reset seed for a pair, given the stage's
-    ``seed`` setting: the training seed's own block of the zero-shot stream
-    (:func:`ps_ray.specs.reset_seeds.fixed_for_run`), so that each seed's pairs, controls, chance
-    and floor share their scenes and seeds see different ones. A cross-seed pair takes the block
-    of its task module's seed (``pair.seed``)."""
-    first = reset_seeds.fixed_for_run("zero_shot", seed, pair.seed, episodes * repeats)
-    return {"episodes": episodes, "repeats": repeats, "seed": first}
-
-
-def target_key(pair: StitchedPair, episodes: dict[str, int]) -> str:
-    """The pair's target env and first reset seed, as the chance figures are keyed."""
-    return f"{pair.robot.text} {pair.task.text} @{episodes['seed']}"
 
 
 def chance_levels(trials: list[StitchedPair], settings: dict[str, int], progress: bool) -> dict[str, dict]:

@@ -3,6 +3,7 @@ stitched pair (and per latent translation), with its sources, target env and con
 
 from __future__ import annotations
 
+from ps_ray.specs import reset_seeds
 from ps_ray.specs.stage_settings import ZeroShotSpec
 from ps_ray.specs.sweep import SweepSpec, seed_pairs
 from ps_ray.stitching.matrix import combos, controls
@@ -89,3 +90,18 @@ def evaluated_pairs(spec: SweepSpec, methods: list[str] | None = None) -> list[S
         built = alone_pairs(spec, trained(spec), missing)
         by_method.update({m: [p for p in built if p.method == m] for m in missing})
     return [pair for m in methods for pair in by_method[m]]
+
+
+def pair_episodes(pair: StitchedPair, episodes: int, repeats: int, seed: int) -> dict[str, int]:
+    """``evaluate``'s episodes, repeats and first reset seed for a pair, given the stage's
+    ``seed`` setting: the training seed's own block of the zero-shot stream
+    (:func:`ps_ray.specs.reset_seeds.fixed_for_run`), so that each seed's pairs, controls, chance
+    and floor share their scenes and seeds see different ones. A cross-seed pair takes the block
+    of its task module's seed (``pair.seed``)."""
+    first = reset_seeds.fixed_for_run("zero_shot", seed, pair.seed, episodes * repeats)
+    return {"episodes": episodes, "repeats": repeats, "seed": first}
+
+
+def target_key(pair: StitchedPair, episodes: dict[str, int]) -> str:
+    """The pair's target env and first reset seed, as the chance figures are keyed."""
+    return f"{pair.robot.text} {pair.task.text} @{episodes['seed']}"

@@ -126,3 +126,26 @@ def test_the_stages_functions_reset_from_their_own_streams(resets, tmp_path):
     )
     prepare_sweep_anchors(spec)
     _drawn(resets, "anchors")
+
+
+def test_each_training_seed_is_scored_on_its_own_zero_shot_episodes_and_a_resume_keeps_only_those():
+    """The second confirmation's plan: a pair's episodes are its (task module's) training seed's
+    own block of the zero-shot stream, so seeds see different scenes and the pairs of one seed
+    share theirs; a resumed stage refuses a kept row scored on other episodes (an older ps_ray)."""
+    from ps_ray.plan.catalogue import planned
+    from ps_ray.plan.zero_shot import check_kept, pair_episodes, plan
+
+    spec = load_sweep(Path(__file__).parents[1] / "sweeps" / "confirm2.yaml")
+    pairs, z = plan(spec, planned(spec)), spec.zero_shot
+    first = {pair.key: pair_episodes(pair, z.episodes, z.repeats, z.seed)["seed"] for pair in pairs}
+    by_seed = {}
+    for pair in pairs:
+        by_seed.setdefault(pair.seed, set()).add(first[pair.key])
+    assert sorted(by_seed) == list(range(411, 419)) and all(len(v) == 1 for v in by_seed.values())
+    starts = sorted(next(iter(v)) for v in by_seed.values())
+    assert all(b - a >= z.episodes * z.repeats for a, b in zip(starts, starts[1:]))  # disjoint
+    assert all(s in reset_seeds.fixed_block("zero_shot") for s in starts)
+    pair = pairs[0]
+    check_kept({pair.key: {"episodes_seed": first[pair.key]}}, pairs, z)  # its own: kept
+    with pytest.raises(UserError, match=f"{pair.key}: its kept zero-shot row was scored on other"):
+        check_kept({pair.key: {"success_mean": 0.5}}, pairs, z)  # an older row names none

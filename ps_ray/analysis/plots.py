@@ -296,7 +296,7 @@ def controls_bars(numbers: pd.DataFrame, path: Path) -> Path:
     names = [readable(f"{r.method}, {r.pairing.replace('_', ' ')}") for r in rows]
     ax.set_yticks(np.arange(len(rows)) + 0.4 - height / 2, names)
     ax.set_xlim(0, 1.05)
-    ax.set_xlabel("zero-shot success on the stitched pairs' episodes (mean over seeds, 95% t interval)")
+    ax.set_xlabel("zero-shot success on the stitched pairs' episodes (mean over seeds, 95% interval)")
     ax.invert_yaxis()
     ax.legend(loc="lower center", bbox_to_anchor=(0.5, 1.0), ncol=3)
     fig.tight_layout()

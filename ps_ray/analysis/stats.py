@@ -67,7 +67,7 @@ def t_interval(
     half = float(stats.t.ppf(0.5 + confidence / 2, df) * x.std(ddof=1) / np.sqrt(len(x)))
     if shared_runs:
         half *= shared_runs_factor(len(x))
-    if not rate or half == 0:
+    if not rate or half == 0 or mean != mean:
         return mean, mean - half, mean + half
     if not 0 < mean < 1:  # a rate's mean at 0 or 1 has every value there: half is 0
         raise ValueError(f"rates must lie in [0, 1], got a mean of {mean}")

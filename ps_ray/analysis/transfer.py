@@ -160,9 +160,11 @@ def co_training_numbers(table: pd.DataFrame) -> pd.DataFrame:
                     "method": method,
                     "pairing": pairing,
                     "pairs": len(part),
-                    "co-trained": estimate(part["success_mean"].to_numpy(), seeds, shared_runs=shared).text(),
+                    "co-trained": estimate(
+                        part["success_mean"].to_numpy(), seeds, shared_runs=shared, rate=True
+                    ).text(),
                     "trained alone": estimate(
-                        part["success_mean_alone"].to_numpy(), seeds, shared_runs=shared
+                        part["success_mean_alone"].to_numpy(), seeds, shared_runs=shared, rate=True
                     ).text(),
                     "co-trained minus alone (paired over seeds)": diff.text(),
                 }

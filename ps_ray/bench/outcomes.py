@@ -8,7 +8,7 @@ own zero-shot episodes of the pair's seed. Prints per N: the fit's env steps, pe
 stitched success (mean over pairs, t interval over seeds) and the median ridge strength chosen,
 and the wall time; no Ray, no MLflow, nothing written.
 
-    ps-ray bench outcomes runs/sweeps/confirm [--scenes 25 50 100 400] [--pairs-per-seed 1]
+    ps-ray bench outcomes runs/sweeps/confirm [--scenes 25 50 100 200 400 800] [--pairs-per-seed 1]
 """
 
 from __future__ import annotations
@@ -98,7 +98,7 @@ def run(
 def main(argv: Sequence[str] | None = None) -> None:
     parser = Parser(prog="ps-ray bench outcomes", description=(__doc__ or "").splitlines()[0])
     parser.add_argument("sweep", type=Path, help="a sweep folder whose zero-shot stage finished")
-    parser.add_argument("--scenes", type=positive_int, nargs="+", default=[25, 50, 100, 400])
+    parser.add_argument("--scenes", type=positive_int, nargs="+", default=[25, 50, 100, 200, 400, 800])
     parser.add_argument("--pairs-per-seed", type=positive_int, default=1, help="same-seed pairs per seed")
     parser.add_argument(
         "--fits",

@@ -321,7 +321,9 @@ def cmd_stitch(args: argparse.Namespace) -> int:
             task,
             episodes=args.episodes,
             repeats=args.repeats,
-            seed=reset_seeds.fixed("zero_shot", args.seed),  # the zero-shot stage's episodes
+            # the zero-shot stream, the block the stage gives training seed 0 (it scores each
+            # training seed's pairs on a block of their own: ps_ray.plan.zero_shot.pair_episodes)
+            seed=reset_seeds.fixed("zero_shot", args.seed),
             num_envs=args.num_envs,
             verbose=True,
         )

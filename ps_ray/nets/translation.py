@@ -32,8 +32,9 @@ from ps_ray.errors import UserError
 from ps_ray.specs.names import LATENT_TRANSLATIONS
 
 SCALE_EPS = 1e-8
-# the ridge strengths cross-validation chooses from, on the scaled latents (mean squared row norm 1)
-RIDGE_GRID = tuple(np.logspace(-8, 2, 41))
+# the ridge strengths cross-validation chooses from, on the scaled latents (mean squared row norm 1),
+# as scikit-learn's RidgeCV applies them: to the summed squared error of the N fit pairs
+RIDGE_GRID = tuple(np.logspace(-8, 4, 49))
 
 
 class AffineFit(NamedTuple):

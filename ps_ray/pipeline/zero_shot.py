@@ -27,7 +27,7 @@ from ps_ray.errors import UserError
 from ps_ray.pipeline.stage import raise_on_errors
 from ps_ray.plan import zero_shot as zero_shot_plan
 from ps_ray.plan.catalogue import trained
-from ps_ray.plan.zero_shot import pair_episodes, target_key
+from ps_ray.plan.zero_shot import check_kept, pair_episodes, target_key
 from ps_ray.specs import reset_seeds
 from ps_ray.specs.names import CONTROL_ROLES, readable, split_translation
 from ps_ray.specs.stage_settings import ZeroShotSpec
@@ -46,6 +46,7 @@ RESULT_KEYS = (
     "episodes_per_s",
     "fit_env_steps",  # env steps the translation's fit rolled out (outcome matching; 0 for none)
     "translation_ridge",  # the ridge strength the actor's latent map chose (NaN: no latent map)
+    "episodes_seed",  # the first reset seed of the pair's episodes (its training seed's own block)
 )
 # each control's success on the pair's episodes (ps_ray.stitching.matrix.controls), chance and the
 # task-blind floor on them, the better unstitched source, the best of all those and the gain over
@@ -192,7 +193,7 @@ def evaluate_pair(
         fit_states=states,
     )
     result = evaluate(stitched, pair.robot, pair.task, **settings)
-    metrics = {k: result[k] for k in RESULT_KEYS if k in result}
+    metrics = {k: result[k] for k in RESULT_KEYS if k in result} | {"episodes_seed": settings["seed"]}
     ridge = translation_ridge(stitched[0])
     metrics["translation_ridge"] = np.nan if ridge is None else ridge
     if fit:  # what the fit rolled out, cached or not
@@ -257,6 +258,7 @@ def run_zero_shot(
     check_sources(trials)
     by_key = {pair.key: pair for pair in trials}
     done = rows_naming(folder, PAIR_KEY) if resume else {}
+    check_kept(done, trials, settings)
     todo = [pair.to_dict() for pair in trials if pair.key not in done]
     if todo:  # a resumed matrix whose every pair reported needs neither Ray nor chance again
         _evaluate(spec, settings, trials, todo, resume=resume, progress=progress)

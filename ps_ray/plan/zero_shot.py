@@ -3,6 +3,7 @@ stitched pair (and per latent translation), with its sources, target env and con
 
 from __future__ import annotations
 
+from ps_ray.errors import UserError
 from ps_ray.specs import reset_seeds
 from ps_ray.specs.stage_settings import ZeroShotSpec
 from ps_ray.specs.sweep import SweepSpec, seed_pairs
@@ -105,3 +106,19 @@ def pair_episodes(pair: StitchedPair, episodes: int, repeats: int, seed: int) ->
 def target_key(pair: StitchedPair, episodes: dict[str, int]) -> str:
     """The pair's target env and first reset seed, as the chance figures are keyed."""
     return f"{pair.robot.text} {pair.task.text} @{episodes['seed']}"
+
+
+def check_kept(done: dict[str, dict], trials: list[StitchedPair], settings: ZeroShotSpec) -> None:
+    """A resumed matrix keeps only rows scored as this code scores them: on the pair's own
+    episodes (:func:`pair_episodes`). Rows of an older ps_ray (every seed on one block of episodes,
+    a floor of one draw, ``affine`` by plain least squares) are refused in one line."""
+    for pair in trials:
+        row = done.get(pair.key)
+        if row is None:
+            continue
+        want = pair_episodes(pair, settings.episodes, settings.repeats, settings.seed)["seed"]
+        if row.get("episodes_seed") != want:
+            raise UserError(
+                f"{pair.key}: its kept zero-shot row was scored on other episodes (an older ps_ray "
+                f"or other settings); run the stage afresh in another storage or sweep name"
+            )

@@ -75,7 +75,8 @@ class ExampleZoo:
 
     @property
     def episodes(self) -> dict[str, int]:
-        """``evaluate``'s episodes, repeats and first reset seed: the zero-shot stage's episodes."""
+        """``evaluate``'s episodes, repeats and first reset seed: the block of the zero-shot stream
+        the study scored these files on (before each training seed had a block of its own)."""
         given = self.manifest["episodes"]
         seed = reset_seeds.fixed("zero_shot", given["zero_shot_seed"])
         return {"episodes": given["episodes"], "repeats": given["repeats"], "seed": seed}

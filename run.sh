@@ -2,9 +2,11 @@
 # Set-up and entry points for a fresh machine; each command installs what it needs first.
 #   ./run.sh smoke   ps-ray demo (a shipped stitch scored beside its controls), then the whole smoke
 #                    pipeline on 2 CPUs (train, zero-shot, few-shot, report; MLflow)
-#   ./run.sh test    the test suite (slow learning checks included; add -m "not slow" to skip),
-#                    in two pytest-xdist workers, a test file each at a time (-n 0: one process)
+#   ./run.sh test    the whole suite in two lanes: the fast lane, then the end-to-end and slow
+#                    tests; with pytest arguments (-m "not slow", a file) one run of those instead;
+#                    in two pytest-xdist workers, a test file each at a time (-n 0: one process);
 #                    it also installs Debian's chromium (headless screenshot of the report)
+#   ./run.sh test-fast  the fast lane only: no Ray, no subprocess, no browser, no learning check
 #   ./run.sh lint    ruff: lint and format check (configured in pyproject.toml)
 #   ./run.sh setup   only create .venv and install ps_ray
 set -euo pipefail
@@ -33,6 +35,10 @@ browser() {
     echo "run.sh: installing chromium failed; the report screenshot test will say so" >&2
 }
 
+# Two workers keep both cores busy: much of a test is process start-up, I/O and waiting for a
+# subprocess, and one file's module-scoped fixtures stay in one worker (--dist loadfile).
+pytest() { "$VENV/bin/python" -m pytest -q -n 2 --dist loadfile "$@"; }
+
 cmd="${1:-}"
 shift || true
 case "$cmd" in
@@ -49,15 +55,19 @@ case "$cmd" in
     "$VENV/bin/ruff" check ps_ray tests
     "$VENV/bin/ruff" format --check ps_ray tests
     ;;
+  test-fast)
+    setup
+    pytest -m "not slow and not e2e" "$@"
+    ;;
   test)
     setup
     browser
-    # Two workers keep both cores busy: much of a test is process start-up, I/O and waiting for
-    # a subprocess, and one file's module-scoped fixtures stay in one worker (--dist loadfile).
-    "$VENV/bin/python" -m pytest -q -n 2 --dist loadfile --durations=15 "$@"
+    if [ "$#" -gt 0 ]; then pytest --durations=15 "$@"; exit; fi
+    pytest -m "not slow and not e2e"
+    pytest -m "slow or e2e" --durations=15
     ;;
   *)
-    echo "usage: ./run.sh smoke|test|lint|setup [args]" >&2
+    echo "usage: ./run.sh smoke|test|test-fast|lint|setup [args]" >&2
     exit 2
     ;;
 esac

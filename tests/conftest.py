@@ -1,4 +1,11 @@
-"""Shared fixtures: one torch thread, one local Ray instance for the whole session."""
+"""Shared fixtures: one torch thread; one local Ray instance for the session, started by the first
+test that asks for it (``ray_local``); the two lanes of the suite.
+
+Lanes: a test that starts Ray, a Python or Chromium subprocess (a `ps-ray` command, the report in a
+browser), or rolls out many physics episodes, is end-to-end (``e2e``): marked by hand, or at
+collection when it uses a fixture of :data:`E2E_FIXTURES`. Learning checks are ``slow``. Everything
+else is the fast lane (``./run.sh test-fast``: ``-m "not slow and not e2e"``), and a fast-lane test
+that starts Ray or such a subprocess fails, naming the marker it lacks."""
 
 import html
 import os
@@ -47,11 +54,52 @@ def own_ray_env() -> dict[str, str]:
     return {k: v for k, v in os.environ.items() if k != "RAY_ADDRESS"}
 
 
-@pytest.fixture(scope="session", autouse=True)
+@pytest.fixture(scope="session")
 def ray_local():
-    _init_local_ray()
+    """The session's local Ray (two CPUs); a test that runs Tune or RLlib asks for it."""
+    import ray
+
+    _E2E_RAY.append(True)  # from here on this worker's Ray is an end-to-end test's
+    if not ray.is_initialized():
+        _init_local_ray()
     yield
     _shutdown_ray()
+
+
+# fixtures that start Ray, a subprocess or a browser: a test that uses one is end-to-end
+E2E_FIXTURES = frozenset({"ray_local", "cli", "two_node_cluster", "visible_text", "train_cmd"})
+# what a fast-lane test may not start as a subprocess
+_E2E_PROGRAMS = ("python", "ps-ray", "chromium", "ray", "mlflow", "gcs_server")
+_E2E_RAY: list[bool] = []  # non-empty once an end-to-end test of this worker asked for Ray
+
+
+def _ray_running() -> bool:
+    return "ray" in sys.modules and sys.modules["ray"].is_initialized()
+
+
+@pytest.fixture(autouse=True)
+def _fast_lane_guard(request, monkeypatch):
+    """A test of the fast lane (neither ``e2e`` nor ``slow``) that starts Ray or a Python or
+    Chromium subprocess fails here, naming the marker it lacks; the others get the session's Ray
+    (a `ps-ray` command they run joins it)."""
+    if request.node.get_closest_marker("e2e") or request.node.get_closest_marker("slow"):
+        request.getfixturevalue("ray_local")
+        yield
+        return
+    popen_init = subprocess.Popen.__init__
+
+    def guarded(self, args, *rest, **kwargs):
+        first = args[0] if isinstance(args, (list, tuple)) else str(args).split()[0]
+        if str(first) == sys.executable or Path(str(first)).name.startswith(_E2E_PROGRAMS):
+            pytest.fail(f"{request.node.nodeid} starts {first}: mark it e2e (pytest.mark.e2e)")
+        popen_init(self, args, *rest, **kwargs)
+
+    monkeypatch.setattr(subprocess.Popen, "__init__", guarded)
+    if _ray_running() and not _E2E_RAY:
+        pytest.fail(f"{request.node.nodeid}: Ray runs, started by a fixture of a fast-lane test; mark it e2e")
+    yield
+    if _ray_running() and not _E2E_RAY:
+        pytest.fail(f"{request.node.nodeid} started Ray: ask for the ray_local fixture (it marks e2e)")
 
 
 @pytest.fixture
@@ -62,6 +110,7 @@ def two_node_cluster():
     import ray
     from ray.cluster_utils import Cluster
 
+    _E2E_RAY.append(True)
     was_running = ray.is_initialized()
     if was_running:
         _shutdown_ray()
@@ -163,7 +212,7 @@ def _cli(*args: str, env: dict | None = None, own_ray: bool = False, **kwargs) -
 
 
 @pytest.fixture(scope="session")
-def cli():
+def cli(ray_local):
     """``cli(*args, env=None, own_ray=False, **popen_kwargs)``: ``ps-ray`` in a subprocess, output
     in one pipe; it joins the session's Ray unless ``own_ray``."""
     return _cli
@@ -190,6 +239,9 @@ HEAVY_FIRST = ("test_pipeline.py", "test_sweep.py", "test_train.py", "test_check
 
 
 def pytest_collection_modifyitems(items):
+    for item in items:
+        if E2E_FIXTURES & set(getattr(item, "fixturenames", ())):
+            item.add_marker(pytest.mark.e2e)
     rank = {name: i for i, name in enumerate(HEAVY_FIRST)}
     items.sort(key=lambda item: rank.get(item.path.name, len(rank)))
 

@@ -123,6 +123,7 @@ def _rotated(nets, q: torch.Tensor):
     return other
 
 
+@pytest.mark.e2e
 @pytest.mark.parametrize("method", ["ablation", "devin", "ps", "ps+center=mean+norm=layer"])
 def test_translated_stitch_undoes_a_rotated_task_module(method, tmp_path):
     """Stitching A's task module onto B's robot module, where B is A behind a rotation of the
@@ -428,6 +429,7 @@ def test_one_encoder_pass_gives_the_interface_and_the_penalties(anchor_grad):
         torch.testing.assert_close(a, b)
 
 
+@pytest.mark.slow
 def test_norm_penalty_holds_the_embedding_length_in_training():
     """Embeddings made 10x too long, then 300 gradient steps on the SAC losses: with ``norm_reg=1``
     the penalty brings |z| back near 1; with ``ps`` the loss, blind to |z|, leaves it long."""
@@ -481,6 +483,7 @@ def test_the_input_reference_depends_on_the_anchors_only():
     assert bool(torch.isfinite(input_reference(x, flat)).all())
 
 
+@pytest.mark.slow
 def test_the_reference_penalty_aligns_independent_task_modules():
     """Two task modules from different initialisations, trained on the penalties alone (the SAC
     losses left out), end with nearly the same interface on unseen states: cosine distance below

@@ -60,6 +60,7 @@ def test_one_anchor_per_blob_nearest_member_to_its_centroid():
         assert i == nearest
 
 
+@pytest.mark.e2e
 def test_anchors_do_not_depend_on_the_thread_count():
     """Reach's task states (200 goals, each recorded at 5 steps) under k-means on 1 and 2 OpenMP
     threads gave anchors 0.03 apart, so a seed's anchors depended on the machine and on what ran
@@ -149,6 +150,7 @@ def test_hash_stable_sensitive_and_shape_aware():
     assert anchor_hash(np.zeros((2, 2), np.float32)) == anchor_hash(-np.zeros((2, 2), np.float32))
 
 
+@pytest.mark.e2e
 def test_hash_is_pinned_and_identical_in_a_fresh_process():
     # Pinned: changing the encoding would orphan every stored anchor set and module signature.
     a = np.array([[0.5, -1.0, 2.0], [3.25, 0.0, -4.5]], np.float32)

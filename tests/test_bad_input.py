@@ -146,6 +146,7 @@ CASES = [  # (arguments, with {f} the input folder and {out} a path that must no
 ]
 
 
+@pytest.mark.e2e
 @pytest.mark.parametrize(
     "args, message", CASES, ids=[c[0].split(" --")[0] + f"-{i}" for i, c in enumerate(CASES)]
 )
@@ -163,6 +164,7 @@ def test_bad_input_is_one_line_exit_2_and_writes_nothing(files, tmp_path, args, 
     assert not (tmp_path / "PICKLE_RAN").exists()
 
 
+@pytest.mark.e2e
 def test_version_names_the_installed_package():
     from importlib.metadata import version
 
@@ -170,6 +172,7 @@ def test_version_names_the_installed_package():
     assert proc.returncode == 0 and proc.stdout.strip() == f"ps-ray {version('ps_ray')}"
 
 
+@pytest.mark.e2e
 def test_every_command_flag_and_benchmark_has_help():
     import argparse
     import importlib.util

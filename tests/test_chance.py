@@ -42,6 +42,7 @@ def test_random_points_lie_in_the_task_s_target_region_and_follow_the_episode_se
     env.close()
 
 
+@pytest.mark.e2e
 def test_chance_on_the_marker_family_is_scored_on_the_pair_s_episodes():
     """On the pair's episodes (same digest as any policy's evaluation with those settings), the
     best of the two chance policies; a random point in the marker box reaches the named marker
@@ -54,6 +55,7 @@ def test_chance_on_the_marker_family_is_scored_on_the_pair_s_episodes():
     assert found["random_point_success"] <= 0.25 and found["random_actions_success"] <= 0.25
 
 
+@pytest.mark.e2e
 def test_the_task_blind_floor_is_the_mean_over_the_markers_on_the_pair_s_episodes():
     """The floor for a transfer claim on the marker family: it can reach every marker but is not
     told which one the task names. Taken in expectation, each episode is driven to both markers:

@@ -110,6 +110,7 @@ seeds: [1]
 """
 
 
+@pytest.mark.e2e
 @pytest.mark.parametrize(
     "text, message",
     [
@@ -274,6 +275,7 @@ def test_a_robot_or_task_given_by_name_alone_is_that_name():
     }
 
 
+@pytest.mark.e2e
 def test_cli_rejects_a_bad_sweep_with_exit_code_2_and_writes_nothing(tmp_path):
     path = _write(tmp_path, GOOD.replace("[ps]", "[nope]") + f"storage: {tmp_path / 'out'}\n")
     proc = subprocess.run(
@@ -284,6 +286,7 @@ def test_cli_rejects_a_bad_sweep_with_exit_code_2_and_writes_nothing(tmp_path):
     assert not (tmp_path / "out").exists()
 
 
+@pytest.mark.e2e
 def test_cli_rejects_bad_train_input(tmp_path):
     proc = subprocess.run(
         [

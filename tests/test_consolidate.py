@@ -69,6 +69,7 @@ def test_consolidation_draws_the_interface_to_the_reference_and_keeps_the_action
     assert all(torch.equal(critics_before[k], after[k]) for k in after)  # critics and targets untouched
 
 
+@pytest.mark.slow
 def test_without_the_action_term_the_pull_alone_would_change_the_policy():
     """What keeps the actions is the distillation: the same pull with a frozen robot module and
     no action term moves them (the control for the test above). A projection switched on while

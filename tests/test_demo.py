@@ -9,6 +9,8 @@ import shutil
 import subprocess
 import sys
 
+import pytest
+
 from ps_ray.stitching.example import EXAMPLE_DIR, ROWS
 
 
@@ -16,6 +18,7 @@ def demo(*args: str) -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, "-m", "ps_ray.cli", "demo", *args], capture_output=True, text=True)
 
 
+@pytest.mark.e2e
 def test_the_demo_reproduces_the_study_and_the_stitch_beats_every_control():
     proc = demo()
     assert proc.returncode == 0, proc.stderr[-2000:]
@@ -33,6 +36,7 @@ def test_the_demo_reproduces_the_study_and_the_stitch_beats_every_control():
     assert f"transfer gain: {gain:+.2f} over the best control (task-blind floor)" in out
 
 
+@pytest.mark.e2e
 def test_a_corrupt_or_foreign_zoo_is_refused_in_one_line(tmp_path):
     zoo = tmp_path / "zoo"
     shutil.copytree(EXAMPLE_DIR, zoo)

@@ -46,6 +46,7 @@ def test_gymnasium_make_passes_options():
     env.close()
 
 
+@pytest.mark.e2e
 def test_rllib_creator_and_registration():
     env = create_env(
         {"robot": {"base": "panda", "locked_joints": [1]}, "task": "push", "object_friction": 0.2}
@@ -63,6 +64,7 @@ def test_rllib_creator_and_registration():
     assert "(8,)" in out.stdout
 
 
+@pytest.mark.e2e
 def test_envs_import_no_torch_or_ray():
     code = "import sys, ps_ray.envs, ps_ray.envs.render; print('torch' in sys.modules, 'ray' in sys.modules)"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)

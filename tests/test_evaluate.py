@@ -78,6 +78,7 @@ def test_summary_excludes_initially_successful_episodes_from_touching():
     assert math.isnan(only_initial["touching_per_repeat"][0]) and only_initial["touching_mean"] == 1.0
 
 
+@pytest.mark.e2e
 def test_end_to_end_rates_match_a_hand_rollout_with_initially_successful_episodes():
     episodes, repeats, seed = 20, 2, 0
     result = evaluate(
@@ -95,6 +96,7 @@ def test_end_to_end_rates_match_a_hand_rollout_with_initially_successful_episode
         assert 0 < naive < 1 and naive != pytest.approx(result["touching_per_repeat"][r])
 
 
+@pytest.mark.e2e
 def test_every_policy_sees_the_same_episodes_and_num_envs_changes_nothing():
     ps = evaluate(nets_for("ps"), "panda", "push", episodes=3, repeats=2, seed=7, num_envs=2)
     plain = evaluate(nets_for("plain", seed=1), "panda", "push", episodes=3, repeats=2, seed=7, num_envs=4)
@@ -170,6 +172,7 @@ def test_progress_line_per_repeat(capsys):
     assert [line.split("repeat ")[1][:3] for line in lines] == ["1/3", "2/3", "3/3"]
 
 
+@pytest.mark.e2e
 def test_envs_lent_again_give_the_episodes_of_new_ones(monkeypatch):
     """Evaluation keeps its envs between calls; a push env lent again, after other episodes and
     after an evaluation of another task, gives the records a new env gives (physics included)."""

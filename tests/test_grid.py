@@ -80,6 +80,7 @@ def test_a_grid_refuses_cells_of_different_widths():
         GridSpec.of(TrainSpec(method="ablation"), ["panda"], ["reach_red", "push"])
 
 
+@pytest.mark.e2e
 def test_ps_ray_grid_answers_bad_input_in_one_line_and_writes_nothing(tmp_path):
     run_dir = tmp_path / "grid"
     bad = grid_args(run_dir, 200)
@@ -107,8 +108,9 @@ def test_the_grid_env_steps_each_cell_in_its_own_physics():
 
 
 @pytest.fixture(scope="module")
-def trained_grid(tmp_path_factory):
-    """A small ablation grid, trained 300 env steps per cell, then resumed to 500."""
+def trained_grid(tmp_path_factory, ray_local):
+    """A small ablation grid, trained 300 env steps per cell, then resumed to 500 (joining the
+    session's Ray)."""
     run_dir = tmp_path_factory.mktemp("grid") / "run"
     first = subprocess.run(grid_args(run_dir, 300), capture_output=True, text=True)
     assert first.returncode == 0, first.stderr[-3000:]
@@ -117,6 +119,7 @@ def trained_grid(tmp_path_factory):
     return run_dir, first.stdout, second.stdout
 
 
+@pytest.mark.e2e
 def test_a_grid_resumes_from_its_checkpoint_and_refuses_another_grid(trained_grid):
     run_dir, _, second = trained_grid
     assert "resumed at 300 env steps per cell" in second
@@ -131,6 +134,7 @@ def test_a_grid_resumes_from_its_checkpoint_and_refuses_another_grid(trained_gri
     assert "holds another grid (changed: held_out); use another --run-dir" in done.stderr
 
 
+@pytest.mark.e2e
 def test_a_resumed_grid_ends_with_the_weights_of_one_never_stopped(trained_grid, tmp_path):
     """Trained to 300 env steps per cell and resumed to 500, or trained to 500 at once: the same
     cell policies, bit for bit (the checkpoint keeps torch's generator; writing a checkpoint's cell
@@ -239,6 +243,7 @@ def test_what_co_training_adds_is_paired_with_the_same_pairs_trained_alone():
     assert numbers.iloc[0]["co-trained minus alone (paired over seeds)"].endswith("3/3 seeds up")
 
 
+@pytest.mark.e2e
 def test_a_ps_grid_stage_without_a_train_stage_makes_and_uses_its_anchor_set(tmp_path):
     """`ps-ray run` of a sweep that co-trains `ps` grids and trains nothing alone: the grid stage
     makes the sweep's anchor set itself, and every exported cell's relative projection reads it."""
@@ -288,6 +293,7 @@ def test_a_ps_grid_stage_without_a_train_stage_makes_and_uses_its_anchor_set(tmp
     assert recorded == spec.to_dict()
 
 
+@pytest.mark.e2e
 def test_a_consolidating_grid_distils_its_cells_together_onto_the_relative_cut(tmp_path):
     """ps_distilled in a grid: trained on the raw latent as the ablation, then every cell
     consolidated at once; the exported cells carry the relative cut (projection on), still share

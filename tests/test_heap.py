@@ -6,6 +6,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 REPO = Path(__file__).parents[1]
 
 # A reused Tune worker's life: each trial a training run in a new thread of one process.
@@ -40,6 +42,7 @@ for trial in (train, releasing(train)):  # three trials kept, then three release
 """
 
 
+@pytest.mark.e2e
 def test_a_reused_worker_gives_each_trials_memory_back():
     """One process runs three trials as a reused worker did, then three releasing ones (the first
     of those trims what the kept ones left): the growth over the last two of each."""

@@ -8,6 +8,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 PACKAGE = Path(__file__).parents[1] / "ps_ray"
 REPO = PACKAGE.parent
 
@@ -100,6 +102,7 @@ def _loaded_after(code: str, names: tuple[str, ...] = ("ray", "torch")) -> set[s
     return set(out.stdout.split("\n")[-2].split())
 
 
+@pytest.mark.e2e
 def test_the_report_module_and_a_sweep_check_load_neither_ray_nor_torch():
     assert _loaded_after("import ps_ray.analysis.report") == set()
     check = "from ps_ray import cli\nassert cli.main(['sweep', 'sweeps/transfer.yaml', '--check']) == 0"
@@ -107,6 +110,7 @@ def test_the_report_module_and_a_sweep_check_load_neither_ray_nor_torch():
     assert _loaded_after("import ps_ray.nets.policy_file") == {"torch"}  # the probe sees what is loaded
 
 
+@pytest.mark.e2e
 def test_the_update_benchmark_runs_where_only_torch_is_installed(tmp_path):
     """A GPU host without PyBullet or Ray (docs/cost.md, "A GPU update, measured") times the update
     with the widths given, and the nets it saves are policy files a CPU host loads."""

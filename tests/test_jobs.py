@@ -83,6 +83,7 @@ def ray_head(tmp_path):
     shutil.rmtree(Path("/tmp") / f"ps_ray_head_{dashboard}", ignore_errors=True)
 
 
+@pytest.mark.e2e
 def test_sweep_submitted_as_a_ray_job_lands_in_mlflow(ray_head, tmp_path, tiny_train):
     address, env = ray_head
     storage = tmp_path / "store"
@@ -129,6 +130,7 @@ def test_sweep_submitted_as_a_ray_job_lands_in_mlflow(ray_head, tmp_path, tiny_t
     assert run.data.metrics["env_steps"] >= 200
 
 
+@pytest.mark.e2e
 def test_job_cli_without_a_token_is_refused(ray_head):
     address, env = ray_head
     no_auth = {k: v for k, v in env.items() if k != "RAY_AUTH_MODE"}

@@ -27,6 +27,7 @@ def test_a_held_folder_refuses_a_second_holder_and_names_the_first(tmp_path):
         pass
 
 
+@pytest.mark.e2e
 def test_a_lock_left_by_a_killed_process_is_taken_over(tmp_path):
     folder = tmp_path / "sweep"
     code = (
@@ -39,6 +40,7 @@ def test_a_lock_left_by_a_killed_process_is_taken_over(tmp_path):
         pass
 
 
+@pytest.mark.e2e
 @pytest.mark.parametrize("command", [["run"], ["sweep"], ["report"], ["zero-shot"], ["few-shot"]])
 def test_every_sweep_command_is_refused_while_another_driver_holds_the_sweep(tmp_path, command):
     spec = tmp_path / "locked.yaml"

@@ -35,6 +35,7 @@ class Reacher:
         return np.stack([env.action_toward(env.task.target_position) for env in self.envs])
 
 
+@pytest.mark.e2e
 def test_scenes_matched_by_outcome_mean_the_same_place_to_their_tasks():
     """reach_red's scenes and reach_blue's, paired through where each task's own policy ended: the
     red marker of a paired red scene lies where the blue marker of its blue scene does, which is
@@ -118,6 +119,7 @@ def test_an_env_reset_to_a_task_input_shows_that_scene():
         reach.close()
 
 
+@pytest.mark.e2e
 def test_anchors_matched_by_outcome_mean_to_the_task_module_what_they_mean_to_the_robot_module():
     """The robot module's anchors are reach_blue scenes; the robot source (a blue reacher on
     panda_far) ends each where its blue marker is; the reach_red scene ending nearest takes its

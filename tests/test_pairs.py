@@ -160,6 +160,7 @@ def test_the_reports_zero_shot_tables_show_no_files(sweep_spec, tmp_path):
     assert not [c for c in columns if "path" in c or "touching" in c]  # reach: nothing to touch
 
 
+@pytest.mark.e2e
 def test_the_clips_run_each_source_in_its_own_env_as_the_table_says(sweep_spec, tmp_path):
     from ps_ray.stitching.zoo import ModuleZoo
 

@@ -44,6 +44,7 @@ print(json.dumps([o.metrics for o in out]))
 """
 
 
+@pytest.mark.e2e
 def test_four_trials_asking_a_quarter_gpu_each_run_at_once_on_one_gpu(tmp_path):
     proc = subprocess.run(
         [sys.executable, "-c", SHARE, str(tmp_path / "share")],

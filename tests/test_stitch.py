@@ -327,6 +327,7 @@ def test_absurd_or_wrong_typed_signatures_are_refused_in_one_line(tmp_path, fiel
         load_policy(path)
 
 
+@pytest.mark.e2e
 def test_a_signature_claiming_huge_nets_is_refused_before_they_are_built(tmp_path):
     """8192 wide passes the size bound, but the file's tensors are 16 wide: refused on shapes,
     checked against nets built on the meta device. Built for real, such nets need about 6 GB; the

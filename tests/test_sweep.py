@@ -201,6 +201,7 @@ except KeyboardInterrupt:
 """
 
 
+@pytest.mark.e2e
 def test_ctrl_c_after_a_tune_stage_interrupts_the_driver_at_once(tmp_path):
     """Tune leaves its own SIGINT handler set when its run ends, which swallowed the first Ctrl-C
     of a later stage (the report) with Tune's "Stop signal received" and ran on."""

@@ -69,6 +69,7 @@ def artifact_dir(store: dict, run_id: str) -> Path:
 # ------------------------------------------------------------------------- store
 
 
+@pytest.mark.e2e
 def test_ensure_experiment_creates_store_and_is_idempotent(store):
     root = store["root"]
     assert store["uri"] == f"sqlite:///{root.resolve()}/mlflow.db"
@@ -107,6 +108,7 @@ def test_ensure_experiment_errors_are_one_line(store, tmp_path):
     assert "\n" not in str(info.value)
 
 
+@pytest.mark.e2e
 def test_a_tracking_server_as_docs_cluster_md_starts_it_takes_a_sweeps_runs(tmp_path):
     """`mlflow server` on 127.0.0.1 over a sqlite store (docs/cluster.md): an http URI passes the
     check, and a run logged through it keeps its artifacts in the sweep folder."""
@@ -499,6 +501,7 @@ print(ensure_experiment(sys.argv[1], "shared", Path(sys.argv[3])))
 """
 
 
+@pytest.mark.e2e
 def test_processes_that_open_a_new_store_at_once_all_get_its_one_experiment(tmp_path):
     """A sweep's driver and an analyst's `mlflow ui` or script may make the same sqlite store at
     the same moment: each gets the one experiment, none an error."""

@@ -13,7 +13,6 @@ A grid folder holds:
 
 from __future__ import annotations
 
-import csv
 import json
 import re
 from pathlib import Path
@@ -22,6 +21,7 @@ from typing import Any
 from ps_ray.envs.goals import ROBOT_KEY, TASK_KEYS
 from ps_ray.envs.grid import cell_key
 from ps_ray.rllib.loop import TrainingRun, start_local_ray
+from ps_ray.rllib.run_loop import train_to_folder
 from ps_ray.specs.grid import Cell, GridSpec, cell_text
 from ps_ray.specs.methods import spec_json
 from ps_ray.specs.train import require_same
@@ -29,21 +29,19 @@ from ps_ray.store import checkpoint
 from ps_ray.store.atomic import write_text
 from ps_ray.store.layout import LOG_FOLDER
 from ps_ray.store.lock import folder_lock
-from ps_ray.store.run_folder import latest_checkpoint, metrics_up_to, save_atomically
+from ps_ray.store.run_folder import latest_checkpoint
 from ps_ray.store.run_layout import (
     CELLS_FOLDER,
     GRID_FILE,
     METRIC_FIELDS,
-    METRICS_FILE,
     POLICY_FILE,
+    RESULT_FILE,
     SPEC_FILE,
     cell_policy_file,
     cell_spec_file,
 )
 from ps_ray.store.signature import Signature
 from ps_ray.store.terminal import others_to
-
-RESULT_FILE = "result.json"
 
 
 def cell_folder(cell: Cell) -> str:
@@ -168,34 +166,16 @@ def _train_grid(grid: GridSpec, run_dir: Path, progress: bool) -> dict[str, Any]
         spec_path = run_dir / CELLS_FOLDER / cell_folder(cell) / SPEC_FILE
         spec_path.parent.mkdir(parents=True, exist_ok=True)
         write_text(spec_path, json.dumps(grid.cell_spec(cell).to_dict(), indent=2))
-    metrics_up_to(run_dir, run.env_steps, run.metric_fields)
-    with open(run_dir / METRICS_FILE, "a", newline="") as f:
-        writer = csv.DictWriter(f, run.metric_fields, extrasaction="ignore")
-        if f.tell() == 0:
-            writer.writeheader()
-        for tick in run.ticks():
-            row = tick.row
-            if tick.finished is not None:
-                break
-            writer.writerow(row)
-            if tick.checkpoint:
-                f.flush()
-                save_atomically(run.save, run_dir, cells)
-            if progress and row.get("eval_success") is not None:
-                print(run.progress_line(row), flush=True)
-    save_atomically(run.save, run_dir, cells)
-    final = run.final_eval()
+
+    def on_row(row: dict[str, Any]) -> None:
+        if progress and row.get("eval_success") is not None:
+            print(run.progress_line(row), flush=True)
+
+    result, final = train_to_folder(run, run_dir, run.metric_fields, copy_out=cells, on_row=on_row)
     for index, cell in enumerate(grid.cells):
         key = cell_key(index)
         figures = {"success": final[f"{key}_success"], "touching": final[f"{key}_touching"]}
         write_text(run_dir / CELLS_FOLDER / cell_folder(cell) / RESULT_FILE, json.dumps(figures, indent=2))
-    result = {
-        **row,
-        **tick.finished,
-        **{f"final_{k}": v for k, v in final.items()},
-        **run.best_field(),
-        "converged": run.converged,
-    }
     write_text(run_dir / RESULT_FILE, json.dumps(result, indent=2))
     run.stop()
     if progress:

@@ -13,24 +13,24 @@ A run directory holds:
 
 from __future__ import annotations
 
-import csv
 import json
 from pathlib import Path
 from typing import Any
 
 from ps_ray.errors import UserError
 from ps_ray.rllib.loop import TrainingRun, format_figure, prepare_anchors, read_inputs, start_local_ray
+from ps_ray.rllib.run_loop import train_to_folder
 from ps_ray.specs.train import TrainSpec, require_same
 from ps_ray.store.atomic import write_text
 from ps_ray.store.layout import LOG_FOLDER
 from ps_ray.store.lock import folder_lock
-from ps_ray.store.run_folder import best_so_far, latest_checkpoint, metrics_up_to, save_atomically
+from ps_ray.store.run_folder import best_so_far, latest_checkpoint
 from ps_ray.store.run_layout import (
     BEST_POLICY_FILE,
     METRIC_FIELDS,
-    METRICS_FILE,
     POLICY_FILE,
     REPLAY_FOLDER,
+    RESULT_FILE,
     SPEC_FILE,
 )
 from ps_ray.store.terminal import others_to
@@ -76,44 +76,26 @@ def _train(spec: TrainSpec, run_dir: Path, given, progress: bool, compile: bool)
         if progress:
             print(f"[{spec.label()}] resumed at {run.env_steps} env steps", flush=True)
     write_text(run_dir / SPEC_FILE, json.dumps(spec.to_dict(), indent=2))
-    metrics_up_to(run_dir, run.env_steps)
     best_file = best_so_far(run_dir)  # the best policy file may be newer than the checkpoint
     if best_file >= 0:
         run.best = max(best_file, run.best if run.best is not None else best_file)
-    with open(run_dir / METRICS_FILE, "a", newline="") as f:
-        writer = csv.DictWriter(f, METRIC_FIELDS, extrasaction="ignore")
-        if f.tell() == 0:
-            writer.writeheader()
-        best_before = run.best
-        for tick in run.ticks():
-            row = tick.row
-            if tick.finished is not None:
-                break
-            writer.writerow(row)
-            if tick.checkpoint:
-                f.flush()
-                save_atomically(run.save, run_dir)
-            if row.get("eval_success") is not None:
-                if best_before is None or row["eval_success"] > best_before:  # a new best greedy policy
-                    run.algo.export_policy(
-                        run_dir / BEST_POLICY_FILE,
-                        run.signature,
-                        extra={"eval_success": repr(run.best), "env_steps": str(row["env_steps"])},
-                    )
-                best_before = run.best
-                if progress:
-                    print(run.progress_line(row), flush=True)
-    consolidation = tick.finished
-    save_atomically(run.save, run_dir)
-    final = run.final_eval()
-    row = {
-        **row,
-        **consolidation,
-        **{f"final_{k}": v for k, v in final.items()},
-        **run.best_field(),
-        "converged": run.converged,
-    }
-    write_text(run_dir / "result.json", json.dumps(row, indent=2))
+    best_before = [run.best]
+
+    def on_row(row: dict[str, Any]) -> None:
+        if row.get("eval_success") is None:
+            return
+        if best_before[0] is None or row["eval_success"] > best_before[0]:  # a new best greedy policy
+            run.algo.export_policy(
+                run_dir / BEST_POLICY_FILE,
+                run.signature,
+                extra={"eval_success": repr(run.best), "env_steps": str(row["env_steps"])},
+            )
+        best_before[0] = run.best
+        if progress:
+            print(run.progress_line(row), flush=True)
+
+    row, final = train_to_folder(run, run_dir, METRIC_FIELDS, on_row=on_row)
+    write_text(run_dir / RESULT_FILE, json.dumps(row, indent=2))
     run.stop()
     if progress:
         print(

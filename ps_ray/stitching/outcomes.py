@@ -159,7 +159,9 @@ def decode_anchors(
     affine map from a scene's two outcomes to the scene, fitted by least squares on the candidate
     scenes (``mine``, ``theirs_on_mine``). It reads between the candidates instead of taking the
     nearest (docs/transfer.md, "Anchors matched by meaning": closer to the known correspondence,
-    and no better zero-shot: its scenes need not be ones the task module saw)."""
+    and no better zero-shot: its scenes need not be ones the task module saw). Unlike the latent
+    translation it needs no ridge: 7 unknowns per output (two 3-D outcomes and an offset) from
+    hundreds of candidate scenes, far from the rows-equal-unknowns peak of least squares."""
     from sklearn.linear_model import LinearRegression
 
     decoder = LinearRegression().fit(np.c_[mine.end, theirs_on_mine], mine.task_in)

@@ -10,6 +10,7 @@ POLICY_FILE = "policy.safetensors"  # the latest policy (also inside every check
 SIGNATURE_FILE = "signature.json"  # the policy's interface signature, inside every checkpoint
 BEST_POLICY_FILE = "best_policy.safetensors"  # the best greedy evaluation so far
 METRICS_FILE = "metrics.csv"  # one row per training step
+RESULT_FILE = "result.json"  # the final figures of a finished run (a grid: and of each cell)
 
 # A co-trained grid's folder (`ps-ray grid --run-dir`) and checkpoint (ps_ray.rllib.grid_train)
 GRID_FILE = "grid.json"  # the GridSpec; also in every checkpoint

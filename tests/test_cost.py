@@ -122,11 +122,15 @@ def test_rates_come_from_the_cache_or_stated_defaults(tmp_path):
 
 
 @pytest.mark.e2e
-def test_check_prints_the_projection_and_refuses_a_bad_core_count(tmp_path):
+@pytest.mark.parametrize("command", ["sweep", "run"])
+def test_check_prints_the_projection_and_refuses_a_bad_core_count(tmp_path, command):
+    """`ps-ray sweep FILE --check` and `ps-ray run FILE --check` price every stage the file names
+    and write nothing, not even the sweep's folder."""
     (tmp_path / "rates").mkdir()
     env = {"PS_RAY_CACHE": str(tmp_path / "rates")}
+    smoke, store = str(SWEEPS / "smoke.yaml"), str(tmp_path / "store")
     run = subprocess.run(
-        [sys.executable, "-m", "ps_ray.cli", "sweep", str(SWEEPS / "smoke.yaml"), "--check", "--cores", "16"],
+        [sys.executable, "-m", "ps_ray.cli", command, smoke, "--check", "--cores", "16", "--storage", store],
         capture_output=True,
         text=True,
         env={**os.environ, **env},
@@ -141,9 +145,9 @@ def test_check_prints_the_projection_and_refuses_a_bad_core_count(tmp_path):
     assert lines[here + 1].startswith("  CPU cluster: 4 x c6i.4xlarge (16 vCPUs, 8 cores) ")
     assert lines[here + 2].startswith("  GPU cluster: 2 x g5.2xlarge (8 vCPUs, 4 cores, 1 A10G) ")
     assert "measured on an H100 (11.2 ms" in run.stdout
-    assert not list((tmp_path / "rates").iterdir())  # --check writes nothing
+    assert not list((tmp_path / "rates").iterdir()) and not (tmp_path / "store").exists()  # nothing written
     bad = subprocess.run(
-        [sys.executable, "-m", "ps_ray.cli", "sweep", str(SWEEPS / "smoke.yaml"), "--check", "--cores", "0"],
+        [sys.executable, "-m", "ps_ray.cli", command, smoke, "--check", "--cores", "0"],
         capture_output=True,
         text=True,
         timeout=120,

@@ -92,6 +92,7 @@ def run(
             row["ridge chosen (median)"] = f"{np.median(ridges):.2g}"
         row["wall s"] = round(time.perf_counter() - started, 1)
         rows.append(row)
+        print(f"[outcomes] {n} scenes: " + ", ".join(f"{k} {v}" for k, v in row.items()), flush=True)
     return pd.DataFrame(rows)
 
 

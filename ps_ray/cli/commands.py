@@ -13,7 +13,7 @@ from pathlib import Path
 
 from ps_ray.cli.args import flag_of
 from ps_ray.cli.parsers import build_parser
-from ps_ray.cli.paths import output_file, writable_folder
+from ps_ray.cli.paths import output_file
 from ps_ray.errors import UserError
 from ps_ray.pipeline.stage import StageError, StageInterrupted, raise_on_errors
 from ps_ray.specs import reset_seeds
@@ -76,18 +76,11 @@ def cmd_sweep(args: argparse.Namespace) -> int:
 
     spec = _load(args)
     check_inputs(spec)  # the files it starts from, before any folder is made
-    trials = spec.trials()
-    print(f"sweep {spec.name!r}: {len(trials)} training trials")
+    print(f"sweep {spec.name!r}: {len(spec.trials())} training trials")
     if args.check:
-        from ps_ray.analysis.cost import describe, project
-        from ps_ray.specs.search import describe as describe_trials
-        from ps_ray.store.layout import sweep_dir
+        from ps_ray.cli.check import print_check
 
-        writable_folder(sweep_dir(spec))  # what a run would need, refused now; nothing is left
-
-        print("\n".join(describe_trials(spec.search, spec.named_trials())))
-        print("\n".join(describe(project(spec, cores_on=args.cores))))
-        return 0
+        return print_check(spec, args.cores)
     from ps_ray.pipeline.sweep import run_sweep, sweep_dir
 
     if "train" not in spec.stages:  # it would train sources that none of its stages reads
@@ -208,6 +201,11 @@ def cmd_run(args: argparse.Namespace) -> int:
 
     spec = _load(args)
     check_inputs(spec)  # the files it starts from, before any folder is made
+    if args.check:
+        from ps_ray.cli.check import print_check
+
+        print(f"sweep {spec.name!r}: stages {', '.join(spec.stages)}")
+        return print_check(spec, args.cores)
     started = time.time()
     print(f"sweep {spec.name!r}: stages {', '.join(spec.stages)}; results in {sweep_dir(spec)}")
     projection = project(spec)

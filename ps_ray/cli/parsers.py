@@ -151,8 +151,14 @@ def _sweep_parser(sub) -> None:
     )
     p.add_argument("--storage", default=None, help="override the spec's storage directory")
     p.add_argument("--tracking-uri", default=None, help="override the MLflow tracking URI")
+    _check_flags(p)
+
+
+def _check_flags(p) -> None:
     p.add_argument(
-        "--check", action="store_true", help="validate the spec, list trials, project the cost; run nothing"
+        "--check",
+        action="store_true",
+        help="validate the spec, list trials, project the cost of every stage; run nothing",
     )
     p.add_argument(
         "--cores",
@@ -240,6 +246,7 @@ def _run_parser(sub) -> None:
     _sweep_arg(p, "path to a sweep YAML, e.g. sweeps/smoke.yaml")
     p.add_argument("--storage", default=None, help="override the spec's storage directory")
     p.add_argument("--tracking-uri", default=None, help="override the MLflow tracking URI")
+    _check_flags(p)
 
 
 def _report_parser(sub) -> None:

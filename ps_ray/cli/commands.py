@@ -12,6 +12,7 @@ import time
 from pathlib import Path
 
 from ps_ray.cli.args import flag_of
+from ps_ray.cli.listing import cmd_list
 from ps_ray.cli.parsers import build_parser
 from ps_ray.cli.paths import output_file
 from ps_ray.errors import UserError
@@ -376,6 +377,7 @@ def main(argv: list[str] | None = None) -> int:
             "bench": cmd_bench,
             "stitch": cmd_stitch,
             "demo": cmd_demo,
+            "list": cmd_list,
         }[args.command](args)
     except (UserError, json.JSONDecodeError) as e:  # bad input: one line; any other error is a bug
         print(f"ps-ray {args.command}: error: {e}", file=sys.stderr)

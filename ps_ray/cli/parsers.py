@@ -28,6 +28,7 @@ def build_parser(description: str | None) -> argparse.ArgumentParser:
         _stitch_parser,
         _run_parser,
         _report_parser,
+        _list_parser,
     ):
         add(sub)
     return parser
@@ -247,6 +248,10 @@ def _run_parser(sub) -> None:
     p.add_argument("--storage", default=None, help="override the spec's storage directory")
     p.add_argument("--tracking-uri", default=None, help="override the MLflow tracking URI")
     _check_flags(p)
+
+
+def _list_parser(sub) -> None:
+    sub.add_parser("list", help="the robots, tasks, methods, translations and shipped sweeps, one line each")
 
 
 def _report_parser(sub) -> None:

@@ -6,7 +6,9 @@ are prefixes of the larger, the same reset seeds) with each latent map of ``--fi
 the ridge fit and the plain least squares it replaced) and the stitch is scored on the stage's
 own zero-shot episodes of the pair's seed. Prints per N: the fit's env steps, per fit the
 stitched success (mean over pairs, t interval over seeds) and the median ridge strength chosen,
-and the wall time; no Ray, no MLflow, nothing written.
+and the wall time. No Ray, no MLflow; the sources' outcome rollouts go to (and come from) the
+sweep's own outcome cache (``<sweep>/outcomes``, keyed by file, env and scene count), so the
+stage's 400 are not rolled out again and a second run of the bench rolls out nothing.
 
     ps-ray bench outcomes runs/sweeps/confirm [--scenes 25 50 100 200 400 800] [--pairs-per-seed 1]
 """
@@ -31,6 +33,7 @@ def run(
     pairs_per_seed: int,
     fits: Sequence[str] = ("affine", "affine_lstsq"),
     fit: str = "outcome",
+    seeds: Sequence[int] | None = None,
 ) -> pd.DataFrame:
     from ps_ray.analysis.stats import estimate
     from ps_ray.nets.policy_file import load_policy
@@ -50,13 +53,14 @@ def run(
     chosen, taken = [], {}
     for pair in found:
         if pair.translation and split_translation(pair.translation) == ("affine", fit):
-            if taken.get(pair.seed, 0) < pairs_per_seed and pair.pairing == "same_seed":
+            wanted = seeds is None or pair.seed in seeds
+            if wanted and taken.get(pair.seed, 0) < pairs_per_seed and pair.pairing == "same_seed":
                 taken[pair.seed] = taken.get(pair.seed, 0) + 1
                 chosen.append(pair)
     if not chosen:
         raise UserError(f"{table}: no same-seed affine@{fit} pairs; valid: a sweep that translates with it")
     z = spec.zero_shot
-    seeds = np.array([pair.seed for pair in chosen])
+    pair_seeds = np.array([pair.seed for pair in chosen])
     rows = []
     for n in scenes:
         started = time.perf_counter()
@@ -65,7 +69,7 @@ def run(
         ridges = []
         for pair in chosen:
             try:
-                states = fit_pairs(fit, *pair.sources, n, z.outcome_points, z.seed)
+                states = fit_pairs(fit, *pair.sources, n, z.outcome_points, z.seed, str(sweep / "outcomes"))
             except UserError:  # too few successful outcomes at this N: the fit cannot be made
                 states = None
             for kind in fits:
@@ -85,7 +89,7 @@ def run(
         for kind in fits:
             values = np.array(success[kind])
             made = ~np.isnan(values)
-            e = estimate(values[made], seeds[made], rate=True) if made.any() else None
+            e = estimate(values[made], pair_seeds[made], rate=True) if made.any() else None
             row["pairs fitted"] = f"{int(made.sum())}/{len(values)}"
             row[f"{kind} stitched [95% CI over seeds]"] = "–" if e is None else e.text()
         if ridges:
@@ -101,6 +105,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument("sweep", type=Path, help="a sweep folder whose zero-shot stage finished")
     parser.add_argument("--scenes", type=positive_int, nargs="+", default=[25, 50, 100, 200, 400, 800])
     parser.add_argument("--pairs-per-seed", type=positive_int, default=1, help="same-seed pairs per seed")
+    parser.add_argument("--seeds", type=int, nargs="+", default=None, help="only these training seeds")
     parser.add_argument(
         "--fits",
         nargs="+",
@@ -109,6 +114,6 @@ def main(argv: Sequence[str] | None = None) -> None:
         help="the latent maps to refit (affine: ridge, cross-validated; affine_lstsq: plain least squares)",
     )
     args = parser.parse_args(argv)
-    out = run(args.sweep, sorted(args.scenes), args.pairs_per_seed, args.fits)
+    out = run(args.sweep, sorted(args.scenes), args.pairs_per_seed, args.fits, seeds=args.seeds)
     print(f"affine@outcome refitted on the first N outcome scenes of each source ({args.sweep})")
     print(out.to_string(index=False))

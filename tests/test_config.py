@@ -215,17 +215,17 @@ seeds: [1]
         (
             GOOD.replace("[ps]", "[ps, ablation]") + "zero_shot: {translate: {ablation: [warp]}}\n",
             "zero_shot.translate.ablation: unknown translation 'warp'; valid: orthogonal, affine, "
-            "orthogonal@outcome",
+            "affine_lstsq, orthogonal@outcome",
         ),
         (
             GOOD.replace("[ps]", "[ps, ablation]") + "zero_shot: {translate: {ablation: [affine@guess]}}\n",
-            "unknown translation 'affine@guess'; valid: orthogonal, affine, orthogonal@outcome, "
-            "orthogonal@shuffled, orthogonal@swapped, affine@outcome",
+            "unknown translation 'affine@guess'; valid: orthogonal, affine, affine_lstsq, "
+            "orthogonal@outcome, orthogonal@shuffled, orthogonal@swapped, affine@outcome",
         ),
         (
             GOOD + "zero_shot: {translate: {ps: [anchors]}}\n",
             "zero_shot.translate.ps: unknown translation 'anchors'; valid: orthogonal, affine, "
-            "orthogonal@outcome",
+            "affine_lstsq, orthogonal@outcome",
         ),
         (
             GOOD.replace("[ps]", "[ps, ablation]")

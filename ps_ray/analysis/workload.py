@@ -75,7 +75,7 @@ def zero_shot_load(spec: SweepSpec, zoo: ModuleZoo, pairs: list[StitchedPair]) -
     targets = {(p.robot, p.task, p.seed) for p in pairs}
     evaluations = len(pairs) + sum(len(p.controls) for p in pairs if not p.translation)
     for _, task, _ in targets:
-        candidates = candidate_count(None, task)
+        candidates = candidate_count(task)
         evaluations += len(CHANCE_POLICIES) + (candidates if candidates > 1 else 0)
     steps = evaluations * settings.episodes * settings.repeats * EPISODE_STEPS
     # a fit on scenes matched by outcome rolls each source out once: on `outcome_scenes` scenes,

@@ -80,7 +80,7 @@ class DriveTo(RandomPoint):
         return candidates[self.index]
 
 
-def candidate_count(robot, task) -> int:
+def candidate_count(task) -> int:
     """How many candidate targets the target env's scene holds (1: no task-blind floor)."""
     from ps_ray.envs.tasks import resolve_task
     from ps_ray.specs.names import EnvPart
@@ -96,7 +96,7 @@ def task_blind(robot, task, settings: Mapping[str, Any]) -> dict[str, Any]:
     candidates of reaching the named target from it) and the episodes' digest."""
     from ps_ray.stitching.evaluate import evaluate
 
-    runs = [evaluate(DriveTo(i), robot, task, **settings) for i in range(candidate_count(robot, task))]
+    runs = [evaluate(DriveTo(i), robot, task, **settings) for i in range(candidate_count(task))]
     if len({run["episodes_digest"] for run in runs}) != 1:  # a bug, never bad input
         raise RuntimeError("the task-blind floor's candidates ran on other episodes")
     per_episode = np.mean([[r["success"] for r in run["records"]] for run in runs], axis=0)
@@ -115,7 +115,7 @@ CHANCE_POLICIES = tuple(POLICIES)
 
 def has_floor(task) -> bool:
     """Whether the target's scene holds several candidate targets (a task-blind floor exists)."""
-    return candidate_count(None, task) > 1
+    return candidate_count(task) > 1
 
 
 def chance(robot, task, settings: Mapping[str, Any]) -> dict[str, Any]:

@@ -8,6 +8,7 @@ that library callers who catch ``ValueError`` keep working."""
 
 from __future__ import annotations
 
+import functools
 import types
 import typing
 from collections.abc import Iterable, Mapping
@@ -22,6 +23,13 @@ def choice_error(kind: str, value: object, choices: Iterable[object], plural: st
     """``UserError("unknown robot 'pandaa'; valid robots: panda, panda_l3, panda_l5")``."""
     listed = ", ".join(str(c) for c in choices)
     return UserError(f"unknown {kind} {value!r}; valid {plural or kind + 's'}: {listed}")
+
+
+@functools.cache
+def type_hints(cls: type) -> dict[str, Any]:
+    """``typing.get_type_hints(cls)``, once per class: a spec is checked field by field many
+    thousand times when a large sweep is planned."""
+    return typing.get_type_hints(cls)
 
 
 def fits(value: Any, hint: Any) -> bool:

@@ -7,14 +7,13 @@ import dataclasses
 import functools
 import json
 import re
-import typing
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
 from ps_ray.envs.robots import resolve_robot
 from ps_ray.envs.tasks import resolve_task
-from ps_ray.errors import UserError, describe, fits
+from ps_ray.errors import UserError, describe, fits, type_hints
 from ps_ray.specs.defaults import HIDDEN, INTERFACE_DIM, MAX_WIDTH
 from ps_ray.specs.methods import OPTIONS, PRESETS, MethodSpec, method_key, method_spec
 from ps_ray.specs.names import EnvPart, plain_json, trial_key
@@ -53,7 +52,7 @@ def check_keys(data: Mapping[str, Any], cls: type, where: str) -> None:
 def check_types(spec: Any, where: str, skip: tuple[str, ...] = ()) -> None:
     """Every field of a spec dataclass against its annotation (``int``, ``float``, ``str``,
     ``bool``, ``None``, unions, ``tuple[T, ...]``, mappings): the first mismatch fails in one line."""
-    hints = typing.get_type_hints(type(spec))
+    hints = type_hints(type(spec))
     for field in dataclasses.fields(spec):
         value = getattr(spec, field.name)
         if field.name not in skip and not fits(value, hints[field.name]):

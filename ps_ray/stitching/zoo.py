@@ -141,6 +141,7 @@ class ModuleZoo:
 
     def __init__(self, entries: Iterable[ZooEntry] = (), problems: Iterable[str] = ()) -> None:
         self._entries: dict[ZooKey, ZooEntry] = {}
+        self._by_name: dict[str, ZooEntry] = {}  # by trial key: a lookup is one dict read
         self.problems = list(problems)
         for entry in entries:
             self._add(entry)
@@ -148,7 +149,7 @@ class ModuleZoo:
     def _add(self, entry: ZooEntry) -> None:
         old = self._entries.get(entry.key)
         if old is None or _preference(entry) < _preference(old):
-            self._entries[entry.key] = entry
+            self._entries[entry.key] = self._by_name[str(entry.key)] = entry
 
     @classmethod
     def from_sweep(cls, *sweep_dirs: str | Path, strict: bool = True) -> ModuleZoo:
@@ -201,7 +202,7 @@ class ModuleZoo:
 
     def get(self, key: str | ZooKey) -> ZooEntry:
         """By ZooKey or trial key (``ps/panda/push/101``, ``ps/panda/push/101/i16``)."""
-        by_name = {str(k): e for k, e in self._entries.items()}
+        by_name = self._by_name
         if str(key) in by_name:
             return by_name[str(key)]
         close = difflib.get_close_matches(str(key), sorted(by_name), n=5, cutoff=0.5)

@@ -8,12 +8,11 @@ the family's options dataclass (``Reach.Options``, ``Push.Options``, ``Pick.Opti
 from __future__ import annotations
 
 import dataclasses
-import typing
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from ps_ray.errors import UserError, choice_error, describe, fits
+from ps_ray.errors import UserError, choice_error, describe, fits, type_hints
 
 from ..goals import GOAL_DIM
 from .base import Task, TaskOptions
@@ -75,7 +74,7 @@ def resolve_task(task: str | Mapping | TaskSpec, **options: Any) -> TaskSpec:
         raise choice_error("task", task, TASKS)
     family, preset = TASKS[task]
     valid = [f.name for f in dataclasses.fields(family.Options)]
-    hints = typing.get_type_hints(family.Options)
+    hints = type_hints(family.Options)
     for key, value in options.items():
         if key not in valid:
             raise UserError(f"unknown option {key!r} for task {task!r}; valid options: {', '.join(valid)}")

@@ -15,6 +15,7 @@ from ps_ray.envs.core import env_widths
 from ps_ray.errors import UserError
 from ps_ray.specs.defaults import INTERFACE_DIM
 from ps_ray.specs.names import EnvPart, parse_spec_text
+from ps_ray.specs.titles import env_title, title, width_tag
 from ps_ray.specs.train import POINT_TASK, SpecError, TrainSpec
 
 Cell = tuple[EnvPart, EnvPart]  # (robot, task)
@@ -134,6 +135,13 @@ class GridSpec:
         spec = self.base
         width = "" if spec.interface_dim == INTERFACE_DIM else f"/i{spec.interface_dim}"
         return f"grid/{spec.method}/{spec.seed}{width}/held_out={self.held_out_text}"
+
+    @property
+    def title(self) -> str:
+        """Its MLflow run name (:mod:`ps_ray.specs.titles`): ``held out panda_far/reach_blue ·
+        ablation · 411``."""
+        held = " + ".join(env_title(*c) for c in self.held_out) or "none"
+        return title(f"held out {held}", self.base.method, self.base.seed, width_tag(self.base.interface_dim))
 
     @property
     def held_out_text(self) -> str:

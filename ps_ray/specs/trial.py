@@ -13,7 +13,8 @@ from typing import Any
 
 from ps_ray.specs.grid import GridSpec
 from ps_ray.specs.modes import TrialKind
-from ps_ray.specs.names import trial_key
+from ps_ray.specs.names import readable, trial_key
+from ps_ray.specs.titles import spec_title
 from ps_ray.specs.train import TrainSpec
 
 # What a training trial is: a source of the grid or of the anchors, or a few-shot start
@@ -38,6 +39,21 @@ class TrainTrial:
     @property
     def run_name(self) -> str:
         return self.key or trial_key(self.spec.to_dict())
+
+    @property
+    def title(self) -> str:
+        """Its MLflow run name (:mod:`ps_ray.specs.titles`): the trained env, method and seed, then
+        a search's setting or what a few-shot run starts from."""
+        label = readable(self.label)
+        start = {
+            TrialKind.TRAIN: label,  # a search's setting, or nothing
+            TrialKind.STITCHED: f"from the stitch {label}",
+            TrialKind.ROBOT_MODULE: f"the stitch's robot module, a fresh task module {label}",
+            TrialKind.TASK_MODULE: f"the stitch's task module, a fresh robot module {label}",
+            TrialKind.UNSTITCHED: "the robot source as it is",
+            TrialKind.SCRATCH: "from scratch",
+        }[self.kind]
+        return spec_title(self.spec.to_dict(), start)
 
     @property
     def row(self) -> str:
@@ -70,6 +86,10 @@ class GridTrial:
     @property
     def run_name(self) -> str:
         return self.grid.run_key
+
+    @property
+    def title(self) -> str:
+        return self.grid.title
 
     def config(self) -> dict[str, Any]:
         return {"grid": self.grid.to_dict(), "anchors": list(self.anchors), "key": self.run_name}

@@ -17,7 +17,9 @@ from pathlib import Path
 from typing import Any
 
 from ps_ray.errors import UserError
+from ps_ray.specs.modes import Pairing
 from ps_ray.specs.names import CONTROL_ROLES, EnvPart, parse_spec_text, plain_json
+from ps_ray.specs.titles import env_title, title
 
 # fields that are a robot or task (an EnvPart; its text in a row)
 ENV_FIELDS = ("robot", "task", "task_from_robot", "robot_from_robot", "robot_from_task")
@@ -77,6 +79,19 @@ class StitchedPair:
     def fit_tasks(self) -> tuple[EnvPart, EnvPart]:
         """The tasks a latent translation is fit on: the task source's and the robot source's."""
         return self.task, self.robot_from_task
+
+    @property
+    def title(self) -> str:
+        """Its MLflow run name (:mod:`ps_ray.specs.titles`): the target env, the method, the seed
+        (``431x432`` across runs), then the two sources' cells: ``panda/reach_red ·
+        ablation+affine@outcome · 431 · t: panda_far/reach_red, r: panda/reach_blue``."""
+        seeds = self.seed if self.pairing == Pairing.SAME_SEED else f"{self.seed}x{self.robot_seed}"
+        sources = (
+            f"t: {env_title(self.task_from_robot, self.task)}, "
+            f"r: {env_title(self.robot_from_robot, self.robot_from_task)}"
+        )
+        co_trained = CO_TRAINED if "/held_out=" in self.key else ""
+        return title(env_title(self.robot, self.task), self.method, seeds, co_trained, sources)
 
     def shown(self) -> dict[str, str]:
         """MLflow params: no paths, no controls; robot and task by short name."""

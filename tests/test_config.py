@@ -96,6 +96,19 @@ def test_shipped_sweeps_load_and_expand_to_trials(name, n_trials):
     assert {t.method for t in trials} == set(sweep.methods)
 
 
+def test_a_sweeps_description_is_its_files_opening_comment_unless_it_names_one(tmp_path):
+    shipped = load_sweep(SWEEPS / "confirm2.yaml")
+    assert shipped.description.startswith("The second confirmation of the transfer family's headline rows")
+    assert (
+        "#" not in shipped.description
+        and "Price first: ps-ray run sweeps/confirm2.yaml --check" in shipped.description
+    )
+    named = _write(tmp_path, "# a header\n" + GOOD + "description: what it is for\n")
+    assert load_sweep(named).description == "what it is for"
+    # what a sweep is for is not what it trains: a folder trained under one description resumes under another
+    assert load_sweep(named).training_identity() == load_sweep(_write(tmp_path, GOOD)).training_identity()
+
+
 def _write(tmp_path: Path, text: str) -> Path:
     path = tmp_path / "sweep.yaml"
     path.write_text(text)

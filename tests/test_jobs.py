@@ -125,7 +125,7 @@ def test_sweep_submitted_as_a_ray_job_lands_in_mlflow(ray_head, tmp_path, tiny_t
     client = mlflow.MlflowClient(f"sqlite:///{storage / 'job' / 'mlflow.db'}")
     experiment = client.get_experiment_by_name("job")
     (run,) = client.search_runs([experiment.experiment_id], "tags.`ps_ray.stage` = 'train'")
-    assert run.info.run_name == "ablation/panda/reach/1/i8"
+    assert run.info.run_name == "panda/reach · ablation · 1 · i8"
     assert run.info.status == "FINISHED"
     assert run.data.metrics["env_steps"] >= 200
 

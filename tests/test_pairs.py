@@ -12,7 +12,7 @@ import pytest
 
 from ps_ray.analysis.clips import stitched_clips
 from ps_ray.analysis.page import Report
-from ps_ray.pipeline.zero_shot import CONTROL_KEYS, RESULT_KEYS, table_of, write_atomic_csv
+from ps_ray.pipeline.zero_shot_table import CONTROL_KEYS, RESULT_KEYS, table_of, write_atomic_csv
 from ps_ray.plan import zero_shot as zero_shot_plan
 from ps_ray.plan.catalogue import trained
 from ps_ray.plan.few_shot import selected_pairs

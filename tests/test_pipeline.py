@@ -183,7 +183,9 @@ def test_a_pipeline_killed_in_every_stage_resumes_without_redoing_finished_work(
     assert kinds >= {"stitched", "unstitched", "scratch"}
     for run in few_shot_runs:
         target = run.data.tags["ps_ray.target"]
-        assert target.count("/") >= 3 and run.info.run_name.endswith(readable(target)), run.info.run_name
+        method, robot, task, seed = target.split("/")[:4]  # named by its target env first
+        assert run.info.run_name.startswith(f"{readable(f'{robot}/{task}')} · {method} · {seed}"), run
+
         assert ("ps_ray.pair" in run.data.tags) == (run.data.tags["ps_ray.start"] == "stitched")
         start = run.data.params["init_policy"]  # the file it started from, inside the sweep folder
         assert start == "null" if run.data.tags["ps_ray.start"] == "scratch" else (root / start).is_file()

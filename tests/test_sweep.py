@@ -53,7 +53,8 @@ def runs(path: Path) -> dict[str, mlflow.entities.Run]:
     if experiment is None:
         return {}
     found = client.search_runs([experiment.experiment_id])
-    return {r.info.run_name: r for r in found if "ps_ray.stage_run" not in r.data.tags}  # trials, not stages
+    # trials, not stages, by their exact key
+    return {r.data.tags["ps_ray.trial_key"]: r for r in found if "ps_ray.stage_run" not in r.data.tags}
 
 
 def _has_experiment(db: Path, name: str) -> bool:
@@ -86,6 +87,10 @@ def test_sweep_tracks_one_mlflow_run_per_trial_with_artifacts(tmp_path, cli, tin
     consolidated = f"{distilled}/panda/reach/1/i8"
     assert sorted(found) == ["ablation/panda/reach/1/i8", plain, "ps/panda/reach/1/i8", consolidated]
     assert found[plain].data.tags["ps_ray.stage"] == "anchors_plain"
+    # named as a reader tells them apart: env, method, seed, width; no stage prefix
+    names = {key: run.info.run_name for key, run in found.items()}
+    assert names[plain] == "panda/reach · plain · 1 · i8 · plain policy for the anchor states"
+    assert names[consolidated] == f"panda/reach · {distilled} · 1 · i8"
     client = mlflow.MlflowClient(f"sqlite:///{sweep_dir(load_sweep(path)) / 'mlflow.db'}")
     for run in found.values():  # each nested under its stage's run
         parent = client.get_run(run.data.tags["mlflow.parentRunId"])

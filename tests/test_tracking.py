@@ -24,7 +24,9 @@ from ps_ray.pipeline.tune_tracking import (
     spec_key,
 )
 from ps_ray.store.mlflow_values import relative_paths
+from ps_ray.store.stage_run import open_stage
 from ps_ray.store.tracking import (
+    NOTE_TAG,
     PARENT_TAG,
     TRIAL_KEY_TAG,
     TrialTracker,
@@ -33,7 +35,6 @@ from ps_ray.store.tracking import (
     ensure_experiment,
     git_commit,
     runs_page,
-    stage_tags,
 )
 from tests.conftest import wait_until_serving
 
@@ -191,6 +192,26 @@ def test_a_run_is_named_as_a_reader_writes_its_key_and_found_by_the_exact_key(st
     assert TrialTracker(store["uri"], exp, key, params={}, tags={}).run_id == tracker.run_id  # resumed
 
 
+def test_a_sweeps_experiment_carries_its_description_and_its_store_no_empty_default(tmp_path):
+    uri = default_tracking_uri(tmp_path)
+    exp = ensure_experiment(uri, "s", tmp_path / "artifacts", "What the sweep is for.")
+    client = MlflowClient(uri)
+    assert [e.name for e in client.search_experiments()] == ["s"]  # MLflow's empty Default is gone
+    assert client.get_experiment(exp).tags[NOTE_TAG] == "What the sweep is for."  # the UI's description
+    assert ensure_experiment(uri, "s", tmp_path / "artifacts", "Reworded.") == exp
+    assert client.get_experiment(exp).tags[NOTE_TAG] == "Reworded."
+
+
+def test_a_run_takes_its_records_title_and_a_run_named_before_is_renamed_on_resume(store):
+    exp = new_experiment(store, "tracker-titles")
+    key = "ablation/panda_far/reach_blue/431"
+    old = TrialTracker(store["uri"], exp, key, params={}, tags={})  # the old scheme: its key
+    assert store["client"].get_run(old.run_id).info.run_name == key
+    title = "panda_far/reach_blue · ablation · 431"
+    again = TrialTracker(store["uri"], exp, key, params={}, tags={}, name=title)
+    assert again.run_id == old.run_id and store["client"].get_run(old.run_id).info.run_name == title
+
+
 def test_tracker_params_tags_and_batched_metrics(store):
     exp = new_experiment(store, "tracker-basic")
     tracker = TrialTracker(
@@ -242,14 +263,17 @@ def test_tracker_params_tags_and_batched_metrics(store):
     assert store["client"].get_run(tracker.run_id).info.status == "FINISHED"
 
 
-def test_a_stages_runs_are_children_of_one_stage_run_found_again_on_resume(store):
+def test_a_stages_runs_are_children_of_one_stage_run_that_lasts_the_stage_and_holds_its_summary(store):
     exp_id = new_experiment(store, "stages")
-    train = stage_tags(store["uri"], exp_id, "sweep1", "train")
-    assert stage_tags(store["uri"], exp_id, "sweep1", "train") == train  # a resume: the same parent
-    few_shot = stage_tags(store["uri"], exp_id, "sweep1", "few_shot")
-    assert few_shot[PARENT_TAG] != train[PARENT_TAG]
-    for tags, key in ((train, "ps/panda/reach/1"), (few_shot, "few_shot/ps/panda/reach/1")):
-        TrialTracker(store["uri"], exp_id, key, params={}, tags=tags).close()
+    with open_stage(store["uri"], exp_id, "sweep1", "train") as train:
+        assert store["client"].get_run(train.run_id).info.status == "RUNNING"  # while the stage runs
+        time.sleep(0.3)
+        TrialTracker(store["uri"], exp_id, "ps/panda/reach/1", params={}, tags=train.tags).close()
+        train.record({"trials": 1, "mean_final_success": 0.75, "nan": float("nan")})
+    with pytest.raises(KeyboardInterrupt), open_stage(store["uri"], exp_id, "sweep1", "few_shot") as few_shot:
+        TrialTracker(store["uri"], exp_id, "few_shot/ps/panda/reach/1", params={}, tags=few_shot.tags).close()
+        raise KeyboardInterrupt  # Ctrl-C during the stage
+    assert few_shot.run_id != train.run_id
     runs = {r.info.run_name: r for r in runs_of(store, exp_id)}
     assert sorted(runs) == ["few_shot", "few_shot/ps/panda/reach/1", "ps/panda/reach/1", "train"]
     for parent, child in (("train", "ps/panda/reach/1"), ("few_shot", "few_shot/ps/panda/reach/1")):
@@ -260,7 +284,14 @@ def test_a_stages_runs_are_children_of_one_stage_run_found_again_on_resume(store
         )
         # the stage run is not a trial: counted by no stage, indexed by no report
         assert "ps_ray.stage" not in runs[parent].data.tags and TRIAL_KEY_TAG not in runs[parent].data.tags
-        assert runs[parent].info.status == "FINISHED"
+    stage = runs["train"].info
+    assert stage.status == "FINISHED" and stage.end_time - stage.start_time >= 300  # as long as the stage
+    assert runs["train"].data.metrics == {"trials": 1.0, "mean_final_success": 0.75}
+    assert runs["few_shot"].info.status == "KILLED"
+    with open_stage(store["uri"], exp_id, "sweep1", "few_shot") as again:  # a resume: the same run, open
+        assert again.run_id == few_shot.run_id
+        assert store["client"].get_run(again.run_id).info.status == "RUNNING"
+    assert store["client"].get_run(again.run_id).info.status == "FINISHED"
 
 
 def test_start_files_are_logged_relative_to_the_sweep_and_old_absolute_runs_still_resume(store, tmp_path):

@@ -15,7 +15,8 @@ import yaml
 from ps_ray.nets.policy_file import load_policy
 from ps_ray.pipeline.few_shot import curves, run_few_shot
 from ps_ray.pipeline.sweep import run_sweep, sweep_dir
-from ps_ray.pipeline.zero_shot import run_zero_shot, summary
+from ps_ray.pipeline.zero_shot import run_zero_shot
+from ps_ray.pipeline.zero_shot_table import summary
 from ps_ray.plan.catalogue import trained
 from ps_ray.plan.zero_shot import matrix
 from ps_ray.specs.sweep import load_sweep

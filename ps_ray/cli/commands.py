@@ -169,7 +169,8 @@ def _trained_sweep(args: argparse.Namespace, stage: str, *flags: str):
 
 
 def cmd_zero_shot(args: argparse.Namespace) -> int:
-    from ps_ray.pipeline.zero_shot import run_zero_shot, summary
+    from ps_ray.pipeline.zero_shot import run_zero_shot
+    from ps_ray.pipeline.zero_shot_table import summary
 
     with _trained_sweep(
         args, "zero_shot", "methods", "episodes", "repeats", "seed", "pairs", "pairs_per_trial"

@@ -51,6 +51,7 @@ def run_grids(spec: SweepSpec, *, resume: bool = False, progress: bool = True):
         progress=progress,
         trainable=grid_trial,
         key_fn=lambda trial: GridTrial.of(trial.config["trial"]).run_name,
+        name_fn=lambda trial: GridTrial.of(trial.config["trial"]).title,
         params_fn=lambda trial: _params(GridTrial.of(trial.config["trial"])),
         artifacts_fn=lambda trial: [],
     )

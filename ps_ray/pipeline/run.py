@@ -45,7 +45,8 @@ def _grid(spec: SweepSpec, resume: bool, progress: bool) -> str:
 
 
 def _zero_shot(spec: SweepSpec, resume: bool, progress: bool) -> str:
-    from ps_ray.pipeline.zero_shot import run_zero_shot, summary
+    from ps_ray.pipeline.zero_shot import run_zero_shot
+    from ps_ray.pipeline.zero_shot_table import summary
 
     if not resume:
         shutil.rmtree(sweep_layout(spec).tune_zero_shot, ignore_errors=True)

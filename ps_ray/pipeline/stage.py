@@ -47,6 +47,15 @@ def record_spec(spec: SweepSpec) -> None:
     write_text(SweepLayout(root).spec_file, yaml.safe_dump(spec.to_dict(), sort_keys=True))
 
 
+# how to read the experiment, below its sweep's description
+READING = (
+    "Runs nest under their stage (train, grid, zero_shot, few_shot, report). A training run's "
+    "step is its env steps: read its curves with the x axis on Step. A stitched pair's run holds "
+    "its success beside its controls (robot_source, task_source, chance, task_blind, oracle) and "
+    "names its two sources' runs."
+)
+
+
 def connect(spec: SweepSpec) -> tuple[str, str]:
     """Join (or start) Ray and open the sweep's MLflow experiment: (tracking URI, experiment id).
 
@@ -60,7 +69,8 @@ def connect(spec: SweepSpec) -> tuple[str, str]:
     with others_to(where.root / LOG_FOLDER / "driver.log"):  # Ray's and MLflow's start-up messages
         init_ray(cluster_address() or "local")
         tracking_uri = spec.tracking_uri or default_tracking_uri(where.root)
-        return tracking_uri, ensure_experiment(tracking_uri, spec.name, where.artifacts)
+        note = f"{spec.description}\n\n{READING}" if spec.description else READING
+        return tracking_uri, ensure_experiment(tracking_uri, spec.name, where.artifacts, note)
 
 
 class StageError(RuntimeError):

@@ -19,6 +19,7 @@ from ps_ray.plan.train import anchor_file
 from ps_ray.specs import reset_seeds
 from ps_ray.specs.stages import stage as stage_record
 from ps_ray.specs.sweep import SweepSpec, anchor_sources, task_input_dim
+from ps_ray.specs.titles import title
 from ps_ray.specs.trial import GridTrial, TrainTrial
 from ps_ray.store.layout import SweepLayout, sweep_dir
 from ps_ray.store.run_layout import METRIC_FIELDS, POLICY_FILE, SIGNATURE_FILE, SPEC_FILE
@@ -205,6 +206,7 @@ def run_sweep(spec: SweepSpec, *, resume: bool = False, progress: bool = True):
             stage="anchors_plain",
             # its own runs: the same plain spec may also be a trial of the sweep
             key_fn=lambda trial: "anchors_plain/" + default_key_fn(trial),
+            name_fn=lambda trial: title(_title(trial), "plain policy for the anchor states"),
             **tune_args,
         )
         raise_on_errors(results, "plain source policies")
@@ -246,6 +248,7 @@ def run_tune(
     resume: bool,
     progress: bool,
     key_fn=None,
+    name_fn=None,
     tags_fn=None,
     trainable=None,
     params_fn=None,
@@ -256,43 +259,52 @@ def run_tune(
     ``folder``, tracked in MLflow, each trial's record as its ``config["trial"]``;
     ``scheduler_fn``: :func:`ps_ray.pipeline.trials.run_trials`'."""
 
-    from ps_ray.pipeline.trials import run_trials
+    from ps_ray.pipeline.trials import run_trials, stage_summary
     from ps_ray.pipeline.tune_tracking import MLflowTuneCallback, default_params_fn
     from ps_ray.specs.resources import device_tags
     from ps_ray.store.mlflow_values import relative_paths
-    from ps_ray.store.tracking import stage_tags
+    from ps_ray.store.stage_run import open_stage
 
     resources = getattr(spec.resources, stage_record(stage).name)
-    callback = MLflowTuneCallback(
-        *tracking,
-        metric_keys=METRIC_KEYS + ("final_success", "final_touching"),
-        tags={**stage_tags(*tracking, spec.name, stage), **device_tags(resources)},
-        artifacts_fn=artifacts_fn or _trial_artifacts,
-        **({"key_fn": key_fn} if key_fn else {}),
-        params_fn=lambda trial: relative_paths((params_fn or default_params_fn)(trial), sweep_dir(spec)),
-        tags_fn=tags_fn,
-        # env steps, the x axis RL curves are read on (restored with a checkpoint, like ps_ray's
-        # own iteration; Tune's restarts at 1 when a resumed stage relaunches a trial): a retried
-        # or relaunched trial re-reports the steps between its checkpoint and the kill, and the
-        # run keeps their first record
-        step_key="env_steps",
-        once_per_step=True,
-    )
-    return run_trials(
-        trainable or sweep_trial,
-        {"trial": [t.config() for t in trials]},
-        folder=folder,
-        stage=stage,
-        callback=callback,
-        resume=resume,
-        progress=progress,
-        max_concurrent=spec.max_concurrent,
-        max_failures=spec.max_failures,
-        resources=resources,
-        constants={"compile": resources.compile},  # how to run, not what: not the trial's identity
-        scheduler_fn=scheduler_fn,
-        budgets=[t.spec.env_steps if isinstance(t, TrainTrial) else None for t in trials],
-    )
+    with open_stage(*tracking, spec.name, stage) as stage_run:  # open while the stage runs
+        callback = MLflowTuneCallback(
+            *tracking,
+            metric_keys=METRIC_KEYS + ("final_success", "final_touching"),
+            tags={**stage_run.tags, **device_tags(resources)},
+            artifacts_fn=artifacts_fn or _trial_artifacts,
+            **({"key_fn": key_fn} if key_fn else {}),
+            name_fn=name_fn or _title,
+            params_fn=lambda trial: relative_paths((params_fn or default_params_fn)(trial), sweep_dir(spec)),
+            tags_fn=tags_fn,
+            # env steps, the x axis RL curves are read on (restored with a checkpoint, like ps_ray's
+            # own iteration; Tune's restarts at 1 when a resumed stage relaunches a trial): a retried
+            # or relaunched trial re-reports the steps between its checkpoint and the kill, and the
+            # run keeps their first record
+            step_key="env_steps",
+            once_per_step=True,
+        )
+        results = run_trials(
+            trainable or sweep_trial,
+            {"trial": [t.config() for t in trials]},
+            folder=folder,
+            stage=stage,
+            callback=callback,
+            resume=resume,
+            progress=progress,
+            max_concurrent=spec.max_concurrent,
+            max_failures=spec.max_failures,
+            resources=resources,
+            constants={"compile": resources.compile},  # how to run, not what: not the trial's identity
+            scheduler_fn=scheduler_fn,
+            budgets=[t.spec.env_steps if isinstance(t, TrainTrial) else None for t in trials],
+        )
+        stage_run.record(*stage_summary(results))
+    return results
+
+
+def _title(trial) -> str:
+    """A training trial's MLflow run name (:attr:`TrainTrial.title`)."""
+    return TrainTrial.of(trial.config["trial"]).title
 
 
 def _trial_artifacts(trial) -> list[Path]:

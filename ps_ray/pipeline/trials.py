@@ -115,6 +115,22 @@ def run_trials(
     return outcomes(path, key, trials, errors)
 
 
+def stage_summary(results: list[TrialOutcome]) -> tuple[dict[str, float], str]:
+    """A training stage's summary metrics for its MLflow run (how many trials finished, failed
+    or were cut short; the mean final success of those that report one) and how it ended."""
+    failed = sum(1 for r in results if r.error and r.error != UNFINISHED)
+    unfinished = sum(1 for r in results if r.error == UNFINISHED)
+    finals = [r.metrics["final_success"] for r in results if r.metrics.get("final_success") is not None]
+    metrics = {
+        "trials": len(results),
+        "trials_finished": len(results) - failed - unfinished,
+        "trials_failed": failed,
+        "trials_unfinished": unfinished,
+        "mean_final_success": sum(finals) / len(finals) if finals else float("nan"),
+    }
+    return metrics, "FAILED" if failed else "KILLED" if unfinished else "FINISHED"
+
+
 @contextlib.contextmanager
 def _signal_handlers_kept() -> Iterator[None]:
     """Tune's run sets its own SIGINT (and SIGUSR1) handler and leaves it set when it ends: the

@@ -84,7 +84,7 @@ class MLflowTuneCallback(Callback):
     trial's metrics are written every ``flush_every`` results or ``flush_secs`` seconds, after
     each checkpoint, and on completion/error/recovery/experiment end. Trackers are keyed by
     ``key_fn(trial)`` and find their run by tag, so a trial restored after a driver restart
-    continues the SAME run.
+    continues the SAME run, named ``name_fn(trial)`` (default: the key as a reader writes it).
     Errors while writing metrics, artifacts or status are logged as warnings, never raised into
     Tune: a sweep does not die for its bookkeeping (unflushed metrics are retried at the next
     flush). Finding or creating a trial's run does raise (e.g. its key's run has other params).
@@ -98,6 +98,7 @@ class MLflowTuneCallback(Callback):
         metric_keys: Sequence[str],
         params_fn: Callable[[Trial], Mapping[str, Any]] = default_params_fn,
         key_fn: Callable[[Trial], str] = default_key_fn,
+        name_fn: Callable[[Trial], str] | None = None,
         tags: Mapping[str, str] | None = None,
         tags_fn: Callable[[Trial, MlflowClient], Mapping[str, str]] | None = None,
         flush_every: int = 20,
@@ -113,6 +114,7 @@ class MLflowTuneCallback(Callback):
         self.metric_keys = tuple(metric_keys)
         self.params_fn = params_fn
         self.key_fn = key_fn
+        self.name_fn = name_fn
         self.tags = dict(tags or {})
         self.tags_fn = tags_fn
         if GIT_COMMIT_TAG not in self.tags and (commit := git_commit()):
@@ -154,6 +156,7 @@ class MLflowTuneCallback(Callback):
                 tags=tags,
                 client=self._client,
                 once_per_step=self.once_per_step,
+                name=self.name_fn(trial) if self.name_fn else None,
             )
             self._results[key] = 0
             self._last_flush[key] = time.monotonic()
@@ -230,8 +233,9 @@ class RowRunsCallback(Callback):
     """Driver-side: one MLflow run per result row that names ``row_key``, for trials that report
     one row per item (a batch of stitched pairs): the item's run is created (or found again, on a
     retried batch), its ``metric_keys`` logged at step 0 and the run closed FINISHED at once.
-    ``params_fn(name)`` and ``tags_fn(name, client)`` describe the item; writing metrics and
-    status never raises into Tune, finding or creating the run does (as in MLflowTuneCallback)."""
+    ``params_fn(name)``, ``tags_fn(name, client)`` and ``name_fn(name)`` (its run name) describe
+    the item; writing metrics and status never raises into Tune, finding or creating the run does
+    (as in MLflowTuneCallback)."""
 
     def __init__(
         self,
@@ -243,6 +247,7 @@ class RowRunsCallback(Callback):
         params_fn: Callable[[str], Mapping[str, Any]],
         tags: Mapping[str, str],
         tags_fn: Callable[[str, MlflowClient], Mapping[str, str]] | None = None,
+        name_fn: Callable[[str], str] | None = None,
     ) -> None:
         self.tracking_uri = tracking_uri
         self.experiment_id = experiment_id
@@ -251,6 +256,7 @@ class RowRunsCallback(Callback):
         self.params_fn = params_fn
         self.tags = dict(tags)
         self.tags_fn = tags_fn
+        self.name_fn = name_fn
         self._client_cache: MlflowClient | None = None
 
     def __getstate__(self) -> dict[str, Any]:
@@ -275,6 +281,7 @@ class RowRunsCallback(Callback):
             tags=tags,
             client=self._client_cache,
             once_per_step=True,  # a retried batch reports its pairs again: logged once
+            name=self.name_fn(name) if self.name_fn else None,
         )
         stamp = result.get("timestamp")
         tracker.log_metrics(

@@ -17,50 +17,30 @@ batch; each pair is still one result row and one MLflow run.
 from __future__ import annotations
 
 import dataclasses
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pandas as pd
 
 from ps_ray.errors import UserError
-from ps_ray.pipeline.stage import raise_on_errors
+from ps_ray.pipeline.stage import connect, raise_on_errors
+from ps_ray.pipeline.zero_shot_table import (
+    CONTROL_KEYS,
+    RESULT_KEYS,
+    stage_metrics,
+    table_of,
+    write_atomic_csv,
+)
 from ps_ray.plan import zero_shot as zero_shot_plan
 from ps_ray.plan.catalogue import trained
 from ps_ray.plan.zero_shot import check_kept, pair_episodes, target_key
 from ps_ray.specs import reset_seeds
-from ps_ray.specs.names import CONTROL_ROLES, readable, split_translation
+from ps_ray.specs.names import readable, split_translation
 from ps_ray.specs.stage_settings import ZeroShotSpec
 from ps_ray.specs.sweep import SweepSpec
 from ps_ray.stitching.pairs import StitchedPair
-from ps_ray.store.atomic import atomic_path
 from ps_ray.store.layout import sweep_dir, sweep_layout
-
-RESULT_KEYS = (
-    "success_mean",
-    "success_std",
-    "touching_mean",
-    "touching_std",
-    "contact_mean",
-    "wrong_target_mean",  # ended at a candidate target the task does not name (NaN: one per scene)
-    "episodes_per_s",
-    "fit_env_steps",  # env steps the translation's fit rolled out (outcome matching; 0 for none)
-    "translation_ridge",  # the ridge strength the actor's latent map chose (NaN: no latent map)
-    "episodes_seed",  # the first reset seed of the pair's episodes (its training seed's own block)
-)
-# each control's success on the pair's episodes (ps_ray.stitching.matrix.controls), chance and the
-# task-blind floor on them, the better unstitched source, the best of all those and the gain over
-# it; the gain over the best of the sources and chance alone, as before the floor, beside it
-CONTROL_KEYS = (
-    *(f"{role}_success" for role in CONTROL_ROLES),
-    "chance_success",
-    "task_blind_success",
-    "task_blind_wrong_target",
-    "best_unstitched",
-    "best_control",
-    "transfer_gain",
-    "gain_over_chance",
-)
+from ps_ray.store.stage_run import StageRun, open_stage
 
 
 def fit_states(tasks: list, per_quadrant: int, seed: int) -> np.ndarray:
@@ -256,17 +236,28 @@ def run_zero_shot(
     if not trials:
         raise UserError(f"{root}: no stitchable pairs (train the sweep first: ps-ray sweep)")
     check_sources(trials)
-    by_key = {pair.key: pair for pair in trials}
     done = rows_naming(folder, PAIR_KEY) if resume else {}
     check_kept(done, trials, settings)
     todo = [pair.to_dict() for pair in trials if pair.key not in done]
-    if todo:  # a resumed matrix whose every pair reported needs neither Ray nor chance again
-        _evaluate(spec, settings, trials, todo, resume=resume, progress=progress)
-    rows = rows_naming(folder, PAIR_KEY)
-    missing = [key for key in by_key if key not in rows]
+    if not todo:  # a resumed matrix whose every pair reported needs neither Ray nor chance again
+        return _table(spec, trials)
+    tracking = connect(spec)
+    with open_stage(*tracking, spec.name, "zero_shot") as stage_run:  # open while the stage runs
+        _evaluate(spec, settings, trials, todo, tracking, stage_run, resume=resume, progress=progress)
+        table = _table(spec, trials)
+        stage_run.record(stage_metrics(table))
+    return table
+
+
+def _table(spec: SweepSpec, trials: list[StitchedPair]) -> pd.DataFrame:
+    """The stage's table, a row per pair in the plan's order, written to ``zero_shot.csv``."""
+    from ps_ray.store.attempts import rows_naming
+
+    rows = rows_naming(sweep_layout(spec).tune_zero_shot, PAIR_KEY)
+    missing = [pair.key for pair in trials if pair.key not in rows]
     if missing:  # every batch finished, so each of its pairs reported: a bug, never bad input
         raise RuntimeError(f"{len(missing)} pairs have no result row, e.g. {missing[0]}")
-    table = table_of([(pair, rows[pair.key]) for pair in trials], root)
+    table = table_of([(pair, rows[pair.key]) for pair in trials], sweep_dir(spec))
     write_atomic_csv(table, sweep_layout(spec).zero_shot_table)
     return table
 
@@ -276,22 +267,23 @@ def _evaluate(
     settings: ZeroShotSpec,
     trials: list[StitchedPair],
     todo: list[dict],
+    tracking: tuple[str, str],
+    stage_run: StageRun,
     *,
     resume: bool,
     progress: bool,
 ) -> None:
-    """Run the ``todo`` pairs as Tune batches, each pair's row and MLflow run as it reports."""
-    from ps_ray.pipeline.stage import connect
-    from ps_ray.pipeline.trials import run_trials
+    """Run the ``todo`` pairs as Tune batches, each pair's row and MLflow run (a child of
+    ``stage_run``) as it reports."""
+    from ps_ray.pipeline.trials import run_trials, stage_summary
     from ps_ray.pipeline.tune_tracking import RowRunsCallback
     from ps_ray.specs.resources import device_tags
-    from ps_ray.store.tracking import stage_tags
 
     folder, by_key = sweep_layout(spec).tune_zero_shot, {pair.key: pair for pair in trials}
     evaluated = {"episodes": settings.episodes, "repeats": settings.repeats}
     episodes = {**evaluated, "seed": settings.seed}  # each seed's block of the zero-shot stream
     chance = chance_levels(trials, episodes, progress)
-    tracking_uri, experiment_id = connect(spec)
+    tracking_uri, experiment_id = tracking
     callback = RowRunsCallback(
         tracking_uri,
         experiment_id,
@@ -299,11 +291,12 @@ def _evaluate(
         metric_keys=(*RESULT_KEYS, *CONTROL_KEYS),
         params_fn=lambda key: by_key[key].shown() | evaluated,
         tags={
-            **stage_tags(tracking_uri, experiment_id, spec.name, "zero_shot"),
+            **stage_run.tags,
             **device_tags(spec.resources.zero_shot),
             "ps_ray.device": "cpu",  # stitching and evaluation run on the CPU, whatever the grant
         },
         tags_fn=lambda key, client: _tags(client, experiment_id, by_key[key]),
+        name_fn=lambda key: by_key[key].title,
     )
     batches = _batches(todo, settings.batch_sizes(len(todo), spec.max_concurrent))
     results = run_trials(
@@ -332,6 +325,7 @@ def _evaluate(
             },
         },
     )
+    stage_run.record({}, stage_summary(results)[1])  # how it ended, if it ends here
     raise_on_errors(results, "zero-shot batches")
 
 
@@ -345,45 +339,3 @@ def _tags(client, experiment_id: str, pair: StitchedPair) -> dict:
     from ps_ray.store.tracking import source_tags
 
     return source_tags(client, experiment_id, pair.task_from, pair.robot_from, pair.task_from_path)
-
-
-def table_of(results: list[tuple[StitchedPair, dict[str, Any]]], root: Path | None = None) -> pd.DataFrame:
-    """One row per stitched pair from (pair, metrics), in the given (the matrix's) order: the
-    pair's record (:meth:`StitchedPair.to_row`: its sources' and controls' keys and files), its
-    success and touching, each control's success (``<role>_success``, NaN where the role does not
-    apply), ``chance_success``, ``best_unstitched``, ``best_control`` and ``transfer_gain``."""
-    keys = (*RESULT_KEYS, *CONTROL_KEYS)
-    return pd.DataFrame(
-        [{**pair.to_row(root), **{k: metrics.get(k, np.nan) for k in keys}} for pair, metrics in results]
-    )
-
-
-def summary(table: pd.DataFrame) -> pd.DataFrame:
-    """Mean over pairs per method (and the number of pairs) of success, touching, the better
-    unstitched control, chance, the task-blind floor, the wrong-target rate, the oracle and the
-    transfer gain, for the terminal and the note."""
-    grouped = table.groupby("method")
-    return pd.DataFrame(
-        {
-            "pairs": grouped.size(),
-            "success": grouped["success_mean"].mean(),
-            "touching": grouped["touching_mean"].mean(),
-            "best unstitched": grouped["best_unstitched"].mean(),
-            "chance": grouped["chance_success"].mean(),
-            "task-blind floor": _mean_of(grouped, "task_blind_success"),
-            "wrong target": _mean_of(grouped, "wrong_target_mean"),
-            "oracle": grouped["oracle_success"].mean(),
-            "transfer gain": grouped["transfer_gain"].mean(),
-        }
-    )
-
-
-def _mean_of(grouped, column: str) -> pd.Series:
-    """A column's mean per group; NaN for a table from before the column existed."""
-    return grouped[column].mean() if column in grouped.obj.columns else grouped.size() * np.nan
-
-
-def write_atomic_csv(table: pd.DataFrame, path: Path) -> None:
-    """Write beside, then rename: a reader never sees half a table."""
-    with atomic_path(path) as partial:
-        table.to_csv(partial, index=False)

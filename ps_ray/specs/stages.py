@@ -46,6 +46,7 @@ NOT_TRAINING = (
     "resources",
     "max_concurrent",
     "max_failures",
+    "description",
 )
 
 

@@ -67,6 +67,8 @@ class SweepSpec:
     max_failures: int = 2  # retries of a crashed trial, from its last checkpoint
     storage: str = "runs/sweeps"
     tracking_uri: str | None = None  # default: sqlite under <storage>/<name>/
+    # what the sweep is for, the MLflow experiment's description (default: the file's header)
+    description: str = ""
 
     def __post_init__(self) -> None:
         if not isinstance(self.name, str) or not self.name.replace("_", "").replace("-", "").isalnum():
@@ -230,10 +232,12 @@ def load_sweep(path: str | Path, sets: Sequence[str] = ()) -> SweepSpec:
     """Strict loading of a sweep file (:mod:`ps_ray.specs.sweep_file`: its base merged under it,
     ``sets`` over it): malformed YAML, duplicate or unknown keys and bad values fail with one line
     naming the file."""
-    from ps_ray.specs.sweep_file import BASE_KEY, read_file, read_sweep
+    from ps_ray.specs.sweep_file import BASE_KEY, header, read_file, read_sweep
 
     path = Path(path)
     data = read_sweep(path, sets)
+    if isinstance(data, Mapping) and "description" not in data and (text := header(path)):
+        data = {**data, "description": text}
     top = read_file(path)
     where = str(path)
     if isinstance(top, Mapping) and BASE_KEY in top:  # a bad key may come from either file

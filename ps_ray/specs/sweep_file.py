@@ -68,6 +68,16 @@ def read_file(path: Path) -> Any:
         raise SpecError(f"{path}: malformed YAML{where}: {getattr(e, 'problem', e)}") from None
 
 
+def header(path: Path) -> str:
+    """The comment lines that open a sweep file, without their ``#``: what the sweep is for."""
+    lines = []
+    for line in path.read_text(errors="replace").splitlines():
+        if not line.startswith("#"):
+            break
+        lines.append(line[1:].removeprefix(" "))
+    return "\n".join(lines).strip()
+
+
 def read_sweep(path: Path, sets: Sequence[str] = (), _seen: tuple[Path, ...] = ()) -> Any:
     """The sweep file's mapping with its bases merged under it and ``sets`` (``key.sub=value``,
     the value read as YAML) over it."""

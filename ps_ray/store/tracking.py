@@ -103,9 +103,17 @@ def _one_maker(db: Path | None) -> Iterator[None]:
         yield
 
 
-def ensure_experiment(tracking_uri: str, name: str, artifact_root: str | Path) -> str:
+NOTE_TAG = "mlflow.note.content"  # an experiment's description in MLflow's UI
+DEFAULT_EXPERIMENT = "0"  # MLflow makes it, empty, in every new store
+
+
+def ensure_experiment(
+    tracking_uri: str, name: str, artifact_root: str | Path, description: str | None = None
+) -> str:
     """Create (if needed) the store and the experiment ``name`` with its artifacts under
-    ``artifact_root``; returns the experiment id. Idempotent; call it from the driver only."""
+    ``artifact_root`` and its ``description``; returns the experiment id. Idempotent; call it from
+    the driver only. A sqlite store's empty Default experiment (its artifacts in a folder that
+    never exists) is deleted, so the UI lists the sweep alone."""
     artifact_location = Path(artifact_root).expanduser().resolve().as_uri()
     db = Path(tracking_uri.removeprefix("sqlite:///")) if tracking_uri.startswith("sqlite:///") else None
     # A new sqlite store that another process (`mlflow ui`, a second driver, a script reading runs)
@@ -119,11 +127,13 @@ def ensure_experiment(tracking_uri: str, name: str, artifact_root: str | Path) -
             with _one_maker(db):  # the store's tables are made on the first call, not by the client
                 client = _client(tracking_uri)
                 experiment = client.get_experiment_by_name(name)
+                if db is not None:
+                    _drop_empty_default(client)
                 if experiment is None:
-                    return client.create_experiment(
-                        name, artifact_location=artifact_location, tags=EXPERIMENT_KIND
-                    )
-            for key, value in EXPERIMENT_KIND.items():  # an experiment made before the tag existed
+                    tags = {**EXPERIMENT_KIND, **({NOTE_TAG: description} if description else {})}
+                    return client.create_experiment(name, artifact_location=artifact_location, tags=tags)
+            wanted = {**EXPERIMENT_KIND, **({NOTE_TAG: description} if description else {})}
+            for key, value in wanted.items():  # an experiment made before the tag existed
                 if experiment.tags.get(key) != value:
                     client.set_experiment_tag(experiment.experiment_id, key, value)
             break
@@ -141,6 +151,13 @@ def ensure_experiment(tracking_uri: str, name: str, artifact_root: str | Path) -
     if experiment.lifecycle_stage == "deleted":
         client.restore_experiment(experiment.experiment_id)
     return experiment.experiment_id
+
+
+def _drop_empty_default(client: MlflowClient) -> None:
+    """Delete the store's Default experiment while it holds no run (MLflow does not make it again)."""
+    default = next((e for e in client.search_experiments() if e.experiment_id == DEFAULT_EXPERIMENT), None)
+    if default is not None and not client.search_runs([DEFAULT_EXPERIMENT], max_results=1):
+        client.delete_experiment(DEFAULT_EXPERIMENT)
 
 
 def runs_page(tracking_uri: str, name: str, ui: str = "http://127.0.0.1:5000") -> str | None:
@@ -164,28 +181,6 @@ def code_tags() -> dict[str, str]:
     commit = git_commit()
     tags = {"mlflow.source.name": "ps-ray", "mlflow.source.type": "JOB"}
     return {**tags, GIT_COMMIT_TAG: commit} if commit else tags
-
-
-def stage_tags(tracking_uri: str, experiment_id: str, sweep: str, stage: str) -> dict[str, str]:
-    """The tags every run of a sweep's stage carries: the sweep, the stage, the source, and the
-    stage's run as its parent (made once, found again by :data:`STAGE_RUN_TAG` on a resume)."""
-    from mlflow.entities import ViewType
-
-    client = _client(tracking_uri)
-    tags = {"ps_ray.sweep": sweep, STAGE_TAG: stage, **code_tags()}
-    found = client.search_runs(
-        [experiment_id],
-        filter_string=f"tags.`{STAGE_RUN_TAG}` = '{stage}'",
-        run_view_type=ViewType.ACTIVE_ONLY,
-        order_by=["attributes.start_time ASC"],
-        max_results=1,
-    )
-    if found:
-        return {**tags, PARENT_TAG: found[0].info.run_id}
-    run_tags = {"ps_ray.sweep": sweep, STAGE_RUN_TAG: stage, **code_tags()}
-    run = client.create_run(experiment_id, run_name=stage, tags=run_tags)
-    client.set_terminated(run.info.run_id, status="FINISHED")  # a folder of runs: it has no work of its own
-    return {**tags, PARENT_TAG: run.info.run_id}
 
 
 def git_commit(cwd: str | Path | None = None) -> str | None:
@@ -226,6 +221,7 @@ class TrialTracker:
         tags: Mapping[str, str],
         client: MlflowClient | None = None,
         once_per_step: bool = False,
+        name: str | None = None,
     ) -> None:
         if not trial_key:
             raise ValueError("trial_key must be a non-empty string")
@@ -241,6 +237,7 @@ class TrialTracker:
         all_tags = {k: str(v)[:MAX_TAG_CHARS] for k, v in tags.items() if v is not None}
         all_tags[TRIAL_KEY_TAG] = trial_key
         flat = flatten_params(params)
+        self.name = self._name(name)
         run = self._find_run()
         if run is None:
             self.run_id = self._create_run(all_tags)
@@ -248,6 +245,8 @@ class TrialTracker:
         else:
             self.run_id = run.info.run_id
             self.resumed = True
+            if run.info.run_name != self.name:  # a run named before the current scheme
+                self.client.update_run(self.run_id, name=self.name)
             for key in run.data.metrics if once_per_step else ():
                 steps = [m.step for m in self.client.get_metric_history(self.run_id, key)]
                 self._last_step[key] = max(steps, default=-1)
@@ -260,12 +259,16 @@ class TrialTracker:
     def _find_run(self):
         return find_run(self.client, self.experiment_id, self.trial_key)
 
-    def _create_run(self, tags: Mapping[str, str]) -> str:
-        """A new run, named as a reader would write its key (``reach q1``, not JSON); the key
-        itself, exact, is its ``ps_ray.trial_key`` tag."""
+    def _name(self, name: str | None) -> str:
+        """``name`` (a record's title, :mod:`ps_ray.specs.titles`), or the key as a reader would
+        write it (``reach q1``, not JSON); the key itself, exact, is the ``ps_ray.trial_key`` tag."""
         from ps_ray.specs.names import readable
+        from ps_ray.specs.titles import MAX_TITLE
 
-        run = self.client.create_run(self.experiment_id, run_name=readable(self.trial_key)[:250], tags=tags)
+        return (name or readable(self.trial_key))[:MAX_TITLE]
+
+    def _create_run(self, tags: Mapping[str, str]) -> str:
+        run = self.client.create_run(self.experiment_id, run_name=self.name, tags=tags)
         return run.info.run_id
 
     def _check_params(self, logged: Mapping[str, str], wanted: Mapping[str, str]) -> None:

@@ -1,0 +1,95 @@
+"""A stage's MLflow run: the parent of the stage's runs, open while the stage runs and closed
+with its summary metrics (:func:`open_stage`)."""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Iterator, Mapping
+from contextlib import contextmanager
+from typing import Any
+
+from ps_ray.store.mlflow_values import _chunks, finite_float, metric_name
+from ps_ray.store.tracking import (
+    MAX_METRICS_PER_CALL,
+    PARENT_TAG,
+    STAGE_RUN_TAG,
+    STAGE_TAG,
+    _client,
+    _first_line,
+    code_tags,
+)
+
+log = logging.getLogger(__name__)
+
+
+class StageRun:
+    """The MLflow run of one stage of a sweep, the parent of the stage's runs: made when the
+    stage first starts, found again (by :data:`STAGE_RUN_TAG`) and set RUNNING on a resume, and
+    ended by :func:`open_stage` when the stage ends, with the summary metrics :meth:`record`
+    gave it. Its duration is the stage's: from its first start to its last end."""
+
+    def __init__(self, tracking_uri: str, experiment_id: str, sweep: str, stage: str) -> None:
+        from mlflow.entities import ViewType
+
+        self.client = _client(tracking_uri)
+        self.sweep, self.stage = sweep, stage
+        self.metrics: dict[str, float] = {}
+        self.status: str | None = None
+        found = self.client.search_runs(
+            [experiment_id],
+            filter_string=f"tags.`{STAGE_RUN_TAG}` = '{stage}'",
+            run_view_type=ViewType.ACTIVE_ONLY,
+            order_by=["attributes.start_time ASC"],
+            max_results=1,
+        )
+        if found:
+            self.run_id = found[0].info.run_id
+            if found[0].info.status != "RUNNING":
+                self.client.update_run(self.run_id, status="RUNNING")
+        else:
+            run_tags = {"ps_ray.sweep": sweep, STAGE_RUN_TAG: stage, **code_tags()}
+            self.run_id = self.client.create_run(experiment_id, run_name=stage, tags=run_tags).info.run_id
+
+    @property
+    def tags(self) -> dict[str, str]:
+        """The tags every run of the stage carries: the sweep, the stage, the source, and this
+        run as its parent."""
+        return {"ps_ray.sweep": self.sweep, STAGE_TAG: self.stage, **code_tags(), PARENT_TAG: self.run_id}
+
+    def record(self, metrics: Mapping[str, Any], status: str = "FINISHED") -> None:
+        """The stage's summary metrics and how it ended, written when it closes."""
+        self.metrics.update({metric_name(k): v for k, v in metrics.items() if finite_float(v) is not None})
+        self.status = status
+
+    def close(self, status: str) -> None:
+        from mlflow.entities import Metric
+
+        stamp = int(time.time() * 1000)
+        metrics = [Metric(k, float(v), stamp, 0) for k, v in self.metrics.items()]
+        for chunk in _chunks(metrics, MAX_METRICS_PER_CALL):
+            self.client.log_batch(self.run_id, metrics=chunk)
+        self.client.set_terminated(self.run_id, status=status, end_time=stamp)
+
+
+@contextmanager
+def open_stage(tracking_uri: str, experiment_id: str, sweep: str, stage: str) -> Iterator[StageRun]:
+    """The stage's run, open while the block runs: closed as :meth:`StageRun.record` said (else
+    FINISHED), or KILLED on Ctrl-C and FAILED on an error that came before any record."""
+    run = StageRun(tracking_uri, experiment_id, sweep, stage)
+    try:
+        yield run
+    except KeyboardInterrupt:
+        _closing(run, run.status or "KILLED")
+        raise
+    except BaseException:
+        _closing(run, run.status or "FAILED")
+        raise
+    _closing(run, run.status or "FINISHED")
+
+
+def _closing(run: StageRun, status: str) -> None:
+    try:
+        run.close(status)
+    except Exception as e:  # noqa: BLE001 - bookkeeping must not hide the stage's own outcome
+        log.warning("MLflow: could not close the %s stage's run: %s", run.stage, _first_line(e))

@@ -49,9 +49,10 @@ def trained_matrix(tmp_path_factory, ray_local, tiny_train):
     return spec
 
 
-def test_zero_shot_matrix_of_a_sweep(trained_matrix):
+def test_zero_shot_matrix_of_a_sweep(trained_matrix, tmp_path):
     spec = trained_matrix
     found = matrix(spec, trained(spec))
+    by_key = {pair.key: pair for pair in found}
     # task module of (region X, arm A) with robot module of (region Y != X, arm B != A)
     assert len(found) == 4
     for pair in found:
@@ -115,6 +116,37 @@ def test_zero_shot_matrix_of_a_sweep(trained_matrix):
         assert tags["ps_ray.robot_module_run"] == train_runs[tags["ps_ray.robot_module"]]
         assert tags["ps_ray.task_module"] != tags["ps_ray.robot_module"]
         assert (tags["ps_ray.device"], tags["ps_ray.cpus"]) == ("cpu", "1")
+        # named by its target first, its description linking its sources' runs by their names
+        pair = by_key[tags["ps_ray.trial_key"]]
+        assert run.info.run_name == pair.title and run.info.run_name.startswith(f"{pair.robot.short}/reach q")
+        task_run = client.get_run(tags["ps_ray.task_module_run"])
+        page = f"#/experiments/{experiment.experiment_id}/runs/{task_run.info.run_id}"
+        link = f"[{task_run.info.run_name}]({page})"
+        assert link in tags["mlflow.note.content"]
+        # it lasts as long as its pair's evaluation, not the few ms of its bookkeeping
+        assert run.info.end_time - run.info.start_time > 250
+        # its artifacts: the stitched policy, loadable, and the per-episode outcomes of the stitch
+        # beside its controls on the same episodes, which the run's figures summarise
+        folder = Path(client.download_artifacts(run.info.run_id, "", str(tmp_path / run.info.run_id)))
+        episodes = pd.read_csv(folder / "episodes.csv")
+        assert len(episodes) == 4 * 2 and episodes["seed"].is_unique
+        assert episodes["success"].mean() == pytest.approx(run.data.metrics["success_mean"])
+        for role in ("robot_source", "task_source", "oracle"):
+            assert episodes[f"{role}_success"].mean() == pytest.approx(run.data.metrics[f"{role}_success"])
+        stitched = folder / "stitched.safetensors"
+        meta = read_signature(stitched)[1]
+        assert (meta["stitched_task_from"], meta["stitched_robot_from"]) == (pair.task_from, pair.robot_from)
+        assert load_policy(stitched)[0].actor is not None  # a whole policy, loadable as any other
+    # the stage's run lasted the stage and holds its summary
+    (stage_run,) = [
+        r for r in client.search_runs([experiment.experiment_id]) if r.info.run_name == "zero_shot"
+    ]
+    assert stage_run.info.status == "FINISHED" and stage_run.data.metrics["ablation.pairs"] == 4
+    assert stage_run.data.metrics["ablation.success"] == pytest.approx(table["success_mean"].mean())
+    zero_shot_runs = [r for r in found_runs if r.data.tags["ps_ray.stage"] == "zero_shot"]
+    assert stage_run.info.end_time >= max(r.info.end_time for r in zero_shot_runs)
+    assert stage_run.info.start_time <= min(r.info.start_time for r in zero_shot_runs)
+    assert [e.name for e in client.search_experiments()] == ["matrix"]  # no empty Default beside it
 
 
 def test_batches_are_even_and_fill_whole_rounds_of_concurrent_trials():

@@ -229,12 +229,21 @@ class MLflowTuneCallback(Callback):
             log.warning("MLflow: could not %s: %s", what, _first_line(e))
 
 
+ROW_STARTED = "row_started"  # when the work of a row began (epoch seconds): its run's start
+
+
+def _ms(seconds: Any) -> int | None:
+    return int(seconds * 1000) if isinstance(seconds, (int, float)) and seconds > 0 else None
+
+
 class RowRunsCallback(Callback):
     """Driver-side: one MLflow run per result row that names ``row_key``, for trials that report
     one row per item (a batch of stitched pairs): the item's run is created (or found again, on a
-    retried batch), its ``metric_keys`` logged at step 0 and the run closed FINISHED at once.
+    retried batch), its ``metric_keys`` logged at step 0 and the run closed FINISHED at once, its
+    times those of the row's work (from ``ROW_STARTED`` in the row to the row's timestamp).
     ``params_fn(name)``, ``tags_fn(name, client)`` and ``name_fn(name)`` (its run name) describe
-    the item; writing metrics and status never raises into Tune, finding or creating the run does
+    the item, the files of the folder a row names under ``artifacts_key`` are its artifacts;
+    writing metrics, artifacts and status never raises into Tune, finding or creating the run does
     (as in MLflowTuneCallback)."""
 
     def __init__(
@@ -248,10 +257,12 @@ class RowRunsCallback(Callback):
         tags: Mapping[str, str],
         tags_fn: Callable[[str, MlflowClient], Mapping[str, str]] | None = None,
         name_fn: Callable[[str], str] | None = None,
+        artifacts_key: str | None = None,
     ) -> None:
         self.tracking_uri = tracking_uri
         self.experiment_id = experiment_id
         self.row_key = row_key
+        self.artifacts_key = artifacts_key
         self.metric_keys = tuple(metric_keys)
         self.params_fn = params_fn
         self.tags = dict(tags)
@@ -282,6 +293,7 @@ class RowRunsCallback(Callback):
             client=self._client_cache,
             once_per_step=True,  # a retried batch reports its pairs again: logged once
             name=self.name_fn(name) if self.name_fn else None,
+            start_ms=_ms(result.get(ROW_STARTED)),  # the run lasts as long as its item's work
         )
         stamp = result.get("timestamp")
         tracker.log_metrics(
@@ -289,4 +301,7 @@ class RowRunsCallback(Callback):
             step=0,
             timestamp_ms=int(stamp * 1000) if stamp else None,
         )
-        MLflowTuneCallback._guard(f"close run of {name}", tracker.close, "FINISHED")
+        folder = Path(result.get(self.artifacts_key) or "") if self.artifacts_key else None
+        for path in sorted(folder.iterdir()) if folder and folder.is_dir() else ():
+            MLflowTuneCallback._guard(f"log artifact {path}", tracker.log_artifact, path)
+        MLflowTuneCallback._guard(f"close run of {name}", tracker.close, "FINISHED", _ms(stamp))

@@ -17,6 +17,8 @@ batch; each pair is still one result row and one MLflow run.
 from __future__ import annotations
 
 import dataclasses
+import time
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -74,6 +76,7 @@ def check_sources(trials: list[StitchedPair]) -> None:
 
 
 PAIR_KEY = "pair_key"  # names the stitched pair of a batched trial's result row
+PAIR_FILES = "pair_files"  # and the folder of its stitched policy and per-episode outcomes
 
 
 def zero_shot_trial(config: dict[str, Any]) -> None:
@@ -83,7 +86,9 @@ def zero_shot_trial(config: dict[str, Any]) -> None:
     from ray import tune
 
     from ps_ray.nets.policy_file import load_policy
-    from ps_ray.store.attempts import FINISHED
+    from ps_ray.pipeline.tune_tracking import ROW_STARTED
+    from ps_ray.stitching.pair_files import pair_folder
+    from ps_ray.store.attempts import FINISHED, STAGE_DIR_KEY
 
     loaded: dict[str, Any] = {}
     scored: dict[tuple, dict] = {}  # the controls' evaluations, shared by a pair's translations
@@ -97,10 +102,12 @@ def zero_shot_trial(config: dict[str, Any]) -> None:
     for i, pair in enumerate(map(StitchedPair.from_dict, batch)):
         episodes = pair_episodes(pair, **config["eval"])
         chance = config["chance"][target_key(pair, episodes)]
+        keep, started = pair_folder(config[STAGE_DIR_KEY], pair.key), time.time()
         metrics = evaluate_pair(
-            pair, episodes, config["fit_states_per_quadrant"], source, chance, config["outcome"], scored
+            pair, episodes, config["fit_states_per_quadrant"], source, chance, config["outcome"], scored, keep
         )
-        tune.report({**metrics, PAIR_KEY: pair.key, **({FINISHED: True} if i == len(batch) - 1 else {})})
+        last = {FINISHED: True} if i == len(batch) - 1 else {}
+        tune.report({**metrics, PAIR_KEY: pair.key, PAIR_FILES: str(keep), ROW_STARTED: started, **last})
 
 
 def chance_levels(trials: list[StitchedPair], settings: dict[str, int], progress: bool) -> dict[str, dict]:
@@ -136,6 +143,7 @@ def evaluate_pair(
     chance: dict[str, Any],
     outcome: dict[str, Any] | None = None,
     scored: dict[tuple, dict] | None = None,
+    keep: Path | None = None,
 ) -> dict:
     """Stitch one pair (translated, if the pair says so), evaluate it, then each of its controls as it is,
     all on the pair's fixed episodes (``settings``: ``evaluate``'s episodes, repeats and first reset
@@ -143,7 +151,8 @@ def evaluate_pair(
     level and task-blind floor of the pair's target env on those episodes (:func:`chance_levels`),
     ``outcome`` the scenes, reference points, cache folder, k-means ``seed`` and first reset seed of
     the fit states (``fit_seed``) of a translation, ``scored`` the controls' evaluations so far (by
-    file and target env), to reuse."""
+    file and target env), to reuse; ``keep``: a folder for the stitched policy and its per-episode
+    outcomes beside the controls' (:mod:`ps_ray.stitching.pair_files`)."""
     from ps_ray.stitching.evaluate import evaluate
     from ps_ray.stitching.outcomes import fit_cost, fit_pairs, matched_anchors
     from ps_ray.stitching.stitch import stitch_policies, translation_ridge
@@ -182,11 +191,12 @@ def evaluate_pair(
         metrics["fit_env_steps"] = fit_cost(kind, fit, sources[0], outcome["scenes"], n_anchors, cache)
     else:
         metrics["fit_env_steps"] = 0
+    controls = {}
     for role, control in pair.controls.items():
         key = (control.path, pair.robot.text, pair.task.text, settings["seed"])
         if key not in scored:  # the translated stitches of a pair share its controls
             scored[key] = evaluate(source(control.path), pair.robot, pair.task, **settings)
-        unstitched = scored[key]
+        controls[role] = unstitched = scored[key]
         if unstitched["episodes_digest"] != result["episodes_digest"]:  # a bug, never bad input
             raise RuntimeError(f"{pair.key}: its {role} control ran on other episodes")
         metrics[f"{role}_success"] = unstitched["success_mean"]
@@ -194,6 +204,14 @@ def evaluate_pair(
         raise RuntimeError(f"{pair.key}: its chance level was measured on other episodes")
     for key in ("chance_success", "task_blind_success", "task_blind_wrong_target"):
         metrics[key] = chance.get(key, np.nan)
+    if keep is not None:
+        from ps_ray.stitching.pair_files import episodes_table, write_pair_files
+        from ps_ray.stitching.stitch import stitch_metadata
+
+        extra = stitch_metadata(pair.task_from, pair.robot_from)
+        if ridge is not None:
+            extra["translation_ridge"] = f"{ridge:.6g}"
+        write_pair_files(keep, *stitched, extra, episodes_table(result, controls))
     return {**metrics, **gain(metrics)}
 
 
@@ -297,6 +315,7 @@ def _evaluate(
         },
         tags_fn=lambda key, client: _tags(client, experiment_id, by_key[key]),
         name_fn=lambda key: by_key[key].title,
+        artifacts_key=PAIR_FILES,
     )
     batches = _batches(todo, settings.batch_sizes(len(todo), spec.max_concurrent))
     results = run_trials(

@@ -222,6 +222,7 @@ class TrialTracker:
         client: MlflowClient | None = None,
         once_per_step: bool = False,
         name: str | None = None,
+        start_ms: int | None = None,
     ) -> None:
         if not trial_key:
             raise ValueError("trial_key must be a non-empty string")
@@ -240,7 +241,7 @@ class TrialTracker:
         self.name = self._name(name)
         run = self._find_run()
         if run is None:
-            self.run_id = self._create_run(all_tags)
+            self.run_id = self._create_run(all_tags, start_ms)
             self.resumed = False
         else:
             self.run_id = run.info.run_id
@@ -267,8 +268,8 @@ class TrialTracker:
 
         return (name or readable(self.trial_key))[:MAX_TITLE]
 
-    def _create_run(self, tags: Mapping[str, str]) -> str:
-        run = self.client.create_run(self.experiment_id, run_name=self.name, tags=tags)
+    def _create_run(self, tags: Mapping[str, str], start_ms: int | None) -> str:
+        run = self.client.create_run(self.experiment_id, start_time=start_ms, run_name=self.name, tags=tags)
         return run.info.run_id
 
     def _check_params(self, logged: Mapping[str, str], wanted: Mapping[str, str]) -> None:
@@ -332,12 +333,13 @@ class TrialTracker:
         """``data`` as a JSON (or YAML, by suffix) artifact, e.g. the resolved config."""
         self.client.log_dict(self.run_id, data, artifact_file)
 
-    def close(self, status: str = "FINISHED") -> None:
-        """Flush and mark the run ``status`` (FINISHED, FAILED or KILLED)."""
+    def close(self, status: str = "FINISHED", end_ms: int | None = None) -> None:
+        """Flush and mark the run ``status`` (FINISHED, FAILED or KILLED), ended at ``end_ms``
+        (default: now)."""
         if status not in TERMINAL_STATUSES:
             raise ValueError(f"status must be one of {', '.join(TERMINAL_STATUSES)}, got {status!r}")
         self.flush()
-        self.client.set_terminated(self.run_id, status=status)
+        self.client.set_terminated(self.run_id, status=status, end_time=end_ms)
 
 
 def find_run(client: MlflowClient, experiment_id: str, trial_key: str):
@@ -357,15 +359,23 @@ def find_run(client: MlflowClient, experiment_id: str, trial_key: str):
 def source_tags(client: MlflowClient, experiment_id: str, task_from: str, robot_from: str, policy) -> dict:
     """Tags linking a stitched policy's run to the training runs of its two sources (by their
     trial keys; a co-trained cell's, to its grid's run) and naming its anchor set (from
-    ``policy``, a stitched or source policy file)."""
+    ``policy``, a stitched or source policy file); its description links the two runs by name."""
     from ps_ray.specs.grid import grid_run_of
     from ps_ray.store.signature import read_signature
 
     tags = {TASK_SOURCE_TAG: task_from, ROBOT_SOURCE_TAG: robot_from}
-    for key, tag in ((task_from, TASK_SOURCE_RUN_TAG), (robot_from, ROBOT_SOURCE_RUN_TAG)):
+    links = []
+    for key, tag, half in (
+        (task_from, TASK_SOURCE_RUN_TAG, "task module"),
+        (robot_from, ROBOT_SOURCE_RUN_TAG, "robot module"),
+    ):
         run = find_run(client, experiment_id, grid_run_of(key) or key)  # a co-trained cell: its grid's
         if run is not None:
             tags[tag] = run.info.run_id
+            page = f"#/experiments/{experiment_id}/runs/{run.info.run_id}"
+            links.append(f"the {half} of [{run.info.run_name}]({page})")
+    if links:
+        tags[NOTE_TAG] = "Stitched from " + " and ".join(links) + "."
     anchor_hash = read_signature(policy)[0].anchor_hash
     if anchor_hash:
         tags[ANCHOR_HASH_TAG] = anchor_hash

@@ -11,15 +11,18 @@ from contextlib import closing
 from pathlib import Path
 
 import mlflow
+import numpy as np
 import pytest
 import yaml
 
+from ps_ray.nets.policy import GreedyPolicy
 from ps_ray.nets.policy_file import load_policy
 from ps_ray.pipeline.sweep import sweep_dir
 from ps_ray.specs.sweep import load_sweep
 from ps_ray.store.attempts import START_STEPS
 from ps_ray.store.checkpoint import latest as latest_checkpoint
 from ps_ray.store.layout import sweep_layout
+from ps_ray.store.policy_models import example_observation
 from ps_ray.store.tracking import git_commit
 
 
@@ -111,6 +114,14 @@ def test_sweep_tracks_one_mlflow_run_per_trial_with_artifacts(tmp_path, cli, tin
         assert all(step == value for step, value in steps) and len({s for s, _ in steps}) == len(steps)
         artifacts = {a.path for a in client.list_artifacts(run.info.run_id)}
         assert {"policy.safetensors", "signature.json", "spec.json"} <= artifacts
+    # each source is a logged MLflow model: loaded by its run's URI, it acts as its policy file does
+    run = found["ablation/panda/reach/1/i8"]
+    mlflow.set_tracking_uri(f"sqlite:///{sweep_dir(load_sweep(path)) / 'mlflow.db'}")
+    model = mlflow.pyfunc.load_model(f"runs:/{run.info.run_id}/policy")
+    obs = example_observation("panda", "reach")
+    policy = client.download_artifacts(run.info.run_id, "policy.safetensors", str(tmp_path))
+    assert np.allclose(model.predict(obs), GreedyPolicy.from_file(policy)(obs), atol=1e-6)
+    assert model.metadata.get_input_schema().input_names() == list(obs)  # the env's observation
     ps_artifacts = {a.path for a in client.list_artifacts(found["ps/panda/reach/1/i8"].info.run_id)}
     assert any(a.startswith("anchors_3d") for a in ps_artifacts)
     # a consolidating method's trial consolidates once it is done, before its last checkpoint;

@@ -272,6 +272,7 @@ def run_tune(
             metric_keys=METRIC_KEYS + ("final_success", "final_touching"),
             tags={**stage_run.tags, **device_tags(resources)},
             artifacts_fn=artifacts_fn or _trial_artifacts,
+            model_fn=_trial_model if spec.log_models and stage == "train" else None,
             **({"key_fn": key_fn} if key_fn else {}),
             name_fn=name_fn or _title,
             params_fn=lambda trial: relative_paths((params_fn or default_params_fn)(trial), sweep_dir(spec)),
@@ -305,6 +306,13 @@ def run_tune(
 def _title(trial) -> str:
     """A training trial's MLflow run name (:attr:`TrainTrial.title`)."""
     return TrainTrial.of(trial.config["trial"]).title
+
+
+def _trial_model(trial) -> tuple[Path, Any, Any] | None:
+    """A finished source's policy file and env, to log as its run's MLflow model."""
+    policy = Path(trial.checkpoint.path) / POLICY_FILE if trial.checkpoint is not None else None
+    spec = TrainTrial.of(trial.config["trial"]).spec
+    return (policy, spec.robot, spec.task) if policy is not None and policy.exists() else None
 
 
 def _trial_artifacts(trial) -> list[Path]:

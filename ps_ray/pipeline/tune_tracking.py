@@ -88,6 +88,8 @@ class MLflowTuneCallback(Callback):
     Errors while writing metrics, artifacts or status are logged as warnings, never raised into
     Tune: a sweep does not die for its bookkeeping (unflushed metrics are retried at the next
     flush). Finding or creating a trial's run does raise (e.g. its key's run has other params).
+    ``model_fn(trial)``: a finished trial's (policy file, robot, task), logged as the run's MLflow
+    model (:mod:`ps_ray.store.policy_models`), or None.
     """
 
     def __init__(
@@ -103,6 +105,7 @@ class MLflowTuneCallback(Callback):
         tags_fn: Callable[[Trial, MlflowClient], Mapping[str, str]] | None = None,
         flush_every: int = 20,
         artifacts_fn: Callable[[Trial], list[Path]] | None = None,
+        model_fn: Callable[[Trial], tuple[Path, Any, Any] | None] | None = None,
         step_key: str = "training_iteration",
         flush_secs: float = 60.0,
         once_per_step: bool = False,
@@ -122,6 +125,7 @@ class MLflowTuneCallback(Callback):
         self.flush_every = flush_every
         self.flush_secs = flush_secs
         self.artifacts_fn = artifacts_fn
+        self.model_fn = model_fn
         self.step_key = step_key
         self.once_per_step = once_per_step
         self._trackers: dict[str, TrialTracker] = {}
@@ -202,6 +206,13 @@ class MLflowTuneCallback(Callback):
         if self.artifacts_fn is not None:
             for path in self.artifacts_fn(trial):
                 self._guard(f"log artifact {path}", tracker.log_artifact, path)
+        model = self.model_fn(trial) if self.model_fn is not None else None
+        if model is not None:  # (policy file, robot, task)
+            from ps_ray.store.policy_models import log_policy_model
+
+            self._guard(
+                "log the policy as a model", log_policy_model, self.tracking_uri, tracker.run_id, *model
+            )
         self._close(trial, "FINISHED")
 
     def on_trial_error(self, iteration: int, trials: list[Trial], trial: Trial, **info: Any) -> None:

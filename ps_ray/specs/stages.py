@@ -47,6 +47,7 @@ NOT_TRAINING = (
     "max_concurrent",
     "max_failures",
     "description",
+    "log_models",
 )
 
 

@@ -17,12 +17,12 @@ import yaml
 
 from ps_ray.nets.policy import GreedyPolicy
 from ps_ray.nets.policy_file import load_policy
+from ps_ray.pipeline.policy_models import example_observation
 from ps_ray.pipeline.sweep import sweep_dir
 from ps_ray.specs.sweep import load_sweep
 from ps_ray.store.attempts import START_STEPS
 from ps_ray.store.checkpoint import latest as latest_checkpoint
 from ps_ray.store.layout import sweep_layout
-from ps_ray.store.policy_models import example_observation
 from ps_ray.store.tracking import git_commit
 
 

@@ -89,7 +89,7 @@ class MLflowTuneCallback(Callback):
     Tune: a sweep does not die for its bookkeeping (unflushed metrics are retried at the next
     flush). Finding or creating a trial's run does raise (e.g. its key's run has other params).
     ``model_fn(trial)``: a finished trial's (policy file, robot, task), logged as the run's MLflow
-    model (:mod:`ps_ray.store.policy_models`), or None.
+    model (:mod:`ps_ray.pipeline.policy_models`), or None.
     """
 
     def __init__(
@@ -208,7 +208,7 @@ class MLflowTuneCallback(Callback):
                 self._guard(f"log artifact {path}", tracker.log_artifact, path)
         model = self.model_fn(trial) if self.model_fn is not None else None
         if model is not None:  # (policy file, robot, task)
-            from ps_ray.store.policy_models import log_policy_model
+            from ps_ray.pipeline.policy_models import log_policy_model
 
             self._guard(
                 "log the policy as a model", log_policy_model, self.tracking_uri, tracker.run_id, *model

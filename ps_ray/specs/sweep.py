@@ -69,7 +69,7 @@ class SweepSpec:
     tracking_uri: str | None = None  # default: sqlite under <storage>/<name>/
     # what the sweep is for, the MLflow experiment's description (default: the file's header)
     description: str = ""
-    log_models: bool = True  # each source's policy as a logged MLflow model (ps_ray.store.policy_models)
+    log_models: bool = True  # each source's policy as a logged MLflow model (ps_ray.pipeline.policy_models)
 
     def __post_init__(self) -> None:
         if not isinstance(self.name, str) or not self.name.replace("_", "").replace("-", "").isalnum():

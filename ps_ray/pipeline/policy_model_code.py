@@ -1,7 +1,7 @@
 """MLflow's "model from code" of a ps_ray policy: the file MLflow runs (never unpickles) when a
 logged policy is loaded with ``mlflow.pyfunc.load_model(uri)``; ``predict(obs)`` maps a batch of
 Dict observations (``task_state``, ``desired_goal``, ``robot_state``: each a 2-D array, one row
-per observation) to the greedy actions. Logged by :func:`ps_ray.store.policy_models.log_policy_model`;
+per observation) to the greedy actions. Logged by :func:`ps_ray.pipeline.policy_models.log_policy_model`;
 not imported by ps_ray itself (it registers the model with MLflow when it runs)."""
 
 from __future__ import annotations

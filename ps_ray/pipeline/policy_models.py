@@ -1,4 +1,4 @@
-"""A trained policy as a logged MLflow model (pyfunc, from code: :mod:`ps_ray.store.policy_model_code`),
+"""A trained policy as a logged MLflow model (pyfunc, from code: :mod:`ps_ray.pipeline.policy_model_code`),
 so ``mlflow.pyfunc.load_model("runs:/<run>/policy")`` and the model registry can use it, with an
 input example (a real observation of the policy's own env) and the signature inferred from it."""
 

@@ -246,7 +246,7 @@ def pytest_collection_modifyitems(items):
     items.sort(key=lambda item: rank.get(item.path.name, len(rank)))
 
 
-def wait_until_serving(base: str, server: subprocess.Popen, what: str, timeout: float = 120) -> None:
+def wait_until_serving(base: str, server: subprocess.Popen, what: str, timeout: float = 300) -> None:
     """Poll ``<base>/health`` until the server answers; fail if it exited or the time ran out."""
     deadline = time.time() + timeout
     while True:

@@ -10,8 +10,9 @@ import pytest
 from ps_ray.plan import few_shot, grid, train, zero_shot
 from ps_ray.plan.catalogue import planned
 from ps_ray.specs.grid import GridSpec
+from ps_ray.specs.names import readable
 from ps_ray.specs.sweep import load_sweep
-from ps_ray.specs.titles import MAX_TITLE, SEP
+from ps_ray.specs.titles import ANCHOR_POLICY, MAX_TITLE, SEP, title
 from ps_ray.specs.train import TrainSpec
 from ps_ray.specs.trial import TrainTrial
 
@@ -63,3 +64,22 @@ def test_every_run_of_a_shipped_sweep_has_its_own_title_without_its_stage(name):
         seeds = str(pair.seed) if pair.pairing == "same_seed" else f"{pair.seed}x{pair.robot_seed}"
         assert pair.title.split(SEP)[1:3] == [pair.method, seeds], pair.title
         assert " t: " in f" {pair.title}" and ", r: " in pair.title
+
+
+@pytest.mark.parametrize("name", SWEEPS)
+def test_every_source_is_found_by_the_name_mlflow_and_the_report_print_for_it(name):
+    """One spelling of a trial: the name a source's MLflow run shows and its key as the report and
+    ``--check`` write it (``reach q1``) both lead back to the same module, for every source of a
+    shipped sweep (``ps-ray stitch --task-from`` looks keys up through the zoo)."""
+    spec = load_sweep(Path(__file__).parents[1] / "sweeps" / f"{name}.yaml")
+    zoo = planned(spec)
+    for trial in train.plan(spec) if "train" in spec.stages else ():
+        if trial.key:  # a search's setting: its own run, not a source
+            continue
+        entry = zoo.get(trial.spec.label())
+        assert zoo.get(trial.title) is entry and zoo.get(readable(trial.spec.label())) is entry
+    for trial in train.plain_sources(spec) if "train" in spec.stages else ():
+        entry = zoo.get(trial.spec.label())
+        assert zoo.get(title(trial.title, ANCHOR_POLICY)) is entry
+    for entry in zoo:
+        assert all(zoo.get(spelling) is entry for spelling in entry.names), entry.names

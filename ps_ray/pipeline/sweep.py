@@ -19,7 +19,7 @@ from ps_ray.plan.train import anchor_file
 from ps_ray.specs import reset_seeds
 from ps_ray.specs.stages import stage as stage_record
 from ps_ray.specs.sweep import SweepSpec, anchor_sources, task_input_dim
-from ps_ray.specs.titles import title
+from ps_ray.specs.titles import ANCHOR_POLICY, title
 from ps_ray.specs.trial import GridTrial, TrainTrial
 from ps_ray.store.layout import SweepLayout, sweep_dir
 from ps_ray.store.run_layout import METRIC_FIELDS, POLICY_FILE, SIGNATURE_FILE, SPEC_FILE
@@ -206,7 +206,7 @@ def run_sweep(spec: SweepSpec, *, resume: bool = False, progress: bool = True):
             stage="anchors_plain",
             # its own runs: the same plain spec may also be a trial of the sweep
             key_fn=lambda trial: "anchors_plain/" + default_key_fn(trial),
-            name_fn=lambda trial: title(_title(trial), "plain policy for the anchor states"),
+            name_fn=lambda trial: title(_title(trial), ANCHOR_POLICY),
             **tune_args,
         )
         raise_on_errors(results, "plain source policies")

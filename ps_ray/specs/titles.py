@@ -13,6 +13,7 @@ from ps_ray.specs.defaults import INTERFACE_DIM
 from ps_ray.specs.names import readable, short_name
 
 SEP = " · "
+ANCHOR_POLICY = "plain policy for the anchor states"  # what an anchor policy's run name ends with
 MAX_TITLE = 250  # MLflow's run-name limit
 
 

@@ -28,7 +28,8 @@ from typing import TYPE_CHECKING, Any
 
 from ps_ray.errors import UserError
 from ps_ray.specs.methods import method_key
-from ps_ray.specs.names import EnvPart, short_name, trial_key
+from ps_ray.specs.names import EnvPart, readable, short_name, trial_key
+from ps_ray.specs.titles import ANCHOR_POLICY, env_title, title, width_tag
 from ps_ray.store.layout import SweepLayout
 from ps_ray.store.run_layout import GRID_FILE, POLICY_FILE, SPEC_FILE, cell_policy_file, cell_spec_file
 from ps_ray.store.signature import Signature, read_signature
@@ -70,6 +71,18 @@ class ZooEntry:
     signature: Signature
     spec: Mapping[str, Any]
     stage: str  # "train", "plain_source" or "run"
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        """Every spelling a command takes for it: its key, the key as a reader writes it
+        (``reach q1``), and, for a source trained alone, its MLflow run's name
+        (:mod:`ps_ray.specs.titles`)."""
+        key = self.key
+        names = [str(key), readable(str(key))]
+        if not key.grid:
+            base = title(env_title(key.robot, key.task), key.method, key.seed, width_tag(key.interface_dim))
+            names.append(title(base, ANCHOR_POLICY) if self.stage == "plain_source" else base)
+        return tuple(dict.fromkeys(names))
 
     @property
     def robot(self) -> EnvPart:
@@ -142,6 +155,7 @@ class ModuleZoo:
     def __init__(self, entries: Iterable[ZooEntry] = (), problems: Iterable[str] = ()) -> None:
         self._entries: dict[ZooKey, ZooEntry] = {}
         self._by_name: dict[str, ZooEntry] = {}  # by trial key: a lookup is one dict read
+        self._by_alias: dict[str, ZooEntry | None] = {}  # by another spelling (None: two share it)
         self.problems = list(problems)
         for entry in entries:
             self._add(entry)
@@ -150,6 +164,9 @@ class ModuleZoo:
         old = self._entries.get(entry.key)
         if old is None or _preference(entry) < _preference(old):
             self._entries[entry.key] = self._by_name[str(entry.key)] = entry
+            for name in entry.names[1:]:
+                other = self._by_alias.get(name, entry)  # absent: this entry's
+                self._by_alias[name] = entry if other is not None and other.key == entry.key else None
 
     @classmethod
     def from_sweep(cls, *sweep_dirs: str | Path, strict: bool = True) -> ModuleZoo:
@@ -205,6 +222,8 @@ class ModuleZoo:
         by_name = self._by_name
         if str(key) in by_name:
             return by_name[str(key)]
+        if self._by_alias.get(str(key)) is not None:  # as MLflow, --check or the report print it
+            return self._by_alias[str(key)]
         close = difflib.get_close_matches(str(key), sorted(by_name), n=5, cutoff=0.5)
         hint = (
             f"close keys: {', '.join(close)}"

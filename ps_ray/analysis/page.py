@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import base64
 import html
+import re
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
@@ -70,6 +71,10 @@ class Report:
         (frame if numbers is None else numbers).to_csv(path)
         section.items.append(("table", (caption, frame)))
 
+    def shown(self, section: Section, caption: str, frame: pd.DataFrame) -> None:
+        """A table for the page only: another view of a table already saved (a wide one split)."""
+        section.items.append(("table", (caption, frame)))
+
 
 STYLE = """
 body { font-family: system-ui, sans-serif; margin: 2em auto; max-width: 1200px; color: #222; }
@@ -81,6 +86,12 @@ img { max-width: 100%; display: block; margin: 1em 0; } .meta td { text-align: l
 .clips td { text-align: left; vertical-align: top; width: 240px; } .clips img { margin: 0; }
 .caption { font-size: 0.8em; } .wide { overflow-x: auto; max-width: 100%; }
 """
+
+
+def prose(text: str) -> str:
+    """A section's text as HTML: escaped, and `code` spans (as the notes and the README write
+    commands and names) set as code, not left as literal backticks."""
+    return re.sub(r"`([^`]+)`", r"<code>\1</code>", html.escape(text))
 
 
 def render_html(spec: SweepSpec, report: Report) -> str:
@@ -113,7 +124,7 @@ def render_html(spec: SweepSpec, report: Report) -> str:
         + "</ul>"
     )
     for index, section in enumerate(report.sections):
-        parts.append(f"<h2 id='s{index}'>{esc(section.title)}</h2><p>{esc(section.intro)}</p>")
+        parts.append(f"<h2 id='s{index}'>{esc(section.title)}</h2><p>{prose(section.intro)}</p>")
         for kind, item in section.items:
             if kind == "figure":
                 data = base64.b64encode(item.read_bytes()).decode()

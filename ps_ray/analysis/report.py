@@ -304,23 +304,24 @@ def _transfer(report: Report, table: pd.DataFrame, episodes: int) -> None:
         "Each stitched pair (task module of (X, Ra), robot module of (Y, Rb), run on (X, Rb)) beside "
         "its robot source run on (X, Rb), its task source run on robot Rb, the oracle trained on "
         "(X, Rb), chance (no task knowledge: a random point of the target region; random actions) "
-        "and the task-blind floor (every task of the scene but not told which: a candidate target "
-        "drawn at random; absent where the tasks do not share a scene), all on the pair's episodes. "
-        "Wrong target: ended at a target the task does not name. Transfer gain: stitched minus the "
-        "best of the sources, chance and the floor, per seed; t interval over seeds and sign-flip "
-        "p-value; the gain over the sources and chance alone beside it. Cross-seed units (seed i's "
+        "and the task-blind floor (every task of the scene but not told which: each episode driven "
+        "to every candidate target in turn, averaged, so no draw; absent where the tasks do not "
+        "share a scene), all on the pair's episodes, each seed on scenes of its own. Wrong target: "
+        "ended at a target the task does not name. Transfer gain: stitched minus the best of the "
+        "sources, chance and the floor, per seed; t interval over seeds (success rates on the logit "
+        "scale, so they stay in [0, 1]) and, from six seeds, a sign-flip p-value (fewer: the count "
+        "of seeds up); the gain over the sources and chance alone beside it. Cross-seed units (seed i's "
         "task modules, seed i+1's robot modules) share runs: their intervals are widened for it, "
         "without a p-value. Rows that read the task's target (@swapped) are upper bounds, last. "
         "Pairs surely above / below: by more than their episodes' 95% interval (Newcombe's).",
         first=True,
     )
-    report.table(
-        section,
-        "transfer",
-        "Stitched success, its controls and the transfer gain, per method and pairing",
-        transfer.transfer_text(numbers),
-        numbers=numbers,
-    )
+    text = transfer.transfer_text(numbers)  # split in two, so that each fits the page's width
+    split = list(text.columns).index("wrong target (stitched)") + 1
+    caption = "Stitched success beside its controls, per method and pairing"
+    report.table(section, "transfer", caption, text.iloc[:, :split], numbers=numbers)
+    gains = text[["result", "seeds", *text.columns[split:]]]
+    report.shown(section, "The transfer gain over those controls, per method and pairing", gains)
     report.figure(section, "transfer_gain", lambda p: plots.transfer_gain_bars(table, p))
     report.figure(section, "transfer_controls", lambda p: plots.controls_bars(numbers, p))
     co_trained = transfer.co_training_numbers(table)

@@ -92,8 +92,11 @@ def summary_section(report: Report, spec: SweepSpec, target: float) -> None:
         steps = h.steps
         if steps is not None and method in steps.index:
             r = steps.loc[method]
+            reached, runs = int(r["reached"]), int(r["runs"])
             row[f"env steps to {target:.2f}"] = (
-                f"{r['steps_mean']:.0f} ({int(r['reached'])}/{int(r['runs'])} reached)"
+                f"not within {r['steps_mean']:.0f} (0/{runs} runs)"
+                if reached == 0
+                else f"{r['steps_mean']:.0f} ({reached}/{runs} runs reached it)"
             )
         src = h.sources
         if src is not None and (src["method"] == method).any():
@@ -124,7 +127,8 @@ def summary_section(report: Report, spec: SweepSpec, target: float) -> None:
         "Summary",
         budget + "Zero-shot: stitched pairs in their target env, no "
         "training; 95% t intervals over per-seed means (fewer than two seeds: n/a). Transfer gain: "
-        "stitched success minus the best of the unstitched sources and chance on the same episodes. "
+        "stitched success minus the best of the unstitched sources, chance and the task-blind floor "
+        "on the same episodes. "
         "MRR: retrieval of the same probe state across networks (1 = perfect; chance with "
         f"{probes} probes: {chance_mrr(probes):.3f}; a collapsed interface cannot score).",
     )

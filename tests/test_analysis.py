@@ -374,3 +374,10 @@ def test_task_variants_are_named_as_a_reader_would_in_tables_and_plots():
     assert readable('push{"friction":0.1,"rocks":true}') == "push friction=0.1 rocks=true"
     assert readable("ps/panda/reach_red/401") == "ps/panda/reach_red/401"  # no variant: unchanged
     assert readable("x{not json}") == "x{not json}"
+
+
+def test_a_sections_text_sets_backticked_names_as_code_and_escapes_the_rest():
+    from ps_ray.analysis.page import prose
+
+    assert prose("run `ps-ray demo` <now>") == "run <code>ps-ray demo</code> &lt;now&gt;"
+    assert "`" not in prose("`a` and `b@c`") and prose("`a` and `b@c`").count("<code>") == 2

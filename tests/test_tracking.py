@@ -18,12 +18,10 @@ from mlflow.entities import ViewType
 
 from ps_ray.pipeline.tune_tracking import (
     MLflowTuneCallback,
-    default_key_fn,
-    default_params_fn,
     lookup,
-    spec_key,
 )
-from ps_ray.store.mlflow_values import relative_paths
+from ps_ray.specs.names import trial_key
+from ps_ray.store.mlflow_values import flatten_params, relative_paths
 from ps_ray.store.stage_run import open_stage
 from ps_ray.store.tracking import (
     NOTE_TAG,
@@ -372,39 +370,31 @@ def test_tracker_artifacts(store, tmp_path):
 
 
 def test_spec_key_and_lookup():
-    assert spec_key({"method": "ps", "robot": "panda", "task": "reach", "seed": 3}) == "ps/panda/reach/3"
+    assert trial_key({"method": "ps", "robot": "panda", "task": "reach", "seed": 3}) == "ps/panda/reach/3"
     assert (
-        spec_key({"method": "ps", "robot": {"name": "panda"}, "task": "push", "seed": 3}) == "ps/panda/push/3"
+        trial_key({"method": "ps", "robot": {"name": "panda"}, "task": "push", "seed": 3})
+        == "ps/panda/push/3"
     )
-    locked = spec_key(
+    locked = trial_key(
         {"method": "ps", "robot": {"name": "panda", "locked_joints": [1]}, "task": "reach", "seed": 3}
     )
     assert locked == 'ps/panda{"locked_joints":[1]}/reach/3'
-    long = spec_key({"method": "ps", "robot": {"name": "panda", "x": "y" * 100}, "task": "reach", "seed": 3})
+    long = trial_key({"method": "ps", "robot": {"name": "panda", "x": "y" * 100}, "task": "reach", "seed": 3})
     assert long.startswith("ps/panda#") and len(long) < 40
     result = {"a": {"b": 1}, "c/d": 2, "e": 3}
     assert lookup(result, "a/b") == 1 and lookup(result, "c/d") == 2 and lookup(result, "e") == 3
     assert lookup(result, "a/zz") is None and lookup(result, "zz") is None
 
 
-def test_default_key_and_params_from_trial_config():
-    from ray.tune.experiment import Trial
-
-    spec = {"method": "ps", "robot": {"name": "panda"}, "task": "reach", "seed": 5}
-    for config in ({"spec": spec, "marker": "x"}, {"trial": {"spec": spec, "anchors": None}}):
-        trial = Trial("__fake", config=config, stub=True)
-        assert default_key_fn(trial) == "ps/panda/reach/5"
-        assert default_params_fn(trial) == {
-            "method": "ps",
-            "robot.name": "panda",
-            "task": "reach",
-            "seed": "5",
-        }
-    with pytest.raises(ValueError, match="has no config\\['spec'\\] mapping"):
-        default_key_fn(Trial("__fake", config={"lr": 1}, stub=True))
-
-
 # ------------------------------------------------------------------------- Tune
+
+
+def _spec_key(trial) -> str:
+    return trial_key(trial.config["spec"])
+
+
+def _spec_params(trial) -> dict[str, str]:
+    return flatten_params(trial.config["spec"])
 
 
 def _trainable(config):
@@ -451,6 +441,8 @@ def test_tune_callback_one_run_per_trial_across_restore_and_rerun(store, tmp_pat
         store["uri"],
         exp,
         metric_keys=["score", "eval/success", "absent"],
+        key_fn=_spec_key,
+        params_fn=_spec_params,
         tags={"ps_ray.stage": "train"},
         flush_every=2,
         artifacts_fn=_summary_file,
@@ -506,7 +498,14 @@ def test_a_checkpoint_flushes_the_trials_metrics(store):
 
     exp = new_experiment(store, "checkpoint-flush")
     callback = MLflowTuneCallback(
-        store["uri"], exp, metric_keys=["score"], flush_every=1000, flush_secs=1e9, step_key="iteration"
+        store["uri"],
+        exp,
+        metric_keys=["score"],
+        key_fn=_spec_key,
+        params_fn=_spec_params,
+        flush_every=1000,
+        flush_secs=1e9,
+        step_key="iteration",
     )
     trial = Trial(
         "__fake", config={"spec": {"method": "ps", "robot": "panda", "task": "reach", "seed": 9}}, stub=True

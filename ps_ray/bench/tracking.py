@@ -23,6 +23,8 @@ from pathlib import Path
 
 from ps_ray.cli.args import Parser, positive_int
 from ps_ray.pipeline.tune_tracking import MLflowTuneCallback
+from ps_ray.specs.names import trial_key
+from ps_ray.store.mlflow_values import flatten_params
 from ps_ray.store.tracking import default_tracking_uri, ensure_experiment
 
 SPEC = {
@@ -76,6 +78,8 @@ def bench_callback(
         uri,
         exp_id,
         metric_keys=metric_keys(n_metrics),
+        key_fn=lambda trial: trial_key(trial.config["spec"]),
+        params_fn=lambda trial: flatten_params(trial.config["spec"]),
         flush_every=flush_every,
         tags={"ps_ray.stage": "bench"},
     )

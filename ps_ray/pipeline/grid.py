@@ -58,6 +58,6 @@ def run_grids(spec: SweepSpec, *, resume: bool = False, progress: bool = True):
 
 
 def _params(trial: GridTrial) -> dict[str, str]:
-    from ps_ray.pipeline.tune_tracking import spec_params
+    from ps_ray.store.mlflow_values import flatten_params
 
-    return {**spec_params(trial.grid.base.to_dict()), "held_out": trial.grid.held_out_text}
+    return {**flatten_params(trial.grid.base.to_dict()), "held_out": trial.grid.held_out_text}

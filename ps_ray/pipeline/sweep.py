@@ -22,6 +22,7 @@ from ps_ray.specs.sweep import SweepSpec, anchor_sources, task_input_dim
 from ps_ray.specs.titles import ANCHOR_POLICY, title
 from ps_ray.specs.trial import GridTrial, TrainTrial
 from ps_ray.store.layout import SweepLayout, sweep_dir
+from ps_ray.store.mlflow_values import flatten_params
 from ps_ray.store.run_layout import METRIC_FIELDS, POLICY_FILE, SIGNATURE_FILE, SPEC_FILE
 
 # What each training result sends to MLflow: the metrics.csv columns but the step and the clock.
@@ -184,7 +185,6 @@ def run_sweep(spec: SweepSpec, *, resume: bool = False, progress: bool = True):
     A stage whose outputs exist is skipped, so a killed sweep resumes where it stopped.
     """
     from ps_ray.envs.registry import register
-    from ps_ray.pipeline.tune_tracking import default_key_fn
     from ps_ray.store.attempts import require_fresh
 
     root = sweep_dir(spec)
@@ -205,8 +205,8 @@ def run_sweep(spec: SweepSpec, *, resume: bool = False, progress: bool = True):
             folder=SweepLayout(root).tune_plain,
             stage="anchors_plain",
             # its own runs: the same plain spec may also be a trial of the sweep
-            key_fn=lambda trial: "anchors_plain/" + default_key_fn(trial),
-            name_fn=lambda trial: title(_title(trial), ANCHOR_POLICY),
+            key_fn=lambda trial: "anchors_plain/" + _record(trial).run_name,
+            name_fn=lambda trial: title(_record(trial).title, ANCHOR_POLICY),
             **tune_args,
         )
         raise_on_errors(results, "plain source policies")
@@ -228,7 +228,6 @@ def run_sweep(spec: SweepSpec, *, resume: bool = False, progress: bool = True):
         trials,
         folder=folder,
         stage="train",
-        key_fn=lambda trial: TrainTrial.of(trial.config["trial"]).run_name,  # a search: one per setting
         scheduler_fn=scheduler_fn,
         **tune_args,
     )
@@ -260,7 +259,7 @@ def run_tune(
     ``scheduler_fn``: :func:`ps_ray.pipeline.trials.run_trials`'."""
 
     from ps_ray.pipeline.trials import run_trials, stage_summary
-    from ps_ray.pipeline.tune_tracking import MLflowTuneCallback, default_params_fn
+    from ps_ray.pipeline.tune_tracking import MLflowTuneCallback
     from ps_ray.specs.resources import device_tags
     from ps_ray.store.mlflow_values import relative_paths
     from ps_ray.store.stage_run import open_stage
@@ -273,9 +272,9 @@ def run_tune(
             tags={**stage_run.tags, **device_tags(resources)},
             artifacts_fn=artifacts_fn or _trial_artifacts,
             model_fn=_trial_model if spec.log_models and stage == "train" else None,
-            **({"key_fn": key_fn} if key_fn else {}),
-            name_fn=name_fn or _title,
-            params_fn=lambda trial: relative_paths((params_fn or default_params_fn)(trial), sweep_dir(spec)),
+            key_fn=key_fn or (lambda trial: _record(trial).run_name),  # a search's: one per setting
+            name_fn=name_fn or (lambda trial: _record(trial).title),
+            params_fn=lambda trial: relative_paths((params_fn or _spec_params)(trial), sweep_dir(spec)),
             tags_fn=tags_fn,
             # env steps, the x axis RL curves are read on (restored with a checkpoint, like ps_ray's
             # own iteration; Tune's restarts at 1 when a resumed stage relaunches a trial): a retried
@@ -303,15 +302,21 @@ def run_tune(
     return results
 
 
-def _title(trial) -> str:
-    """A training trial's MLflow run name (:attr:`TrainTrial.title`)."""
-    return TrainTrial.of(trial.config["trial"]).title
+def _record(trial) -> TrainTrial:
+    """A training stage's Tune trial as its record (its config is ``{"trial": record.config()}``)."""
+    return TrainTrial.of(trial.config["trial"])
+
+
+def _spec_params(trial) -> dict[str, str]:
+    """A training trial's MLflow params: its spec's fields as the config holds them (nested
+    robot/task as ``robot.x``)."""
+    return flatten_params(trial.config["trial"]["spec"])
 
 
 def _trial_model(trial) -> tuple[Path, Any, Any] | None:
     """A finished source's policy file and env, to log as its run's MLflow model."""
     policy = Path(trial.checkpoint.path) / POLICY_FILE if trial.checkpoint is not None else None
-    spec = TrainTrial.of(trial.config["trial"]).spec
+    spec = _record(trial).spec
     return (policy, spec.robot, spec.task) if policy is not None and policy.exists() else None
 
 
@@ -320,7 +325,7 @@ def _trial_artifacts(trial) -> list[Path]:
     paths = []
     if trial.checkpoint is not None:
         paths += [Path(trial.checkpoint.path) / name for name in (POLICY_FILE, SIGNATURE_FILE, SPEC_FILE)]
-    anchors = TrainTrial.of(trial.config["trial"]).anchors
+    anchors = _record(trial).anchors
     if anchors:
         paths.append(Path(anchors))
     return [p for p in paths if p.exists()]

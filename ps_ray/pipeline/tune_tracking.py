@@ -11,8 +11,6 @@ from typing import TYPE_CHECKING, Any
 
 from ray.tune import Callback
 
-from ps_ray.specs.names import trial_key
-from ps_ray.store.mlflow_values import flatten_params
 from ps_ray.store.tracking import (
     GIT_COMMIT_TAG,
     TrialTracker,
@@ -26,40 +24,6 @@ if TYPE_CHECKING:
     from ray.tune.experiment import Trial
 
 log = logging.getLogger(__name__)
-
-
-def trial_spec(trial: Trial) -> Mapping[str, Any]:
-    """``trial.config["spec"]``, or ``trial.config[<k>]["spec"]`` for a grid over whole trial
-    dicts (``{"trial": tune.grid_search([{"spec": ...}, ...])}``), as a plain mapping (a
-    TrainSpec is converted with ``to_dict``)."""
-    config = trial.config
-    spec = config.get("spec")
-    if spec is None:
-        nested = [v["spec"] for v in config.values() if isinstance(v, Mapping) and "spec" in v]
-        spec = nested[0] if len(nested) == 1 else None
-    if hasattr(spec, "to_dict"):
-        spec = spec.to_dict()
-    if not isinstance(spec, Mapping):
-        raise ValueError(f"trial {trial.trial_id} has no config['spec'] mapping; pass key_fn/params_fn")
-    return spec
-
-
-def spec_key(spec: Mapping[str, Any]) -> str:
-    """``method/robot/task/seed`` (+ ``/i<dim>`` off the default interface), see trial_key."""
-    return trial_key(spec)
-
-
-def spec_params(spec: Mapping[str, Any]) -> dict[str, str]:
-    """The spec's fields as params (nested robot/task mappings as ``robot.x`` keys)."""
-    return flatten_params(spec)
-
-
-def default_key_fn(trial: Trial) -> str:
-    return spec_key(trial_spec(trial))
-
-
-def default_params_fn(trial: Trial) -> dict[str, str]:
-    return spec_params(trial_spec(trial))
 
 
 # ---------------------------------------------------------------------------------- Tune
@@ -98,8 +62,8 @@ class MLflowTuneCallback(Callback):
         experiment_id: str,
         *,
         metric_keys: Sequence[str],
-        params_fn: Callable[[Trial], Mapping[str, Any]] = default_params_fn,
-        key_fn: Callable[[Trial], str] = default_key_fn,
+        params_fn: Callable[[Trial], Mapping[str, Any]],
+        key_fn: Callable[[Trial], str],
         name_fn: Callable[[Trial], str] | None = None,
         tags: Mapping[str, str] | None = None,
         tags_fn: Callable[[Trial, MlflowClient], Mapping[str, str]] | None = None,

@@ -117,7 +117,8 @@ def test_sweep_tracks_one_mlflow_run_per_trial_with_artifacts(tmp_path, cli, tin
     # each source is a logged MLflow model: loaded by its run's URI, it acts as its policy file does
     run = found["ablation/panda/reach/1/i8"]
     mlflow.set_tracking_uri(f"sqlite:///{sweep_dir(load_sweep(path)) / 'mlflow.db'}")
-    model = mlflow.pyfunc.load_model(f"runs:/{run.info.run_id}/policy")
+    assert run.data.tags["ps_ray.model"] == "panda-reach-ablation-1-i8"  # named as its run: told apart
+    model = mlflow.pyfunc.load_model(f"runs:/{run.info.run_id}/{run.data.tags['ps_ray.model']}")
     obs = example_observation("panda", "reach")
     policy = client.download_artifacts(run.info.run_id, "policy.safetensors", str(tmp_path))
     assert np.allclose(model.predict(obs), GreedyPolicy.from_file(policy)(obs), atol=1e-6)

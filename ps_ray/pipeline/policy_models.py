@@ -1,15 +1,24 @@
 """A trained policy as a logged MLflow model (pyfunc, from code: :mod:`ps_ray.pipeline.policy_model_code`),
-so ``mlflow.pyfunc.load_model("runs:/<run>/policy")`` and the model registry can use it, with an
+so ``mlflow.pyfunc.load_model("runs:/<run>/<its name>")`` and the model registry can use it, with an
 input example (a real observation of the policy's own env) and the signature inferred from it."""
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-MODEL_NAME = "policy"
+MODEL_TAG = "ps_ray.model"  # on the run: its model's name (runs:/<run id>/<name>)
+
+
+def model_name(title: str) -> str:
+    """A run's title as a model name MLflow takes (``panda_far-reach_blue-ablation-431``), so the
+    experiment's Models list tells its policies apart."""
+    return re.sub(r"[^A-Za-z0-9_.]+", "-", title).strip("-")[:120]
+
+
 CODE_FILE = Path(__file__).with_name("policy_model_code.py")  # run by MLflow, not imported here
 
 
@@ -25,8 +34,11 @@ def example_observation(robot: Any, task: Any) -> dict[str, np.ndarray]:
     return {key: np.asarray(value, np.float32)[None] for key, value in obs.items()}
 
 
-def log_policy_model(tracking_uri: str, run_id: str, policy_file: str | Path, robot: Any, task: Any) -> None:
-    """Log ``policy_file``, trained on (``robot``, ``task``), as the model ``policy`` of run ``run_id``."""
+def log_policy_model(
+    tracking_uri: str, run_id: str, policy_file: str | Path, robot: Any, task: Any, title: str
+) -> str:
+    """Log ``policy_file``, trained on (``robot``, ``task``), as a model of run ``run_id`` named
+    after the run's ``title``; returns the model's name (also the run's :data:`MODEL_TAG`)."""
     import mlflow
     from mlflow.models import infer_signature
 
@@ -37,9 +49,11 @@ def log_policy_model(tracking_uri: str, run_id: str, policy_file: str | Path, ro
     previous = mlflow.get_tracking_uri()
     mlflow.set_tracking_uri(tracking_uri)
     try:
+        name = model_name(title)
         with mlflow.start_run(run_id=run_id):
+            mlflow.set_tag(MODEL_TAG, name)
             mlflow.pyfunc.log_model(
-                name=MODEL_NAME,
+                name=name,
                 python_model=str(CODE_FILE),
                 artifacts={"policy": str(policy_file)},  # policy_model_code.POLICY_ARTIFACT
                 input_example=example,
@@ -48,3 +62,4 @@ def log_policy_model(tracking_uri: str, run_id: str, policy_file: str | Path, ro
             )
     finally:
         mlflow.set_tracking_uri(previous)
+    return name

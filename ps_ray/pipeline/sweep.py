@@ -313,11 +313,12 @@ def _spec_params(trial) -> dict[str, str]:
     return flatten_params(trial.config["trial"]["spec"])
 
 
-def _trial_model(trial) -> tuple[Path, Any, Any] | None:
-    """A finished source's policy file and env, to log as its run's MLflow model."""
+def _trial_model(trial) -> tuple[Path, Any, Any, str] | None:
+    """A finished source's policy file, env and title, to log as its run's MLflow model."""
     policy = Path(trial.checkpoint.path) / POLICY_FILE if trial.checkpoint is not None else None
-    spec = _record(trial).spec
-    return (policy, spec.robot, spec.task) if policy is not None and policy.exists() else None
+    record = _record(trial)
+    found = policy is not None and policy.exists()
+    return (policy, record.spec.robot, record.spec.task, record.title) if found else None
 
 
 def _trial_artifacts(trial) -> list[Path]:

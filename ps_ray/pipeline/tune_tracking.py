@@ -52,8 +52,8 @@ class MLflowTuneCallback(Callback):
     Errors while writing metrics, artifacts or status are logged as warnings, never raised into
     Tune: a sweep does not die for its bookkeeping (unflushed metrics are retried at the next
     flush). Finding or creating a trial's run does raise (e.g. its key's run has other params).
-    ``model_fn(trial)``: a finished trial's (policy file, robot, task), logged as the run's MLflow
-    model (:mod:`ps_ray.pipeline.policy_models`), or None.
+    ``model_fn(trial)``: a finished trial's (policy file, robot, task, title), logged as the run's
+    MLflow model (:mod:`ps_ray.pipeline.policy_models`), or None.
     """
 
     def __init__(
@@ -69,7 +69,7 @@ class MLflowTuneCallback(Callback):
         tags_fn: Callable[[Trial, MlflowClient], Mapping[str, str]] | None = None,
         flush_every: int = 20,
         artifacts_fn: Callable[[Trial], list[Path]] | None = None,
-        model_fn: Callable[[Trial], tuple[Path, Any, Any] | None] | None = None,
+        model_fn: Callable[[Trial], tuple[Path, Any, Any, str] | None] | None = None,
         step_key: str = "training_iteration",
         flush_secs: float = 60.0,
         once_per_step: bool = False,
@@ -171,7 +171,7 @@ class MLflowTuneCallback(Callback):
             for path in self.artifacts_fn(trial):
                 self._guard(f"log artifact {path}", tracker.log_artifact, path)
         model = self.model_fn(trial) if self.model_fn is not None else None
-        if model is not None:  # (policy file, robot, task)
+        if model is not None:  # (policy file, robot, task, the run's title)
             from ps_ray.pipeline.policy_models import log_policy_model
 
             self._guard(

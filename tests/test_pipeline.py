@@ -450,6 +450,17 @@ def test_mlflow_ui_lists_the_runs_and_the_report_artifact(smoke, visible_text):
             assert f"{stage} " in listing, stage
         parents = {r.info.run_id: r.info.run_name for r in runs if "ps_ray.stage_run" in r.data.tags}
         assert sorted(parents.values()) == ["anchors_plain", "few_shot", "train", "zero_shot"]
+        # a stage's run lasts its stage (killed and resumed: from its first start to its last end)
+        # and closes with its summary; the sweep file's header is the experiment's description
+        stage_runs = {r.info.run_name: r for r in runs if "ps_ray.stage_run" in r.data.tags}
+        for stage in ("train", "zero_shot", "few_shot"):
+            info = stage_runs[stage].info
+            wall = json.loads((root / "stages" / f"{stage}.json").read_text())["wall_s"]
+            assert info.status == "FINISHED" and info.end_time - info.start_time >= 500 * wall, stage
+        assert stage_runs["train"].data.metrics["trials_finished"] == 16
+        assert stage_runs["zero_shot"].data.metrics["ps.pairs"] == 8
+        assert client.get_experiment(experiment).tags["mlflow.note.content"].startswith("The whole pipeline")
+        assert [e.name for e in client.search_experiments()] == ["smoke"]  # no empty Default
         for run in runs:
             if "ps_ray.stage" in run.data.tags and run.data.tags["ps_ray.stage"] != "report":
                 assert parents[run.data.tags["mlflow.parentRunId"]] == run.data.tags["ps_ray.stage"]

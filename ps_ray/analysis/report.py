@@ -316,11 +316,8 @@ def _transfer(report: Report, table: pd.DataFrame, episodes: int) -> None:
         "Pairs surely above / below: by more than their episodes' 95% interval (Newcombe's).",
         first=True,
     )
-    text = transfer.transfer_text(numbers)  # split in two, so that each fits the page's width
-    split = list(text.columns).index("wrong target (stitched)") + 1
-    caption = "Stitched success beside its controls, per method and pairing"
-    report.table(section, "transfer", caption, text.iloc[:, :split], numbers=numbers)
-    gains = text[["result", "seeds", *text.columns[split:]]]
+    controls, gains = transfer.transfer_views(numbers)
+    report.table(section, "transfer", "Stitched success beside its controls", controls, numbers=numbers)
     report.shown(section, "The transfer gain over those controls, per method and pairing", gains)
     report.figure(section, "transfer_gain", lambda p: plots.transfer_gain_bars(table, p))
     report.figure(section, "transfer_controls", lambda p: plots.controls_bars(numbers, p))

@@ -139,6 +139,14 @@ def transfer_text(numbers: pd.DataFrame) -> pd.DataFrame:
     return out
 
 
+def transfer_views(numbers: pd.DataFrame) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """:func:`transfer_text` as two tables that each fit a page's width: stitched success beside
+    its controls, then the gains (with the result kind and seed count repeated)."""
+    text = transfer_text(numbers)
+    split = list(text.columns).index("wrong target (stitched)") + 1
+    return text.iloc[:, :split], text[["result", "seeds", *text.columns[split:]]]
+
+
 def co_training_numbers(table: pd.DataFrame) -> pd.DataFrame:
     """What co-training adds (docs/transfer.md "Co-trained grids"): per method and pairing, the
     stitched success of a co-trained grid's held-out pairs beside the same pairs (target, seeds)

@@ -266,6 +266,19 @@ def test_cli_stitches_evaluates_and_saves(sweep, tmp_path, capsys):
     assert rc == 0
 
 
+def test_the_example_zoos_modules_take_their_envs_from_its_manifest():
+    """`ps-ray stitch` on the demo's own files needs no --robot/--task: the zoo's manifest says what
+    each was trained on, so the target is the demo's."""
+    from ps_ray.stitching.example import ExampleZoo
+    from ps_ray.stitching.sources import resolve_source, resolve_target
+
+    zoo = ExampleZoo.load()
+    task, robot = (resolve_source(str(zoo.path(role))) for role in ("task_module", "robot_module"))
+    assert task.spec == {"robot": "panda", "task": "reach_blue"}
+    assert robot.spec == {"robot": "panda_far", "task": "reach_red"}
+    assert tuple(part.text for part in resolve_target(task, robot)) == zoo.target
+
+
 @pytest.mark.parametrize(
     "args, message",
     [
@@ -273,6 +286,7 @@ def test_cli_stitches_evaluates_and_saves(sweep, tmp_path, capsys):
         ("ps/panda/psuh/1/i8 ps/panda_l3/push/1/i8", "close keys: ps/panda/push/1/i8"),
         ("ps/panda/pick_cube/1/i8 ps/panda_l3/push/1/i8", "needs the gripper"),
         ("CORRUPT ps/panda_l3/push/1/i8 --robot panda --task push", "not a ps_ray policy file"),
+        ("CORRUPT CORRUPT", "corrupt.safetensors: not a ps_ray policy file"),  # not "no spec.json"
         ("ps/panda/push/1/i8 ps/panda_l3/push/1/i8 --robot {bad", "Expecting"),
         ("ps/panda/push/1/i8 ps/panda_l3/push/1/i8 --robot panda_l9", "unknown robot"),
     ],

@@ -69,6 +69,13 @@ class ExampleZoo:
     def path(self, role: str) -> Path:
         return self.root / self.manifest["modules"][role]["file"]
 
+    def trained_on(self, path: Path) -> dict[str, Any] | None:
+        """The robot and task the zoo's file ``path`` was trained on (None: not one of its files)."""
+        for entry in self.manifest["modules"].values():
+            if self.root / entry["file"] == path and isinstance(entry.get("trained_on"), dict):
+                return dict(entry["trained_on"])
+        return None
+
     @property
     def target(self) -> tuple[str, str]:
         return self.manifest["target"]["robot"], self.manifest["target"]["task"]

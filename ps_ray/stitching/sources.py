@@ -25,14 +25,18 @@ class Resolved:
 
 
 def resolve_source(ref: str, zoo: ModuleZoo | None = None) -> Resolved:
-    """A policy file, a directory holding ``policy.safetensors``, or a key of ``zoo``."""
+    """A policy file, a directory holding ``policy.safetensors``, or a key of ``zoo``; its training
+    spec from the ``spec.json`` beside it, or from the manifest of the example zoo it is in."""
+    from ps_ray.store.signature import read_signature
+
     path = Path(ref)
     if path.is_dir():
         path = path / POLICY_FILE
     if path.is_file():
+        read_signature(path)  # a file that is not a policy is named as such, first
         spec_path = path.parent / SPEC_FILE
         if not spec_path.is_file():
-            return Resolved(path, None)
+            return Resolved(path, _example_spec(path))
         try:
             spec = dict(json.loads(spec_path.read_text()))
         except (json.JSONDecodeError, TypeError, ValueError, UnicodeDecodeError) as e:
@@ -45,6 +49,18 @@ def resolve_source(ref: str, zoo: ModuleZoo | None = None) -> Resolved:
         raise UserError(f"{ref}: no such policy file (give --sweep DIR to look keys up)")
     entry = zoo.get(ref)
     return Resolved(entry.path, entry.spec)
+
+
+def _example_spec(path: Path) -> dict | None:
+    """What a file of the example zoo (``ps-ray demo``'s) was trained on, from its manifest."""
+    from ps_ray.stitching.example import MANIFEST, ExampleZoo
+
+    if not (path.parent / MANIFEST).is_file():
+        return None
+    try:
+        return ExampleZoo.load(path.parent).trained_on(path)
+    except UserError:  # a manifest of something else, or a file it does not vouch for
+        return None
 
 
 def resolve_target(

@@ -422,6 +422,9 @@ def test_a_sweep_on_a_base_file_is_the_base_with_its_keys_changed(tmp_path):
         ("base: nowhere.yaml\nname: x\n", [], "nowhere.yaml: no such sweep file"),
         ("base: base.yaml\nname: x\n", ["seeds"], "bad --set 'seeds'; write KEY=VALUE"),
         ("base: base.yaml\nname: x\n", ["seeds=[1"], "bad --set 'seeds=[1': its value is not YAML"),
+        # a valid file with a bad --set: the --set is blamed, not the file
+        ("base: base.yaml\nname: x\n", ["max_failures=many"], "--set max_failures=many (over "),
+        ("base: base.yaml\nname: x\n", ["zero_shot.epsodes=3"], "zero_shot: unknown key 'epsodes'"),
     ],
 )
 def test_a_bad_base_or_override_is_one_line_naming_the_file(tmp_path, text, sets, message):

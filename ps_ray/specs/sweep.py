@@ -246,8 +246,19 @@ def load_sweep(path: str | Path, sets: Sequence[str] = ()) -> SweepSpec:
     try:
         return SweepSpec.from_mapping(data, where=where)
     except SpecError as e:
-        message = str(e)
-        raise SpecError(message if message.startswith(where) else f"{where}: {message}") from None
+        message = str(e).removeprefix(f"{where}: ")
+        if sets and _loads(path):  # the file alone is fine: the error is the --set's
+            raise SpecError(f"--set {' '.join(sets)} (over {path}): {message}") from None
+        raise SpecError(f"{where}: {message}") from None
+
+
+def _loads(path: Path) -> bool:
+    """Whether the sweep file, without any ``--set``, is a valid spec."""
+    try:
+        load_sweep(path)
+    except SpecError:
+        return False
+    return True
 
 
 # -- what the grid implies ---------------------------------------------------------------------------

@@ -20,3 +20,18 @@ def test_the_guides_policy_in_python_example_runs_and_reaches_its_marker():
     with contextlib.redirect_stdout(out):
         exec(compile(_python_block("Use a trained policy in Python"), str(GUIDE), "exec"), {})
     assert out.getvalue().strip() == "reached the blue marker: True"
+
+
+def test_the_guides_gymnasium_id_names_the_same_env():
+    import gymnasium
+
+    from ps_ray.envs.registry import register
+    from ps_ray.envs.robots import resolve_robot
+
+    assert "ps_ray/PandaFarReachBlue-v0" in register(rllib=False)
+    env = gymnasium.make("ps_ray/PandaFarReachBlue-v0")
+    try:
+        assert env.unwrapped.robot_spec == resolve_robot("panda_far")
+        assert env.unwrapped.task_spec.name == "reach_blue"
+    finally:
+        env.close()

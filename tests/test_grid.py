@@ -252,7 +252,6 @@ def test_a_ps_grid_stage_without_a_train_stage_makes_and_uses_its_anchor_set(tmp
     from ps_ray.data.anchor_file import load_anchor_set
     from ps_ray.specs.sweep import load_sweep, task_input_dim
     from ps_ray.stitching.zoo import ModuleZoo
-    from ps_ray.store.layout import sweep_dir
 
     train = {
         k: v for k, v in SMALL.items() if k not in ("method", "seed", "interface_dim", "anchor_episodes")
@@ -281,7 +280,7 @@ def test_a_ps_grid_stage_without_a_train_stage_makes_and_uses_its_anchor_set(tmp
     assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
     spec = load_sweep(path)
     anchor_set = load_anchor_set(sweep_layout(spec).anchor_set(task_input_dim(TASKS[0]), 8))
-    cells = ModuleZoo.from_sweep(sweep_dir(spec)).select(grid=HELD_OUT)
+    cells = ModuleZoo.from_sweep(sweep_layout(spec).root).select(grid=HELD_OUT)
     assert sorted(f"{e.key.robot}/{e.key.task}" for e in cells) == [
         "panda/reach_blue",
         "panda/reach_red",

@@ -21,7 +21,7 @@ from ps_ray.specs.names import short_name
 from ps_ray.specs.stage_settings import FewShotSpec
 from ps_ray.specs.sweep import SweepSpec
 from ps_ray.stitching.pairs import Control, StitchedPair, pairs_from_table
-from ps_ray.store.layout import SweepLayout, sweep_dir, sweep_layout
+from ps_ray.store.layout import SweepLayout, sweep_layout
 from tests.stitch_sources import K, write_trial
 from tests.stitch_sources import spec as train_spec
 
@@ -100,12 +100,12 @@ def sweep_spec(tmp_path) -> SweepSpec:
         }
     )
     for t in spec.trials():
-        write_trial(sweep_dir(spec), "tune", train_spec(t.method, t.robot, t.task, seed=t.seed))
+        write_trial(sweep_layout(spec).root, "tune", train_spec(t.method, t.robot, t.task, seed=t.seed))
     return spec
 
 
 def test_few_shot_reads_the_pairs_zero_shot_wrote_in_the_zoos_order(sweep_spec):
-    spec, table_path = sweep_spec, SweepLayout(sweep_dir(sweep_spec)).zero_shot_table
+    spec, table_path = sweep_spec, SweepLayout(sweep_layout(sweep_spec).root).zero_shot_table
     matrix = zero_shot_plan.matrix(spec, trained(spec), translate=True, pairing="both")
     # per method: 4 seed pairings (2 same-seed, 2 cross-seed) x 4 stitchable pairs; ps translated too
     assert len(matrix) == 4 * 4 * 2 + 4 * 4
@@ -117,7 +117,7 @@ def test_few_shot_reads_the_pairs_zero_shot_wrote_in_the_zoos_order(sweep_spec):
     same_seed = [p for p in matrix if p.pairing == "same_seed" and not p.translation]
     assert len(same_seed) == 2 * 2 * 4
 
-    zoo = sweep_dir(spec) / "tune"
+    zoo = sweep_layout(spec).root / "tune"
     shutil.move(zoo, zoo.with_name("elsewhere"))  # with the table, nothing reads the zoo
     assert evaluated_pairs(spec) == same_seed
     assert evaluated_pairs(spec, ["ablation", "ps"]) == [
@@ -166,7 +166,7 @@ def test_the_clips_run_each_source_in_its_own_env_as_the_table_says(sweep_spec, 
 
     matrix = write_table(sweep_spec)
     ((label, clips),) = stitched_clips(sweep_spec, tmp_path / "clips", pairs_per_method=1)
-    zoo = ModuleZoo.from_sweep(sweep_dir(sweep_spec))
+    zoo = ModuleZoo.from_sweep(sweep_layout(sweep_spec).root)
     assert len(clips) == 2 * 3  # per method: stitched, task source, robot source
     for method, i in (("ps", 0), ("ablation", 3)):
         stitched, task_source, robot_source = clips[i : i + 3]

@@ -12,11 +12,11 @@ from pathlib import Path
 import pytest
 import yaml
 
-from ps_ray.pipeline.sweep import sweep_dir
 from ps_ray.specs.search import SearchSpec
 from ps_ray.specs.sweep import load_sweep
 from ps_ray.specs.train import SpecError
 from ps_ray.store.attempts import FINISHED, STOPPED_FILE, attempts, read_rows
+from ps_ray.store.layout import sweep_layout
 
 # Two settings: one learns reach within the budget, one (a learning rate of 1e-9) cannot. Seed 0
 # draws them as [learns, cannot, cannot], so the learner sets the rung's bar first.
@@ -144,7 +144,7 @@ def test_check_lists_each_drawn_setting_and_prices_the_search(tmp_path, cli):
 
 def _trial_folders(path: Path) -> dict[str, list[Path]]:
     """Each drawn setting's attempt folders, by its name."""
-    stage = sweep_dir(load_sweep(path)) / "tune"
+    stage = sweep_layout(load_sweep(path)).root / "tune"
     found = {}
     for folders in attempts(stage, "trial").values():
         label = json.loads((folders[-1] / "params.json").read_text())["trial"]["label"]
@@ -160,7 +160,7 @@ def test_asha_stops_the_settings_that_do_not_learn_and_a_killed_search_resumes_w
     proc = cli("sweep", str(path), own_ray=True, start_new_session=True)
     deadline = time.time() + 400
     while time.time() < deadline:
-        found = _trial_folders(path) if (sweep_dir(load_sweep(path)) / "tune").is_dir() else {}
+        found = _trial_folders(path) if (sweep_layout(load_sweep(path)).root / "tune").is_dir() else {}
         rows = read_rows(found["search00"][0]) if "search00" in found else []
         if rows and rows[-1].get(FINISHED) and "search01" in found:
             break

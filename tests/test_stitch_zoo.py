@@ -84,8 +84,9 @@ def test_a_zoo_entry_needs_its_training_spec(tmp_path):
 
 
 def test_zoo_from_a_real_tiny_sweep(tmp_path, ray_local, tiny_train):
-    from ps_ray.pipeline.sweep import run_sweep, sweep_dir
+    from ps_ray.pipeline.sweep import run_sweep
     from ps_ray.specs.sweep import load_sweep
+    from ps_ray.store.layout import sweep_layout
 
     train = tiny_train
     path = tmp_path / "tiny.yaml"
@@ -108,7 +109,7 @@ def test_zoo_from_a_real_tiny_sweep(tmp_path, ray_local, tiny_train):
     spec_ = load_sweep(path)
     grid = run_sweep(spec_, progress=False)
     assert not [r for r in grid if r.error]
-    zoo = ModuleZoo.from_sweep(sweep_dir(spec_))
+    zoo = ModuleZoo.from_sweep(sweep_layout(spec_).root)
     assert {str(k) for k in zoo.keys()} == {  # the plain anchor source policy included
         "ps/panda/reach/1/i8",
         "ps/panda_l3/reach/1/i8",

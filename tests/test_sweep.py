@@ -18,7 +18,6 @@ import yaml
 from ps_ray.nets.policy import GreedyPolicy
 from ps_ray.nets.policy_file import load_policy
 from ps_ray.pipeline.policy_models import example_observation
-from ps_ray.pipeline.sweep import sweep_dir
 from ps_ray.specs.sweep import load_sweep
 from ps_ray.store.attempts import START_STEPS
 from ps_ray.store.checkpoint import latest as latest_checkpoint
@@ -48,7 +47,7 @@ def write_sweep(
 
 def runs(path: Path) -> dict[str, mlflow.entities.Run]:
     spec = load_sweep(path)
-    db = sweep_dir(spec) / "mlflow.db"
+    db = sweep_layout(spec).root / "mlflow.db"
     if not _has_experiment(db, spec.name):  # a client opened first would make the store itself
         return {}
     client = mlflow.MlflowClient(f"sqlite:///{db}")
@@ -73,7 +72,7 @@ def _has_experiment(db: Path, name: str) -> bool:
 
 
 def history(path: Path, run, key: str) -> list[tuple[int, float]]:
-    client = mlflow.MlflowClient(f"sqlite:///{sweep_dir(load_sweep(path)) / 'mlflow.db'}")
+    client = mlflow.MlflowClient(f"sqlite:///{sweep_layout(load_sweep(path)).root / 'mlflow.db'}")
     return sorted((m.step, m.value) for m in client.get_metric_history(run.info.run_id, key))
 
 
@@ -94,7 +93,7 @@ def test_sweep_tracks_one_mlflow_run_per_trial_with_artifacts(tmp_path, cli, tin
     names = {key: run.info.run_name for key, run in found.items()}
     assert names[plain] == "panda/reach · plain · 1 · i8 · plain policy for the anchor states"
     assert names[consolidated] == f"panda/reach · {distilled} · 1 · i8"
-    client = mlflow.MlflowClient(f"sqlite:///{sweep_dir(load_sweep(path)) / 'mlflow.db'}")
+    client = mlflow.MlflowClient(f"sqlite:///{sweep_layout(load_sweep(path)).root / 'mlflow.db'}")
     for run in found.values():  # each nested under its stage's run
         parent = client.get_run(run.data.tags["mlflow.parentRunId"])
         assert parent.data.tags["ps_ray.stage_run"] == run.data.tags["ps_ray.stage"] == parent.info.run_name
@@ -116,7 +115,7 @@ def test_sweep_tracks_one_mlflow_run_per_trial_with_artifacts(tmp_path, cli, tin
         assert {"policy.safetensors", "signature.json", "spec.json"} <= artifacts
     # each source is a logged MLflow model: loaded by its run's URI, it acts as its policy file does
     run = found["ablation/panda/reach/1/i8"]
-    mlflow.set_tracking_uri(f"sqlite:///{sweep_dir(load_sweep(path)) / 'mlflow.db'}")
+    mlflow.set_tracking_uri(f"sqlite:///{sweep_layout(load_sweep(path)).root / 'mlflow.db'}")
     assert run.data.tags["ps_ray.model"] == "panda-reach-ablation-1-i8"  # named as its run: told apart
     model = mlflow.pyfunc.load_model(f"runs:/{run.info.run_id}/{run.data.tags['ps_ray.model']}")
     obs = example_observation("panda", "reach")
@@ -127,7 +126,7 @@ def test_sweep_tracks_one_mlflow_run_per_trial_with_artifacts(tmp_path, cli, tin
     assert any(a.startswith("anchors_3d") for a in ps_artifacts)
     # a consolidating method's trial consolidates once it is done, before its last checkpoint;
     # ps_distilled's policy there has its relative projection switched on, and says so
-    trial = next((sweep_dir(load_sweep(path)) / "tune").glob("*method_ps_distilled*"))
+    trial = next((sweep_layout(load_sweep(path)).root / "tune").glob("*method_ps_distilled*"))
     last = latest_checkpoint(sorted(trial.glob("checkpoint_*")))
     progress = json.loads((last / "progress.json").read_text())
     assert progress["consolidated"]["gap_after"] < 0.5 * progress["consolidated"]["gap_before"]
@@ -154,7 +153,7 @@ def test_resume_after_sigkill_reruns_only_missing_trials_and_never_unpickles(
     done_name = next(iter(before))
     done_history = history(path, before[done_name], "env_steps")
     # Anyone who can write to shared storage could plant these where Tune and RLlib look.
-    folder = sweep_dir(load_sweep(path))
+    folder = sweep_layout(load_sweep(path)).root
     for place in [folder, *folder.glob("tune*"), *folder.glob("tune*/*"), *folder.glob("tune*/*/check*")]:
         if place.is_dir():
             planted(place)
@@ -260,7 +259,7 @@ def test_a_killed_trial_worker_is_retried_from_its_checkpoint(tmp_path, cli, tin
     path = write_sweep(tmp_path, "crash", {**tiny_train, "env_steps": 1500}, seeds=(1,))
     tag = f"PS_RAY_TEST_RUN={tmp_path.name}"
     proc = cli("sweep", str(path), env={"PS_RAY_TEST_RUN": tmp_path.name}, own_ray=True)
-    tune_dir = sweep_dir(load_sweep(path)) / "tune"
+    tune_dir = sweep_layout(load_sweep(path)).root / "tune"
     deadline = time.time() + 300
     while not _reported_checkpoint(tune_dir):
         assert proc.poll() is None and time.time() < deadline, "no checkpoint before the kill"
@@ -307,7 +306,7 @@ def test_a_sweep_with_other_training_settings_is_refused_before_anything_runs(tm
     from ps_ray.store.layout import SweepLayout
 
     trained = load_sweep(write_sweep(tmp_path, "same", {"env_steps": 400}))
-    root = sweep_dir(trained)
+    root = sweep_layout(trained).root
     root.mkdir(parents=True)
     SweepLayout(root).spec_file.write_text(yaml.safe_dump(trained.to_dict()))
     other = load_sweep(write_sweep(tmp_path, "same", {"env_steps": 400, "hidden": 32}, seeds=(1, 3)))
@@ -359,7 +358,7 @@ def test_a_killed_worker_node_s_trial_resumes_from_its_checkpoint_on_another_nod
     spec = load_sweep(path)
     cluster = two_node_cluster
     worker = cluster.list_all_nodes()[1]  # [head, worker]
-    tune_dir = sweep_dir(spec) / "tune"
+    tune_dir = sweep_layout(spec).root / "tune"
     killed: dict[str, object] = {}
 
     def kill_the_worker_once_its_trial_has_a_checkpoint():

@@ -14,13 +14,14 @@ import yaml
 
 from ps_ray.nets.policy_file import load_policy
 from ps_ray.pipeline.few_shot import curves, run_few_shot
-from ps_ray.pipeline.sweep import run_sweep, sweep_dir
+from ps_ray.pipeline.sweep import run_sweep
 from ps_ray.pipeline.zero_shot import run_zero_shot
 from ps_ray.pipeline.zero_shot_table import summary
 from ps_ray.plan.catalogue import trained
 from ps_ray.plan.zero_shot import matrix
 from ps_ray.specs.sweep import load_sweep
 from ps_ray.stitching.pairs import pairs_from_table
+from ps_ray.store.layout import sweep_layout
 from ps_ray.store.signature import read_signature
 from tests.plan_checks import assert_stages_launched_their_plans
 
@@ -62,7 +63,7 @@ def test_zero_shot_matrix_of_a_sweep(trained_matrix, tmp_path):
 
     table = run_zero_shot(spec, episodes=4, repeats=2, progress=False)
     assert len(table) == 4 and set(table["method"]) == {"ablation"}
-    assert (sweep_dir(spec) / "zero_shot.csv").exists()
+    assert (sweep_layout(spec).root / "zero_shot.csv").exists()
     assert summary(table).loc["ablation", "pairs"] == 4
     # every pair carries its controls: the robot source as it is, the task source on the target
     # robot and the oracle trained on the target pair (all four pairs of the grid were trained)
@@ -80,7 +81,7 @@ def test_zero_shot_matrix_of_a_sweep(trained_matrix, tmp_path):
         assert row["gain_over_chance"] == pytest.approx(row["transfer_gain"]) and row["fit_env_steps"] == 0
     assert table.groupby(["robot", "task"])["chance_success"].nunique().eq(1).all()
     # the table keeps each pair's record: its sources' and controls' files, which few-shot reads
-    written = pd.read_csv(sweep_dir(spec) / "zero_shot.csv")
+    written = pd.read_csv(sweep_layout(spec).root / "zero_shot.csv")
     for column in (
         "task_from_path",
         "robot_from_path",
@@ -90,12 +91,13 @@ def test_zero_shot_matrix_of_a_sweep(trained_matrix, tmp_path):
     ):
         # inside the sweep folder, relative to it: a copied sweep folder still finds its files
         assert all(
-            not Path(path).is_absolute() and (sweep_dir(spec) / path).is_file() for path in written[column]
+            not Path(path).is_absolute() and (sweep_layout(spec).root / path).is_file()
+            for path in written[column]
         )
     assert written["robot_source_path"].tolist() == written["robot_from_path"].tolist()
-    assert pairs_from_table(sweep_dir(spec) / "zero_shot.csv") == found
+    assert pairs_from_table(sweep_layout(spec).root / "zero_shot.csv") == found
 
-    client = mlflow.MlflowClient(f"sqlite:///{sweep_dir(spec) / 'mlflow.db'}")
+    client = mlflow.MlflowClient(f"sqlite:///{sweep_layout(spec).root / 'mlflow.db'}")
     experiment = client.get_experiment_by_name("matrix")
     found_runs = [
         r for r in client.search_runs([experiment.experiment_id]) if "ps_ray.trial_key" in r.data.tags
@@ -167,7 +169,7 @@ def test_pairs_run_in_batches_and_a_resume_keeps_each_pair_whatever_batch_it_ran
     from ps_ray.pipeline.zero_shot import PAIR_KEY
     from ps_ray.store.attempts import attempts, read_rows
 
-    spec, root = trained_matrix, sweep_dir(trained_matrix)
+    spec, root = trained_matrix, sweep_layout(trained_matrix).root
     folder = root / "tune_zero_shot"
     if not folder.exists():  # this test alone: the matrix first
         run_zero_shot(spec, episodes=4, repeats=2, progress=False)
@@ -199,7 +201,7 @@ def test_a_sweep_with_a_damaged_policy_file_is_refused_before_any_trial_starts(t
     from ps_ray.errors import UserError
 
     copy = tmp_path / "copy"
-    shutil.copytree(sweep_dir(trained_matrix), copy / trained_matrix.name)
+    shutil.copytree(sweep_layout(trained_matrix).root, copy / trained_matrix.name)
     shutil.rmtree(copy / trained_matrix.name / "tune_zero_shot", ignore_errors=True)
     spec = dataclasses.replace(trained_matrix, storage=str(copy))
     policy = sorted((copy / spec.name / "tune").glob("*/checkpoint_*/policy.safetensors"))[0]
@@ -226,7 +228,7 @@ def test_a_grid_s_held_out_cell_is_stitched_from_its_modules_beside_its_controls
     from ps_ray.specs.grid import GridSettings
 
     copy = tmp_path / "copy"
-    shutil.copytree(sweep_dir(trained_matrix), copy / trained_matrix.name)
+    shutil.copytree(sweep_layout(trained_matrix).root, copy / trained_matrix.name)
     for made_here in ("tune_zero_shot", "mlartifacts", "mlflow.db"):  # a copy keeps no MLflow store
         shutil.rmtree(copy / trained_matrix.name / made_here, ignore_errors=True)
         (copy / trained_matrix.name / made_here).unlink(missing_ok=True)

@@ -33,18 +33,19 @@ from ps_ray.store.layout import SweepLayout, sweep_layout
 
 def build_report(spec: SweepSpec, *, progress: bool = True, log_to_mlflow: bool = True) -> Path:
     """Rebuild ``<sweep>/report/`` from the stored results; returns the path of ``index.html``."""
-    from ps_ray.store.layout import sweep_dir
+    from ps_ray.store.layout import sweep_layout
 
-    root = sweep_dir(spec)
+    layout = sweep_layout(spec)
+    root = layout.root
     say = print if progress else (lambda *a, **k: None)
-    final = SweepLayout(root).report
+    final = layout.report
     partial = final.with_name(f"{final.name}.partial")
     shutil.rmtree(partial, ignore_errors=True)
     partial.mkdir(parents=True)
     report = Report(partial)
     target = source_target(spec)
     _training(report, root, target, say)
-    search_section(report, spec, SweepLayout(root).tune_train)
+    search_section(report, spec, layout.tune_train)
     if not spec.search.active:  # a search's trials are candidate settings, not sources to compare
         _latent(report, spec, root, say)
     zero_shot_section(report, spec, target, say)

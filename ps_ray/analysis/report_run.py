@@ -15,7 +15,7 @@ REPORT_RUN = "report"  # the MLflow run's trial key
 def log_report(spec: SweepSpec, report_dir: Path, metrics: dict[str, float]) -> str:
     """One run per sweep (found again by its key), holding the report folder and headline
     numbers; a rebuild overwrites the same artifacts. Returns the run id."""
-    from ps_ray.store.layout import sweep_dir
+    from ps_ray.store.layout import sweep_layout
     from ps_ray.store.tracking import (
         STAGE_TAG,
         TrialTracker,
@@ -24,7 +24,7 @@ def log_report(spec: SweepSpec, report_dir: Path, metrics: dict[str, float]) -> 
         ensure_experiment,
     )
 
-    root = sweep_dir(spec)
+    root = sweep_layout(spec).root
     uri = spec.tracking_uri or default_tracking_uri(root)
     experiment = ensure_experiment(uri, spec.name, SweepLayout(root).artifacts)
     tracker = TrialTracker(

@@ -12,8 +12,8 @@ def print_check(spec: SweepSpec, cores: int) -> int:
     """Print the trials and the projected cost; exit status 0."""
     from ps_ray.analysis.cost import describe, project
     from ps_ray.specs.search import describe as describe_trials
-    from ps_ray.store.layout import sweep_dir
+    from ps_ray.store.layout import sweep_layout
 
-    writable_folder(sweep_dir(spec))  # what a run would need, refused now; nothing is left
+    writable_folder(sweep_layout(spec).root)  # what a run would need, refused now; nothing is left
     print("\n".join([*describe_trials(spec.search, spec.named_trials()), *describe(project(spec, cores))]))
     return 0

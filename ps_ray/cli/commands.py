@@ -82,7 +82,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
         from ps_ray.cli.check import print_check
 
         return print_check(spec, args.cores)
-    from ps_ray.pipeline.sweep import run_sweep, sweep_dir
+    from ps_ray.pipeline.sweep import run_sweep
 
     if "train" not in spec.stages:  # it would train sources that none of its stages reads
         stages = ", ".join(spec.stages)
@@ -92,7 +92,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     errors = [r for r in results if r.error]
     print(
         f"sweep {spec.name!r}: {len(results) - len(errors)}/{len(results)} trials finished; "
-        f"results in {sweep_dir(spec)}"
+        f"results in {sweep_layout(spec).root}"
     )
     raise_on_errors(results, "training trials")
     return 0
@@ -135,9 +135,8 @@ def _load(args: argparse.Namespace):
 
 def _sweep_lock(spec):
     """Held for the whole command: a second driver on the same sweep is refused in one line."""
-    from ps_ray.pipeline.sweep import sweep_dir
 
-    return folder_lock(sweep_dir(spec), "sweep")
+    return folder_lock(sweep_layout(spec).root, "sweep")
 
 
 def _given(args: argparse.Namespace, *names: str) -> dict:
@@ -152,15 +151,14 @@ def _trained_sweep(args: argparse.Namespace, stage: str, *flags: str):
     """The sweep spec with a stage's flags applied and checked (as if written in the YAML), held
     under the sweep's lock. An untrained sweep is refused in one line and no folder is made; a
     sweep another driver holds is refused as locked, even while its training is still starting."""
-    from ps_ray.pipeline.sweep import sweep_dir
 
     spec = _load(args)
     settings = dataclasses.replace(getattr(spec, stage), **_given(args, *flags))
     spec = dataclasses.replace(spec, **{stage: settings})  # checked like the YAML's own settings
     untrained = UserError(
-        f"{sweep_dir(spec)}: no trained sweep there; train it first (ps-ray sweep {args.sweep})"
+        f"{sweep_layout(spec).root}: no trained sweep there; train it first (ps-ray sweep {args.sweep})"
     )
-    if not sweep_dir(spec).is_dir():
+    if not sweep_layout(spec).root.is_dir():
         raise untrained
     with _sweep_lock(spec):
         if not sweep_layout(spec).spec_file.exists():
@@ -198,7 +196,7 @@ def cmd_few_shot(args: argparse.Namespace) -> int:
 def cmd_run(args: argparse.Namespace) -> int:
     from ps_ray.analysis.cost import budget_note, project
     from ps_ray.pipeline.run import run_pipeline
-    from ps_ray.pipeline.sweep import check_inputs, sweep_dir
+    from ps_ray.pipeline.sweep import check_inputs
     from ps_ray.store.tracking import default_tracking_uri, runs_page
 
     spec = _load(args)
@@ -209,7 +207,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         print(f"sweep {spec.name!r}: stages {', '.join(spec.stages)}")
         return print_check(spec, args.cores)
     started = time.time()
-    print(f"sweep {spec.name!r}: stages {', '.join(spec.stages)}; results in {sweep_dir(spec)}")
+    print(f"sweep {spec.name!r}: stages {', '.join(spec.stages)}; results in {sweep_layout(spec).root}")
     projection = project(spec)
     print(
         f"sweep {spec.name!r}: projected {projection.core_s / 3600:.2f} core-hours, about "
@@ -220,7 +218,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     print(f"sweep {spec.name!r}: all stages done in {(time.time() - started) / 60:.1f} min")
     if "report" in summaries:
         print(f"report: {sweep_layout(spec).report / 'index.html'}")
-    uri = spec.tracking_uri or default_tracking_uri(sweep_dir(spec))
+    uri = spec.tracking_uri or default_tracking_uri(sweep_layout(spec).root)
     print(f"MLflow: mlflow ui --workers 1 --backend-store-uri {uri}")  # one reader (docs/cost.md)
     if (page := runs_page(uri, spec.name)) is not None:
         print(f"        then open {page}")

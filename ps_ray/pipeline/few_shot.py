@@ -24,7 +24,7 @@ from ps_ray.specs.stage_settings import FewShotSpec
 from ps_ray.specs.sweep import SweepSpec
 from ps_ray.specs.trial import STITCHED_STARTS, TrainTrial
 from ps_ray.stitching.pairs import StitchedPair
-from ps_ray.store.layout import sweep_dir, sweep_layout
+from ps_ray.store.layout import sweep_layout
 
 
 def few_shot_trials(spec: SweepSpec, settings: FewShotSpec) -> list[TrainTrial]:
@@ -64,7 +64,7 @@ def run_few_shot(spec: SweepSpec, *, resume: bool = False, progress: bool = True
     from ps_ray.store.attempts import outcomes, require_fresh
 
     settings = dataclasses.replace(spec.few_shot, **overrides)
-    root = sweep_dir(spec)
+    root = sweep_layout(spec).root
     if not resume:  # refused before the stitched starts are written
         require_fresh(sweep_layout(spec).tune_few_shot, "trial", "few_shot")
     trials = few_shot_trials(spec, settings)

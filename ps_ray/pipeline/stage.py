@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from ps_ray.specs.sweep import SweepSpec
 from ps_ray.specs.train import require_same
-from ps_ray.store.layout import SweepLayout, sweep_dir, sweep_layout
+from ps_ray.store.layout import sweep_layout
 
 
 def require_same_sweep(spec: SweepSpec) -> None:
@@ -30,7 +30,7 @@ def require_same_sweep(spec: SweepSpec) -> None:
         require_same(
             stored.training_identity(),
             spec.training_identity(),
-            f"{sweep_dir(spec)} was trained from a different sweep spec",
+            f"{sweep_layout(spec).root} was trained from a different sweep spec",
             "resume with the same training settings, or give the sweep another name or storage",
         )
 
@@ -42,9 +42,9 @@ def record_spec(spec: SweepSpec) -> None:
 
     from ps_ray.store.atomic import write_text
 
-    root = sweep_dir(spec)
-    root.mkdir(parents=True, exist_ok=True)
-    write_text(SweepLayout(root).spec_file, yaml.safe_dump(spec.to_dict(), sort_keys=True))
+    layout = sweep_layout(spec)
+    layout.root.mkdir(parents=True, exist_ok=True)
+    write_text(layout.spec_file, yaml.safe_dump(spec.to_dict(), sort_keys=True))
 
 
 # how to read the experiment, below its sweep's description

@@ -21,7 +21,7 @@ from ps_ray.specs.stages import stage as stage_record
 from ps_ray.specs.sweep import SweepSpec, anchor_sources, task_input_dim
 from ps_ray.specs.titles import ANCHOR_POLICY, title
 from ps_ray.specs.trial import GridTrial, TrainTrial
-from ps_ray.store.layout import SweepLayout, sweep_dir
+from ps_ray.store.layout import sweep_layout
 from ps_ray.store.mlflow_values import flatten_params
 from ps_ray.store.run_layout import METRIC_FIELDS, POLICY_FILE, SIGNATURE_FILE, SPEC_FILE
 
@@ -187,11 +187,11 @@ def run_sweep(spec: SweepSpec, *, resume: bool = False, progress: bool = True):
     from ps_ray.envs.registry import register
     from ps_ray.store.attempts import require_fresh
 
-    root = sweep_dir(spec)
+    layout = sweep_layout(spec)
     require_same_sweep(spec)
     if not resume:  # refused before Ray starts and anything is written
-        require_fresh(SweepLayout(root).tune_plain, "trial", "anchors_plain")
-        require_fresh(SweepLayout(root).tune_train, "trial", "train")
+        require_fresh(layout.tune_plain, "trial", "anchors_plain")
+        require_fresh(layout.tune_train, "trial", "train")
     check_inputs(spec)
     record_spec(spec)
     register()
@@ -202,7 +202,7 @@ def run_sweep(spec: SweepSpec, *, resume: bool = False, progress: bool = True):
     if needs_anchors and (sources := train_plan.plain_sources(spec)):
         results = run_tune(
             sources,
-            folder=SweepLayout(root).tune_plain,
+            folder=layout.tune_plain,
             stage="anchors_plain",
             # its own runs: the same plain spec may also be a trial of the sweep
             key_fn=lambda trial: "anchors_plain/" + _record(trial).run_name,
@@ -216,7 +216,7 @@ def run_sweep(spec: SweepSpec, *, resume: bool = False, progress: bool = True):
         }
     prepare_sweep_anchors(spec, plain_policies)
     trials = train_plan.plan(spec)
-    folder = SweepLayout(root).tune_train
+    folder = layout.tune_train
     scheduler_fn = None
     if spec.search.active:
         from ps_ray.pipeline.search import search_scheduler
@@ -264,7 +264,7 @@ def run_tune(
     from ps_ray.store.mlflow_values import relative_paths
     from ps_ray.store.stage_run import open_stage
 
-    resources = getattr(spec.resources, stage_record(stage).name)
+    resources, root = getattr(spec.resources, stage_record(stage).name), sweep_layout(spec).root
     with open_stage(*tracking, spec.name, stage) as stage_run:  # open while the stage runs
         callback = MLflowTuneCallback(
             *tracking,
@@ -274,7 +274,7 @@ def run_tune(
             model_fn=_trial_model if spec.log_models and stage == "train" else None,
             key_fn=key_fn or (lambda trial: _record(trial).run_name),  # a search's: one per setting
             name_fn=name_fn or (lambda trial: _record(trial).title),
-            params_fn=lambda trial: relative_paths((params_fn or _spec_params)(trial), sweep_dir(spec)),
+            params_fn=lambda trial: relative_paths((params_fn or _spec_params)(trial), root),
             tags_fn=tags_fn,
             # env steps, the x axis RL curves are read on (restored with a checkpoint, like ps_ray's
             # own iteration; Tune's restarts at 1 when a resumed stage relaunches a trial): a retried

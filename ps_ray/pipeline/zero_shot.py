@@ -41,7 +41,7 @@ from ps_ray.specs.names import readable, split_translation
 from ps_ray.specs.stage_settings import ZeroShotSpec
 from ps_ray.specs.sweep import SweepSpec
 from ps_ray.stitching.pairs import StitchedPair
-from ps_ray.store.layout import sweep_dir, sweep_layout
+from ps_ray.store.layout import sweep_layout
 from ps_ray.store.stage_run import StageRun, open_stage
 
 
@@ -247,7 +247,7 @@ def run_zero_shot(
     from ps_ray.store.attempts import require_fresh, rows_naming
 
     settings = dataclasses.replace(spec.zero_shot, **overrides)
-    root, folder = sweep_dir(spec), sweep_layout(spec).tune_zero_shot
+    root, folder = sweep_layout(spec).root, sweep_layout(spec).tune_zero_shot
     if not resume:
         require_fresh(folder, "batch", "zero_shot")
     trials = zero_shot_plan.plan(spec, trained(spec), settings)
@@ -275,7 +275,7 @@ def _table(spec: SweepSpec, trials: list[StitchedPair]) -> pd.DataFrame:
     missing = [pair.key for pair in trials if pair.key not in rows]
     if missing:  # every batch finished, so each of its pairs reported: a bug, never bad input
         raise RuntimeError(f"{len(missing)} pairs have no result row, e.g. {missing[0]}")
-    table = table_of([(pair, rows[pair.key]) for pair in trials], sweep_dir(spec))
+    table = table_of([(pair, rows[pair.key]) for pair in trials], sweep_layout(spec).root)
     write_atomic_csv(table, sweep_layout(spec).zero_shot_table)
     return table
 

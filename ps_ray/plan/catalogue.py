@@ -10,14 +10,14 @@ from ps_ray.plan import grid, train
 from ps_ray.specs.sweep import SweepSpec
 from ps_ray.stitching.rule import expected_signature
 from ps_ray.stitching.zoo import ModuleZoo, ZooEntry, key_of
-from ps_ray.store.layout import sweep_dir
+from ps_ray.store.layout import sweep_layout
 
 PLANNED = Path("<planned>")  # where a planned module's file stands: a name, never read
 
 
 def trained(spec: SweepSpec) -> ModuleZoo:
     """The sweep's trained modules (its train, anchor-policy and grid stages' checkpoints)."""
-    return ModuleZoo.from_sweep(sweep_dir(spec))
+    return ModuleZoo.from_sweep(sweep_layout(spec).root)
 
 
 def planned(spec: SweepSpec) -> ModuleZoo:

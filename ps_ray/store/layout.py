@@ -110,8 +110,3 @@ def sweep_layout(spec) -> SweepLayout:
     """The folder of a sweep spec (anything with ``storage`` and ``name``) and every path in it:
     the one way to name a sweep's folder."""
     return SweepLayout.of(spec.storage, spec.name)
-
-
-def sweep_dir(spec) -> Path:
-    """The folder of a sweep spec: ``sweep_layout(spec).root``."""
-    return sweep_layout(spec).root

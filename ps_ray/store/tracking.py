@@ -15,6 +15,7 @@ from __future__ import annotations
 import fcntl
 import hashlib
 import logging
+import os
 import subprocess
 import tempfile
 import time
@@ -86,6 +87,9 @@ def _first_line(exc: BaseException) -> str:
 
 
 STORE_RETRY_S = 20.0
+# the stores' lock files, one per store path, in one folder per user of the temp folder (not
+# beside the store: a shared file system may not honour flock); kept, as removing one races its users
+LOCK_DIR = Path(tempfile.gettempdir()) / f"ps_ray-locks-{os.getuid()}"
 
 
 @contextmanager
@@ -93,12 +97,13 @@ def _one_maker(db: Path | None) -> Iterator[None]:
     """One ps_ray process of this machine at a time opens a sqlite store here: two that made a new
     store at once could both run MLflow's table migrations, and a migration cut across by the
     other's left the store unusable for good (``table _alembic_tmp_experiments already exists``).
-    The lock file lives in the temp folder, keyed by the store's path, never beside the store."""
+    The lock file lives in :data:`LOCK_DIR`, keyed by the store's path, never beside the store."""
     if db is None:
         yield
         return
     key = hashlib.sha256(str(db.expanduser().resolve()).encode()).hexdigest()[:16]
-    with open(Path(tempfile.gettempdir()) / f"ps_ray-mlflow-{key}.lock", "a") as handle:
+    LOCK_DIR.mkdir(exist_ok=True)
+    with open(LOCK_DIR / f"mlflow-{key}.lock", "a") as handle:
         fcntl.flock(handle, fcntl.LOCK_EX)  # released when the file closes, or the process dies
         yield
 

@@ -554,3 +554,41 @@ def test_processes_that_open_a_new_store_at_once_all_get_its_one_experiment(tmp_
     assert [p.returncode for p in procs] == [0] * 4, [err[-800:] for _, err in outs]
     (experiment,) = MlflowClient(uri).search_experiments(filter_string="name = 'shared'")
     assert {out.strip().splitlines()[-1] for out, _ in outs} == {experiment.experiment_id}
+
+
+def test_a_row_run_lasts_its_rows_work_and_keeps_its_files_but_a_killed_writers_temp_file(store, tmp_path):
+    from ray.tune.experiment import Trial
+
+    from ps_ray.pipeline.tune_tracking import ROW_ENDED, ROW_STARTED, RowRunsCallback
+
+    exp = new_experiment(store, "rows")
+    folder = tmp_path / "pair"
+    folder.mkdir()
+    for name in ("stitched.safetensors", "episodes.csv", ".episodes.csv.x1.tmp"):
+        (folder / name).write_text("x")
+    callback = RowRunsCallback(
+        store["uri"],
+        exp,
+        row_key="pair_key",
+        metric_keys=["success_mean"],
+        params_fn=lambda key: {},
+        tags={},
+        name_fn=lambda key: f"title of {key}",
+        artifacts_key="pair_files",
+    )
+    trial = Trial("__fake", config={}, stub=True)
+    row = {"pair_key": "p1", "success_mean": 0.5, "pair_files": str(folder), ROW_STARTED: 1000.0}
+    callback.on_trial_result(0, [trial], trial, {**row, ROW_ENDED: 1003.25, "timestamp": 1003})
+    (run,) = [r for r in runs_of(store, exp) if r.data.tags.get(TRIAL_KEY_TAG) == "p1"]
+    assert run.info.run_name == "title of p1" and run.data.metrics == {"success_mean": 0.5}
+    assert (run.info.start_time, run.info.end_time) == (1_000_000, 1_003_250)
+    artifacts = {a.path for a in store["client"].list_artifacts(run.info.run_id)}
+    assert artifacts == {"stitched.safetensors", "episodes.csv"}  # not the dead writer's temp file
+
+
+def test_a_models_name_is_its_runs_title_in_the_characters_mlflow_takes():
+    from ps_ray.pipeline.policy_models import model_name
+
+    name = model_name("panda/push friction=0.1 · ps+consolidate_pull=0.5 · 101 · i16")
+    assert name == "panda-push-friction-0-1-ps-consolidate_pull-0-5-101-i16"
+    assert not set("/:.%\"' ") & set(name)

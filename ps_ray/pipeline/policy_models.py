@@ -16,7 +16,7 @@ MODEL_TAG = "ps_ray.model"  # on the run: its model's name (runs:/<run id>/<name
 def model_name(title: str) -> str:
     """A run's title as a model name MLflow takes (``panda_far-reach_blue-ablation-431``), so the
     experiment's Models list tells its policies apart."""
-    return re.sub(r"[^A-Za-z0-9_.]+", "-", title).strip("-")[:120]
+    return re.sub(r"[^A-Za-z0-9_]+", "-", title).strip("-")[:120]  # MLflow refuses a dot, slash, colon
 
 
 CODE_FILE = Path(__file__).with_name("policy_model_code.py")  # run by MLflow, not imported here
@@ -51,7 +51,6 @@ def log_policy_model(
     try:
         name = model_name(title)
         with mlflow.start_run(run_id=run_id):
-            mlflow.set_tag(MODEL_TAG, name)
             mlflow.pyfunc.log_model(
                 name=name,
                 python_model=str(CODE_FILE),
@@ -60,6 +59,7 @@ def log_policy_model(
                 signature=infer_signature(example, actions),
                 pip_requirements=["ps_ray", "torch", "numpy"],  # no inference: it loads the model again
             )
+            mlflow.set_tag(MODEL_TAG, name)  # once the model exists
     finally:
         mlflow.set_tracking_uri(previous)
     return name

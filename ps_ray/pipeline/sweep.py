@@ -20,6 +20,7 @@ from ps_ray.specs import reset_seeds
 from ps_ray.specs.stages import stage as stage_record
 from ps_ray.specs.sweep import SweepSpec, anchor_sources, task_input_dim
 from ps_ray.specs.titles import ANCHOR_POLICY, title
+from ps_ray.specs.train import POINT_TASK
 from ps_ray.specs.trial import GridTrial, TrainTrial
 from ps_ray.store.layout import sweep_layout
 from ps_ray.store.mlflow_values import flatten_params
@@ -317,7 +318,7 @@ def _trial_model(trial) -> tuple[Path, Any, Any, str] | None:
     """A finished source's policy file, env and title, to log as its run's MLflow model."""
     policy = Path(trial.checkpoint.path) / POLICY_FILE if trial.checkpoint is not None else None
     record = _record(trial)
-    found = policy is not None and policy.exists()
+    found = policy is not None and policy.exists() and record.spec.task != POINT_TASK  # physics-free
     return (policy, record.spec.robot, record.spec.task, record.title) if found else None
 
 

@@ -204,7 +204,9 @@ class MLflowTuneCallback(Callback):
             log.warning("MLflow: could not %s: %s", what, _first_line(e))
 
 
-ROW_STARTED = "row_started"  # when the work of a row began (epoch seconds): its run's start
+# when the work of a row began and ended (epoch seconds): its run's start and end (Tune's own
+# timestamp has whole seconds)
+ROW_STARTED, ROW_ENDED = "row_started", "row_ended"
 
 
 def _ms(seconds: Any) -> int | None:
@@ -215,7 +217,7 @@ class RowRunsCallback(Callback):
     """Driver-side: one MLflow run per result row that names ``row_key``, for trials that report
     one row per item (a batch of stitched pairs): the item's run is created (or found again, on a
     retried batch), its ``metric_keys`` logged at step 0 and the run closed FINISHED at once, its
-    times those of the row's work (from ``ROW_STARTED`` in the row to the row's timestamp).
+    times those of the row's work (``ROW_STARTED`` and ``ROW_ENDED`` in the row).
     ``params_fn(name)``, ``tags_fn(name, client)`` and ``name_fn(name)`` (its run name) describe
     the item, the files of the folder a row names under ``artifacts_key`` are its artifacts;
     writing metrics, artifacts and status never raises into Tune, finding or creating the run does
@@ -276,7 +278,10 @@ class RowRunsCallback(Callback):
             step=0,
             timestamp_ms=int(stamp * 1000) if stamp else None,
         )
-        folder = Path(result.get(self.artifacts_key) or "") if self.artifacts_key else None
-        for path in sorted(folder.iterdir()) if folder and folder.is_dir() else ():
-            MLflowTuneCallback._guard(f"log artifact {path}", tracker.log_artifact, path)
-        MLflowTuneCallback._guard(f"close run of {name}", tracker.close, "FINISHED", _ms(stamp))
+        given = result.get(self.artifacts_key) if self.artifacts_key else None
+        folder = Path(given) if isinstance(given, str) and given else None
+        for path in sorted(folder.iterdir()) if folder is not None and folder.is_dir() else ():
+            if not path.name.startswith("."):  # a writer killed mid-write left its temp file
+                MLflowTuneCallback._guard(f"log artifact {path}", tracker.log_artifact, path)
+        end = _ms(result.get(ROW_ENDED)) or _ms(stamp)
+        MLflowTuneCallback._guard(f"close run of {name}", tracker.close, "FINISHED", end)

@@ -86,7 +86,7 @@ def zero_shot_trial(config: dict[str, Any]) -> None:
     from ray import tune
 
     from ps_ray.nets.policy_file import load_policy
-    from ps_ray.pipeline.tune_tracking import ROW_STARTED
+    from ps_ray.pipeline.tune_tracking import ROW_ENDED, ROW_STARTED
     from ps_ray.stitching.pair_files import pair_folder
     from ps_ray.store.attempts import FINISHED, STAGE_DIR_KEY
 
@@ -107,7 +107,8 @@ def zero_shot_trial(config: dict[str, Any]) -> None:
             pair, episodes, config["fit_states_per_quadrant"], source, chance, config["outcome"], scored, keep
         )
         last = {FINISHED: True} if i == len(batch) - 1 else {}
-        tune.report({**metrics, PAIR_KEY: pair.key, PAIR_FILES: str(keep), ROW_STARTED: started, **last})
+        times = {ROW_STARTED: started, ROW_ENDED: time.time()}
+        tune.report({**metrics, PAIR_KEY: pair.key, PAIR_FILES: str(keep), **times, **last})
 
 
 def chance_levels(trials: list[StitchedPair], settings: dict[str, int], progress: bool) -> dict[str, dict]:
@@ -344,7 +345,9 @@ def _evaluate(
             },
         },
     )
-    stage_run.record({}, stage_summary(results)[1])  # how it ended, if it ends here
+    ended = stage_summary(results)[1]
+    if ended != "FINISHED":  # how the stage ends, as raise_on_errors ends it here
+        stage_run.record({}, ended)
     raise_on_errors(results, "zero-shot batches")
 
 

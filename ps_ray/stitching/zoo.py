@@ -155,7 +155,8 @@ class ModuleZoo:
     def __init__(self, entries: Iterable[ZooEntry] = (), problems: Iterable[str] = ()) -> None:
         self._entries: dict[ZooKey, ZooEntry] = {}
         self._by_name: dict[str, ZooEntry] = {}  # by trial key: a lookup is one dict read
-        self._by_alias: dict[str, ZooEntry | None] = {}  # by another spelling (None: two share it)
+        # another spelling of a key (None: two keys share it); every entry's spellings, winner or not
+        self._by_alias: dict[str, ZooKey | None] = {}
         self.problems = list(problems)
         for entry in entries:
             self._add(entry)
@@ -164,9 +165,9 @@ class ModuleZoo:
         old = self._entries.get(entry.key)
         if old is None or _preference(entry) < _preference(old):
             self._entries[entry.key] = self._by_name[str(entry.key)] = entry
-            for name in entry.names[1:]:
-                other = self._by_alias.get(name, entry)  # absent: this entry's
-                self._by_alias[name] = entry if other is not None and other.key == entry.key else None
+        for name in entry.names[1:]:
+            other = self._by_alias.get(name, entry.key)  # absent: this key's
+            self._by_alias[name] = entry.key if other == entry.key else None
 
     @classmethod
     def from_sweep(cls, *sweep_dirs: str | Path, strict: bool = True) -> ModuleZoo:
@@ -222,8 +223,8 @@ class ModuleZoo:
         by_name = self._by_name
         if str(key) in by_name:
             return by_name[str(key)]
-        if self._by_alias.get(str(key)) is not None:  # as MLflow, --check or the report print it
-            return self._by_alias[str(key)]
+        if (alias := self._by_alias.get(str(key))) is not None:  # as MLflow, --check, the report print it
+            return self._entries[alias]
         close = difflib.get_close_matches(str(key), sorted(by_name), n=5, cutoff=0.5)
         hint = (
             f"close keys: {', '.join(close)}"

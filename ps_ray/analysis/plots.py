@@ -144,19 +144,23 @@ def learning_curves(
 
 
 START_ORDER = ("stitched", "task_module", "robot_module", "unstitched", "scratch")  # few-shot starts
+LINE_STYLES = [("-", "o"), ("--", "s"), (":", "^"), ("-.", "D"), ((0, (5, 1)), "v")]
 
 
 def seed_interval_curves(table: pd.DataFrame, title: str, path: Path) -> Path:
     """A panel per method, a line per start kind: the mean over seeds of ``seed_curves``' table
-    (ps_ray.analysis.transfer) with its 95% t interval as a band (none from one seed)."""
+    (ps_ray.analysis.transfer) with its 95% t interval as a band (none from one seed, and the
+    title says which)."""
     methods = list(dict.fromkeys(table["method"]))
     fig, axes = plt.subplots(1, len(methods), figsize=(5.4 * len(methods), 3.6), squeeze=False)
     for ax, method in zip(axes[0], methods):
         lines = table[table["method"] == method]
         kinds = sorted(dict.fromkeys(lines["kind"]), key=lambda k: (START_ORDER + (k,)).index(k))
-        for kind in kinds:
+        for kind, style in zip(kinds, LINE_STYLES * len(kinds)):  # lines that coincide stay told apart
             line = lines[lines["kind"] == kind]
-            drawn = ax.plot(line["env_steps"], line["mean"], label=f"{kind} ({line['seeds'].iloc[0]} seeds)")
+            seeds = int(line["seeds"].iloc[0])
+            label = f"{kind} ({seeds} seed{'' if seeds == 1 else 's'})"
+            drawn = ax.plot(line["env_steps"], line["mean"], linestyle=style[0], marker=style[1], label=label)
             ax.fill_between(
                 line["env_steps"], line["low"], line["high"], color=drawn[0].get_color(), alpha=0.15
             )
@@ -165,7 +169,8 @@ def seed_interval_curves(table: pd.DataFrame, title: str, path: Path) -> Path:
         ax.set_ylabel("greedy success")
         ax.set_ylim(-0.05, 1.05)
         ax.legend(fontsize=8)
-    fig.suptitle(title)
+    one = table["seeds"].max() < 2  # no interval titled over one seed
+    fig.suptitle(f"{title}, {'one seed, no interval' if one else 'mean and 95% t interval over seeds'}")
     fig.tight_layout()
     return _save(fig, path)
 

@@ -360,7 +360,7 @@ def _few_shot(report: Report, root: Path, threshold: float, say) -> None:
         "(few_shot.halves): the pair's robot module under a fresh task module (robot_module) and "
         "its task module over a fresh robot module (task_module).",
     )
-    title = "few-shot: greedy success in the target envs, mean and 95% t interval over seeds"
+    title = "few-shot: greedy success in the target envs"
     seed_table = transfer.seed_curves(frame)
     report.figure(
         section, "few_shot_curves", lambda p: plots.seed_interval_curves(seed_table, title=title, path=p)

@@ -99,11 +99,14 @@ def interface_scatter(group: Group, probes: Probes, title: str, path: Path) -> P
             mask = probes.labels == quadrant
             coords = [xy[mask, c] for c in range(xy.shape[1])]
             ax.scatter(*coords, s=4, color=QUADRANT_COLOURS[quadrant], label=quadrant)
-        ax.set_title(f"{group.comparison[:-1]} {name}")
-        ax.tick_params(labelsize=6)
+        ax.set_title(f"{group.comparison[:-1]} {readable(str(name))}")
+        ax.tick_params(labelsize=9)
+        axis_names = ("x", "y", "z") if three_d else ("principal component 1", "principal component 2")
+        ax.set_xlabel(axis_names[0], fontsize=9)
+        ax.set_ylabel(axis_names[1], fontsize=9)
         if index == 0:
             ax.legend(fontsize=8, markerscale=2, loc="best")
-    fig.suptitle(title)
+    fig.suptitle(readable(title))  # the fixed task or robot as a reader writes it, not its JSON
     fig.tight_layout()
     return _save(fig, path)
 

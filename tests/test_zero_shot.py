@@ -191,6 +191,13 @@ def test_pairs_run_in_batches_and_a_resume_keeps_each_pair_whatever_batch_it_ran
     experiment = client.get_experiment_by_name("matrix")
     runs = client.search_runs([experiment.experiment_id], "tags.`ps_ray.stage` = 'zero_shot'")
     assert len(runs) == 4  # still one MLflow run per pair, found again on each run
+    # a driver killed after the last pair reported, before its stage run closed: the resume that
+    # finds nothing left to run closes it, with its summary
+    (stage_run,) = client.search_runs([experiment.experiment_id], "tags.`ps_ray.stage_run` = 'zero_shot'")
+    client.update_run(stage_run.info.run_id, status="RUNNING")
+    run_zero_shot(spec, episodes=4, repeats=2, resume=True, progress=False)
+    closed = client.get_run(stage_run.info.run_id)
+    assert closed.info.status == "FINISHED" and closed.data.metrics["pairs"] == 4
 
 
 def test_a_sweep_with_a_damaged_policy_file_is_refused_before_any_trial_starts(trained_matrix, tmp_path):

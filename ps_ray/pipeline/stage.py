@@ -61,16 +61,29 @@ def connect(spec: SweepSpec) -> tuple[str, str]:
 
     The driver creates the store and experiment once, before any trial could race for it."""
     from ps_ray.rllib.ray_start import cluster_address, init_ray
-    from ps_ray.store.layout import LOG_FOLDER
-    from ps_ray.store.terminal import others_to
+
+    with _quiet(spec):  # Ray's start-up messages
+        init_ray(cluster_address() or "local")
+    return open_tracking(spec)
+
+
+def open_tracking(spec: SweepSpec) -> tuple[str, str]:
+    """The sweep's MLflow experiment, without Ray: (tracking URI, experiment id); MLflow's
+    start-up messages go to the sweep's driver log."""
     from ps_ray.store.tracking import default_tracking_uri, ensure_experiment
 
     where = sweep_layout(spec)
-    with others_to(where.root / LOG_FOLDER / "driver.log"):  # Ray's and MLflow's start-up messages
-        init_ray(cluster_address() or "local")
+    with _quiet(spec):
         tracking_uri = spec.tracking_uri or default_tracking_uri(where.root)
         note = f"{spec.description}\n\n{READING}" if spec.description else READING
         return tracking_uri, ensure_experiment(tracking_uri, spec.name, where.artifacts, note)
+
+
+def _quiet(spec: SweepSpec):
+    from ps_ray.store.layout import LOG_FOLDER
+    from ps_ray.store.terminal import others_to
+
+    return others_to(sweep_layout(spec).root / LOG_FOLDER / "driver.log")
 
 
 class StageError(RuntimeError):

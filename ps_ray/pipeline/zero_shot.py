@@ -25,7 +25,7 @@ import numpy as np
 import pandas as pd
 
 from ps_ray.errors import UserError
-from ps_ray.pipeline.stage import connect, raise_on_errors
+from ps_ray.pipeline.stage import connect, open_tracking, raise_on_errors
 from ps_ray.pipeline.zero_shot_table import (
     CONTROL_KEYS,
     RESULT_KEYS,
@@ -42,7 +42,7 @@ from ps_ray.specs.stage_settings import ZeroShotSpec
 from ps_ray.specs.sweep import SweepSpec
 from ps_ray.stitching.pairs import StitchedPair
 from ps_ray.store.layout import sweep_layout
-from ps_ray.store.stage_run import StageRun, open_stage
+from ps_ray.store.stage_run import StageRun, close_left_open, open_stage
 
 
 def fit_states(tasks: list, per_quadrant: int, seed: int) -> np.ndarray:
@@ -259,7 +259,9 @@ def run_zero_shot(
     check_kept(done, trials, settings)
     todo = [pair.to_dict() for pair in trials if pair.key not in done]
     if not todo:  # a resumed matrix whose every pair reported needs neither Ray nor chance again
-        return _table(spec, trials)
+        table = _table(spec, trials)
+        close_left_open(*open_tracking(spec), "zero_shot", stage_metrics(table))  # a kill's leftover
+        return table
     tracking = connect(spec)
     with open_stage(*tracking, spec.name, "zero_shot") as stage_run:  # open while the stage runs
         _evaluate(spec, settings, trials, todo, tracking, stage_run, resume=resume, progress=progress)

@@ -63,13 +63,33 @@ class StageRun:
         self.status = status
 
     def close(self, status: str) -> None:
-        from mlflow.entities import Metric
+        _end(self.client, self.run_id, self.metrics, status)
 
-        stamp = int(time.time() * 1000)
-        metrics = [Metric(k, float(v), stamp, 0) for k, v in self.metrics.items()]
-        for chunk in _chunks(metrics, MAX_METRICS_PER_CALL):
-            self.client.log_batch(self.run_id, metrics=chunk)
-        self.client.set_terminated(self.run_id, status=status, end_time=stamp)
+
+def _end(client, run_id: str, metrics: Mapping[str, Any], status: str) -> None:
+    """Write a stage run's summary metrics and end it now with ``status``."""
+    from mlflow.entities import Metric
+
+    stamp = int(time.time() * 1000)
+    rows = [Metric(k, float(v), stamp, 0) for k, v in metrics.items()]
+    for chunk in _chunks(rows, MAX_METRICS_PER_CALL):
+        client.log_batch(run_id, metrics=chunk)
+    client.set_terminated(run_id, status=status, end_time=stamp)
+
+
+def close_left_open(tracking_uri: str, experiment_id: str, stage: str, metrics: Mapping[str, Any]) -> bool:
+    """A stage run a kill left open (RUNNING, or KILLED) whose stage, resumed, had nothing left to
+    run: closed FINISHED with its summary. False where there is none, or it is closed already."""
+    from mlflow.entities import ViewType
+
+    client = _client(tracking_uri)
+    where = f"tags.`{STAGE_RUN_TAG}` = '{stage}'"
+    found = client.search_runs([experiment_id], filter_string=where, run_view_type=ViewType.ACTIVE_ONLY)
+    if not found or found[0].info.status == "FINISHED":
+        return False
+    summary = {metric_name(k): v for k, v in metrics.items() if finite_float(v) is not None}
+    _end(client, found[0].info.run_id, summary, "FINISHED")
+    return True
 
 
 @contextmanager

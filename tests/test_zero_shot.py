@@ -285,6 +285,15 @@ def test_few_shot_trials_start_from_stitched_weights_beside_unstitched_and_scrat
         progress=False,
     )
     assert not any(r.error for r in results)
+    # a stage run a kill left open is closed by the resume that finds every trial finished
+    client = mlflow.MlflowClient(f"sqlite:///{sweep_layout(spec).root / 'mlflow.db'}")
+    experiment = client.get_experiment_by_name("matrix").experiment_id
+    (stage_run,) = client.search_runs([experiment], "tags.`ps_ray.stage_run` = 'few_shot'")
+    client.update_run(stage_run.info.run_id, status="RUNNING")
+    settings = dict(env_steps=300, collect_steps=200, max_pairs=1, critic_warmup_updates=20, halves=True)
+    assert len(run_few_shot(spec, resume=True, progress=False, **settings)) == len(results)
+    closed = client.get_run(stage_run.info.run_id)
+    assert closed.info.status == "FINISHED" and closed.data.metrics["trials_finished"] == len(results)
     by_kind = {r.config["trial"]["kind"]: r.config["trial"] for r in results}
     assert sorted(by_kind) == ["robot_module", "scratch", "stitched", "task_module", "unstitched"]
     first = matrix(spec, trained(spec))[0]

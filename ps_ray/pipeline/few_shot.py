@@ -59,9 +59,11 @@ def _write_start(spec: SweepSpec, pair: StitchedPair, kind: str) -> None:
 def run_few_shot(spec: SweepSpec, *, resume: bool = False, progress: bool = True, **overrides: Any):
     """Settings from ``spec.few_shot`` (``overrides`` replace fields); returns the trials'
     outcomes. A resumed stage whose every trial finished starts neither Ray nor MLflow."""
-    from ps_ray.pipeline.stage import connect
+    from ps_ray.pipeline.stage import connect, open_tracking
     from ps_ray.pipeline.sweep import run_tune
+    from ps_ray.pipeline.trials import stage_summary
     from ps_ray.store.attempts import outcomes, require_fresh
+    from ps_ray.store.stage_run import close_left_open
 
     settings = dataclasses.replace(spec.few_shot, **overrides)
     root = sweep_layout(spec).root
@@ -72,7 +74,8 @@ def run_few_shot(spec: SweepSpec, *, resume: bool = False, progress: bool = True
         raise UserError(f"{root}: no stitchable pairs (train the sweep first: ps-ray sweep)")
     if resume:
         finished = outcomes(sweep_layout(spec).tune_few_shot, "trial", [trial.config() for trial in trials])
-        if not any(outcome.error for outcome in finished):
+        if not any(outcome.error for outcome in finished):  # a kill's open stage run: closed
+            close_left_open(*open_tracking(spec), "few_shot", stage_summary(finished)[0])
             return finished
     tracking = connect(spec)
     return run_tune(

@@ -30,19 +30,11 @@ class StageRun:
     gave it. Its duration is the stage's: from its first start to its last end."""
 
     def __init__(self, tracking_uri: str, experiment_id: str, sweep: str, stage: str) -> None:
-        from mlflow.entities import ViewType
-
         self.client = _client(tracking_uri)
         self.sweep, self.stage = sweep, stage
         self.metrics: dict[str, float] = {}
         self.status: str | None = None
-        found = self.client.search_runs(
-            [experiment_id],
-            filter_string=f"tags.`{STAGE_RUN_TAG}` = '{stage}'",
-            run_view_type=ViewType.ACTIVE_ONLY,
-            order_by=["attributes.start_time ASC"],
-            max_results=1,
-        )
+        found = _find(self.client, experiment_id, stage)
         if found:
             self.run_id = found[0].info.run_id
             if found[0].info.status != "RUNNING":
@@ -77,14 +69,24 @@ def _end(client, run_id: str, metrics: Mapping[str, Any], status: str) -> None:
     client.set_terminated(run_id, status=status, end_time=stamp)
 
 
+def _find(client, experiment_id: str, stage: str) -> list:
+    """The stage's run (the oldest, if a race ever made two), as a list of at most one."""
+    from mlflow.entities import ViewType
+
+    return client.search_runs(
+        [experiment_id],
+        filter_string=f"tags.`{STAGE_RUN_TAG}` = '{stage}'",
+        run_view_type=ViewType.ACTIVE_ONLY,
+        order_by=["attributes.start_time ASC"],
+        max_results=1,
+    )
+
+
 def close_left_open(tracking_uri: str, experiment_id: str, stage: str, metrics: Mapping[str, Any]) -> bool:
     """A stage run a kill left open (RUNNING, or KILLED) whose stage, resumed, had nothing left to
     run: closed FINISHED with its summary. False where there is none, or it is closed already."""
-    from mlflow.entities import ViewType
-
     client = _client(tracking_uri)
-    where = f"tags.`{STAGE_RUN_TAG}` = '{stage}'"
-    found = client.search_runs([experiment_id], filter_string=where, run_view_type=ViewType.ACTIVE_ONLY)
+    found = _find(client, experiment_id, stage)
     if not found or found[0].info.status == "FINISHED":
         return False
     summary = {metric_name(k): v for k, v in metrics.items() if finite_float(v) is not None}

@@ -3,6 +3,7 @@ the pairs few-shot and the report's clips read back from that table (no Ray, no 
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import shutil
 from pathlib import Path
@@ -18,7 +19,7 @@ from ps_ray.plan.catalogue import trained
 from ps_ray.plan.few_shot import selected_pairs
 from ps_ray.plan.zero_shot import evaluated_pairs
 from ps_ray.specs.names import short_name
-from ps_ray.specs.stage_settings import FewShotSpec
+from ps_ray.specs.stage_settings import FewShotSpec, ZeroShotSpec
 from ps_ray.specs.sweep import SweepSpec
 from ps_ray.stitching.pairs import Control, StitchedPair, pairs_from_table
 from ps_ray.store.layout import SweepLayout, sweep_layout
@@ -81,6 +82,35 @@ def test_a_pair_survives_the_tune_config_and_the_csv_row(tmp_path, translation):
     (found,) = pairs_from_table(moved)
     assert found.task_from_path == str(moved.parent / "tune/a/policy.safetensors")
     assert found.controls["robot_source"].path == str(moved.parent / "tune/b/policy.safetensors")
+
+
+def test_a_zero_shot_batch_is_plain_json_in_tune_and_each_pair_finds_its_own_block_and_floor():
+    """A Tune trial's config holds its batch as JSON (the batch under the grid key, the stream,
+    fit and chance shared by every batch); read back it is the typed batch again, and each pair
+    takes its training seed's block of the stream and the chance figures measured on it."""
+    from ps_ray.plan.zero_shot import (
+        Episodes,
+        FitSettings,
+        ZeroShotBatch,
+        pair_episodes,
+        stream_of,
+        target_key,
+    )
+
+    settings = ZeroShotSpec()
+    stream = stream_of(settings)
+    fit = FitSettings.of(settings, "/sweep/outcomes")
+    pairs = (a_pair(), a_pair("affine@outcome"), dataclasses.replace(a_pair(), seed=2, key="other"))
+    chance = {target_key(p, pair_episodes(p, stream)): {"chance_success": p.seed / 10} for p in pairs}
+    config = {"batch": [p.to_dict() for p in pairs], **ZeroShotBatch.shared(stream, fit, chance)}
+    batch = ZeroShotBatch.from_config(json.loads(json.dumps(config)))
+    assert batch == ZeroShotBatch(pairs, stream, fit, chance)
+    assert stream == Episodes(settings.episodes, settings.repeats, settings.seed)
+    first, same_seed, other_seed = (batch.episodes(p) for p in pairs)
+    assert first == same_seed != other_seed and first.episodes == stream.episodes  # a block per seed
+    assert abs(other_seed.seed - first.seed) >= stream.episodes * stream.repeats  # disjoint blocks
+    assert [batch.chance_of(p)["chance_success"] for p in pairs] == [0.1, 0.1, 0.2]
+    assert fit.fit_seed != fit.seed and fit.scenes == settings.outcome_scenes
 
 
 @pytest.fixture

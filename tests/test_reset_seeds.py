@@ -133,11 +133,11 @@ def test_each_training_seed_is_scored_on_its_own_zero_shot_episodes_and_a_resume
     own block of the zero-shot stream, so seeds see different scenes and the pairs of one seed
     share theirs; a resumed stage refuses a kept row scored on other episodes (an older ps_ray)."""
     from ps_ray.plan.catalogue import planned
-    from ps_ray.plan.zero_shot import check_kept, pair_episodes, plan
+    from ps_ray.plan.zero_shot import check_kept, pair_episodes, plan, stream_of
 
     spec = load_sweep(Path(__file__).parents[1] / "sweeps" / "confirm2.yaml")
     pairs, z = plan(spec, planned(spec)), spec.zero_shot
-    first = {pair.key: pair_episodes(pair, z.episodes, z.repeats, z.seed)["seed"] for pair in pairs}
+    first = {pair.key: pair_episodes(pair, stream_of(z)).seed for pair in pairs}
     by_seed = {}
     for pair in pairs:
         by_seed.setdefault(pair.seed, set()).add(first[pair.key])

@@ -37,7 +37,7 @@ def run(
 ) -> pd.DataFrame:
     from ps_ray.analysis.stats import estimate
     from ps_ray.nets.policy_file import load_policy
-    from ps_ray.plan.zero_shot import pair_episodes
+    from ps_ray.plan.zero_shot import pair_episodes, stream_of
     from ps_ray.specs.names import split_translation
     from ps_ray.specs.sweep import SweepSpec
     from ps_ray.stitching.evaluate import evaluate
@@ -82,7 +82,7 @@ def run(
                     translation=kind,
                     fit_states=states,
                 )
-                episodes = pair_episodes(pair, z.episodes, z.repeats, z.seed)
+                episodes = pair_episodes(pair, stream_of(z)).kwargs()
                 success[kind].append(evaluate(nets, pair.robot, pair.task, **episodes)["success_mean"])
                 if kind == "affine":
                     ridges.append(translation_ridge(nets[0]))

@@ -35,8 +35,15 @@ from ps_ray.pipeline.zero_shot_table import (
 )
 from ps_ray.plan import zero_shot as zero_shot_plan
 from ps_ray.plan.catalogue import trained
-from ps_ray.plan.zero_shot import check_kept, pair_episodes, target_key
-from ps_ray.specs import reset_seeds
+from ps_ray.plan.zero_shot import (
+    Episodes,
+    FitSettings,
+    ZeroShotBatch,
+    check_kept,
+    pair_episodes,
+    stream_of,
+    target_key,
+)
 from ps_ray.specs.names import readable, split_translation
 from ps_ray.specs.stage_settings import ZeroShotSpec
 from ps_ray.specs.sweep import SweepSpec
@@ -79,50 +86,61 @@ PAIR_KEY = "pair_key"  # names the stitched pair of a batched trial's result row
 PAIR_FILES = "pair_files"  # and the folder of its stitched policy and per-episode outcomes
 
 
+class Sources:
+    """A trial's policy files, each read once, and the controls' evaluations, each run once (the
+    translated stitches of a pair share its controls; pairs of a seed share their sources)."""
+
+    def __init__(self) -> None:
+        self._loaded: dict[str, Any] = {}
+        self._scored: dict[tuple, dict] = {}
+
+    def __call__(self, path: str):
+        if path not in self._loaded:
+            from ps_ray.nets.policy_file import load_policy
+
+            self._loaded[path] = load_policy(path)
+        return self._loaded[path]
+
+    def evaluated(self, path: str, pair: StitchedPair, episodes: Episodes) -> dict:
+        """The policy file at ``path`` as it is, on ``pair``'s target env and ``episodes``."""
+        from ps_ray.stitching.evaluate import evaluate
+
+        key = (path, pair.robot.text, pair.task.text, episodes.seed)
+        if key not in self._scored:
+            self._scored[key] = evaluate(self(path), pair.robot, pair.task, **episodes.kwargs())
+        return self._scored[key]
+
+
 def zero_shot_trial(config: dict[str, Any]) -> None:
-    """Tune function trainable: a batch of pairs (:meth:`StitchedPair.to_dict`) one after
-    another, one result row per pair (named by ``PAIR_KEY``); a source file that several pairs
-    share is read once."""
+    """Tune function trainable: a :class:`ZeroShotBatch`'s pairs one after another, one result
+    row per pair (named by ``PAIR_KEY``)."""
     from ray import tune
 
-    from ps_ray.nets.policy_file import load_policy
     from ps_ray.pipeline.tune_tracking import ROW_ENDED, ROW_STARTED
     from ps_ray.stitching.pair_files import pair_folder
     from ps_ray.store.attempts import FINISHED, STAGE_DIR_KEY
 
-    loaded: dict[str, Any] = {}
-    scored: dict[tuple, dict] = {}  # the controls' evaluations, shared by a pair's translations
-
-    def source(path: str):
-        if path not in loaded:
-            loaded[path] = load_policy(path)
-        return loaded[path]
-
-    batch = config["batch"]
-    for i, pair in enumerate(map(StitchedPair.from_dict, batch)):
-        episodes = pair_episodes(pair, **config["eval"])
-        chance = config["chance"][target_key(pair, episodes)]
+    batch, sources = ZeroShotBatch.from_config(config), Sources()
+    for i, pair in enumerate(batch.pairs):
         keep, started = pair_folder(config[STAGE_DIR_KEY], pair.key), time.time()
-        metrics = evaluate_pair(
-            pair, episodes, config["fit_states_per_quadrant"], source, chance, config["outcome"], scored, keep
-        )
-        last = {FINISHED: True} if i == len(batch) - 1 else {}
+        metrics = evaluate_pair(pair, batch.episodes(pair), batch.fit, batch.chance_of(pair), sources, keep)
+        last = {FINISHED: True} if i == len(batch.pairs) - 1 else {}
         times = {ROW_STARTED: started, ROW_ENDED: time.time()}
         tune.report({**metrics, PAIR_KEY: pair.key, PAIR_FILES: str(keep), **times, **last})
 
 
-def chance_levels(trials: list[StitchedPair], settings: dict[str, int], progress: bool) -> dict[str, dict]:
+def chance_levels(trials: list[StitchedPair], stream: Episodes, progress: bool) -> dict[str, dict]:
     """The chance control and task-blind floor (:func:`ps_ray.stitching.chance.chance`) of every
-    target env the pairs run on, on each seed's episodes (:func:`pair_episodes` of ``settings``):
+    target env the pairs run on, on each seed's episodes (:func:`pair_episodes` of ``stream``):
     they depend on nothing else, so each is measured once."""
     from ps_ray.stitching.chance import chance
 
     levels = {}
     for pair in trials:
-        episodes = pair_episodes(pair, **settings)
+        episodes = pair_episodes(pair, stream)
         key = target_key(pair, episodes)
         if key not in levels:
-            levels[key] = chance(pair.robot, pair.task, episodes)
+            levels[key] = chance(pair.robot, pair.task, episodes.kwargs())
             if progress:
                 found = levels[key]
                 floor = found["task_blind_success"]
@@ -136,68 +154,60 @@ def chance_levels(trials: list[StitchedPair], settings: dict[str, int], progress
     return levels
 
 
+def _fit_states(pair: StitchedPair, fit: FitSettings, sources: Sources) -> np.ndarray | None:
+    """The task states a pair's translation is fitted on (None for a pair without one)."""
+    from ps_ray.stitching.outcomes import fit_pairs, matched_anchors
+
+    if not pair.translation:
+        return None
+    kind, where = split_translation(pair.translation)
+    if kind == "anchors":  # the robot module's anchors, matched in the task module's task
+        anchors = sources(pair.robot_from_path)[0].actor.anchors
+        if anchors is None:
+            raise UserError(f"{pair.key}: anchors@{where} needs a method with a relative projection")
+        return matched_anchors(where, anchors.numpy(), *pair.sources, fit.scenes, fit.seed, fit.cache)
+    if where:  # matched pairs of states (ps_ray.stitching.outcomes)
+        return fit_pairs(where, *pair.sources, fit.scenes, fit.points, fit.seed, fit.cache)
+    return fit_states(list(pair.fit_tasks), fit.states_per_quadrant, fit.fit_seed)
+
+
 def evaluate_pair(
     pair: StitchedPair,
-    settings: dict[str, Any],
-    per_quadrant: int,
-    source,
+    episodes: Episodes,
+    fit: FitSettings,
     chance: dict[str, Any],
-    outcome: dict[str, Any] | None = None,
-    scored: dict[tuple, dict] | None = None,
+    sources: Sources | None = None,
     keep: Path | None = None,
 ) -> dict:
-    """Stitch one pair (translated, if the pair says so), evaluate it, then each of its controls as it is,
-    all on the pair's fixed episodes (``settings``: ``evaluate``'s episodes, repeats and first reset
-    seed, :func:`pair_episodes`); ``source(path)`` gives a loaded policy file, ``chance`` the chance
-    level and task-blind floor of the pair's target env on those episodes (:func:`chance_levels`),
-    ``outcome`` the scenes, reference points, cache folder, k-means ``seed`` and first reset seed of
-    the fit states (``fit_seed``) of a translation, ``scored`` the controls' evaluations so far (by
-    file and target env), to reuse; ``keep``: a folder for the stitched policy and its per-episode
+    """Stitch one pair (translated as ``fit`` says, if the pair names a translation), evaluate it,
+    then each of its controls as it is, all on the pair's fixed ``episodes``
+    (:func:`pair_episodes`); ``chance``: the chance level and task-blind floor of the pair's target
+    env on those episodes (:func:`chance_levels`); ``sources``: the trial's loaded files and
+    control scores, to reuse; ``keep``: a folder for the stitched policy and its per-episode
     outcomes beside the controls' (:mod:`ps_ray.stitching.pair_files`)."""
     from ps_ray.stitching.evaluate import evaluate
-    from ps_ray.stitching.outcomes import fit_cost, fit_pairs, matched_anchors
+    from ps_ray.stitching.outcomes import fit_cost
     from ps_ray.stitching.stitch import stitch_policies, translation_ridge
 
-    scored = {} if scored is None else scored
-    outcome = outcome or {}
-
-    kind, fit = split_translation(pair.translation) if pair.translation else (None, "")
-    sources = pair.sources
-    if kind == "anchors":  # the robot module's anchors, matched in the task module's task
-        anchors = source(pair.robot_from_path)[0].actor.anchors
-        if anchors is None:
-            raise UserError(f"{pair.key}: anchors@{fit} needs a method with a relative projection")
-        states = matched_anchors(
-            fit, anchors.numpy(), *sources, outcome["scenes"], outcome["seed"], outcome.get("cache")
-        )
-    elif fit:  # matched pairs of states (ps_ray.stitching.outcomes)
-        states = fit_pairs(
-            fit, *sources, outcome["scenes"], outcome["points"], outcome["seed"], outcome.get("cache")
-        )
-    else:
-        states = fit_states(list(pair.fit_tasks), per_quadrant, outcome.get("fit_seed", 0)) if kind else None
+    sources = sources or Sources()
+    kind, where = split_translation(pair.translation) if pair.translation else (None, "")
     stitched = stitch_policies(
-        source(pair.task_from_path),
-        source(pair.robot_from_path),
+        sources(pair.task_from_path),
+        sources(pair.robot_from_path),
         translation=kind,
-        fit_states=states,
+        fit_states=_fit_states(pair, fit, sources),
     )
-    result = evaluate(stitched, pair.robot, pair.task, **settings)
-    metrics = {k: result[k] for k in RESULT_KEYS if k in result} | {"episodes_seed": settings["seed"]}
+    result = evaluate(stitched, pair.robot, pair.task, **episodes.kwargs())
+    metrics = {k: result[k] for k in RESULT_KEYS if k in result} | {"episodes_seed": episodes.seed}
     ridge = translation_ridge(stitched[0])
     metrics["translation_ridge"] = np.nan if ridge is None else ridge
-    if fit:  # what the fit rolled out, cached or not
-        n_anchors = len(anchors) if kind == "anchors" else 0
-        cache = outcome.get("cache")
-        metrics["fit_env_steps"] = fit_cost(kind, fit, sources[0], outcome["scenes"], n_anchors, cache)
-    else:
-        metrics["fit_env_steps"] = 0
+    metrics["fit_env_steps"] = 0
+    if where:  # what the fit rolled out, cached or not
+        n_anchors = len(sources(pair.robot_from_path)[0].actor.anchors) if kind == "anchors" else 0
+        metrics["fit_env_steps"] = fit_cost(kind, where, pair.sources[0], fit.scenes, n_anchors, fit.cache)
     controls = {}
     for role, control in pair.controls.items():
-        key = (control.path, pair.robot.text, pair.task.text, settings["seed"])
-        if key not in scored:  # the translated stitches of a pair share its controls
-            scored[key] = evaluate(source(control.path), pair.robot, pair.task, **settings)
-        controls[role] = unstitched = scored[key]
+        controls[role] = unstitched = sources.evaluated(control.path, pair, episodes)
         if unstitched["episodes_digest"] != result["episodes_digest"]:  # a bug, never bad input
             raise RuntimeError(f"{pair.key}: its {role} control ran on other episodes")
         metrics[f"{role}_success"] = unstitched["success_mean"]
@@ -302,8 +312,9 @@ def _evaluate(
 
     folder, by_key = sweep_layout(spec).tune_zero_shot, {pair.key: pair for pair in trials}
     evaluated = {"episodes": settings.episodes, "repeats": settings.repeats}
-    episodes = {**evaluated, "seed": settings.seed}  # each seed's block of the zero-shot stream
-    chance = chance_levels(trials, episodes, progress)
+    stream = stream_of(settings)  # each seed's block of the zero-shot stream
+    chance = chance_levels(trials, stream, progress)
+    fit = FitSettings.of(settings, str(sweep_layout(spec).outcomes))
     tracking_uri, experiment_id = tracking
     callback = RowRunsCallback(
         tracking_uri,
@@ -334,18 +345,7 @@ def _evaluate(
         resources=spec.resources.zero_shot,
         budgets=[len(batch) for batch in batches],  # the ETA by pairs scored (one result each)
         work="training_iteration",
-        constants={
-            "eval": episodes,
-            "chance": chance,
-            "fit_states_per_quadrant": settings.fit_states_per_quadrant,
-            "outcome": {
-                "scenes": settings.outcome_scenes,
-                "points": settings.outcome_points,
-                "cache": str(sweep_layout(spec).outcomes),
-                "seed": settings.seed,
-                "fit_seed": reset_seeds.fixed("fit", settings.seed),
-            },
-        },
+        constants=ZeroShotBatch.shared(stream, fit, chance),
     )
     ended = stage_summary(results)[1]
     if ended != "FINISHED":  # how the stage ends, as raise_on_errors ends it here

@@ -3,6 +3,11 @@ stitched pair (and per latent translation), with its sources, target env and con
 
 from __future__ import annotations
 
+import dataclasses
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
 from ps_ray.errors import UserError
 from ps_ray.specs import reset_seeds
 from ps_ray.specs.stage_settings import ZeroShotSpec
@@ -93,19 +98,93 @@ def evaluated_pairs(spec: SweepSpec, methods: list[str] | None = None) -> list[S
     return [pair for m in methods for pair in by_method[m]]
 
 
-def pair_episodes(pair: StitchedPair, episodes: int, repeats: int, seed: int) -> dict[str, int]:
-    """``evaluate``'s episodes, repeats and first reset seed for a pair, given the stage's
-    ``seed`` setting: the training seed's own block of the zero-shot stream
+@dataclass(frozen=True)
+class Episodes:
+    """``evaluate``'s fixed episodes: how many, how often each, and the first reset seed."""
+
+    episodes: int
+    repeats: int
+    seed: int
+
+    def kwargs(self) -> dict[str, int]:
+        return dataclasses.asdict(self)
+
+
+@dataclass(frozen=True)
+class FitSettings:
+    """Where a translation's fit states come from: reset states per goal quadrant (a fit without
+    ``@``), or the sources' ``scenes`` rolled-out outcomes matched at ``points`` reference points
+    (k-means ``seed``), cached in ``cache``; ``fit_seed``: the first reset seed of the fit states."""
+
+    states_per_quadrant: int
+    scenes: int
+    points: int
+    cache: str
+    seed: int
+    fit_seed: int
+
+    @classmethod
+    def of(cls, settings: ZeroShotSpec, cache: str) -> FitSettings:
+        return cls(
+            states_per_quadrant=settings.fit_states_per_quadrant,
+            scenes=settings.outcome_scenes,
+            points=settings.outcome_points,
+            cache=cache,
+            seed=settings.seed,
+            fit_seed=reset_seeds.fixed("fit", settings.seed),
+        )
+
+
+@dataclass(frozen=True)
+class ZeroShotBatch:
+    """One zero-shot Tune trial: ``pairs`` scored one after another, each on its own block of the
+    stage's ``stream`` (:func:`pair_episodes`) beside the ``chance`` figures of its target env
+    (:func:`target_key`), translations fitted as ``fit`` says. A Tune config holds it as plain
+    JSON: the batch's pairs under one grid key, the rest shared by every batch (:meth:`shared`)."""
+
+    pairs: tuple[StitchedPair, ...]
+    stream: Episodes
+    fit: FitSettings
+    chance: Mapping[str, dict]
+
+    @staticmethod
+    def shared(stream: Episodes, fit: FitSettings, chance: Mapping[str, dict]) -> dict[str, Any]:
+        return {"stream": stream.kwargs(), "fit": dataclasses.asdict(fit), "chance": dict(chance)}
+
+    @classmethod
+    def from_config(cls, config: Mapping[str, Any]) -> ZeroShotBatch:
+        return cls(
+            pairs=tuple(StitchedPair.from_dict(p) for p in config["batch"]),
+            stream=Episodes(**config["stream"]),
+            fit=FitSettings(**config["fit"]),
+            chance=config["chance"],
+        )
+
+    def episodes(self, pair: StitchedPair) -> Episodes:
+        return pair_episodes(pair, self.stream)
+
+    def chance_of(self, pair: StitchedPair) -> dict:
+        return self.chance[target_key(pair, self.episodes(pair))]
+
+
+def pair_episodes(pair: StitchedPair, stream: Episodes) -> Episodes:
+    """A pair's episodes, given the stage's ``stream`` (its episodes, repeats and ``seed`` setting):
+    the training seed's own block of the zero-shot stream
     (:func:`ps_ray.specs.reset_seeds.fixed_for_run`), so that each seed's pairs, controls, chance
     and floor share their scenes and seeds see different ones. A cross-seed pair takes the block
     of its task module's seed (``pair.seed``)."""
-    first = reset_seeds.fixed_for_run("zero_shot", seed, pair.seed, episodes * repeats)
-    return {"episodes": episodes, "repeats": repeats, "seed": first}
+    first = reset_seeds.fixed_for_run("zero_shot", stream.seed, pair.seed, stream.episodes * stream.repeats)
+    return dataclasses.replace(stream, seed=first)
 
 
-def target_key(pair: StitchedPair, episodes: dict[str, int]) -> str:
+def stream_of(settings: ZeroShotSpec) -> Episodes:
+    """The stage's episodes, repeats and ``seed`` setting, from which each pair's block is taken."""
+    return Episodes(settings.episodes, settings.repeats, settings.seed)
+
+
+def target_key(pair: StitchedPair, episodes: Episodes) -> str:
     """The pair's target env and first reset seed, as the chance figures are keyed."""
-    return f"{pair.robot.text} {pair.task.text} @{episodes['seed']}"
+    return f"{pair.robot.text} {pair.task.text} @{episodes.seed}"
 
 
 def check_kept(done: dict[str, dict], trials: list[StitchedPair], settings: ZeroShotSpec) -> None:
@@ -116,7 +195,7 @@ def check_kept(done: dict[str, dict], trials: list[StitchedPair], settings: Zero
         row = done.get(pair.key)
         if row is None:
             continue
-        want = pair_episodes(pair, settings.episodes, settings.repeats, settings.seed)["seed"]
+        want = pair_episodes(pair, stream_of(settings)).seed
         if row.get("episodes_seed") != want:
             raise UserError(
                 f"{pair.key}: its kept zero-shot row was scored on other episodes (an older ps_ray "

@@ -381,3 +381,23 @@ def test_a_sections_text_sets_backticked_names_as_code_and_escapes_the_rest():
 
     assert prose("run `ps-ray demo` <now>") == "run <code>ps-ray demo</code> &lt;now&gt;"
     assert "`" not in prose("`a` and `b@c`") and prose("`a` and `b@c`").count("<code>") == 2
+
+
+def test_every_transfer_gain_bar_says_its_value_so_a_zero_gain_or_a_missing_pair_still_reads():
+    from ps_ray.analysis.plots import transfer_gain_figure
+
+    rows = [
+        ("ps", "same_seed", "t: a & r: b", 0.25),
+        ("ps", "same_seed", "t: a & r: b", 0.35),
+        ("ps", "same_seed", "t: b & r: a", 0.0),  # a gain of 0 draws no bar
+        ("ablation", "same_seed", "t: a & r: b", -0.5),  # and ablation has no pair for t: b & r: a
+    ]
+    table = pd.DataFrame(rows, columns=["method", "pairing", "label", "transfer_gain"])
+    fig = transfer_gain_figure(table)
+    (ax,) = fig.axes
+    assert [t.get_text() for t in ax.texts] == ["+0.30", "+0.00", "-0.50", "no pairs"]
+    assert "task-blind floor" in ax.get_xlabel()
+    # each value stands right of its bar's error bar (or of 0), on its bar's row
+    ys = {t.get_text(): t.get_position() for t in ax.texts}
+    assert ys["+0.30"][0] == pytest.approx(0.38) and ys["-0.50"][0] == pytest.approx(0.03)
+    assert ys["+0.30"][1] == ys["+0.00"][1] - 1

@@ -235,9 +235,15 @@ def zero_shot_bars(table: pd.DataFrame, path: Path) -> Path:
 
 
 def transfer_gain_bars(table: pd.DataFrame, path: Path) -> Path:
+    """:func:`transfer_gain_figure`, saved at ``path``."""
+    return _save(transfer_gain_figure(table), path)
+
+
+def transfer_gain_figure(table: pd.DataFrame):
     """The report's main figure: per stitched combination (rows) and method (bars), the transfer
-    gain, stitched success minus the best of its unstitched sources and chance on the same episodes
-    (mean over seeds, error bar: the seeds' range); one panel per pairing (same seed, across seeds)."""
+    gain, stitched success minus the best of its controls (unstitched sources, chance, the
+    task-blind floor) on the same episodes (mean over seeds, written beside each bar; error bar:
+    the seeds' range); one panel per pairing (same seed, across seeds)."""
     from ps_ray.analysis.tables import method_order
 
     pairings = list(dict.fromkeys(table["pairing"]))
@@ -255,23 +261,29 @@ def transfer_gain_bars(table: pd.DataFrame, path: Path) -> Path:
         for index, method in enumerate(methods):
             part = table[(table["method"] == method) & (table["pairing"] == pairing)]
             gain = part.groupby("label")["transfer_gain"].agg(["mean", "min", "max"]).reindex(labels)
-            ax.barh(
-                np.arange(len(labels)) + index * height,
+            rows = np.arange(len(labels)) + index * height
+            bars = ax.barh(
+                rows,
                 gain["mean"],
                 height,
                 xerr=[gain["mean"] - gain["min"], gain["max"] - gain["mean"]],
                 label=method,
                 capsize=2,
             )
+            # every bar says its value, so a gain of 0 (no bar) or a row without pairs still reads
+            for y, mean, top in zip(rows, gain["mean"], gain["max"], strict=True):
+                text = "no pairs" if mean != mean else f"{mean:+.2f}"
+                right = 0.0 if top != top else max(top, 0.0)
+                ax.text(right + 0.03, y, text, va="center", fontsize=8, color=bars.patches[0].get_facecolor())
         ax.axvline(0.0, color="black", linewidth=0.8)
         ax.set_yticks(np.arange(len(labels)) + 0.4 - height / 2, [readable(x) for x in labels])
-        ax.set_xlim(-1.05, 1.05)
-        ax.set_xlabel("transfer gain: stitched - best of (unstitched sources, chance)")
+        ax.set_xlim(-1.05, 1.3)
+        ax.set_xlabel("transfer gain: stitched - best control (sources, chance, task-blind floor)")
         ax.set_title(pairing.replace("_", " "))
         ax.invert_yaxis()
     axes[0][0].legend()
     fig.tight_layout()
-    return _save(fig, path)
+    return fig
 
 
 # the bars of :func:`controls_bars`, in the order shown: (column of transfer_numbers, legend label)

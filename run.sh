@@ -37,7 +37,7 @@ browser() {
 
 # Two workers keep both cores busy: much of a test is process start-up, I/O and waiting for a
 # subprocess, and one file's module-scoped fixtures stay in one worker (--dist loadfile).
-pytest() { "$VENV/bin/python" -m pytest -q -n 2 --dist loadfile "$@"; }
+pytest() { "$VENV/bin/python" -m pytest -q -n 2 --dist loadfile --no-loadscope-reorder "$@"; }
 
 cmd="${1:-}"
 shift || true

@@ -235,7 +235,24 @@ def visible_text():
 
 
 # The heaviest modules first: under `pytest -n 2` the longest one starts at once instead of last.
-HEAVY_FIRST = ("test_pipeline.py", "test_sweep.py", "test_train.py", "test_checkpoint.py", "test_rllib.py")
+# the files of the end-to-end lane, longest first (quiet durations, docs/cost.md): each xdist
+# worker takes the next whole file (--dist loadfile; run.sh turns off xdist's own reordering by
+# test count, --no-loadscope-reorder), so the longest start first and the short ones fill in
+HEAVY_FIRST = (
+    "test_pipeline.py",
+    "test_sweep.py",
+    "test_train.py",
+    "test_search.py",
+    "test_zero_shot.py",
+    "test_grid.py",
+    "test_rllib.py",
+    "test_tracking.py",
+    "test_jobs.py",
+    "test_demo.py",
+    "test_checkpoint.py",
+    "test_stitch_zoo.py",
+    "test_evaluate_pair.py",
+)
 
 
 def pytest_collection_modifyitems(items):

@@ -134,41 +134,12 @@ def test_sweep_tracks_one_mlflow_run_per_trial_with_artifacts(tmp_path, cli, tin
     assert load_policy(last / "policy.safetensors")[0].actor.task.projection is not None
 
 
-def test_resume_after_sigkill_reruns_only_missing_trials_and_never_unpickles(
+def test_ctrl_c_stops_a_sweep_in_one_line_and_resume_finishes_it_never_unpickling(
     tmp_path, cli, tiny_train, planted
 ):
-    path = write_sweep(tmp_path, "killed", tiny_train, seeds=(1, 2), max_concurrent=1)
-    proc = cli("sweep", str(path), own_ray=True, start_new_session=True)
-    deadline = time.time() + 300
-    while time.time() < deadline:
-        if any(r.info.status == "FINISHED" for r in runs(path).values()):
-            break
-        time.sleep(0.5)
-    else:
-        pytest.fail("no trial finished in time")
-    os.killpg(proc.pid, signal.SIGKILL)  # the driver and everything it started
-    proc.wait()
-    before = {n: r for n, r in runs(path).items() if r.info.status == "FINISHED"}
-    assert len(before) == 1  # the second trial takes seconds; the kill came within 0.5 s
-    done_name = next(iter(before))
-    done_history = history(path, before[done_name], "env_steps")
-    # Anyone who can write to shared storage could plant these where Tune and RLlib look.
-    folder = sweep_layout(load_sweep(path)).root
-    for place in [folder, *folder.glob("tune*"), *folder.glob("tune*/*"), *folder.glob("tune*/*/check*")]:
-        if place.is_dir():
-            planted(place)
-
-    resumed = cli("sweep", str(path), "--resume")
-    out, _ = resumed.communicate(timeout=600)
-    assert resumed.returncode == 0, out[-3000:]
-    after = runs(path)
-    assert sorted(after) == [f"ablation/panda/reach/{s}/i8" for s in (1, 2)]  # one run per trial
-    assert all(r.info.status == "FINISHED" for r in after.values())
-    assert history(path, after[done_name], "env_steps") == done_history  # not rerun
-    assert not planted.marker.exists(), "a planted pickle was loaded on resume"
-
-
-def test_ctrl_c_stops_a_sweep_in_one_line_and_resume_finishes_it(tmp_path, cli, tiny_train):
+    """Ctrl-C mid-sweep ends it in one line; `sweep --resume` runs only the unfinished trial and
+    loads none of the pickles planted where Tune and RLlib look. (A SIGKILL in training and the
+    resume after it: tests/test_pipeline.py's fixture.)"""
     path = write_sweep(tmp_path, "ctrlc", {**tiny_train, "env_steps": 600}, seeds=(1, 2), max_concurrent=1)
     proc = cli("sweep", str(path))
     deadline = time.time() + 300
@@ -186,12 +157,23 @@ def test_ctrl_c_stops_a_sweep_in_one_line_and_resume_finishes_it(tmp_path, cli, 
     (last_view,) = [line for line in out.splitlines() if "train: 1 done, 1 interrupted, 0 running" in line]
     assert "0 failed, 0 pending" in last_view  # the live view
     assert not last_view.endswith("ETA 0:00"), last_view  # the interrupted trial's work is left
+    ((done_name, done),) = [(n, r) for n, r in runs(path).items() if r.info.status == "FINISHED"]
+    done_history = history(path, done, "env_steps")
+    # Anyone who can write to shared storage could plant these where Tune and RLlib look.
+    folder = sweep_layout(load_sweep(path)).root
+    for place in [folder, *folder.glob("tune*"), *folder.glob("tune*/*"), *folder.glob("tune*/*/check*")]:
+        if place.is_dir():
+            planted(place)
 
     resumed = cli("sweep", str(path), "--resume")
     out, _ = resumed.communicate(timeout=600)
     assert resumed.returncode == 0, out[-3000:]
     assert "2/2 trials finished" in out
-    assert all(r.info.status == "FINISHED" for r in runs(path).values())
+    after = runs(path)
+    assert sorted(after) == [f"ablation/panda/reach/{s}/i8" for s in (1, 2)]  # one run per trial
+    assert all(r.info.status == "FINISHED" for r in after.values())
+    assert history(path, after[done_name], "env_steps") == done_history  # not rerun
+    assert not planted.marker.exists(), "a planted pickle was loaded on resume"
 
 
 # One Tune run through the stages' runner, then Ctrl-C (SIGINT to itself) while the driver does
@@ -287,16 +269,6 @@ def test_a_killed_trial_worker_is_retried_from_its_checkpoint(tmp_path, cli, tin
     assert starts[0] == 0 and len(starts) == 2 and 0 < starts[1] < 1500, starts
 
 
-def test_trials_spread_over_two_nodes(tmp_path, tiny_train, two_node_cluster):
-    from ps_ray.pipeline.sweep import run_sweep
-
-    path = write_sweep(tmp_path, "nodes", tiny_train, seeds=(1, 2))
-    results = run_sweep(load_sweep(path), progress=False)
-    assert not any(r.error for r in results)
-    node_ids = {r.metrics["node_id"] for r in results}
-    assert len(node_ids) == 2, node_ids
-
-
 @pytest.mark.parametrize("entry", ["sweep", "sweep --resume", "run"])
 def test_a_sweep_with_other_training_settings_is_refused_before_anything_runs(tmp_path, entry):
     from ps_ray.pipeline.run import run_pipeline
@@ -348,8 +320,9 @@ def _rows(trial_dir: Path) -> list[dict]:
 def test_a_killed_worker_node_s_trial_resumes_from_its_checkpoint_on_another_node(
     tmp_path, tiny_train, two_node_cluster
 ):
-    """A worker node dies mid-sweep (its raylet and every process on it killed): Tune retries its
-    trial from the last sealed checkpoint on the node that is left, and the sweep completes."""
+    """Two trials spread over two nodes; the worker node dies mid-sweep (its raylet and every
+    process on it killed): Tune retries its trial from the last sealed checkpoint on the node that
+    is left, and the sweep completes."""
     import threading
 
     from ps_ray.pipeline.sweep import run_sweep
@@ -368,7 +341,8 @@ def test_a_killed_worker_node_s_trial_resumes_from_its_checkpoint_on_another_nod
                 rows = _rows(trial_dir)
                 on_worker = rows and rows[-1].get("node_id") == worker.node_id
                 if on_worker and latest_checkpoint(list(trial_dir.glob("checkpoint_*"))) is not None:
-                    killed.update(trial=trial_dir.name, env_steps=rows[-1]["env_steps"])
+                    nodes = {r[-1]["node_id"] for r in map(_rows, tune_dir.glob("*")) if r}
+                    killed.update(trial=trial_dir.name, env_steps=rows[-1]["env_steps"], nodes=nodes)
                     cluster.remove_node(worker, allow_graceful=False)
                     return
             time.sleep(0.2)
@@ -378,6 +352,7 @@ def test_a_killed_worker_node_s_trial_resumes_from_its_checkpoint_on_another_nod
     results = run_sweep(spec, progress=False)
     killer.join()
     assert killed, "no trial ran on the worker node long enough to checkpoint"
+    assert len(killed["nodes"]) == 2, killed  # the two trials ran at once, one on each node
     assert killed["env_steps"] < 1500  # killed mid-training
     assert not any(r.error for r in results)
     assert all(r.metrics["env_steps"] >= 1500 for r in results)

@@ -121,6 +121,7 @@ def test_a_tracking_server_as_docs_cluster_md_starts_it_takes_a_sweeps_runs(tmp_
             *("--backend-store-uri", f"sqlite:///{tmp_path / 'server' / 'mlflow.db'}"),
             *("--artifacts-destination", str(tmp_path / "server" / "artifacts")),
             *("--host", "127.0.0.1", "--port", str(port)),
+            *("--workers", "1"),  # the docs' head serves many readers; one test needs one worker
         ],
         stdout=subprocess.DEVNULL,
         stderr=subprocess.DEVNULL,

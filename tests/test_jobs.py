@@ -27,9 +27,10 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
-@pytest.fixture
-def ray_head(tmp_path):
-    """`ray start --head --block` in its own session; killed with its process group afterwards."""
+@pytest.fixture(scope="module")
+def ray_head():
+    """`ray start --head --block` in its own session, shared by this file's tests (its start is
+    most of their time); killed with its process group afterwards."""
     env = {**own_ray_env(), "RAY_AUTH_MODE": "token", "RAY_USAGE_STATS_ENABLED": "0"}
     dashboard = free_port()
     head = subprocess.Popen(

@@ -123,7 +123,7 @@ def test_training_stops_early_at_the_success_target(tmp_path):
         "--eval-episodes",
         "20",
         "--target-success",
-        "0.5",
+        "0.3",  # an untrained policy scores 0-0.15 here; two evaluations at 0.3 come near 3k steps
         "--target-evals",
         "2",
         "--env-steps",
@@ -138,7 +138,7 @@ def test_training_stops_early_at_the_success_target(tmp_path):
     evals = pd.read_csv(run_dir / "metrics.csv").dropna(subset=["eval_success"])
     assert result["converged"] is True
     assert result["env_steps"] < 40000
-    assert (evals["eval_success"].iloc[-2:] >= 0.5).all()
+    assert (evals["eval_success"].iloc[-2:] >= 0.3).all() and (evals["eval_success"].iloc[:2] < 0.3).all()
     assert evals["env_steps"].iloc[-1] == pd.read_csv(run_dir / "metrics.csv")["env_steps"].iloc[-1]
 
 

@@ -11,7 +11,8 @@ compilation time (docs/cost.md has the figures of this machine). ``--devices cpu
 each method on each device (a CUDA update is timed to its end: the host waits for the GPU);
 ``--dims`` gives the widths instead of building the task's env, for a GPU host without PyBullet;
 ``--save DIR`` writes each row's nets, as its updates left them, as a policy file (written from
-the GPU, read and stitched on a CPU host).
+the GPU, read and stitched on a CPU host). ``--population K ...`` times instead K sources of the
+first method updated as one (:mod:`ps_ray.nets.population`) beside K solo updates, per source.
 """
 
 from __future__ import annotations
@@ -88,6 +89,51 @@ class UpdateLoop:
         return (time.perf_counter() - start) / updates
 
 
+class PopulationLoop:
+    """``k`` members of one method updated as one population, each on a fixed random batch."""
+
+    def __init__(self, method: str, dims: NetDims, k: int, batch_size: int, interface_dim: int, device: str):
+        from ps_ray.nets.population import Population
+
+        solos = [UpdateLoop(method, dims, batch_size, interface_dim, seed=i, device=device) for i in range(k)]
+        self.device = torch.device(device)
+        self.population = Population([loop.nets for loop in solos])
+        self.batch = {key: torch.stack([loop.batch[key] for loop in solos]) for key in solos[0].batch}
+        self.rewards = torch.stack([loop.rewards for loop in solos])
+
+    def timed(self, updates: int) -> float:
+        start = time.perf_counter()
+        for _ in range(updates):
+            self.population.update(self.batch, self.rewards)
+        if self.device.type == "cuda":
+            torch.cuda.synchronize(self.device)
+        return (time.perf_counter() - start) / updates
+
+
+def population_table(method: str, dims: NetDims, sizes: list[int], args) -> None:
+    """Per source: K solo updates one after another against one update of a population of K."""
+    device = args.devices[0]
+    solo = UpdateLoop(method, dims, args.batch_size, args.interface_dim, device=device)
+    loops = {k: PopulationLoop(method, dims, k, args.batch_size, args.interface_dim, device) for k in sizes}
+    for loop in (solo, *loops.values()):
+        loop.timed(3)
+    seconds = {"solo": [], **{k: [] for k in sizes}}
+    for _ in range(args.rounds):  # taking turns: a noisy machine slows them alike
+        seconds["solo"].append(solo.timed(args.updates))
+        for k, loop in loops.items():
+            seconds[k].append(loop.timed(args.updates))
+    base = float(np.median(seconds["solo"]))
+    print(
+        f"{method} on {device}, batch {args.batch_size}, interface {args.interface_dim}, 1 torch thread; "
+        f"median over {args.rounds} rounds of {args.updates} updates"
+    )
+    print(f"{'sources':>8}{'ms/update (all)':>17}{'ms per source':>15}{'/ solo':>8}")
+    print(f"{'1 solo':>8}{1000 * base:>17.2f}{1000 * base:>15.2f}{1.0:>8.2f}")
+    for k in sizes:
+        ms = 1000 * float(np.median(seconds[k]))
+        print(f"{k:>8}{ms:>17.2f}{ms / k:>15.2f}{ms / k / (1000 * base):>8.2f}")
+
+
 def task_dims(task: str) -> NetDims:
     """The widths of a task's nets on the Panda (``ps_ray.envs`` loads PyBullet)."""
     from ps_ray.envs.core import env_widths
@@ -123,6 +169,14 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--devices", nargs="+", default=["cpu"], choices=["cpu", "cuda"])
     parser.add_argument("--dims", type=parse_dims, default=None, help="TASK,ROBOT,ACTION widths (no env)")
     parser.add_argument("--save", type=Path, default=None, help="write each row's nets here (policy files)")
+    parser.add_argument(
+        "--population",
+        type=positive_int,
+        nargs="+",
+        default=None,
+        metavar="K",
+        help="time populations of K sources of the first method updated as one, per source",
+    )
     args = parser.parse_args(argv)
     methods = list(dict.fromkeys(["ablation", *args.methods]))
     for method in methods:
@@ -131,6 +185,8 @@ def main(argv: list[str] | None = None) -> None:
         parser.error("--devices cuda: this torch finds no CUDA device")
     torch.set_num_threads(1)
     dims = args.dims or task_dims(args.task)
+    if args.population:
+        return population_table(args.methods[0], dims, sorted(set(args.population)), args)
     loops: dict[str, UpdateLoop] = {}
     for device in args.devices:
         for m in methods:

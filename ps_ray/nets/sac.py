@@ -36,10 +36,11 @@ class SACHyper:
     target_entropy: float | None = None  # None: -|A|
 
 
-def squashed_sample(mean: Tensor, log_std: Tensor) -> tuple[Tensor, Tensor]:
-    """Reparameterised tanh-Gaussian sample and its log-probability (summed over action dims)."""
+def squashed_sample(mean: Tensor, log_std: Tensor, noise: Tensor | None = None) -> tuple[Tensor, Tensor]:
+    """Reparameterised tanh-Gaussian sample and its log-probability (summed over action dims);
+    ``noise``: the standard normal draw to use (default: a fresh one)."""
     std = log_std.exp()
-    pre = mean + std * torch.randn_like(mean)
+    pre = mean + std * (torch.randn_like(mean) if noise is None else noise)
     logp = (-0.5 * ((pre - mean) / std).pow(2) - log_std - 0.5 * math.log(2 * math.pi)).sum(-1)
     # log|d tanh(u)/du| = 2 (log 2 - u - softplus(-2u)), numerically stable
     logp = logp - (2.0 * (LOG_2 - pre - nn.functional.softplus(-2.0 * pre))).sum(-1)
@@ -108,10 +109,14 @@ def _frozen_copy(module: nn.Module) -> nn.Module:
     return target
 
 
-def sac_forward(nets: SACNets, batch: dict[str, Tensor]) -> dict[str, Tensor]:
+def sac_forward(
+    nets: SACNets, batch: dict[str, Tensor], noise: tuple[Tensor, Tensor] | None = None
+) -> dict[str, Tensor]:
     """Every network output the SAC losses need, for one batch.
 
-    batch: task_in, robot_in, actions, next_task_in, next_robot_in (float tensors, batch-first).
+    batch: task_in, robot_in, actions, next_task_in, next_robot_in (float tensors, batch-first);
+    noise: the standard normal draws of the next action and of the policy's action (default:
+    fresh ones; given, a population's members and a solo learner draw alike).
     """
     task, robot, next_task, next_robot = (
         batch["task_in"],
@@ -119,29 +124,35 @@ def sac_forward(nets: SACNets, batch: dict[str, Tensor]) -> dict[str, Tensor]:
         batch["next_task_in"],
         batch["next_robot_in"],
     )
+    next_noise, policy_noise = noise or (None, None)
     # Each trained net's own penalties (RelativeSpec.norm_reg, ref_weight) come from its pass over
     # the batch's task states, on its own parameters.
     out: dict[str, Tensor] = {}
     out["q"], critic_penalty = nets.critic.penalized(task, robot, batch["actions"])
     out["q_twin"], twin_penalty = nets.critic_twin.penalized(task, robot, batch["actions"])
     with torch.no_grad():
-        next_action, out["logp_next"] = squashed_sample(*nets.actor(next_task, next_robot))
+        next_action, out["logp_next"] = squashed_sample(*nets.actor(next_task, next_robot), next_noise)
         out["q_target_next"] = torch.min(
             nets.target_critic(next_task, next_robot, next_action),
             nets.target_critic_twin(next_task, next_robot, next_action),
         )
     policy, actor_penalty = nets.actor.penalized(task, robot)
-    action, out["logp"] = squashed_sample(*policy)
+    action, out["logp"] = squashed_sample(*policy, policy_noise)
     out["action"] = action
-    # The actor's gradient must pass through the critics without updating them.
-    critic_params = [p for c in (nets.critic, nets.critic_twin) for p in c.parameters()]
-    for p in critic_params:
-        p.requires_grad_(False)
-    out["q_policy"] = torch.min(nets.critic(task, robot, action), nets.critic_twin(task, robot, action))
-    for p in critic_params:
-        p.requires_grad_(True)
+    # The actor's gradient passes through the critics without reaching their parameters.
+    out["q_policy"] = torch.min(
+        _fixed(nets.critic, task, robot, action), _fixed(nets.critic_twin, task, robot, action)
+    )
     out["penalty"] = critic_penalty + twin_penalty + actor_penalty
     return out
+
+
+def _fixed(module: nn.Module, *args: Tensor) -> Tensor:
+    """``module(*args)`` with its parameters held fixed: gradients reach the inputs only. (Done
+    functionally, not by switching ``requires_grad``, so that a population's stacked members,
+    ``ps_ray.nets.population``, pass through it too.)"""
+    state = {name: p.detach() for name, p in module.named_parameters()}
+    return torch.func.functional_call(module, {**state, **dict(module.named_buffers())}, args)
 
 
 def sac_losses(

@@ -1,0 +1,136 @@
+"""A population of SAC learners updated as one gives each member exactly what a solo learner
+gives it: same start, same batches, same noise -> the same weights, targets, temperature and
+losses (to float tolerance), after 1 and after 10 updates; a member that leaves changes no other."""
+
+from __future__ import annotations
+
+import copy
+
+import numpy as np
+import pytest
+import torch
+
+from ps_ray.nets.population import LearningRates, Population
+from ps_ray.nets.sac import SACHyper, build_sac_nets, polyak, sac_forward, sac_losses
+from ps_ray.specs.dims import NetDims
+
+DIMS = NetDims(task_dim=6, robot_dim=5, action_dim=3)
+LRS = LearningRates(critic=1e-3, actor=3e-4, alpha=5e-4)
+HP = SACHyper(action_l2=0.5)
+TAU = 0.01
+
+
+def member(method: str, seed: int):
+    torch.manual_seed(seed)
+    anchors = np.random.default_rng(seed).normal(size=(8, DIMS.task_dim))
+    nets = build_sac_nets(
+        method, DIMS, interface_dim=8, hidden=16, anchors=anchors if method == "ps" else None
+    )
+    for module in nets.modules():  # normaliser statistics of its own, as a trained source has
+        if hasattr(module, "update"):
+            module.update(torch.randn(64, module.mean.shape[0]) * (1 + seed))
+    return nets
+
+
+class Solo:
+    """One learner as the RLlib learner runs it: sac_forward + sac_losses, one backward, an Adam
+    per group (critic, actor, temperature), then Polyak."""
+
+    def __init__(self, nets):
+        self.nets = nets
+        self.log_alpha = torch.zeros(1, requires_grad=True)
+        critics = [*nets.critic.parameters(), *nets.critic_twin.parameters()]
+        self.optimizers = [
+            torch.optim.Adam(critics, lr=LRS.critic),
+            torch.optim.Adam(nets.actor.parameters(), lr=LRS.actor),
+            torch.optim.Adam([self.log_alpha], lr=LRS.alpha),
+        ]
+
+    def update(self, batch, rewards, noise, warmup=False):
+        losses = sac_losses(
+            sac_forward(self.nets, batch, noise), rewards, self.log_alpha, HP, DIMS.action_dim
+        )
+        total = losses["critic"] + 0.0 * (losses["actor"] + losses["alpha"]) if warmup else losses["total"]
+        for optimizer in self.optimizers:
+            optimizer.zero_grad()
+        total.backward()
+        for optimizer in self.optimizers:
+            optimizer.step()
+        polyak(self.nets, TAU)
+        return total.detach()
+
+
+def batches(k: int, size: int, seed: int):
+    g = torch.Generator().manual_seed(seed)
+    widths = {"task_in": DIMS.task_dim, "robot_in": DIMS.robot_dim, "actions": DIMS.action_dim}
+    widths |= {"next_task_in": DIMS.task_dim, "next_robot_in": DIMS.robot_dim}
+    batch = {key: torch.randn(k, size, w, generator=g) for key, w in widths.items()}
+    rewards = -(torch.rand(k, size, generator=g) < 0.7).float()
+    noise = (
+        torch.randn(k, size, DIMS.action_dim, generator=g),
+        torch.randn(k, size, DIMS.action_dim, generator=g),
+    )
+    return batch, rewards, noise
+
+
+def assert_same(population: Population, index: int, solo: Solo):
+    exported, log_alpha = population.export(index, copy.deepcopy(solo.nets))
+    for (name, got), want in zip(exported.state_dict().items(), solo.nets.state_dict().values(), strict=True):
+        torch.testing.assert_close(got, want, rtol=1e-4, atol=1e-5, msg=f"member {index}: {name}")
+    torch.testing.assert_close(log_alpha.reshape(1), solo.log_alpha.detach(), rtol=1e-4, atol=1e-6)
+
+
+@pytest.mark.parametrize("method", ["ps", "ablation", "plain"])
+def test_each_member_gets_the_updates_a_solo_learner_gives_it(method):
+    starts = [member(method, seed) for seed in (1, 2, 3)]
+    solos = [Solo(copy.deepcopy(nets)) for nets in starts]
+    population = Population(starts, hp=HP, lrs=LRS, tau=TAU)
+    assert len(population) == 3
+    for step in range(10):
+        batch, rewards, noise = batches(3, 32, seed=step)
+        warmup = step < 2  # critics only for the first updates, as critic_warmup_updates does
+        losses = population.update(batch, rewards, noise, warmup=warmup)
+        for i, solo in enumerate(solos):
+            alone = solo.update(
+                {k: v[i] for k, v in batch.items()}, rewards[i], (noise[0][i], noise[1][i]), warmup=warmup
+            )
+            torch.testing.assert_close(losses[i], alone, rtol=1e-4, atol=1e-5)
+        if step in (0, 9):
+            for i, solo in enumerate(solos):
+                assert_same(population, i, solo)
+    # the members moved, each its own way: no update was shared
+    moved = [population.export(i, copy.deepcopy(starts[0]))[0].actor for i in range(3)]
+    weights = [torch.cat([p.flatten() for p in nets.parameters()]) for nets in moved]
+    assert not torch.equal(weights[0], weights[1]) and not torch.equal(weights[1], weights[2])
+
+
+def test_a_member_that_leaves_changes_no_other():
+    starts = [member("ps", seed) for seed in (1, 2, 3)]
+    together = Population([copy.deepcopy(n) for n in starts], hp=HP, lrs=LRS, tau=TAU)
+    apart = Population([copy.deepcopy(n) for n in (starts[0], starts[2])], hp=HP, lrs=LRS, tau=TAU)
+    for step in range(6):
+        batch, rewards, noise = batches(3, 16, seed=100 + step)
+        if step == 3:  # member 1 stops (its target reached): exported, and the rest go on
+            together.keep([0, 2])
+        if step >= 3:
+            batch = {k: v[[0, 2]] for k, v in batch.items()}
+            rewards, noise = rewards[[0, 2]], (noise[0][[0, 2]], noise[1][[0, 2]])
+            together.update(batch, rewards, noise)
+            apart.update(batch, rewards, noise)
+        else:
+            together.update(batch, rewards, noise)
+            pick = [0, 2]
+            apart.update(
+                {k: v[pick] for k, v in batch.items()}, rewards[pick], (noise[0][pick], noise[1][pick])
+            )
+    assert len(together) == 2
+    for i in range(2):
+        a = together.export(i, copy.deepcopy(starts[0]))[0].state_dict()
+        b = apart.export(i, copy.deepcopy(starts[0]))[0].state_dict()
+        for name in a:
+            torch.testing.assert_close(a[name], b[name], rtol=1e-5, atol=1e-6, msg=name)
+
+
+def test_a_population_refuses_to_be_empty():
+    with pytest.raises(ValueError, match="at least one member"):
+        Population([])

@@ -308,6 +308,11 @@ def test_report_embeds_every_figure_and_table(smoke):
     page = (root / "report" / "index.html").read_text()
     figures = {p.stem: p for p in (root / "report" / "figures").glob("*.png")}
     assert set(figures) == FIGURES
+    # ticks are set at 9 pt or more, 12.5 px at the figures' 100 dpi; the page's column (1,200 px)
+    # shrinks a wider figure, and none may be so wide that its ticks read under 8 px
+    for name, path in figures.items():
+        with PIL.Image.open(path) as image:
+            assert 12.5 * min(1.0, 1200 / image.size[0]) >= 8, (name, image.size)
     for name, path in figures.items():
         assert (
             f"alt='{name}' src='data:image/png;base64,{base64.b64encode(path.read_bytes()).decode()}'" in page
@@ -436,6 +441,7 @@ def test_report_opens_in_headless_chromium(smoke, rebuilt, visible_text):
     assert (top < 0.5).any(-1).mean() > 0.002  # the title and overview table are drawn
     assert np.isfinite(pixels).all()
     text = visible_text(root / "report" / "index.html", wait_ms=0)
+    assert "`" not in text  # names set as code, not as literal backticks
     # the answer comes first: the headline table opens the page, before any training curve
     assert text.index("Headline per method") < text.index("Greedy success of the sweep's policies during")
     assert text.index("near zero by design") < text.index("Headline per method")

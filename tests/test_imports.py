@@ -91,6 +91,19 @@ def test_analysis_and_the_store_never_import_the_tune_stages():
             assert not stages, f"{name} imports {stages}"
 
 
+def test_no_stage_runner_imports_another_stage():
+    """A stage's runner (pipeline/run.py RUNNERS) reaches what stages share through modules of
+    their own (the Tune runners, the anchor sets, the stage's folder and store), never through
+    another stage, so a stage can be read, changed or removed alone."""
+    from ps_ray.pipeline.run import RUNNERS
+
+    runners = {f"ps_ray.pipeline.{'sweep' if s == 'train' else s}" for s in RUNNERS if s != "report"}
+    graph = _graph()
+    assert runners <= set(graph), runners - set(graph)
+    for name in sorted(runners):
+        assert not graph[name] & (runners - {name}), f"{name} imports {sorted(graph[name] & runners)}"
+
+
 def test_no_module_is_over_400_lines():
     long = {p.name: n for p in PACKAGE.rglob("*.py") if (n := len(p.read_text().splitlines())) > 400}
     assert not long, long

@@ -92,7 +92,7 @@ def _drawn(seen: list[int], stream: str) -> None:
 def test_the_stages_functions_reset_from_their_own_streams(resets, tmp_path):
     """The zero-shot episodes (a pair's evaluation, chance and the floor), the outcome rollouts,
     the translation's fit states and the sweep's anchor sets each reset from their own block."""
-    from ps_ray.pipeline.sweep import prepare_sweep_anchors
+    from ps_ray.pipeline.anchor_sets import prepare_sweep_anchors
     from ps_ray.pipeline.zero_shot import fit_states
     from ps_ray.stitching.chance import chance
     from ps_ray.stitching.outcomes import outcomes

@@ -60,7 +60,7 @@ def run_few_shot(spec: SweepSpec, *, resume: bool = False, progress: bool = True
     """Settings from ``spec.few_shot`` (``overrides`` replace fields); returns the trials'
     outcomes. A resumed stage whose every trial finished starts neither Ray nor MLflow."""
     from ps_ray.pipeline.stage import connect, open_tracking
-    from ps_ray.pipeline.sweep import run_tune
+    from ps_ray.pipeline.training_trials import run_tune
     from ps_ray.pipeline.trials import stage_summary
     from ps_ray.store.attempts import outcomes, require_fresh
     from ps_ray.store.stage_run import close_left_open

@@ -8,8 +8,9 @@ from __future__ import annotations
 
 from typing import Any
 
+from ps_ray.pipeline.anchor_sets import prepare_sweep_anchors
 from ps_ray.pipeline.stage import connect, record_spec, require_same_sweep
-from ps_ray.pipeline.sweep import prepare_sweep_anchors, report_ticks, run_tune
+from ps_ray.pipeline.training_trials import report_ticks, run_tune
 from ps_ray.plan import grid as grid_plan
 from ps_ray.specs.sweep import SweepSpec
 from ps_ray.specs.trial import GridTrial

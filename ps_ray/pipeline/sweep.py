@@ -1,164 +1,27 @@
-"""`ps-ray sweep`: a SweepSpec's training trials as Ray Tune trials, resumable, tracked in MLflow.
+"""`ps-ray sweep`: the train stage, a SweepSpec's training trials as Ray Tune trials, resumable,
+tracked in MLflow.
 
-Stage 1 trains the plain source policies of the anchors (anchors.policy: plain), stage 2 makes
-one anchor set per (task-input width, k) in the driver, stage 3 runs every trial of the grid.
-Where each goes: :class:`ps_ray.store.layout.SweepLayout`.
+First the plain source policies of the anchors (anchors.policy: plain), then the anchor sets
+(made by the driver: :mod:`ps_ray.pipeline.anchor_sets`), then every training trial of the sweep
+(:mod:`ps_ray.pipeline.training_trials`). Where each goes: :class:`ps_ray.store.layout.SweepLayout`.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import tempfile
 from functools import partial
 from pathlib import Path
-from typing import Any
 
+from ps_ray.pipeline.anchor_sets import missing_anchor_sets, prepare_sweep_anchors
 from ps_ray.pipeline.stage import connect, raise_on_errors, record_spec, require_same_sweep
+from ps_ray.pipeline.training_trials import record_of, run_tune
 from ps_ray.plan import train as train_plan
-from ps_ray.plan.train import anchor_file
-from ps_ray.specs import reset_seeds
-from ps_ray.specs.stages import stage as stage_record
-from ps_ray.specs.sweep import SweepSpec, anchor_sources, task_input_dim
+from ps_ray.specs.sweep import SweepSpec
 from ps_ray.specs.titles import ANCHOR_POLICY, title
-from ps_ray.specs.train import POINT_TASK
-from ps_ray.specs.trial import GridTrial, TrainTrial
+from ps_ray.specs.trial import TrainTrial
 from ps_ray.store.layout import sweep_layout
-from ps_ray.store.mlflow_values import flatten_params
-from ps_ray.store.run_layout import METRIC_FIELDS, POLICY_FILE, SIGNATURE_FILE, SPEC_FILE
-
-# What each training result sends to MLflow: the metrics.csv columns but the step and the clock.
-METRIC_KEYS = tuple(k for k in METRIC_FIELDS if k not in ("iteration", "wall_s")) + ("alpha", "entropy")
 
 
-SCHEDULED_METRICS = {"eval_success": None, "best_eval_success": None}
-
-
-# -- anchors -------------------------------------------------------------------------------------
-def prepare_sweep_anchors(
-    spec: SweepSpec, plain_policies: dict[str, Path] | None = None
-) -> dict[tuple[int, int], str]:
-    """Stage 2: one anchor set per (task-input width, k), pooled over that width's source tasks.
-
-    States come from `spec.anchors.file`, from greedy rollouts of the trained plain policies
-    (policy: plain, after stage 1) or from random-action rollouts (policy: random).
-    """
-    from ps_ray.data.anchor_file import anchors_from_file, save_anchor_set
-    from ps_ray.data.anchors import make_anchor_set
-    from ps_ray.data.collect import collect_task_states
-    from ps_ray.envs import make
-    from ps_ray.nets.policy import GreedyPolicy
-
-    ps = [t for t in spec.trials() if t.resolved.uses_anchors]
-    sources = anchor_sources(spec) if ps else []
-    paths: dict[tuple[int, int], str] = {}
-    for t in ps:
-        paths.setdefault((task_input_dim(t.task), t.interface_dim), anchor_file(spec, t))
-    for (dim, k), name in sorted(paths.items()):
-        path = Path(name)
-        if path.exists():
-            continue
-        if spec.anchors.file:
-            anchor_set = anchors_from_file(spec.anchors.file, k, seed=spec.anchors.seed)
-        else:
-            states = {}
-            for source in (s for s in sources if task_input_dim(s.task) == dim):
-                policy = None
-                if spec.anchors.policy == "plain":
-                    policy = GreedyPolicy.from_file(plain_policies[source.label()])
-                states[source.task.text] = collect_task_states(
-                    lambda source=source: make(source.robot, source.task),
-                    episodes=spec.anchors.episodes,
-                    steps=spec.anchors.steps,
-                    policy=policy,
-                    seed=reset_seeds.fixed("anchors", spec.anchors.seed),
-                    goals=spec.anchors.goals,
-                )
-            anchor_set = make_anchor_set(
-                states,
-                k,
-                seed=spec.anchors.seed,
-                extra_provenance={
-                    "policy": spec.anchors.policy,
-                    "goals": spec.anchors.goals,
-                    "robot": spec.anchors.robot.spelling,
-                    "steps": list(spec.anchors.steps),
-                    "episodes": spec.anchors.episodes,
-                    "checkpoints": {s: str(p) for s, p in (plain_policies or {}).items()},
-                },
-            )
-        path.parent.mkdir(parents=True, exist_ok=True)
-        save_anchor_set(path, anchor_set)
-    return paths
-
-
-# -- the Tune trial ------------------------------------------------------------------------------
-def sweep_trial(config: dict[str, Any]) -> None:
-    """Tune function trainable: one TrainingRun, checkpointed to Tune. It continues from Tune's
-    checkpoint after a retry, else from the furthest checkpoint an earlier attempt of the same
-    trial left (a resumed stage, :mod:`ps_ray.pipeline.trials`); its last result carries ``FINISHED``."""
-    import ray
-
-    from ps_ray.data.anchor_file import load_anchor_set
-    from ps_ray.nets.policy_file import policy_anchor_set
-    from ps_ray.rllib.loop import TrainingRun
-    from ps_ray.store.attempts import replay_store
-
-    trial = TrainTrial.of(config["trial"])
-    spec = trial.spec
-    if trial.anchors:
-        anchor_set = load_anchor_set(trial.anchors)
-    elif spec.init_policy is not None and spec.resolved.uses_anchors:  # anchors inside the policy file
-        anchor_set = policy_anchor_set(spec.init_policy)
-    else:
-        anchor_set = None
-    granted = ray.get_runtime_context().get_assigned_resources()  # what spec.resources asked for
-    run = TrainingRun(
-        spec,
-        anchor_set,
-        threads=max(1, int(granted.get("CPU", 1))),
-        gpu=granted.get("GPU", 0),
-        compile=config.get("compile", False),
-        replay_store=replay_store(config, "trial"),
-    )
-    report_ticks(run, config, "trial")
-
-
-def report_ticks(run, config: dict[str, Any], key: str) -> None:
-    """A Tune trial's loop over a :class:`TrainingRun` (a grid's too): restore from Tune's
-    checkpoint after a retry, else from the furthest checkpoint an earlier attempt of the same
-    trial (``config[key]``) left; report each evaluation, and checkpoints with their step; the
-    last result carries the final evaluation and ``FINISHED``."""
-    import ray
-    from ray import tune
-
-    from ps_ray.store.attempts import FINISHED, START_STEPS, earlier_checkpoint
-
-    checkpoint = tune.get_checkpoint()
-    if checkpoint is not None:
-        with checkpoint.as_directory() as directory:
-            run.restore(Path(directory))
-    elif (earlier := earlier_checkpoint(config, key)) is not None:
-        run.restore(earlier)
-    node_id = ray.get_runtime_context().get_node_id()
-    for tick in run.ticks():  # the loop of `ps-ray train` too: it decides steps and checkpoints
-        if tick.finished is None and run.done:
-            continue  # the last step: reported once, by the last tick, with the checkpoint
-        # every row names the metrics a search's scheduler reads (None between evaluations)
-        row = {**SCHEDULED_METRICS, **tick.row, **(tick.finished or {}), "node_id": node_id}
-        row[START_STEPS] = run.start_steps  # the live view's ETA counts only this attempt's steps
-        if tick.checkpoint:
-            with tempfile.TemporaryDirectory() as directory:
-                run.save(Path(directory))
-                if tick.finished is not None:
-                    final = {f"final_{k}": v for k, v in run.final_eval().items()}
-                    row.update(final, converged=run.converged, **{FINISHED: True})
-                tune.report(row, checkpoint=tune.Checkpoint.from_directory(directory))
-        elif row.get("eval_success") is not None:
-            tune.report(row)
-    run.stop()
-
-
-# -- the driver ----------------------------------------------------------------------------------
 def check_inputs(spec: SweepSpec) -> None:
     """The files a sweep starts from, read before Ray starts and anything is written: the anchor
     file must exist, and every trial's ``init_policy`` must fit its method, sizes and env."""
@@ -179,11 +42,11 @@ def check_inputs(spec: SweepSpec) -> None:
 
 
 def run_sweep(spec: SweepSpec, *, resume: bool = False, progress: bool = True):
-    """Run (or resume) the sweep's stages; returns the training stage's Tune ResultGrid.
+    """Run (or resume) the train stage; returns its Tune ResultGrid.
 
-    Stage 1 (anchors.policy: plain): the plain source policies, as Tune trials.
-    Stage 2: anchor sets, made by the driver. Stage 3: every trial of the grid, as Tune trials.
-    A stage whose outputs exist is skipped, so a killed sweep resumes where it stopped.
+    The anchors' plain source policies (anchors.policy: plain) as Tune trials, then the anchor
+    sets, made by the driver, then every training trial as Tune trials. A step whose outputs exist
+    is skipped, so a killed sweep resumes where it stopped.
     """
     from ps_ray.envs.registry import register
     from ps_ray.store.attempts import require_fresh
@@ -199,15 +62,14 @@ def run_sweep(spec: SweepSpec, *, resume: bool = False, progress: bool = True):
     tune_args = dict(spec=spec, tracking=connect(spec), resume=resume, progress=progress)
 
     plain_policies = None
-    needs_anchors = any(not Path(p).exists() for p in _anchor_paths(spec))
-    if needs_anchors and (sources := train_plan.plain_sources(spec)):
+    if missing_anchor_sets(spec) and (sources := train_plan.plain_sources(spec)):
         results = run_tune(
             sources,
             folder=layout.tune_plain,
             stage="anchors_plain",
             # its own runs: the same plain spec may also be a trial of the sweep
-            key_fn=lambda trial: "anchors_plain/" + _record(trial).run_name,
-            name_fn=lambda trial: title(_record(trial).title, ANCHOR_POLICY),
+            key_fn=lambda trial: "anchors_plain/" + record_of(trial).run_name,
+            name_fn=lambda trial: title(record_of(trial).title, ANCHOR_POLICY),
             **tune_args,
         )
         raise_on_errors(results, "plain source policies")
@@ -232,102 +94,3 @@ def run_sweep(spec: SweepSpec, *, resume: bool = False, progress: bool = True):
         scheduler_fn=scheduler_fn,
         **tune_args,
     )
-
-
-def _anchor_paths(spec: SweepSpec) -> list[Path]:
-    return [Path(path) for path in map(partial(anchor_file, spec), spec.trials()) if path is not None]
-
-
-def run_tune(
-    trials: list[TrainTrial] | list[GridTrial],
-    *,
-    folder: Path,
-    stage: str,
-    spec: SweepSpec,
-    tracking: tuple[str, str],
-    resume: bool,
-    progress: bool,
-    key_fn=None,
-    name_fn=None,
-    tags_fn=None,
-    trainable=None,
-    params_fn=None,
-    artifacts_fn=None,
-    scheduler_fn=None,
-):
-    """Training trials (sweep_trial; a grid's: ``trainable`` grid_trial) as one Tune experiment in
-    ``folder``, tracked in MLflow, each trial's record as its ``config["trial"]``;
-    ``scheduler_fn``: :func:`ps_ray.pipeline.trials.run_trials`'."""
-
-    from ps_ray.pipeline.trials import run_trials, stage_summary
-    from ps_ray.pipeline.tune_tracking import MLflowTuneCallback
-    from ps_ray.specs.resources import device_tags
-    from ps_ray.store.mlflow_values import relative_paths
-    from ps_ray.store.stage_run import open_stage
-
-    resources, root = getattr(spec.resources, stage_record(stage).name), sweep_layout(spec).root
-    with open_stage(*tracking, spec.name, stage) as stage_run:  # open while the stage runs
-        callback = MLflowTuneCallback(
-            *tracking,
-            metric_keys=METRIC_KEYS + ("final_success", "final_touching"),
-            tags={**stage_run.tags, **device_tags(resources)},
-            artifacts_fn=artifacts_fn or _trial_artifacts,
-            model_fn=_trial_model if spec.log_models and stage == "train" else None,
-            key_fn=key_fn or (lambda trial: _record(trial).run_name),  # a search's: one per setting
-            name_fn=name_fn or (lambda trial: _record(trial).title),
-            params_fn=lambda trial: relative_paths((params_fn or _spec_params)(trial), root),
-            tags_fn=tags_fn,
-            # env steps, the x axis RL curves are read on (restored with a checkpoint, like ps_ray's
-            # own iteration; Tune's restarts at 1 when a resumed stage relaunches a trial): a retried
-            # or relaunched trial re-reports the steps between its checkpoint and the kill, and the
-            # run keeps their first record
-            step_key="env_steps",
-            once_per_step=True,
-        )
-        results = run_trials(
-            trainable or sweep_trial,
-            {"trial": [t.config() for t in trials]},
-            folder=folder,
-            stage=stage,
-            callback=callback,
-            resume=resume,
-            progress=progress,
-            max_concurrent=spec.max_concurrent,
-            max_failures=spec.max_failures,
-            resources=resources,
-            constants={"compile": resources.compile},  # how to run, not what: not the trial's identity
-            scheduler_fn=scheduler_fn,
-            budgets=[t.spec.env_steps if isinstance(t, TrainTrial) else None for t in trials],
-        )
-        stage_run.record(*stage_summary(results))
-    return results
-
-
-def _record(trial) -> TrainTrial:
-    """A training stage's Tune trial as its record (its config is ``{"trial": record.config()}``)."""
-    return TrainTrial.of(trial.config["trial"])
-
-
-def _spec_params(trial) -> dict[str, str]:
-    """A training trial's MLflow params: its spec's fields as the config holds them (nested
-    robot/task as ``robot.x``)."""
-    return flatten_params(trial.config["trial"]["spec"])
-
-
-def _trial_model(trial) -> tuple[Path, Any, Any, str] | None:
-    """A finished source's policy file, env and title, to log as its run's MLflow model."""
-    policy = Path(trial.checkpoint.path) / POLICY_FILE if trial.checkpoint is not None else None
-    record = _record(trial)
-    found = policy is not None and policy.exists() and record.spec.task != POINT_TASK  # physics-free
-    return (policy, record.spec.robot, record.spec.task, record.title) if found else None
-
-
-def _trial_artifacts(trial) -> list[Path]:
-    """Module weights, interface signature, resolved spec and anchors of a finished trial."""
-    paths = []
-    if trial.checkpoint is not None:
-        paths += [Path(trial.checkpoint.path) / name for name in (POLICY_FILE, SIGNATURE_FILE, SPEC_FILE)]
-    anchors = _record(trial).anchors
-    if anchors:
-        paths.append(Path(anchors))
-    return [p for p in paths if p.exists()]

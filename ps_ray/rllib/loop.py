@@ -1,6 +1,7 @@
 """The one training loop: a :class:`TrainingRun` steps the RLlib algorithm, evaluates greedily,
 applies the stopping rule and the after-training consolidation, and checkpoints; ``ps-ray train``
-(:mod:`ps_ray.rllib.train`) and the sweep's Tune trial (:mod:`ps_ray.pipeline.sweep`) both drive it."""
+(:mod:`ps_ray.rllib.train`) and the sweep's Tune trial (:mod:`ps_ray.pipeline.training_trials`)
+both drive it."""
 
 from __future__ import annotations
 

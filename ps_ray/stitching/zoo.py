@@ -5,7 +5,7 @@ A key is (method, robot, task, seed, interface_dim); robots and tasks are render
 the trial key (:func:`ps_ray.specs.names.trial_key`, also the MLflow run name): ``ps/panda/push/101``,
 with ``/i<dim>`` appended off the default interface dim (``ps/panda/push/101/i16``).
 
-Sweep layout read (see :mod:`ps_ray.pipeline.sweep`): ``<sweep>/tune/<trial>/checkpoint_N/`` (stage
+Sweep layout read (:class:`ps_ray.store.layout.SweepLayout`): ``<sweep>/tune/<trial>/checkpoint_N/`` (stage
 "train") and ``<sweep>/tune_plain/<trial>/checkpoint_N/`` (stage "plain_source", the anchors' plain
 source policies), each with ``policy.safetensors`` and ``spec.json``. Of a trial's checkpoints
 over all its attempts (:mod:`ps_ray.store.attempts`), the furthest one whose manifest verifies is used.

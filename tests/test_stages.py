@@ -8,6 +8,7 @@ from pathlib import Path
 
 import pytest
 
+from ps_ray.analysis.workload import LOADS
 from ps_ray.pipeline.run import RUNNERS
 from ps_ray.specs.resources import ResourcesSpec
 from ps_ray.specs.stages import NOT_TRAINING, STAGE_RECORDS, STAGES, STAGES_WITH_TRIALS, stage
@@ -21,6 +22,7 @@ SMOKE = Path(__file__).resolve().parents[1] / "sweeps" / "smoke.yaml"
 def test_every_registry_names_the_stages_of_the_record():
     assert STAGES == ("train", "grid", "zero_shot", "few_shot", "report")
     assert set(RUNNERS) == set(STAGES)  # ps-ray run can run each stage
+    assert set(LOADS) == set(STAGES_WITH_TRIALS)  # --check prices each stage that runs trials
     assert [f.name for f in dataclasses.fields(ResourcesSpec)] == list(STAGES_WITH_TRIALS)
     sweep_fields = {f.name for f in dataclasses.fields(SweepSpec)}
     for record in STAGE_RECORDS:

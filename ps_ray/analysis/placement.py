@@ -17,6 +17,7 @@ from ps_ray.analysis.hardware import (
 from ps_ray.analysis.workload import StageLoad, train_load
 from ps_ray.specs.resources import StageResources
 from ps_ray.specs.stages import STAGES_WITH_TRIALS
+from ps_ray.specs.stages import stage as stage_record
 from ps_ray.specs.sweep import SweepSpec
 from ps_ray.specs.train import TrainSpec
 
@@ -44,7 +45,7 @@ def placed(spec: SweepSpec, kind: NodeKind) -> tuple[dict[str, StageResources], 
         if r.gpu and not kind.gpus:
             out[stage] = StageResources(cpu=r.cpu)
             notes.append(f"{stage}: its gpu {r.gpu:g} dropped, trained on the CPU (no GPU here)")
-        elif not r.gpu and kind.gpus and stage != "zero_shot":
+        elif not r.gpu and kind.gpus and stage_record(stage).trains:
             out[stage] = GPU_LAYOUT
             notes.append(
                 f"{stage}: cpu {GPU_LAYOUT.cpu:g}, gpu {GPU_LAYOUT.gpu:g} per trial "
@@ -86,7 +87,7 @@ def on_kind(
     at_once: dict[str, int] = {}
     wall = vcpu = gpu_s = node = 0.0
     for load in loads:
-        r = resources[load.stage if load.stage in resources else "train"]  # anchors: as training
+        r = resources[stage_record(load.stage).name]  # the anchors' plain sources: as training
         n, per = len(load.trials), kind.per_node(r)
         if not n:
             continue

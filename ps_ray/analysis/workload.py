@@ -38,32 +38,52 @@ def train_load(stage: str, specs: list[TrainSpec]) -> StageLoad:
     return StageLoad(stage, list(specs), env, updates, evals)
 
 
+def _train(spec: SweepSpec, zoo: ModuleZoo) -> list[StageLoad]:
+    from ps_ray.plan import train
+
+    plain = train.plain_sources(spec)
+    loads = [train_load("anchors_plain", [t.spec for t in plain])] if plain else []
+    return [*loads, train_load("train", [t.spec for t in train.plan(spec)])]
+
+
+def _grid(spec: SweepSpec, zoo: ModuleZoo) -> list[StageLoad]:
+    """A grid trial trains each of its cells (its update costs about one per cell)."""
+    from ps_ray.plan import grid
+
+    grids = grid.plan(spec)
+    if not grids:
+        return []
+    cells = train_load("grid", [t.grid.cell_spec(c) for t in grids for c in t.grid.cells])
+    return [dataclasses.replace(cells, trials=[t.grid.base for t in grids])]
+
+
+def _zero_shot(spec: SweepSpec, zoo: ModuleZoo) -> list[StageLoad]:
+    from ps_ray.plan import zero_shot
+
+    return [zero_shot_load(spec, zoo, zero_shot.plan(spec, zoo))]
+
+
+def _few_shot(spec: SweepSpec, zoo: ModuleZoo) -> list[StageLoad]:
+    from ps_ray.plan import few_shot, zero_shot
+
+    settings = spec.few_shot
+    pairs = zero_shot.alone_pairs(spec, zoo, list(settings.methods) or None)  # those it reads
+    return [train_load("few_shot", [t.spec for t in few_shot.plan(spec, zoo, pairs, settings)])]
+
+
+# Each stage that runs trials: its plan's work, from the spec and the catalogue it implies (the
+# report runs none). A new stage adds its row (tests/test_stages.py checks that each has one).
+LOADS = {"train": _train, "grid": _grid, "zero_shot": _zero_shot, "few_shot": _few_shot}
+
+
 def workload(spec: SweepSpec) -> list[StageLoad]:
     """The work of every stage the spec runs, in order: each stage's own plan
     (:mod:`ps_ray.plan`) on the catalogue the spec implies, so the trials counted are the
     trials the stages launch."""
-    from ps_ray.plan import few_shot, grid, train, zero_shot
     from ps_ray.plan.catalogue import planned
 
-    loads = []
     zoo = planned(spec)
-    if "train" in spec.stages:
-        plain = train.plain_sources(spec)
-        if plain:
-            loads.append(train_load("anchors_plain", [t.spec for t in plain]))
-        loads.append(train_load("train", [t.spec for t in train.plan(spec)]))
-    grids = grid.plan(spec) if "grid" in spec.stages else []
-    if grids:  # a grid trial trains each of its cells (its update costs about one per cell)
-        cells = train_load("grid", [t.grid.cell_spec(c) for t in grids for c in t.grid.cells])
-        loads.append(dataclasses.replace(cells, trials=[t.grid.base for t in grids]))
-    if "zero_shot" in spec.stages:
-        loads.append(zero_shot_load(spec, zoo, zero_shot.plan(spec, zoo)))
-    if "few_shot" in spec.stages:
-        settings = spec.few_shot
-        pairs = zero_shot.alone_pairs(spec, zoo, list(settings.methods) or None)  # those it reads
-        trials = few_shot.plan(spec, zoo, pairs, settings)
-        loads.append(train_load("few_shot", [t.spec for t in trials]))
-    return loads
+    return [load for stage in spec.stages if stage in LOADS for load in LOADS[stage](spec, zoo)]
 
 
 def zero_shot_load(spec: SweepSpec, zoo: ModuleZoo, pairs: list[StitchedPair]) -> StageLoad:

@@ -22,6 +22,8 @@ class Stage:
     tune_folders: Mapping[str, str] = field(default_factory=dict)
     # whether its settings change what the training stage produces (a resumed sweep keeps them)
     changes_training: bool = False
+    # whether its trials take gradient updates (a GPU helps them) or only evaluate (zero-shot)
+    trains: bool = True
 
     @property
     def runs_trials(self) -> bool:
@@ -32,9 +34,9 @@ STAGE_RECORDS = (
     Stage("train", None, {"anchors_plain": "tune_plain", "train": "tune"}, changes_training=True),
     # co-trained grids (ps_ray.pipeline.grid): more sources, beside the train stage's, not instead
     Stage("grid", "grid", {"grid": "tune_grid"}),
-    Stage("zero_shot", "zero_shot", {"zero_shot": "tune_zero_shot"}),
+    Stage("zero_shot", "zero_shot", {"zero_shot": "tune_zero_shot"}, trains=False),
     Stage("few_shot", "few_shot", {"few_shot": "few_shot/tune_few_shot"}),
-    Stage("report", "report"),
+    Stage("report", "report", trains=False),
 )
 STAGES = tuple(s.name for s in STAGE_RECORDS)  # in the order they run
 STAGES_WITH_TRIALS = tuple(s.name for s in STAGE_RECORDS if s.runs_trials)

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import shutil
 from pathlib import Path
 
 import pandas as pd
@@ -147,18 +146,20 @@ def test_few_shot_reads_the_pairs_zero_shot_wrote_in_the_zoos_order(sweep_spec):
     same_seed = [p for p in matrix if p.pairing == "same_seed" and not p.translation]
     assert len(same_seed) == 2 * 2 * 4
 
-    zoo = sweep_layout(spec).root / "tune"
-    shutil.move(zoo, zoo.with_name("elsewhere"))  # with the table, nothing reads the zoo
-    assert evaluated_pairs(spec) == same_seed
-    assert evaluated_pairs(spec, ["ablation", "ps"]) == [
+    def no_zoo():
+        raise AssertionError("with the table, nothing reads the zoo")
+
+    table = pairs_from_table(table_path)
+    assert evaluated_pairs(spec, table, no_zoo) == same_seed
+    assert evaluated_pairs(spec, table, no_zoo, ["ablation", "ps"]) == [
         p for m in ("ablation", "ps") for p in same_seed if p.method == m
     ]
     settings = FewShotSpec(max_pairs=3, pairs_per_seed=2)
-    from_table = selected_pairs(evaluated_pairs(spec), settings)
-    shutil.move(zoo.with_name("elsewhere"), zoo)
+    from_table = selected_pairs(evaluated_pairs(spec, table, no_zoo), settings)
 
-    table_path.unlink()  # a sweep that skips zero-shot: the same pairs, from the zoo
-    assert [p.key for p in selected_pairs(evaluated_pairs(spec), settings)] == [p.key for p in from_table]
+    # a sweep that skips zero-shot: the same pairs, from the zoo
+    from_zoo = evaluated_pairs(spec, None, lambda: trained(spec))
+    assert [p.key for p in selected_pairs(from_zoo, settings)] == [p.key for p in from_table]
     assert [(p.method, p.seed) for p in from_table] == [("ps", 1), ("ps", 1), ("ps", 2)] + [
         ("ablation", 1),
         ("ablation", 1),
@@ -167,7 +168,8 @@ def test_few_shot_reads_the_pairs_zero_shot_wrote_in_the_zoos_order(sweep_spec):
     # a table written before its rows carried the sources' files: built from the zoo
     old = table_of([(p, {}) for p in matrix]).drop(columns=["task_from_path", "robot_from_path"])
     write_atomic_csv(old, table_path)
-    assert pairs_from_table(table_path) is None and evaluated_pairs(spec) == same_seed
+    assert pairs_from_table(table_path) is None
+    assert evaluated_pairs(spec, None, lambda: trained(spec)) == same_seed
 
 
 def write_table(spec: SweepSpec) -> list[StitchedPair]:

@@ -6,11 +6,13 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
+from ps_ray.plan.catalogue import trained
 from ps_ray.plan.zero_shot import evaluated_pairs
 from ps_ray.specs import reset_seeds
 from ps_ray.specs.names import short_name
 from ps_ray.specs.sweep import SweepSpec
-from ps_ray.stitching.pairs import StitchedPair
+from ps_ray.stitching.pairs import StitchedPair, pairs_from_table
+from ps_ray.store.layout import sweep_layout
 
 CLIP_SIZE = (240, 180)  # pixels; every second step, so a clip is about 26 frames
 START_SEED = reset_seeds.fixed("clips")  # the env reset every clip starts from
@@ -57,7 +59,8 @@ def stitched_clips(spec: SweepSpec, out_dir: Path, pairs_per_method: int = 2) ->
 
     methods = list(spec.zero_shot.methods) or list(spec.methods)
     found: dict[str, dict[str, StitchedPair]] = {}
-    for pair in evaluated_pairs(spec, methods):
+    table = pairs_from_table(sweep_layout(spec).zero_shot_table)
+    for pair in evaluated_pairs(spec, table, lambda: trained(spec), methods):
         if pair.seed == spec.seeds[0]:
             found.setdefault(pair.label, {})[pair.method] = pair
     labels = [label for label, by_method in found.items() if set(methods) <= set(by_method)]

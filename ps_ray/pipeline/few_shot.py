@@ -23,7 +23,7 @@ from ps_ray.specs.names import trial_key
 from ps_ray.specs.stage_settings import FewShotSpec
 from ps_ray.specs.sweep import SweepSpec
 from ps_ray.specs.trial import STITCHED_STARTS, TrainTrial
-from ps_ray.stitching.pairs import StitchedPair
+from ps_ray.stitching.pairs import StitchedPair, pairs_from_table
 from ps_ray.store.layout import sweep_layout
 
 
@@ -31,7 +31,8 @@ def few_shot_trials(spec: SweepSpec, settings: FewShotSpec) -> list[TrainTrial]:
     """The stage's plan (:func:`ps_ray.plan.few_shot.plan`) on the trained zoo and the pairs the
     zero-shot stage evaluated, with the policy file of every stitched start written."""
     zoo = trained(spec)
-    pairs = evaluated_pairs(spec, list(settings.methods) or None)
+    table = pairs_from_table(sweep_layout(spec).zero_shot_table)
+    pairs = evaluated_pairs(spec, table, lambda: zoo, list(settings.methods) or None)
     for pair in few_shot_plan.selected_pairs(pairs, settings):
         for kind in few_shot_plan.starts(settings):
             _write_start(spec, pair, kind)

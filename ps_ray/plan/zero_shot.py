@@ -4,7 +4,7 @@ stitched pair (and per latent translation), with its sources, target env and con
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -13,9 +13,8 @@ from ps_ray.specs import reset_seeds
 from ps_ray.specs.stage_settings import ZeroShotSpec
 from ps_ray.specs.sweep import SweepSpec, seed_pairs
 from ps_ray.stitching.matrix import combos, controls
-from ps_ray.stitching.pairs import CO_TRAINED, Control, StitchedPair, pairs_from_table
+from ps_ray.stitching.pairs import CO_TRAINED, Control, StitchedPair
 from ps_ray.stitching.zoo import ModuleZoo
-from ps_ray.store.layout import sweep_layout
 
 
 def plan(spec: SweepSpec, zoo: ModuleZoo, settings: ZeroShotSpec | None = None) -> list[StitchedPair]:
@@ -80,20 +79,24 @@ def alone_pairs(spec: SweepSpec, zoo: ModuleZoo, methods: list[str] | None = Non
     return [p for p in matrix(spec, zoo, methods) if p.method in methods]
 
 
-def evaluated_pairs(spec: SweepSpec, methods: list[str] | None = None) -> list[StitchedPair]:
-    """:func:`alone_pairs` as the zero-shot stage ran them: read from its ``zero_shot.csv`` for the
-    methods it evaluated, planned on the trained zoo for the others (a sweep that skips zero-shot)."""
-    from ps_ray.plan.catalogue import trained
-
+def evaluated_pairs(
+    spec: SweepSpec,
+    table: list[StitchedPair] | None,
+    zoo: Callable[[], ModuleZoo],
+    methods: list[str] | None = None,
+) -> list[StitchedPair]:
+    """:func:`alone_pairs` as the zero-shot stage ran them: taken from ``table`` (its
+    ``zero_shot.csv``, read by the caller: :func:`ps_ray.stitching.pairs.pairs_from_table`; None:
+    no usable table) for the methods it evaluated, planned on ``zoo()`` (called only then) for the
+    others (a sweep that skips zero-shot)."""
     methods = list(methods or spec.methods)
-    table = pairs_from_table(sweep_layout(spec).zero_shot_table) or []
     by_method = {
-        m: [p for p in table if p.method == m and p.pairing == "same_seed" and not p.translation]
+        m: [p for p in table or [] if p.method == m and p.pairing == "same_seed" and not p.translation]
         for m in methods
     }
     missing = [m for m in methods if not by_method[m]]
     if missing:
-        built = alone_pairs(spec, trained(spec), missing)
+        built = alone_pairs(spec, zoo(), missing)
         by_method.update({m: [p for p in built if p.method == m] for m in missing})
     return [pair for m in methods for pair in by_method[m]]
 

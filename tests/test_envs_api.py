@@ -34,7 +34,8 @@ def test_gymnasium_check_env(robot, task):
         warnings.simplefilter("error")  # any checker warning fails the test
         check_env(env)
     assert env.observation_space["robot_state"].shape == (8,)
-    widths = {"reach": 0, "reach_red": 6, "reach_blue": 6}  # markers: 3 per marker; objects: 12
+    # markers: 3 per marker; objects: 12; an object and two markers: 18
+    widths = {"reach": 0, "reach_red": 6, "reach_blue": 6, "push_red": 18, "push_blue": 18}
     assert env.observation_space["task_state"].shape == (widths.get(task, 12),)
     assert env.action_space.shape == ((8,) if task.startswith("pick") else (7,))
     env.close()

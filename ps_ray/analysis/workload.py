@@ -12,7 +12,7 @@ from ps_ray.envs import EPISODE_STEPS
 from ps_ray.specs.names import CROSSED_FITS, split_translation
 from ps_ray.specs.sweep import SweepSpec
 from ps_ray.specs.train import TrainSpec
-from ps_ray.stitching.chance import CHANCE_POLICIES, candidate_count
+from ps_ray.stitching.chance import CHANCE_POLICIES, candidate_count, scripted_floor
 from ps_ray.stitching.pairs import StitchedPair
 from ps_ray.stitching.zoo import ModuleZoo
 
@@ -95,8 +95,7 @@ def zero_shot_load(spec: SweepSpec, zoo: ModuleZoo, pairs: list[StitchedPair]) -
     targets = {(p.robot, p.task, p.seed) for p in pairs}
     evaluations = len(pairs) + sum(len(p.controls) for p in pairs if not p.translation)
     for _, task, _ in targets:
-        candidates = candidate_count(task)
-        evaluations += len(CHANCE_POLICIES) + (candidates if candidates > 1 else 0)
+        evaluations += len(CHANCE_POLICIES) + (candidate_count(task) if scripted_floor(task) else 0)
     steps = evaluations * settings.episodes * settings.repeats * EPISODE_STEPS
     # a fit on scenes matched by outcome rolls each source out once: on `outcome_scenes` scenes,
     # except a re-anchored stitch's robot source, once per anchor (PS: as many as the interface is

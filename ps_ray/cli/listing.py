@@ -13,6 +13,7 @@ FAMILIES = {  # what each task family asks, by its class
     "Push": "push the object along the table to a goal",
     "Pick": "pick the object up and carry it to a goal in the air",
     "Markers": "reach the one of two markers the task names (the transfer family)",
+    "PushMarkers": "push the object to the one of two markers the task names (the transfer family)",
 }
 
 

@@ -149,6 +149,18 @@ class RobotTaskEnv(gym.Env[Obs, np.ndarray]):
         return self.robot.action_toward(point)
 
     @property
+    def object_position(self) -> np.ndarray | None:
+        """The task's object's position (world frame) at the last observation; None without one.
+        What touching, the outcome point and the wrong-target rate read (the achieved goal is
+        the object's position only where the goal is said in the world frame)."""
+        return None if self._object is None else self._object.copy()
+
+    @property
+    def outcome_position(self) -> np.ndarray:
+        """Where an episode's work shows: the object, or the end effector in a task without one."""
+        return self.ee_position if self._object is None else self.object_position
+
+    @property
     def ee_position(self) -> np.ndarray:
         """The end effector's position (world frame) at the last observation: where a policy
         went, read without the task's target (outcome matching, ps_ray.stitching.outcomes)."""
@@ -157,6 +169,7 @@ class RobotTaskEnv(gym.Env[Obs, np.ndarray]):
     # -- internals ----------------------------------------------------------------------------
     def _observe(self) -> tuple[Obs, np.float32]:
         self._ee = self.robot.ee_position()
+        self._object = self.task.object_position()
         task_state, achieved = self.task.observe(self._ee)
         obs = {
             "robot_state": self.robot.state().astype(np.float32),
@@ -171,7 +184,7 @@ class RobotTaskEnv(gym.Env[Obs, np.ndarray]):
         obj = self.task.object
         return {
             "is_success": bool(distance < SUCCESS_DISTANCE),
-            "touching": obj is not None and math.dist(self._ee, obs["achieved_goal"]) <= TOUCH_DISTANCE,
+            "touching": obj is not None and math.dist(self._ee, self._object) <= TOUCH_DISTANCE,
             "contact": obj is not None and self.sim.in_contact(self.robot.body, obj),
             "initially_successful": self._initially_successful,
         }

@@ -61,8 +61,9 @@ class EpisodeRecord:
     start: tuple[float, ...]  # achieved goal at reset (the object; the end effector for reach)
     task_input: tuple[float, ...]  # the task module's input at reset (task state, then goal)
     end_effector: tuple[float, ...]  # the end effector's final position (world frame)
-    # the end effector's final distance to each candidate target (env.candidate_targets(); empty
-    # where the scene holds one), and whether it ended within the success distance of another one
+    # the outcome's final distance (the object's, else the end effector's) to each candidate target
+    # (env.candidate_targets(); empty where the scene holds one), and whether it ended within the
+    # success distance of another one
     candidate_distances: tuple[float, ...] = ()
     wrong_target: bool = False
     object_end: tuple[float, ...] = ()  # where the object ended (world frame); () for tasks without one
@@ -235,19 +236,20 @@ def _run_batch(
             tuple(map(float, task_input(o))),
             tuple(map(float, envs[i].ee_position)),
             *ends[i],
-            tuple(map(float, obs[i]["achieved_goal"])) if envs[i].task.has_object else (),
+            tuple(map(float, envs[i].object_position)) if envs[i].task.has_object else (),
         )
         for i, (s, (o, info)) in enumerate(zip(seeds, resets))
     ]
 
 
 def _candidate_ends(env) -> tuple[tuple[float, ...], bool]:
-    """The end effector's distance to each of the scene's candidate targets, and whether it is
-    within the success distance of one the task does not name (``(), False``: one target)."""
+    """The outcome's distance (the object's, or the end effector's without one:
+    ``env.outcome_position``) to each of the scene's candidate targets, and whether it is within
+    the success distance of one the task does not name (``(), False``: one target)."""
     candidates = env.candidate_targets()
     if candidates is None:
         return (), False
-    distances = np.linalg.norm(candidates - env.ee_position, axis=-1)
+    distances = np.linalg.norm(candidates - env.outcome_position, axis=-1)
     others = np.delete(distances, env.named_candidate)
     return tuple(map(float, distances)), bool((others < SUCCESS_DISTANCE).any())
 

@@ -19,6 +19,7 @@ from .base import Task, TaskOptions
 from .markers import Markers
 from .pick import Pick
 from .push import Push
+from .push_markers import PushMarkers
 from .reach import GOAL_REGIONS, Reach
 
 
@@ -57,6 +58,9 @@ TASKS: dict[str, tuple[type[Task], dict[str, Any]]] = {
     # The transfer family (docs/transfer.md): one scene of two markers, the task names the marker.
     "reach_red": (Markers, {"target": 0}),
     "reach_blue": (Markers, {"target": 1}),
+    # Its manipulation member: one object, two goal markers on the table, the task names the marker.
+    "push_red": (PushMarkers, {"target": 0}),
+    "push_blue": (PushMarkers, {"target": 1}),
 }
 
 
@@ -89,6 +93,7 @@ __all__ = [
     "Markers",
     "Pick",
     "Push",
+    "PushMarkers",
     "Reach",
     "Task",
     "TaskOptions",

@@ -107,6 +107,10 @@ class Task(ABC):
 
     named_candidate: int = 0
 
+    def object_position(self) -> np.ndarray | None:
+        """Where the task's object is (world frame); None for a task without one."""
+        return None if self.object is None else self.sim.base_state(self.object)[:3]
+
     @abstractmethod
     def target_region(self) -> tuple[np.ndarray, np.ndarray]:
         """The axis-aligned box (world frame: low and high corners) that holds every target this

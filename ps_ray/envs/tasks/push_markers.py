@@ -1,0 +1,114 @@
+"""Push to a marker: one object and several goal markers on the table; the task names the marker
+the object must end at. The manipulation member of the transfer family (the markers' pattern,
+docs/transfer.md): two tasks see the same kind of scene and differ only in which marker they mean,
+so a source of one task pushes to the wrong marker on the other, and no input gives the target away.
+
+Goals are said in the named marker's frame, as the marker family says them:
+
+- ``task_state``: the object's state (position, Euler angles, linear and angular velocity: 12),
+  then every marker's position (3 per marker), in a fixed order of colours;
+- ``achieved_goal``: the object's position minus the named marker's;
+- ``desired_goal``: the offset from the named marker at which the object must end: zero in every
+  real episode, so a hindsight goal is "push to the named marker plus this offset".
+
+The outcome of an episode (outcome matching, the wrong-target rate, touching) is where the object
+is, read from the env (``RobotTaskEnv.object_position``), never from the achieved goal.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pybullet as p
+
+from ps_ray.errors import UserError
+
+from .markers import MARKER_COLOURS, MARKER_RADIUS
+from .push import Push, PushOptions
+
+
+@dataclass(frozen=True)
+class PushMarkerOptions(PushOptions):
+    markers: int = 2  # how many goal markers the table holds (their positions are task state)
+    target: int = 0  # the marker the object must end at (0 red, 1 blue, 2 green, 3 yellow)
+    min_separation: float = 0.1  # markers at least this far apart (twice the success distance) ...
+    # ... this far (horizontally) from the workspace centre's vertical line, about which the mounts
+    # of ps_ray.envs.robots turn (another mount's mirror image misses by twice this) ...
+    min_radius: float = 0.06
+    # ... and this far from the object's start, so that every episode needs a push
+    min_push: float = 0.08
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.markers, int) or not 1 <= self.markers <= len(MARKER_COLOURS):
+            raise UserError(f"bad markers {self.markers!r}; valid markers: 1..{len(MARKER_COLOURS)}")
+        if not isinstance(self.target, int) or not 0 <= self.target < self.markers:
+            raise UserError(f"bad target {self.target!r}; valid targets: 0..{self.markers - 1}")
+
+
+class PushMarkers(Push):
+    """Push the object to the named marker; the other markers mean the same to another task."""
+
+    Options = PushMarkerOptions
+    options: PushMarkerOptions
+
+    def __init__(self, sim, options: PushMarkerOptions) -> None:
+        self.positions = np.zeros((options.markers, 3))
+        super().__init__(sim, options)
+
+    @classmethod
+    def state_width(cls, options) -> int:
+        return cls.state_dim + 3 * options.markers
+
+    @classmethod
+    def candidate_count(cls, options) -> int:
+        return options.markers
+
+    def _build(self) -> None:
+        super()._build()
+        self._bodies = [
+            self.sim.add_shape(p.GEOM_SPHERE, (MARKER_RADIUS,), (0.0, 0.0, -1.0), rgba=rgba, ghost=True)
+            for rgba in MARKER_COLOURS[: self.options.markers]
+        ]
+
+    @property
+    def target_position(self) -> np.ndarray:
+        """Where the object must end: the named marker plus the desired offset."""
+        return self.positions[self.options.target] + self.goal
+
+    def candidate_targets(self) -> np.ndarray:
+        """Every marker plus the desired offset: where each task of the family would push to here."""
+        return self.positions + self.goal
+
+    @property
+    def named_candidate(self) -> int:
+        return self.options.target
+
+    def _reset(self, rng: np.random.Generator) -> None:
+        super()._reset(rng)  # the object, on the env's RNG (its goal draw is replaced below)
+        o = self.options
+        start = self.sim.base_state(self.object)[:3]
+        low, high = self.target_region()
+        placed: list[np.ndarray] = []
+        for _ in range(10_000):  # rejection sampling on the env's RNG: deterministic
+            if len(placed) == o.markers:
+                break
+            candidate = rng.uniform(low, high)
+            clear = all(np.linalg.norm(candidate - q) >= o.min_separation for q in placed)
+            off_axis = np.hypot(*candidate[:2]) >= o.min_radius
+            if clear and off_axis and np.linalg.norm(candidate[:2] - start[:2]) >= o.min_push:
+                placed.append(candidate)
+        else:
+            raise UserError(
+                f"cannot place {o.markers} markers {o.min_separation} m apart, {o.min_radius} m off the "
+                f"centre and {o.min_push} m from the object within goal_xy_range {o.goal_xy_range}"
+            )
+        self.positions = np.asarray(placed)
+        for body, position in zip(self._bodies, self.positions):
+            self.sim.move(body, position)
+        self.goal = np.zeros(3)
+
+    def observe(self, ee_position: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        state = self.sim.base_state(self.object)
+        task_state = np.concatenate([state, self.positions.reshape(-1)])
+        return task_state, state[:3] - self.positions[self.options.target]

@@ -1,0 +1,112 @@
+"""The push member of the transfer family: one object, two goal markers on the table, the task
+names the marker the object must end at; goals said in the named marker's frame, and every
+outcome (success, touching, the wrong-target rate, outcome matching) read from the object."""
+
+from __future__ import annotations
+
+import numpy as np
+import pybullet as p
+import pytest
+
+from ps_ray.envs import make
+from ps_ray.envs.goals import task_input
+from ps_ray.stitching.evaluate import evaluate, outcome_point
+
+
+def place(env, point) -> dict:
+    """The object set down at ``point`` (world frame, at rest); the step's info after it."""
+    p.resetBasePositionAndOrientation(
+        env.task.object, list(map(float, point)), (0, 0, 0, 1), physicsClientId=env.sim.client
+    )
+    return env.step(np.zeros(env.action_space.shape, np.float32))
+
+
+def test_the_object_and_the_markers_are_the_task_state_and_the_goal_is_an_offset_from_the_named_one():
+    for name, target in (("push_red", 0), ("push_blue", 1)):
+        env = make("panda", name)
+        for seed in range(20):
+            obs, info = env.reset(seed=seed)
+            state = obs["task_state"]
+            markers, start = state[12:].reshape(2, 3), env.object_position
+            np.testing.assert_allclose(state[:3], start, atol=1e-6)
+            np.testing.assert_array_equal(obs["desired_goal"], np.zeros(3))
+            np.testing.assert_allclose(obs["achieved_goal"], start - markers[target], atol=1e-6)
+            # apart, off the mounts' axis, on the table, and never where the object starts
+            assert np.linalg.norm(markers[0] - markers[1]) >= 0.1
+            assert np.all(np.hypot(markers[:, 0], markers[:, 1]) >= 0.06)
+            assert np.all(np.linalg.norm(markers[:, :2] - start[:2], axis=1) >= 0.08)
+            np.testing.assert_allclose(markers[:, 2], 0.02)
+            assert not info["initially_successful"] and task_input(obs).shape == (21,)
+        assert env.observation_space["task_state"].shape == (18,)
+
+
+def test_both_tasks_see_the_same_scenes_and_differ_only_in_the_marker_they_mean():
+    red, blue = make("panda", "push_red"), make("panda", "push_blue")
+    a, _ = red.reset(seed=7)
+    b, _ = blue.reset(seed=7)
+    np.testing.assert_array_equal(a["task_state"], b["task_state"])
+    assert not np.allclose(a["achieved_goal"], b["achieved_goal"])
+
+
+@pytest.mark.parametrize("marker", [0, 1])
+def test_the_object_at_a_marker_succeeds_for_its_task_and_is_the_wrong_target_for_the_other(marker):
+    from ps_ray.stitching.evaluate import _candidate_ends
+
+    for name, target in (("push_red", 0), ("push_blue", 1)):
+        env = make("panda", name)
+        env.reset(seed=3)
+        spot = env.candidate_targets()[marker]
+        obs, reward, _, _, info = place(env, spot)
+        assert info["is_success"] == (marker == target) and reward == (0.0 if marker == target else -1.0)
+        distances, wrong = _candidate_ends(env)  # what evaluate records per episode
+        assert distances[marker] < 0.01 and wrong == (marker != target)
+        np.testing.assert_allclose(env.object_position, spot, atol=0.005)
+
+
+def test_an_episode_s_outcome_is_where_the_object_ended_not_the_hand_nor_the_achieved_goal():
+    env = make("panda", "push_red")
+    still = lambda obs: np.zeros((len(obs["task_state"]), 7))  # noqa: E731 (a policy that never moves)
+    result = evaluate(still, "panda", "push_red", episodes=2, repeats=1, seed=5)
+    for record in result["records"]:
+        env.reset(seed=record["seed"])
+        start = env.object_position  # nothing touched the object: it ends where it started
+        np.testing.assert_allclose(outcome_point(record), start, atol=1e-3)
+        assert not np.allclose(outcome_point(record), record["end_effector"], atol=0.05)
+        assert record["wrong_target"] is False and len(record["candidate_distances"]) == 2
+    assert result["success_mean"] == 0.0
+
+
+def test_a_relabelled_goal_is_the_named_marker_plus_an_offset_and_rewards_agree():
+    env = make("panda", "push_blue")
+    obs, _ = env.reset(seed=2)
+    start = env.object_position
+    shoved = start + np.array([0.03, -0.02, 0.0])
+    obs, *_ = place(env, shoved)
+    markers = obs["task_state"][12:].reshape(2, 3)
+    np.testing.assert_allclose(obs["achieved_goal"], shoved - markers[1], atol=2e-3)
+    # hindsight: that achieved goal as the desired one is "push to the blue marker plus that offset"
+    assert env.compute_reward(obs["achieved_goal"], obs["achieved_goal"], None) == 0.0
+    env.reset(seed=2)
+    env.task.goal = obs["achieved_goal"].astype(np.float64)
+    _, reward, _, _, info = place(env, shoved)
+    assert reward == 0.0 and info["is_success"]
+
+
+def test_bad_marker_options_are_one_line():
+    from ps_ray.errors import UserError
+
+    with pytest.raises(UserError, match="bad target 2; valid targets: 0..1"):
+        make("panda", {"name": "push_red", "target": 2})
+    with pytest.raises(UserError, match="cannot place 4 markers 0.3 m apart"):
+        make("panda", {"name": "push_red", "markers": 4, "min_separation": 0.3}).reset(seed=0)
+
+
+def test_no_script_stands_in_for_the_push_family_s_floor():
+    """Driving the hand to a marker pushes nothing: the task-blind floor of the push family is its
+    tasks' oracles' mean, not a scripted driver's (left unmeasured, NaN, rather than a false 0)."""
+    from ps_ray.stitching.chance import chance, has_floor, scripted_floor
+
+    assert has_floor("push_red") and not scripted_floor("push_red") and scripted_floor("reach_red")
+    levels = chance("panda", "push_red", {"episodes": 2, "repeats": 1, "seed": 0})
+    assert np.isnan(levels["task_blind_success"]) and np.isnan(levels["task_blind_wrong_target"])
+    assert 0.0 <= levels["chance_success"] <= 1.0

@@ -4,6 +4,9 @@ outcome (success, touching, the wrong-target rate, outcome matching) read from t
 
 from __future__ import annotations
 
+import json
+from pathlib import Path
+
 import numpy as np
 import pybullet as p
 import pytest
@@ -110,3 +113,40 @@ def test_no_script_stands_in_for_the_push_family_s_floor():
     levels = chance("panda", "push_red", {"episodes": 2, "repeats": 1, "seed": 0})
     assert np.isnan(levels["task_blind_success"]) and np.isnan(levels["task_blind_wrong_target"])
     assert 0.0 <= levels["chance_success"] <= 1.0
+
+
+def test_the_push_family_s_floor_is_the_mean_of_its_tasks_oracles_run_on_the_target(tmp_path):
+    """Per method, the sweep's sources on the target robot for each of the scene's tasks, run as
+    they are on the target's episodes: the floor is their mean, per episode, and the best method's
+    is the floor (its wrong-target rate the same mean)."""
+    from ps_ray.stitching.chance import chance, oracle_floor, scene_oracles
+    from ps_ray.stitching.evaluate import evaluate
+    from ps_ray.stitching.zoo import ModuleZoo
+    from tests.stitch_sources import spec, write_trial
+
+    for method in ("ps", "ablation"):
+        for robot in ("panda", "panda_far"):
+            for task in ("push_red", "push_blue"):
+                write_trial(tmp_path, "tune", spec(method, robot, task, seed=1))
+    write_trial(tmp_path, "tune", spec("plain", "panda_far", "push_red", seed=1))  # no push_blue one
+    write_trial(tmp_path, "tune", spec("ps", "panda_far", "push_blue", seed=2))  # another seed
+    zoo = ModuleZoo.from_sweep(tmp_path)
+    oracles = scene_oracles(zoo, "panda_far", "push_blue", seed=1)
+    assert sorted(oracles) == ["ablation", "ps"]  # plain lacks a candidate: left out
+    for files in oracles.values():  # candidate order: red (0), then blue (1)
+        trained = [json.loads((Path(f).parent / "spec.json").read_text()) for f in files]
+        assert [(t["robot"], t["task"]) for t in trained] == [
+            ("panda_far", "push_red"),
+            ("panda_far", "push_blue"),
+        ]
+    settings = {"episodes": 3, "repeats": 1, "seed": 4}
+    floor = oracle_floor("panda_far", "push_blue", settings, oracles["ps"])
+    runs = [evaluate(f, "panda_far", "push_blue", **settings) for f in oracles["ps"]]
+    assert floor["task_blind_per_candidate"] == [r["success_mean"] for r in runs]
+    assert floor["task_blind_success"] == pytest.approx(np.mean([r["success_mean"] for r in runs]))
+    assert floor["task_blind_wrong_target"] == pytest.approx(np.mean([r["wrong_target_mean"] for r in runs]))
+    levels = chance("panda_far", "push_blue", settings, oracles)
+    best = max(
+        oracle_floor("panda_far", "push_blue", settings, o)["task_blind_success"] for o in oracles.values()
+    )
+    assert levels["task_blind_success"] == best and levels["task_blind_policy"].endswith(" oracles")

@@ -12,7 +12,7 @@ from ps_ray.envs import EPISODE_STEPS
 from ps_ray.specs.names import CROSSED_FITS, split_translation
 from ps_ray.specs.sweep import SweepSpec
 from ps_ray.specs.train import TrainSpec
-from ps_ray.stitching.chance import CHANCE_POLICIES, candidate_count, scripted_floor
+from ps_ray.stitching.chance import CHANCE_POLICIES, candidate_count, scene_oracles, scripted_floor
 from ps_ray.stitching.pairs import StitchedPair
 from ps_ray.stitching.zoo import ModuleZoo
 
@@ -89,13 +89,18 @@ def workload(spec: SweepSpec) -> list[StageLoad]:
 def zero_shot_load(spec: SweepSpec, zoo: ModuleZoo, pairs: list[StitchedPair]) -> StageLoad:
     """The evaluations of the planned pairs: each stitch, each untranslated pair's controls (its
     translations share their evaluations), chance (its policies) and the task-blind floor (once
-    per candidate target) once per target env and training seed (each seed's own episodes), and
+    per candidate target, or per oracle of each candidate's task where no script does it) once
+    per target env and training seed (each seed's own episodes), and
     the rollouts of the fits on scenes matched by outcome (:mod:`ps_ray.stitching.outcomes`)."""
     settings = spec.zero_shot
     targets = {(p.robot, p.task, p.seed) for p in pairs}
     evaluations = len(pairs) + sum(len(p.controls) for p in pairs if not p.translation)
-    for _, task, _ in targets:
-        evaluations += len(CHANCE_POLICIES) + (candidate_count(task) if scripted_floor(task) else 0)
+    for robot, task, seed in targets:
+        evaluations += len(CHANCE_POLICIES)
+        if scripted_floor(task):  # driven to each candidate
+            evaluations += candidate_count(task)
+        elif candidate_count(task) > 1:  # each method's oracle of each candidate task
+            evaluations += sum(map(len, scene_oracles(zoo, robot, task, seed).values()))
     steps = evaluations * settings.episodes * settings.repeats * EPISODE_STEPS
     # a fit on scenes matched by outcome rolls each source out once: on `outcome_scenes` scenes,
     # except a re-anchored stitch's robot source, once per anchor (PS: as many as the interface is

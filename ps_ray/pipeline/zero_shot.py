@@ -48,6 +48,7 @@ from ps_ray.specs.names import readable, split_translation
 from ps_ray.specs.stage_settings import ZeroShotSpec
 from ps_ray.specs.sweep import SweepSpec
 from ps_ray.stitching.pairs import StitchedPair
+from ps_ray.stitching.zoo import ModuleZoo
 from ps_ray.store.layout import sweep_layout
 from ps_ray.store.stage_run import StageRun, close_left_open, open_stage
 
@@ -129,22 +130,29 @@ def zero_shot_trial(config: dict[str, Any]) -> None:
         tune.report({**metrics, PAIR_KEY: pair.key, PAIR_FILES: str(keep), **times, **last})
 
 
-def chance_levels(trials: list[StitchedPair], stream: Episodes, progress: bool) -> dict[str, dict]:
+def chance_levels(
+    trials: list[StitchedPair], stream: Episodes, progress: bool, zoo: ModuleZoo | None = None
+) -> dict[str, dict]:
     """The chance control and task-blind floor (:func:`ps_ray.stitching.chance.chance`) of every
     target env the pairs run on, on each seed's episodes (:func:`pair_episodes` of ``stream``):
-    they depend on nothing else, so each is measured once."""
-    from ps_ray.stitching.chance import chance
+    they depend on nothing else, so each is measured once. Where no script does the scene's tasks
+    (the push family), the floor runs the ``zoo``'s oracles of the scene's tasks at the pair's seed
+    (:func:`ps_ray.stitching.chance.scene_oracles`)."""
+    from ps_ray.stitching.chance import chance, has_floor, scene_oracles, scripted_floor
 
     levels = {}
     for pair in trials:
         episodes = pair_episodes(pair, stream)
         key = target_key(pair, episodes)
         if key not in levels:
-            levels[key] = chance(pair.robot, pair.task, episodes.kwargs())
+            oracles = None
+            if zoo is not None and has_floor(pair.task) and not scripted_floor(pair.task):
+                oracles = scene_oracles(zoo, pair.robot, pair.task, pair.seed)
+            levels[key] = chance(pair.robot, pair.task, episodes.kwargs(), oracles)
             if progress:
                 found = levels[key]
                 floor = found["task_blind_success"]
-                floor_text = "absent" if floor != floor else f"{floor:.3f}"
+                floor_text = "absent" if floor != floor else f"{floor:.3f} ({found['task_blind_policy']})"
                 print(
                     f"[zero_shot] chance on {readable(pair.task.short)}/{pair.robot.short}, seed "
                     f"{pair.seed}'s episodes: {found['chance_success']:.3f} ({found['chance_policy']}); "
@@ -261,7 +269,8 @@ def run_zero_shot(
     root, folder = sweep_layout(spec).root, sweep_layout(spec).tune_zero_shot
     if not resume:
         require_fresh(folder, "batch", "zero_shot")
-    trials = zero_shot_plan.plan(spec, trained(spec), settings)
+    zoo = trained(spec)
+    trials = zero_shot_plan.plan(spec, zoo, settings)
     if not trials:
         raise UserError(f"{root}: no stitchable pairs (train the sweep first: ps-ray sweep)")
     check_sources(trials)
@@ -274,7 +283,7 @@ def run_zero_shot(
         return table
     tracking = connect(spec)
     with open_stage(*tracking, spec.name, "zero_shot") as stage_run:  # open while the stage runs
-        _evaluate(spec, settings, trials, todo, tracking, stage_run, resume=resume, progress=progress)
+        _evaluate(spec, settings, trials, todo, tracking, stage_run, zoo, resume=resume, progress=progress)
         table = _table(spec, trials)
         stage_run.record(stage_metrics(table))
     return table
@@ -300,6 +309,7 @@ def _evaluate(
     todo: list[dict],
     tracking: tuple[str, str],
     stage_run: StageRun,
+    zoo: ModuleZoo,
     *,
     resume: bool,
     progress: bool,
@@ -313,7 +323,7 @@ def _evaluate(
     folder, by_key = sweep_layout(spec).tune_zero_shot, {pair.key: pair for pair in trials}
     evaluated = {"episodes": settings.episodes, "repeats": settings.repeats}
     stream = stream_of(settings)  # each seed's block of the zero-shot stream
-    chance = chance_levels(trials, stream, progress)
+    chance = chance_levels(trials, stream, progress, zoo)
     fit = FitSettings.of(settings, str(sweep_layout(spec).outcomes))
     tracking_uri, experiment_id = tracking
     callback = RowRunsCallback(

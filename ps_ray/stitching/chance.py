@@ -22,8 +22,9 @@ taken in expectation over that choice, not from one draw: each episode is run on
 over episodes, with no draw noise. On the two-marker family it is half of what driving to the
 named marker reaches (about 0.5). Its wrong-target rate is the same mean. Where the family's
 tasks do not share a scene (one candidate) it is absent (NaN); where an object must be moved to
-the candidate (the push family) driving the hand there does no task, and the floor is not
-measured here (NaN; :func:`scripted_floor`).
+the candidate (the push family) driving the hand there does no task, and the floor is the mean
+over candidates of the oracle trained on each candidate's task (:func:`oracle_floor`; NaN where
+the sweep trained none).
 
 Chance draws from the episode's seed alone, and the floor draws nothing, so both are
 deterministic and every pair with the same target env and episodes gets the same figure. No
@@ -111,6 +112,51 @@ def task_blind(robot, task, settings: Mapping[str, Any]) -> dict[str, Any]:
     }
 
 
+def oracle_floor(robot, task, settings: Mapping[str, Any], oracles: Sequence[Any]) -> dict[str, Any]:
+    """The task-blind floor in expectation where no script does the scene's tasks (the push
+    family): ``oracles[c]`` is a policy trained on the scene's candidate task ``c`` on the target
+    robot (:func:`scene_oracles`), run as it is on the target's episodes, so each does task ``c``
+    as well as it can whatever the target names; the floor is the mean over candidates, per
+    episode and so over episodes (as :func:`task_blind`'s, whose keys it returns)."""
+    from ps_ray.stitching.evaluate import evaluate
+
+    if len(oracles) != candidate_count(task):  # a bug, never bad input
+        raise RuntimeError(f"{len(oracles)} oracles for {candidate_count(task)} candidate targets")
+    runs = [evaluate(policy, robot, task, **settings) for policy in oracles]
+    if len({run["episodes_digest"] for run in runs}) != 1:  # a bug, never bad input
+        raise RuntimeError("the task-blind floor's oracles ran on other episodes")
+    per_episode = np.mean([[r["success"] for r in run["records"]] for run in runs], axis=0)
+    return {
+        "task_blind_success": float(np.mean([run["success_mean"] for run in runs])),
+        "task_blind_wrong_target": float(np.mean([run["wrong_target_mean"] for run in runs])),
+        "task_blind_per_candidate": [run["success_mean"] for run in runs],
+        "task_blind_per_episode": per_episode.tolist(),
+        "episodes_digest": runs[0]["episodes_digest"],
+    }
+
+
+def scene_oracles(zoo, robot, task, seed: int) -> dict[str, list[str]]:
+    """Per method, the policy files the sweep trained alone at ``seed`` on the target robot for
+    every candidate task of the target's scene, in candidate order (the same family and options,
+    another ``target``); methods missing any candidate are left out."""
+    import dataclasses
+
+    from ps_ray.envs.tasks import resolve_task
+    from ps_ray.specs.names import EnvPart
+
+    spec, robot = resolve_task(EnvPart(task)), EnvPart(robot)
+    wanted = [dataclasses.replace(spec.options, target=c) for c in range(spec.candidate_count)]
+    found: dict[str, dict[int, str]] = {}
+    for entry in zoo.select(seed=seed):
+        if entry.stage != "train" or EnvPart(entry.key.robot) != robot:
+            continue
+        other = resolve_task(EnvPart(entry.key.task))
+        if other.family is spec.family and other.options in wanted:
+            found.setdefault(entry.key.method, {})[wanted.index(other.options)] = str(entry.path)
+    complete = {m: files for m, files in found.items() if len(files) == len(wanted)}
+    return {m: [files[c] for c in range(len(wanted))] for m, files in complete.items()}
+
+
 POLICIES: dict[str, Callable[[], Any]] = {"random_point": RandomPoint, "random_actions": RandomActions}
 CHANCE_POLICIES = tuple(POLICIES)
 
@@ -124,20 +170,25 @@ def scripted_floor(task) -> bool:
     """Whether :func:`task_blind` measures the floor: several candidates, and the hand's place is
     the task's outcome (the markers), so driving the hand to a candidate does that candidate's
     task. Where an object must be moved there (the push family) no script does each task as well
-    as its oracle, and the floor is the mean of the scene's tasks' oracles instead (not measured
-    here: NaN)."""
+    as its oracle, and the floor is the mean of the scene's tasks' oracles instead
+    (:func:`oracle_floor`)."""
     from ps_ray.envs.tasks import resolve_task
     from ps_ray.specs.names import EnvPart
 
     return has_floor(task) and not resolve_task(EnvPart(task)).has_object
 
 
-def chance(robot, task, settings: Mapping[str, Any]) -> dict[str, Any]:
+def chance(
+    robot, task, settings: Mapping[str, Any], oracles: Mapping[str, Sequence[Any]] | None = None
+) -> dict[str, Any]:
     """Each chance policy's success on the episodes ``settings`` (``evaluate``'s episodes, repeats,
     seed) name, ``chance_success`` (the higher), ``chance_policy`` (which), the task-blind floor's
     success and wrong-target rate (``task_blind_success``, ``task_blind_wrong_target``; NaN where
-    the scene holds one target; the floor in expectation, :func:`task_blind`) and the episodes' digest
-    (:func:`ps_ray.stitching.evaluate.episodes_digest`), to check a pair ran on the same ones."""
+    the scene holds one target; the floor in expectation: :func:`task_blind` where a script does
+    the tasks, else the best method's :func:`oracle_floor` of ``oracles`` (method -> the scene's
+    oracles, :func:`scene_oracles`), named in ``task_blind_policy``; NaN without them) and the
+    episodes' digest (:func:`ps_ray.stitching.evaluate.episodes_digest`), to check a pair ran on
+    the same ones."""
     from ps_ray.stitching.evaluate import evaluate
 
     out: dict[str, Any] = {}
@@ -147,11 +198,17 @@ def chance(robot, task, settings: Mapping[str, Any]) -> dict[str, Any]:
         out["episodes_digest"] = result["episodes_digest"]
     best = max(CHANCE_POLICIES, key=lambda name: out[f"{name}_success"])
     out.update(chance_success=out[f"{best}_success"], chance_policy=best)
-    out.update(task_blind_success=np.nan, task_blind_wrong_target=np.nan)
+    out.update(task_blind_success=np.nan, task_blind_wrong_target=np.nan, task_blind_policy="")
+    floors = {}
     if scripted_floor(task):
-        blind = task_blind(robot, task, settings)
-        if blind["episodes_digest"] != out["episodes_digest"]:  # a bug, never bad input
+        floors["drive_to"] = task_blind(robot, task, settings)
+    elif has_floor(task):
+        floors = {f"{m} oracles": oracle_floor(robot, task, settings, o) for m, o in (oracles or {}).items()}
+    if floors:
+        best = max(floors, key=lambda name: floors[name]["task_blind_success"])
+        if floors[best]["episodes_digest"] != out["episodes_digest"]:  # a bug, never bad input
             raise RuntimeError("the task-blind floor ran on other episodes than chance")
-        out["task_blind_success"] = blind["task_blind_success"]
-        out["task_blind_wrong_target"] = blind["task_blind_wrong_target"]
+        out["task_blind_success"] = floors[best]["task_blind_success"]
+        out["task_blind_wrong_target"] = floors[best]["task_blind_wrong_target"]
+        out["task_blind_policy"] = best
     return out

@@ -99,7 +99,13 @@ def task_blind(robot, task, settings: Mapping[str, Any]) -> dict[str, Any]:
     candidates of reaching the named target from it) and the episodes' digest."""
     from ps_ray.stitching.evaluate import evaluate
 
-    runs = [evaluate(DriveTo(i), robot, task, **settings) for i in range(candidate_count(task))]
+    return _mean_over_candidates(
+        [evaluate(DriveTo(i), robot, task, **settings) for i in range(candidate_count(task))]
+    )
+
+
+def _mean_over_candidates(runs: list[dict[str, Any]]) -> dict[str, Any]:
+    """The floor in expectation from one evaluation per candidate, on the same episodes."""
     if len({run["episodes_digest"] for run in runs}) != 1:  # a bug, never bad input
         raise RuntimeError("the task-blind floor's candidates ran on other episodes")
     per_episode = np.mean([[r["success"] for r in run["records"]] for run in runs], axis=0)
@@ -122,17 +128,7 @@ def oracle_floor(robot, task, settings: Mapping[str, Any], oracles: Sequence[Any
 
     if len(oracles) != candidate_count(task):  # a bug, never bad input
         raise RuntimeError(f"{len(oracles)} oracles for {candidate_count(task)} candidate targets")
-    runs = [evaluate(policy, robot, task, **settings) for policy in oracles]
-    if len({run["episodes_digest"] for run in runs}) != 1:  # a bug, never bad input
-        raise RuntimeError("the task-blind floor's oracles ran on other episodes")
-    per_episode = np.mean([[r["success"] for r in run["records"]] for run in runs], axis=0)
-    return {
-        "task_blind_success": float(np.mean([run["success_mean"] for run in runs])),
-        "task_blind_wrong_target": float(np.mean([run["wrong_target_mean"] for run in runs])),
-        "task_blind_per_candidate": [run["success_mean"] for run in runs],
-        "task_blind_per_episode": per_episode.tolist(),
-        "episodes_digest": runs[0]["episodes_digest"],
-    }
+    return _mean_over_candidates([evaluate(policy, robot, task, **settings) for policy in oracles])
 
 
 def scene_oracles(zoo, robot, task, seed: int) -> dict[str, list[str]]:

@@ -55,7 +55,56 @@ class MarkerOptions(TaskOptions):
             raise UserError(f"bad target {self.target!r}; valid targets: 0..{self.markers - 1}")
 
 
-class Markers(Task):
+class MarkerScene:
+    """What the transfer family's scenes share: coloured markers, one named by the task
+    (``options.markers`` and ``options.target``), placed anew each episode; every marker plus the
+    desired offset is a candidate target, the named one the target."""
+
+    options: MarkerOptions
+    positions: np.ndarray
+    goal: np.ndarray
+
+    def _build_markers(self, sim: Sim) -> None:
+        self._bodies = [
+            sim.add_shape(p.GEOM_SPHERE, (MARKER_RADIUS,), (0.0, 0.0, -1.0), rgba=rgba, ghost=True)
+            for rgba in MARKER_COLOURS[: self.options.markers]
+        ]
+
+    @property
+    def target_position(self) -> np.ndarray:
+        """Where the outcome must end: the named marker plus the desired offset."""
+        return self.positions[self.options.target] + self.goal
+
+    def candidate_targets(self) -> np.ndarray:
+        """Every marker plus the desired offset: where each task of the family would end here."""
+        return self.positions + self.goal
+
+    @property
+    def named_candidate(self) -> int:
+        return self.options.target
+
+    def _place_markers(self, sim: Sim, rng: np.random.Generator, low, high, where: str, clear=None) -> None:
+        """Markers drawn uniformly in the box ``low``..``high`` by rejection sampling on the env's
+        RNG (deterministic), ``min_separation`` apart, ``min_radius`` off the mounts' axis and
+        where ``clear(point)`` allows; the desired offset zero."""
+        o = self.options
+        placed: list[np.ndarray] = []
+        for _ in range(10_000):
+            if len(placed) == o.markers:
+                break
+            candidate = rng.uniform(low, high)
+            apart = all(np.linalg.norm(candidate - q) >= o.min_separation for q in placed)
+            if apart and np.hypot(*candidate[:2]) >= o.min_radius and (clear is None or clear(candidate)):
+                placed.append(candidate)
+        else:
+            raise UserError(f"cannot place {o.markers} markers {o.min_separation} m apart{where}")
+        self.positions = np.asarray(placed)
+        for body, position in zip(self._bodies, self.positions):
+            sim.move(body, position)
+        self.goal = np.zeros(3)
+
+
+class Markers(MarkerScene, Task):
     """Reach the named marker; the other markers are the same kind of input with another meaning."""
 
     Options = MarkerOptions
@@ -74,23 +123,7 @@ class Markers(Task):
         return options.markers  # type: ignore[attr-defined]
 
     def _build(self) -> None:
-        self._bodies = [
-            self.sim.add_shape(p.GEOM_SPHERE, (MARKER_RADIUS,), (0.0, 0.0, -1.0), rgba=rgba, ghost=True)
-            for rgba in MARKER_COLOURS[: self.options.markers]
-        ]
-
-    @property
-    def target_position(self) -> np.ndarray:
-        """Where the end effector must go: the named marker plus the desired offset."""
-        return self.positions[self.options.target] + self.goal
-
-    def candidate_targets(self) -> np.ndarray:
-        """Every marker plus the desired offset: what each task of the family would reach here."""
-        return self.positions + self.goal
-
-    @property
-    def named_candidate(self) -> int:
-        return self.options.target
+        self._build_markers(self.sim)
 
     def target_region(self) -> tuple[np.ndarray, np.ndarray]:
         """The marker box: every marker, the named one too, is drawn in it."""
@@ -98,23 +131,11 @@ class Markers(Task):
 
     def _reset(self, rng: np.random.Generator) -> None:
         o = self.options
-        placed: list[np.ndarray] = []
-        for _ in range(10_000):  # rejection sampling on the env's RNG: deterministic
-            if len(placed) == o.markers:
-                break
-            candidate = rng.uniform(o.marker_low, o.marker_high)
-            clear = all(np.linalg.norm(candidate - q) >= o.min_separation for q in placed)
-            if clear and np.hypot(*candidate[:2]) >= o.min_radius:
-                placed.append(candidate)
-        else:
-            raise UserError(
-                f"cannot place {o.markers} markers {o.min_separation} m apart and {o.min_radius} m off "
-                f"the centre within marker_low {o.marker_low} .. marker_high {o.marker_high}"
-            )
-        self.positions = np.asarray(placed)
-        for body, position in zip(self._bodies, self.positions):
-            self.sim.move(body, position)
-        self.goal = np.zeros(3)
+        where = (
+            f" and {o.min_radius} m off the centre within marker_low {o.marker_low} .. marker_high "
+            f"{o.marker_high}"
+        )
+        self._place_markers(self.sim, rng, o.marker_low, o.marker_high, where)
 
     def _settable(self, task_input: np.ndarray) -> np.ndarray:
         width = 3 * self.options.markers + 3

@@ -20,11 +20,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import pybullet as p
 
 from ps_ray.errors import UserError
 
-from .markers import MARKER_COLOURS, MARKER_RADIUS
+from .markers import MARKER_COLOURS, MarkerScene
 from .push import Push, PushOptions
 
 
@@ -46,7 +45,7 @@ class PushMarkerOptions(PushOptions):
             raise UserError(f"bad target {self.target!r}; valid targets: 0..{self.markers - 1}")
 
 
-class PushMarkers(Push):
+class PushMarkers(MarkerScene, Push):
     """Push the object to the named marker; the other markers mean the same to another task."""
 
     Options = PushMarkerOptions
@@ -66,47 +65,18 @@ class PushMarkers(Push):
 
     def _build(self) -> None:
         super()._build()
-        self._bodies = [
-            self.sim.add_shape(p.GEOM_SPHERE, (MARKER_RADIUS,), (0.0, 0.0, -1.0), rgba=rgba, ghost=True)
-            for rgba in MARKER_COLOURS[: self.options.markers]
-        ]
-
-    @property
-    def target_position(self) -> np.ndarray:
-        """Where the object must end: the named marker plus the desired offset."""
-        return self.positions[self.options.target] + self.goal
-
-    def candidate_targets(self) -> np.ndarray:
-        """Every marker plus the desired offset: where each task of the family would push to here."""
-        return self.positions + self.goal
-
-    @property
-    def named_candidate(self) -> int:
-        return self.options.target
+        self._build_markers(self.sim)
 
     def _reset(self, rng: np.random.Generator) -> None:
         super()._reset(rng)  # the object, on the env's RNG (its goal draw is replaced below)
         o = self.options
         start = self.sim.base_state(self.object)[:3]
-        low, high = self.target_region()
-        placed: list[np.ndarray] = []
-        for _ in range(10_000):  # rejection sampling on the env's RNG: deterministic
-            if len(placed) == o.markers:
-                break
-            candidate = rng.uniform(low, high)
-            clear = all(np.linalg.norm(candidate - q) >= o.min_separation for q in placed)
-            off_axis = np.hypot(*candidate[:2]) >= o.min_radius
-            if clear and off_axis and np.linalg.norm(candidate[:2] - start[:2]) >= o.min_push:
-                placed.append(candidate)
-        else:
-            raise UserError(
-                f"cannot place {o.markers} markers {o.min_separation} m apart, {o.min_radius} m off the "
-                f"centre and {o.min_push} m from the object within goal_xy_range {o.goal_xy_range}"
-            )
-        self.positions = np.asarray(placed)
-        for body, position in zip(self._bodies, self.positions):
-            self.sim.move(body, position)
-        self.goal = np.zeros(3)
+        where = (
+            f", {o.min_radius} m off the centre and {o.min_push} m from the object within goal_xy_range "
+            f"{o.goal_xy_range}"
+        )
+        away = lambda point: np.linalg.norm(point[:2] - start[:2]) >= o.min_push  # noqa: E731
+        self._place_markers(self.sim, rng, *self.target_region(), where, clear=away)
 
     def observe(self, ee_position: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         state = self.sim.base_state(self.object)

@@ -121,6 +121,15 @@ def test_the_report_module_and_a_sweep_check_load_neither_ray_nor_torch():
     check = "from ps_ray import cli\nassert cli.main(['sweep', 'sweeps/transfer.yaml', '--check']) == 0"
     assert _loaded_after(check) == set()
     assert _loaded_after("import ps_ray.nets.policy_file") == {"torch"}  # the probe sees what is loaded
+    # the driver's check of the files a sweep starts from reads their signatures, builds no nets
+    start = "ps_ray/stitching/example/oracle.safetensors"
+    sweep = (
+        "from ps_ray.specs.sweep import SweepSpec\nfrom ps_ray.pipeline.sweep import check_inputs\n"
+        "spec = SweepSpec.from_mapping({'name': 's', 'methods': ['ablation'], 'robots': ['panda_far'], "
+        f"'tasks': ['reach_blue'], 'seeds': [1], 'train': {{'init_policy': '{start}', 'hidden': 128}}}})\n"
+        "check_inputs(spec)"
+    )
+    assert _loaded_after(sweep) == set()
 
 
 @pytest.mark.e2e

@@ -8,7 +8,6 @@ First the plain source policies of the anchors (anchors.policy: plain), then the
 
 from __future__ import annotations
 
-import dataclasses
 from functools import partial
 from pathlib import Path
 
@@ -34,11 +33,14 @@ def check_inputs(spec: SweepSpec) -> None:
         for t in spec.trials()
         if t.init_policy is not None
     }
-    if starts:  # reading policy files needs torch; a sweep without them is checked without it
-        from ps_ray.rllib.loop import read_inputs
+    if starts:  # each start's signature, read without building its nets (the trial loads them)
+        from ps_ray.stitching.rule import start_problems
+        from ps_ray.store.signature import read_signature
 
         for trial in starts.values():
-            read_inputs(dataclasses.replace(trial, anchors=None))
+            problems = start_problems(trial, read_signature(trial.init_policy)[0])
+            if problems:
+                raise UserError(f"{trial.init_policy}: cannot start this run: " + "; ".join(problems))
 
 
 def run_sweep(spec: SweepSpec, *, resume: bool = False, progress: bool = True):

@@ -18,7 +18,7 @@ import torch
 from ps_ray.errors import UserError
 from ps_ray.specs import reset_seeds
 from ps_ray.specs.methods import spec_json
-from ps_ray.specs.train import POINT_TASK, TrainSpec
+from ps_ray.specs.train import TrainSpec
 from ps_ray.store import checkpoint
 from ps_ray.store.run_layout import (
     ANCHORS_FILE,
@@ -245,16 +245,10 @@ def read_inputs(spec: TrainSpec):
     set of K = interface_dim. Returns the anchor set they give (None: none given)."""
     if spec.init_policy is not None:
         from ps_ray.nets.policy_file import load_policy, policy_anchor_set
-        from ps_ray.stitching.rule import target_problems
+        from ps_ray.stitching.rule import start_problems
 
-        _, signature = load_policy(spec.init_policy)
-        wanted = (spec.method, spec.interface_dim, spec.hidden)
-        found = (signature.method, signature.interface_dim, signature.hidden)
-        problems = [] if found == wanted else [f"(method, interface dim, hidden) {found} vs {wanted}"]
-        if spec.task != POINT_TASK:
-            problems += target_problems(signature, (spec.robot, spec.task))
-        if signature.translation:
-            problems.append(f"a stitch aligned at stitch time ({signature.translation}) is for zero-shot use")
+        _, signature = load_policy(spec.init_policy)  # every tensor read and checked
+        problems = start_problems(spec, signature)
         if problems:
             raise UserError(f"{spec.init_policy}: cannot start this run: " + "; ".join(problems))
         return policy_anchor_set(spec.init_policy) if spec.resolved.uses_anchors else None

@@ -70,7 +70,7 @@ def test_a_pair_and_its_outcome_translation_are_scored_beside_the_same_controls(
         controls = [metrics[f"{k}_success"] for k in ("robot_source", "task_source", "chance", "task_blind")]
         assert metrics["best_control"] == max(controls) and metrics["task_blind_success"] == 0.5
         assert metrics["transfer_gain"] == pytest.approx(metrics["success_mean"] - max(controls))
-    # the controls were scored once, on the same episodes, for both stitches
+    # both stitches stand beside the same controls' figures, on the same episodes
     assert {k: plain[k] for k in plain if "source" in k or "oracle" in k} == {
         k: fitted[k] for k in fitted if "source" in k or "oracle" in k
     }

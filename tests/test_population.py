@@ -98,10 +98,26 @@ def test_each_member_gets_the_updates_a_solo_learner_gives_it(method):
         if step in (0, 9):
             for i, solo in enumerate(solos):
                 assert_same(population, i, solo)
-    # the members moved, each its own way: no update was shared
-    moved = [population.export(i, copy.deepcopy(starts[0]))[0].actor for i in range(3)]
-    weights = [torch.cat([p.flatten() for p in nets.parameters()]) for nets in moved]
-    assert not torch.equal(weights[0], weights[1]) and not torch.equal(weights[1], weights[2])
+
+
+def test_twin_members_stay_twins_on_one_batch_and_part_on_their_own():
+    """Two members from the same weights: fed the same batch and noise they stay equal, fed
+    different ones they part: each moves by its own batch only."""
+    twins = Population([member("ablation", 1), member("ablation", 1)], hp=HP, lrs=LRS, tau=TAU)
+    same, rewards, noise = batches(1, 16, seed=7)
+    both = {k: v.expand(2, *v.shape[1:]) for k, v in same.items()}
+    twins.update(both, rewards.expand(2, -1), tuple(n.expand(2, *n.shape[1:]) for n in noise))
+    weights = [
+        torch.cat([p.flatten() for p in twins.export(i, member("ablation", 1))[0].parameters()])
+        for i in (0, 1)
+    ]
+    assert torch.equal(weights[0], weights[1])
+    twins.update(*batches(2, 16, seed=8))
+    weights = [
+        torch.cat([p.flatten() for p in twins.export(i, member("ablation", 1))[0].parameters()])
+        for i in (0, 1)
+    ]
+    assert not torch.equal(weights[0], weights[1])
 
 
 def test_a_member_that_leaves_changes_no_other():

@@ -130,9 +130,11 @@ def test_the_push_family_s_floor_is_the_mean_of_its_tasks_oracles_run_on_the_tar
                 write_trial(tmp_path, "tune", spec(method, robot, task, seed=1))
     write_trial(tmp_path, "tune", spec("plain", "panda_far", "push_red", seed=1))  # no push_blue one
     write_trial(tmp_path, "tune", spec("ps", "panda_far", "push_blue", seed=2))  # another seed
+    wider = spec("ps", "panda_far", "push_red", seed=1, interface_dim=16)
+    write_trial(tmp_path, "tune", wider)  # at i16 no push_blue one
     zoo = ModuleZoo.from_sweep(tmp_path)
     oracles = scene_oracles(zoo, "panda_far", "push_blue", seed=1)
-    assert sorted(oracles) == ["ablation", "ps"]  # plain lacks a candidate: left out
+    assert sorted(oracles) == ["ablation/i8", "ps/i8"]  # plain, ps at i16: a candidate missing
     for files in oracles.values():  # candidate order: red (0), then blue (1)
         trained = [json.loads((Path(f).parent / "spec.json").read_text()) for f in files]
         assert [(t["robot"], t["task"]) for t in trained] == [
@@ -140,8 +142,8 @@ def test_the_push_family_s_floor_is_the_mean_of_its_tasks_oracles_run_on_the_tar
             ("panda_far", "push_blue"),
         ]
     settings = {"episodes": 3, "repeats": 1, "seed": 4}
-    floor = oracle_floor("panda_far", "push_blue", settings, oracles["ps"])
-    runs = [evaluate(f, "panda_far", "push_blue", **settings) for f in oracles["ps"]]
+    floor = oracle_floor("panda_far", "push_blue", settings, oracles["ps/i8"])
+    runs = [evaluate(f, "panda_far", "push_blue", **settings) for f in oracles["ps/i8"]]
     assert floor["task_blind_per_candidate"] == [r["success_mean"] for r in runs]
     assert floor["task_blind_success"] == pytest.approx(np.mean([r["success_mean"] for r in runs]))
     assert floor["task_blind_wrong_target"] == pytest.approx(np.mean([r["wrong_target_mean"] for r in runs]))

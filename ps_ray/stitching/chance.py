@@ -132,9 +132,10 @@ def oracle_floor(robot, task, settings: Mapping[str, Any], oracles: Sequence[Any
 
 
 def scene_oracles(zoo, robot, task, seed: int) -> dict[str, list[str]]:
-    """Per method, the policy files the sweep trained alone at ``seed`` on the target robot for
-    every candidate task of the target's scene, in candidate order (the same family and options,
-    another ``target``); methods missing any candidate are left out."""
+    """Per method and interface width (``<method>/i<dim>``), the policy files the sweep trained
+    alone at ``seed`` on the target robot for every candidate task of the target's scene, in
+    candidate order (the same family and options, another ``target``); a method and width missing
+    any candidate is left out."""
     import dataclasses
 
     from ps_ray.envs.tasks import resolve_task
@@ -148,7 +149,8 @@ def scene_oracles(zoo, robot, task, seed: int) -> dict[str, list[str]]:
             continue
         other = resolve_task(EnvPart(entry.key.task))
         if other.family is spec.family and other.options in wanted:
-            found.setdefault(entry.key.method, {})[wanted.index(other.options)] = str(entry.path)
+            kind = f"{entry.key.method}/i{entry.key.interface_dim}"
+            found.setdefault(kind, {})[wanted.index(other.options)] = str(entry.path)
     complete = {m: files for m, files in found.items() if len(files) == len(wanted)}
     return {m: [files[c] for c in range(len(wanted))] for m, files in complete.items()}
 

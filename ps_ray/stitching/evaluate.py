@@ -58,7 +58,7 @@ class EpisodeRecord:
     contact: bool
     initially_successful: bool
     goal: tuple[float, ...]  # desired goal at reset
-    start: tuple[float, ...]  # achieved goal at reset (the object; the end effector for reach)
+    start: tuple[float, ...]  # achieved goal at reset (in the named marker's frame for the marker families)
     task_input: tuple[float, ...]  # the task module's input at reset (task state, then goal)
     end_effector: tuple[float, ...]  # the end effector's final position (world frame)
     # the outcome's final distance (the object's, else the end effector's) to each candidate target

@@ -1,5 +1,5 @@
-"""`ps-ray run sweeps/smoke.yaml` end to end (the README's pipeline), killed in training and in zero-shot and resumed;
-`ps-ray report` rebuilt idempotently and opened in headless Chromium."""
+"""`ps-ray run sweeps/smoke.yaml` end to end (the README's pipeline), killed in training and in
+zero-shot and resumed; `ps-ray report` rebuilt idempotently and opened in headless Chromium."""
 
 from __future__ import annotations
 

@@ -190,6 +190,7 @@ ray.init(num_cpus=1, include_dashboard=False, log_to_driver=False)
 run_trials(lambda config: tune.report({FINISHED: True}), {"n": [0]}, folder=Path(sys.argv[1]),
            stage="one", callback=tune.Callback(), resume=False, progress=False, max_concurrent=None,
            max_failures=0)
+print("SIGINT handler:", signal.getsignal(signal.SIGINT), flush=True)  # who holds it, if one is lost
 try:
     os.kill(os.getpid(), signal.SIGINT)
     time.sleep(10)
@@ -216,7 +217,7 @@ def test_ctrl_c_after_a_tune_stage_interrupts_the_driver_at_once(tmp_path):
         env=own_ray_env(),
     )
     assert proc.returncode == 0, proc.stderr[-3000:]
-    assert proc.stdout.strip().splitlines()[-1] == "interrupted"
+    assert proc.stdout.strip().splitlines()[-1] == "interrupted", proc.stdout[-2000:] + proc.stderr[-2000:]
     assert "Stop signal received" not in proc.stdout + proc.stderr
 
 

@@ -45,7 +45,7 @@ def test_an_anchor_set_of_version_1_reads_with_its_anchors_hash_and_provenance()
     assert found.provenance == {"k": 4, "policy": "random"}
     # the hash of the anchors as written (the reader checks the anchors against it)
     assert found.hash == "0a61a51f32f1c462c7087bebaa041466882ec799bd9ba8034f3aa451df7923f8"
-    np.testing.assert_allclose(found.anchors[0], [0.00123015, 0.29874554, -0.27413785], rtol=1e-6)
+    np.testing.assert_allclose(found.anchors[0], [0.00123015, 0.29874554, -0.27413785], atol=1e-7)
 
 
 def test_a_hindsight_replay_of_version_1_reads_back_its_episodes():

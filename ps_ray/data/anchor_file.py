@@ -13,10 +13,10 @@ import numpy as np
 from ps_ray.data.anchors import AnchorSet, _as_states, anchor_hash, select_anchors, selection_provenance
 from ps_ray.errors import UserError
 from ps_ray.store.atomic import atomic_file, file_sha256
+from ps_ray.store.formats import ANCHOR_SET
 from ps_ray.store.npz import NPY_MAGIC, ZIP_MAGIC, NpzError, magic, read_npy, read_npz
 
-FORMAT = "ps_ray.anchor_set"
-FORMAT_VERSION = 1
+FORMAT = ANCHOR_SET.id
 _ANCHOR_KEY, _META_KEY = "anchors", "meta"
 
 
@@ -31,7 +31,6 @@ def save_anchor_set(path: str | os.PathLike, anchor_set: AnchorSet) -> None:
     meta = json.dumps(
         {
             "format": FORMAT,
-            "version": FORMAT_VERSION,
             "hash": anchor_set.hash,
             "provenance": anchor_set.provenance,
         },
@@ -58,12 +57,15 @@ def _parse_anchor_npz(members: dict[str, np.ndarray]) -> AnchorSet:
         meta = json.loads(str(raw_meta[()]))
     except json.JSONDecodeError as exc:
         raise NpzError(f"'meta' is not valid JSON ({exc})") from None
-    if not isinstance(meta, dict) or meta.get("format") != FORMAT:
+    if not isinstance(meta, dict):
         raise NpzError(f"'meta' does not describe a {FORMAT} file")
-    if meta.get("version") != FORMAT_VERSION:
-        raise NpzError(
-            f"unsupported {FORMAT} version {meta.get('version')!r} (this code reads version {FORMAT_VERSION})"
-        )
+    found = meta.get("format")
+    if "version" in meta:  # an earlier ps_ray wrote the name and the version apart
+        found = f"{found}/{meta['version']}"
+    if ANCHOR_SET.version_of(found) is None:
+        raise NpzError(f"'meta' does not describe a {FORMAT} file")
+    if not ANCHOR_SET.reads(found):
+        raise NpzError(f"unsupported anchor set format {found!r} (this code reads {FORMAT})")
     stored_hash, provenance = meta.get("hash"), meta.get("provenance")
     if not isinstance(stored_hash, str) or not isinstance(provenance, dict):
         raise NpzError("'meta' lacks a string 'hash' or a dict 'provenance'")

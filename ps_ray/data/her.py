@@ -22,6 +22,7 @@ import numpy as np
 
 from ps_ray.errors import UserError
 from ps_ray.store.atomic import atomic_file
+from ps_ray.store.formats import HINDSIGHT_REPLAY
 from ps_ray.store.npz import NpzError, read_npz
 
 __all__ = ["HindsightReplay", "ObsSpec", "RewardFn"]
@@ -29,7 +30,7 @@ __all__ = ["HindsightReplay", "ObsSpec", "RewardFn"]
 ObsSpec = Mapping[str, tuple[tuple[int, ...], Any]]  # key -> (per-step shape, dtype-like)
 RewardFn = Callable[[np.ndarray, np.ndarray], np.ndarray]  # (achieved (N,G), goal (N,G)) -> (N,)
 
-_FORMAT = "ps_ray.HindsightReplay/1"
+_FORMAT = HINDSIGHT_REPLAY.id
 
 
 class HindsightReplay:
@@ -253,8 +254,8 @@ class HindsightReplay:
         except json.JSONDecodeError as exc:
             raise bad(f"'meta' is not JSON ({exc})") from exc
         fmt = meta.get("format") if isinstance(meta, dict) else None
-        if fmt != _FORMAT:
-            raise bad(f"format {fmt!r} != {_FORMAT!r}")
+        if not HINDSIGHT_REPLAY.reads(fmt):
+            raise bad(f"format {fmt!r}; this code reads {', '.join(HINDSIGHT_REPLAY.readable)}")
         try:
             spec = {k: (tuple(s), np.dtype(dt)) for k, (s, dt) in meta["obs_spec"].items()}
             ints = ("capacity_episodes", "horizon", "action_dim", "episodes_added")

@@ -20,10 +20,11 @@ from typing import Any
 
 from ps_ray.errors import UserError
 from ps_ray.specs import reset_seeds
+from ps_ray.store.formats import EXAMPLE_ZOO
 
 EXAMPLE_DIR = Path(__file__).parent / "example"
 MANIFEST = "zoo.json"
-FORMAT = "ps_ray.example_zoo/1"
+FORMAT = EXAMPLE_ZOO.id
 ROLES = ("task_module", "robot_module", "oracle")
 # The rows of the demo's table: (key of its success, what it is)
 ROWS = (
@@ -49,7 +50,7 @@ class ExampleZoo:
             manifest = json.loads((root / MANIFEST).read_text())
         except (OSError, json.JSONDecodeError) as e:
             raise UserError(f"{root / MANIFEST}: not an example zoo manifest ({e})") from None
-        if not isinstance(manifest, dict) or manifest.get("format") != FORMAT:
+        if not isinstance(manifest, dict) or not EXAMPLE_ZOO.reads(manifest.get("format")):
             raise UserError(f"{root / MANIFEST}: not an example zoo manifest (format {FORMAT} expected)")
         for role in ROLES:
             entry = (manifest.get("modules") or {}).get(role)

@@ -24,10 +24,11 @@ from pathlib import Path
 from ps_ray.errors import UserError
 from ps_ray.store import replay
 from ps_ray.store.atomic import file_sha256, fsync_file, write_text
+from ps_ray.store.formats import CHECKPOINT
 from ps_ray.store.run_layout import POLICY_FILE
 
 MANIFEST = "manifest.json"
-FORMAT = "ps_ray-checkpoint-1"
+FORMAT = CHECKPOINT.id
 STATE_FILE = "ps_ray_state.json"
 POLICY_ONLY = (STATE_FILE, POLICY_FILE)  # what a reader of the policy alone must hash
 
@@ -67,7 +68,7 @@ def verify(
         raise bad(f"no {MANIFEST}: cut short, or written by another program or an older ps_ray") from None
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
         raise bad(f"unreadable {MANIFEST}: {e}") from None
-    if not isinstance(manifest, dict) or manifest.get("format") != FORMAT:
+    if not isinstance(manifest, dict) or not CHECKPOINT.reads(manifest.get("format")):
         raise bad(f"{MANIFEST} is not of format {FORMAT!r}")
     files = manifest.get("files")
     if not isinstance(files, dict) or STATE_FILE not in files:

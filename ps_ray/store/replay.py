@@ -23,9 +23,10 @@ import numpy as np
 
 from ps_ray.errors import UserError
 from ps_ray.store.atomic import atomic_file, file_sha256, fsync_file
+from ps_ray.store.formats import REPLAY_SEGMENTS
 from ps_ray.store.npz import NpzError, read_npz
 
-FORMAT = "ps_ray-replay-segments-1"
+FORMAT = REPLAY_SEGMENTS.id
 MANIFEST_FILE = "replay.json"  # in the checkpoint folder
 SEGMENT_EPISODES = 500  # about 3.7 MB of reach episodes: what a checkpoint rewrites at most
 
@@ -77,7 +78,7 @@ def read_manifest(checkpoint_dir: Path) -> dict[str, Any]:
         manifest = json.loads(path.read_text())
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
         raise ReplayStoreError(f"{path}: unreadable replay manifest ({e})") from None
-    ok = isinstance(manifest, dict) and manifest.get("format") == FORMAT
+    ok = isinstance(manifest, dict) and REPLAY_SEGMENTS.reads(manifest.get("format"))
     ok = ok and isinstance(manifest.get("state"), dict) and isinstance(manifest.get("segments"), list)
     for e in manifest.get("segments", []) if ok else []:
         ok = (

@@ -19,13 +19,12 @@ from ps_ray.errors import UserError
 from ps_ray.specs.defaults import MAX_WIDTH
 from ps_ray.specs.dims import NetDims
 from ps_ray.specs.methods import MethodSpec, method_spec, spec_from_dict, spec_json
+from ps_ray.store.formats import POLICY
 
-FORMAT_NAME = "ps_ray.policy"
 # 1: ``settings`` may be "" (the method is then a preset or an older menu name, resolved when read)
 # 2: ``settings`` always holds the resolved method
-VERSION = 2
-FORMAT = f"{FORMAT_NAME}/{VERSION}"
-FORMATS = tuple(f"{FORMAT_NAME}/{v}" for v in range(1, VERSION + 1))  # the versions this code reads
+FORMAT = POLICY.id
+FORMATS = POLICY.readable  # the versions this code reads
 
 
 @dataclass(frozen=True)

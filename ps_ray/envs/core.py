@@ -169,8 +169,8 @@ class RobotTaskEnv(gym.Env[Obs, np.ndarray]):
     # -- internals ----------------------------------------------------------------------------
     def _observe(self) -> tuple[Obs, np.float32]:
         self._ee = self.robot.ee_position()
-        self._object = self.task.object_position()
         task_state, achieved = self.task.observe(self._ee)
+        self._object = self.task.object_position()
         obs = {
             "robot_state": self.robot.state().astype(np.float32),
             "task_state": task_state.astype(np.float32),

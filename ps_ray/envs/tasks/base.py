@@ -108,8 +108,9 @@ class Task(ABC):
     named_candidate: int = 0
 
     def object_position(self) -> np.ndarray | None:
-        """Where the task's object is (world frame); None for a task without one."""
-        return None if self.object is None else self.sim.base_state(self.object)[:3]
+        """Where the task's object was at the last :meth:`observe` (world frame); None for a task
+        without one."""
+        return None
 
     @abstractmethod
     def target_region(self) -> tuple[np.ndarray, np.ndarray]:

@@ -69,6 +69,9 @@ class ObjectTask(Task):
             half, (*xy, z), rgba=o.object_rgba, mass=o.object_mass, lateral_friction=o.object_friction
         )
 
+    def object_position(self) -> np.ndarray:
+        return self._object_state[:3]
+
     def observe(self, ee_position: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        state = self.sim.base_state(self.object)
-        return state, state[:3]
+        self._object_state = self.sim.base_state(self.object)  # read once per step
+        return self._object_state, self._object_state[:3]

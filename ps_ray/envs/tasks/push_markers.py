@@ -79,6 +79,6 @@ class PushMarkers(MarkerScene, Push):
         self._place_markers(self.sim, rng, *self.target_region(), where, clear=away)
 
     def observe(self, ee_position: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        state = self.sim.base_state(self.object)
+        state, position = super().observe(ee_position)
         task_state = np.concatenate([state, self.positions.reshape(-1)])
-        return task_state, state[:3] - self.positions[self.options.target]
+        return task_state, position - self.positions[self.options.target]

@@ -85,8 +85,17 @@ def test_the_swapped_scene_trades_the_two_tasks_markers():
     np.testing.assert_array_equal(swapped[:, RED], states[:, BLUE])
     np.testing.assert_array_equal(swapped[:, BLUE], states[:, RED])
     np.testing.assert_array_equal(swapped[:, 6:], states[:, 6:])  # the goal offset stays
-    with pytest.raises(UserError, match="two tasks of the marker family, got reach and reach_blue"):
+    with pytest.raises(UserError, match="two tasks of one marker family, got reach and reach_blue"):
         colour_swapped(states, EnvPart("reach"), EnvPart("reach_blue"))
+    with pytest.raises(UserError, match="two tasks of one marker family, got push_red and reach_blue"):
+        colour_swapped(states, EnvPart("push_red"), EnvPart("reach_blue"))
+    # the push family: the markers stand after the object's 12 numbers; the object stays
+    pushed = np.arange(42, dtype=np.float32).reshape(2, 21)
+    swapped = colour_swapped(pushed, EnvPart("push_red"), EnvPart("push_blue"))
+    np.testing.assert_array_equal(swapped[:, 12:15], pushed[:, 15:18])
+    np.testing.assert_array_equal(swapped[:, 15:18], pushed[:, 12:15])
+    np.testing.assert_array_equal(swapped[:, :12], pushed[:, :12])
+    np.testing.assert_array_equal(swapped[:, 18:], pushed[:, 18:])
 
 
 def test_an_env_reset_to_a_task_input_shows_that_scene():
@@ -112,7 +121,7 @@ def test_an_env_reset_to_a_task_input_shows_that_scene():
     reach = make("panda", "reach")
     try:
         with pytest.raises(
-            UserError, match="a reach scene cannot be set from a task input; valid: the marker family"
+            UserError, match="a reach scene cannot be set from a task input; valid: the marker families"
         ):
             reach.reset(seed=0, options={"task_input": np.zeros(3)})
     finally:

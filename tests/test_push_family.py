@@ -13,6 +13,7 @@ import pytest
 
 from ps_ray.envs import make
 from ps_ray.envs.goals import task_input
+from ps_ray.errors import UserError
 from ps_ray.stitching.evaluate import evaluate, outcome_point
 
 
@@ -152,3 +153,20 @@ def test_the_push_family_s_floor_is_the_mean_of_its_tasks_oracles_run_on_the_tar
         oracle_floor("panda_far", "push_blue", settings, o)["task_blind_success"] for o in oracles.values()
     )
     assert levels["task_blind_success"] == best and levels["task_blind_policy"].endswith(" oracles")
+
+
+def test_an_env_reset_to_a_task_input_shows_that_scene_object_and_markers_included():
+    """Outcome matching sets scenes from task inputs (anchors@..., swapped): the object's pose and
+    velocities, both markers and the desired offset stand where the input says."""
+    env = make("panda", "push_blue")
+    drawn, _ = env.reset(seed=4)
+    scene = task_input(drawn).copy()
+    scene[:2] += [0.03, -0.02]  # the object moved
+    scene[12:15], scene[15:18] = scene[15:18].copy(), scene[12:15].copy()  # the markers traded
+    obs, info = env.reset(seed=9, options={"task_input": scene})
+    np.testing.assert_allclose(obs["task_state"], scene[:18], atol=1e-5)
+    np.testing.assert_allclose(obs["desired_goal"], scene[18:], atol=1e-7)
+    np.testing.assert_allclose(obs["achieved_goal"], scene[:3] - scene[15:18], atol=1e-5)
+    np.testing.assert_allclose(env.object_position, scene[:3], atol=1e-5)
+    with pytest.raises(UserError, match="a task input of this scene is 21 finite numbers"):
+        env.reset(seed=9, options={"task_input": scene[:18]})

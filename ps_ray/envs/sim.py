@@ -103,6 +103,13 @@ class Sim:
             body, [float(v) for v in position], (0.0, 0.0, 0.0, 1.0), physicsClientId=self.client
         )
 
+    def set_base_state(self, body: int, state: np.ndarray) -> None:
+        """Put a base where :meth:`base_state` says: position, Euler angles and both velocities."""
+        position, euler, linear, angular = (tuple(map(float, state[i : i + 3])) for i in (0, 3, 6, 9))
+        quaternion = p.getQuaternionFromEuler(euler)
+        p.resetBasePositionAndOrientation(body, position, quaternion, physicsClientId=self.client)
+        p.resetBaseVelocity(body, linear, angular, physicsClientId=self.client)
+
     # -- queries ----------------------------------------------------------------------------
     def base_state(self, body: int) -> np.ndarray:
         """Position (3), Euler angles (3), linear velocity (3), angular velocity (3) of a base."""

@@ -35,7 +35,7 @@ from pathlib import Path
 import numpy as np
 
 from ps_ray.envs.tasks import resolve_task
-from ps_ray.envs.tasks.markers import Markers
+from ps_ray.envs.tasks.markers import MarkerScene
 from ps_ray.errors import UserError
 from ps_ray.specs import reset_seeds
 from ps_ray.specs.names import ANCHOR_FITS, CROSSED_FITS, EnvPart, parse_spec_text
@@ -218,16 +218,14 @@ def colour_swapped(states: np.ndarray, task_from: EnvPart, task_to: EnvPart) -> 
     """Task inputs of ``task_from`` (a marker task) with its marker and ``task_to``'s trading
     places: the scene in which ``task_to`` means what ``task_from`` means in the original."""
     spec_from, spec_to = resolve_task(task_from), resolve_task(task_to)
-    if not (issubclass(spec_from.family, Markers) and issubclass(spec_to.family, Markers)):
+    family = spec_from.family
+    if not (issubclass(family, MarkerScene) and spec_to.family is family):
         raise UserError(
-            f"swapped pairs need two tasks of the marker family, got {task_from.short} and {task_to.short}"
+            f"swapped pairs need two tasks of one marker family, got {task_from.short} and {task_to.short}"
         )
-    a, b = spec_from.options.target, spec_to.options.target
+    a, b = family.marker_columns(spec_from.options.target), family.marker_columns(spec_to.options.target)
     out = np.array(states, np.float32, copy=True)
-    out[:, 3 * a : 3 * a + 3], out[:, 3 * b : 3 * b + 3] = (
-        states[:, 3 * b : 3 * b + 3],
-        states[:, 3 * a : 3 * a + 3],
-    )
+    out[:, a], out[:, b] = states[:, b], states[:, a]
     return out
 
 

@@ -93,7 +93,7 @@ class Task(ABC):
         """The task input checked before anything moves (a family that can set scenes says so)."""
         raise UserError(
             f"a {type(self).__name__.lower()} scene cannot be set from a task input; "
-            f"valid: the marker family's reaching tasks (reach_red, reach_blue, ...)"
+            f"valid: the marker families (reach_red, reach_blue, push_red, push_blue, ...)"
         )
 
     def _set(self, task_input: np.ndarray) -> None:  # noqa: B027 (only families that pass _settable)

@@ -63,6 +63,8 @@ class MarkerScene:
     options: MarkerOptions
     positions: np.ndarray
     goal: np.ndarray
+    state_dim: int
+    sim: Sim
 
     def _build_markers(self, sim: Sim) -> None:
         self._bodies = [
@@ -82,6 +84,34 @@ class MarkerScene:
     @property
     def named_candidate(self) -> int:
         return self.options.target
+
+    @classmethod
+    def marker_columns(cls, index: int) -> slice:
+        """Where marker ``index``'s position stands in the task state (after the family's own
+        ``state_dim`` numbers: none for the markers, the object's 12 for the push family)."""
+        first = cls.state_dim + 3 * index
+        return slice(first, first + 3)
+
+    def _settable(self, task_input: np.ndarray) -> np.ndarray:
+        width = self.state_dim + 3 * self.options.markers + 3
+        if task_input.shape != (width,) or not np.isfinite(task_input).all():
+            raise UserError(
+                f"a task input of this scene is {width} finite numbers, got {task_input.tolist()}"
+            )
+        return task_input
+
+    def _set(self, task_input: np.ndarray) -> None:
+        """The scene a task input says: the family's own part (:meth:`_set_own`), every marker at
+        the task state's positions, the desired offset from the goal part."""
+        head, width = self.state_dim, self.state_dim + 3 * self.options.markers
+        self._set_own(task_input[:head])
+        self.positions = task_input[head:width].reshape(-1, 3).copy()
+        for body, position in zip(self._bodies, self.positions):
+            self.sim.move(body, position)
+        self.goal = task_input[width:].copy()
+
+    def _set_own(self, state: np.ndarray) -> None:
+        """Set the family's own part of the task state (the markers have none)."""
 
     def _place_markers(self, sim: Sim, rng: np.random.Generator, low, high, where: str, clear=None) -> None:
         """Markers drawn uniformly in the box ``low``..``high`` by rejection sampling on the env's
@@ -136,22 +166,6 @@ class Markers(MarkerScene, Task):
             f"{o.marker_high}"
         )
         self._place_markers(self.sim, rng, o.marker_low, o.marker_high, where)
-
-    def _settable(self, task_input: np.ndarray) -> np.ndarray:
-        width = 3 * self.options.markers + 3
-        if task_input.shape != (width,) or not np.isfinite(task_input).all():
-            raise UserError(
-                f"a task input of this scene is {width} finite numbers, got {task_input.tolist()}"
-            )
-        return task_input
-
-    def _set(self, task_input: np.ndarray) -> None:
-        """Every marker at the task state's positions, the desired offset from the goal part."""
-        width = 3 * self.options.markers
-        self.positions = task_input[:width].reshape(-1, 3).copy()
-        for body, position in zip(self._bodies, self.positions):
-            self.sim.move(body, position)
-        self.goal = task_input[width:].copy()
 
     def observe(self, ee_position: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         return self.positions.reshape(-1), ee_position - self.positions[self.options.target]

@@ -78,6 +78,10 @@ class PushMarkers(MarkerScene, Push):
         away = lambda point: np.linalg.norm(point[:2] - start[:2]) >= o.min_push  # noqa: E731
         self._place_markers(self.sim, rng, *self.target_region(), where, clear=away)
 
+    def _set_own(self, state: np.ndarray) -> None:
+        """The object where the task state's first 12 numbers put it (pose and velocities)."""
+        self.sim.set_base_state(self.object, state)
+
     def observe(self, ee_position: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         state, position = super().observe(ee_position)
         task_state = np.concatenate([state, self.positions.reshape(-1)])

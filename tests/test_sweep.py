@@ -186,11 +186,14 @@ from ray import tune
 from ps_ray.pipeline.trials import run_trials
 from ps_ray.store.attempts import FINISHED
 
+# Ctrl-C as a terminal's foreground command gets it: a suite started in the background by a shell
+# without job control (`cmd &` in a script) passes SIGINT on ignored, and Python keeps it so
+signal.signal(signal.SIGINT, signal.default_int_handler)
 ray.init(num_cpus=1, include_dashboard=False, log_to_driver=False)
 run_trials(lambda config: tune.report({FINISHED: True}), {"n": [0]}, folder=Path(sys.argv[1]),
            stage="one", callback=tune.Callback(), resume=False, progress=False, max_concurrent=None,
            max_failures=0)
-print("SIGINT handler:", signal.getsignal(signal.SIGINT), flush=True)  # who holds it, if one is lost
+print("SIGINT handler:", signal.getsignal(signal.SIGINT), flush=True)  # who holds it, should one be lost
 try:
     os.kill(os.getpid(), signal.SIGINT)
     time.sleep(10)

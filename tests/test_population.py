@@ -150,3 +150,20 @@ def test_a_member_that_leaves_changes_no_other():
 def test_a_population_refuses_to_be_empty():
     with pytest.raises(ValueError, match="at least one member"):
         Population([])
+
+
+def test_the_update_benchmark_prices_a_population_per_source(capsys):
+    """`ps-ray bench update --population K ...` prints one row per K beside the solo learner,
+    with the cost per source (widths given: no env needed, as on a GPU host)."""
+    from ps_ray.bench import update
+
+    update.main(
+        ["--dims", "15,8,7", "--methods", "ablation", "--population", "2", "1"]
+        + ["--rounds", "1", "--updates", "1", "--batch-size", "32", "--interface-dim", "16"]
+    )
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0].startswith("ablation on cpu, batch 32, interface 16")
+    rows = [line.split() for line in lines[2:]]
+    assert [r[0] for r in rows] == ["1", "1", "2"] and rows[0][1] == "solo"
+    solo, two = float(rows[0][2]), rows[2]  # K = 2: all of its update, then per source
+    assert float(two[2]) == pytest.approx(float(two[1]) / 2, abs=0.01) and solo > 0

@@ -10,6 +10,7 @@ import pytest
 
 from ps_ray.analysis.workload import LOADS
 from ps_ray.pipeline.run import RUNNERS
+from ps_ray.plan.stages import PLANS
 from ps_ray.specs.resources import ResourcesSpec
 from ps_ray.specs.stages import NOT_TRAINING, STAGE_RECORDS, STAGES, STAGES_WITH_TRIALS, stage
 from ps_ray.specs.sweep import SUB_SPECS, SweepSpec, load_sweep
@@ -23,6 +24,7 @@ def test_every_registry_names_the_stages_of_the_record():
     assert STAGES == ("train", "grid", "zero_shot", "few_shot", "report")
     assert set(RUNNERS) == set(STAGES)  # ps-ray run can run each stage
     assert set(LOADS) == set(STAGES_WITH_TRIALS)  # --check prices each stage that runs trials
+    assert set(PLANS) == set(STAGES_WITH_TRIALS)  # each plans its trials in one shape
     assert [f.name for f in dataclasses.fields(ResourcesSpec)] == list(STAGES_WITH_TRIALS)
     sweep_fields = {f.name for f in dataclasses.fields(SweepSpec)}
     for record in STAGE_RECORDS:
@@ -31,6 +33,26 @@ def test_every_registry_names_the_stages_of_the_record():
     assert stage("anchors_plain").name == "train"  # the plain sources are part of training
     with pytest.raises(KeyError, match="stages: train, grid, zero_shot, few_shot, report"):
         stage("toy")
+
+
+def test_every_stage_plans_its_trials_from_the_spec_and_a_catalogue_alone():
+    """plan(spec, catalogue) for each stage, on a shipped sweep with every stage: typed records,
+    and the few-shot plan's pairs are the zero-shot plan's same-seed untranslated ones."""
+    from ps_ray.plan.catalogue import planned
+    from ps_ray.specs.trial import GridTrial, TrainTrial
+    from ps_ray.stitching.pairs import StitchedPair
+
+    kinds = {"train": TrainTrial, "grid": GridTrial, "zero_shot": StitchedPair, "few_shot": TrainTrial}
+    for path in (SMOKE, SMOKE.with_name("confirm2.yaml")):  # with few-shot; with grids
+        spec = load_sweep(path)
+        zoo = planned(spec)
+        for name in (s for s in spec.stages if s in PLANS):
+            trials = PLANS[name](spec, zoo)
+            assert trials and all(isinstance(t, kinds[name]) for t in trials), (path.name, name)
+    spec = load_sweep(SMOKE)
+    zoo = planned(spec)
+    labels = {t.label for t in PLANS["few_shot"](spec, zoo) if t.kind == "stitched"}
+    assert labels and labels <= {p.label for p in PLANS["zero_shot"](spec, zoo) if p.pairing == "same_seed"}
 
 
 def test_each_tune_experiment_has_its_folder_under_the_sweep():

@@ -9,6 +9,7 @@ import dataclasses
 from dataclasses import dataclass
 
 from ps_ray.envs import EPISODE_STEPS
+from ps_ray.plan.stages import PLANS
 from ps_ray.specs.names import CROSSED_FITS, split_translation
 from ps_ray.specs.sweep import SweepSpec
 from ps_ray.specs.train import TrainSpec
@@ -43,14 +44,12 @@ def _train(spec: SweepSpec, zoo: ModuleZoo) -> list[StageLoad]:
 
     plain = train.plain_sources(spec)
     loads = [train_load("anchors_plain", [t.spec for t in plain])] if plain else []
-    return [*loads, train_load("train", [t.spec for t in train.plan(spec)])]
+    return [*loads, train_load("train", [t.spec for t in PLANS["train"](spec, zoo)])]
 
 
 def _grid(spec: SweepSpec, zoo: ModuleZoo) -> list[StageLoad]:
     """A grid trial trains each of its cells (its update costs about one per cell)."""
-    from ps_ray.plan import grid
-
-    grids = grid.plan(spec)
+    grids = PLANS["grid"](spec, zoo)
     if not grids:
         return []
     cells = train_load("grid", [t.grid.cell_spec(c) for t in grids for c in t.grid.cells])
@@ -58,21 +57,16 @@ def _grid(spec: SweepSpec, zoo: ModuleZoo) -> list[StageLoad]:
 
 
 def _zero_shot(spec: SweepSpec, zoo: ModuleZoo) -> list[StageLoad]:
-    from ps_ray.plan import zero_shot
-
-    return [zero_shot_load(spec, zoo, zero_shot.plan(spec, zoo))]
+    return [zero_shot_load(spec, zoo, PLANS["zero_shot"](spec, zoo))]
 
 
 def _few_shot(spec: SweepSpec, zoo: ModuleZoo) -> list[StageLoad]:
-    from ps_ray.plan import few_shot, zero_shot
-
-    settings = spec.few_shot
-    pairs = zero_shot.alone_pairs(spec, zoo, list(settings.methods) or None)  # those it reads
-    return [train_load("few_shot", [t.spec for t in few_shot.plan(spec, zoo, pairs, settings)])]
+    return [train_load("few_shot", [t.spec for t in PLANS["few_shot"](spec, zoo)])]
 
 
-# Each stage that runs trials: its plan's work, from the spec and the catalogue it implies (the
-# report runs none). A new stage adds its row (tests/test_stages.py checks that each has one).
+# Each stage that runs trials: its plan's work (ps_ray.plan.stages.PLANS), from the spec and the
+# catalogue it implies (the report runs none). A new stage adds its row (tests/test_stages.py
+# checks that each has one).
 LOADS = {"train": _train, "grid": _grid, "zero_shot": _zero_shot, "few_shot": _few_shot}
 
 

@@ -76,7 +76,7 @@ def _headline(path: Path) -> str:
             break
         header.append(line.lstrip("# ").strip())
     text = " ".join(header)
-    first = re.split(r"[.:;]\s+(?=[A-Z`])", text, maxsplit=1)[0].rstrip(".:;")
+    first = re.split(r"(?<=\?)\s+|[.:;]\s+(?=[A-Z`])", text, maxsplit=1)[0].rstrip(".:;")
     return first if len(first) <= 110 else first[:107].rstrip() + "..."
 
 

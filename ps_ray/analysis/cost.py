@@ -198,7 +198,7 @@ def spent(root: Path) -> dict[str, tuple[int, float]]:
 
 SMALLEST_TELLING_BUDGET = 5_000  # env steps: below this no method learns reach (docs/alignment.md)
 # the study where a stitched policy does what neither source can, confirmed on fresh seeds
-# (docs/transfer.md "Confirmation on fresh seeds"), and the command that shows one of its stitches
+# (docs/results/confirm.md), and the command that shows one of its stitches
 TELLING_STUDY = (
     "sweeps/confirm.yaml (a co-trained grid's held-out cell stitched zero-shot at 0.81 over five "
     "fresh seeds, against sources at 0.00, chance at 0.08 and a task-blind floor of about 0.50); "

@@ -1,5 +1,5 @@
-"""Which marker does an actor follow? On the marker family (docs/transfer.md "Why ps does not learn
-the family") a policy that learned its task moves its action with the named marker and ignores the
+"""Which marker does an actor follow? On the marker family (docs/results/ps_family.md "Does ps learn
+the marker family?") a policy that learned its task moves its action with the named marker and ignores the
 other; one that did not moves with both alike. Selectivity = the mean change of the greedy action
 (:class:`ps_ray.nets.policy.GreedyPolicy`'s) when the named marker moves ``step`` metres, over the
 change when the other marker does, each axis in turn, over probe scenes, the arm at its robot

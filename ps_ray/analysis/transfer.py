@@ -2,7 +2,7 @@
 unstitched sources, chance, the task-blind floor and the oracle on the same episodes, the
 wrong-target rate, and the transfer gain (stitched minus the best of the unstitched sources,
 chance and the floor) as a paired comparison over seeds, beside the gain over the sources and
-chance alone (docs/transfer.md). Cross-seed units share runs: their intervals are widened for it
+chance alone (docs/controls.md). Cross-seed units share runs: their intervals are widened for it
 and carry no p-value (ps_ray.analysis.stats). Rows whose translation reads the task's target
 (``@swapped``) are upper bounds, listed after the label-free rows. Tables from before a control
 lack its column."""

@@ -17,7 +17,7 @@ The result is one affine map ``z_B = z_A @ weight + bias`` held as buffers of a
   replaced. A 128-wide latent gives 129 unknowns per output, but trained latents have an
   effective rank of about 40-60; at about as many rows as unknowns plain least squares fits the
   noise in the weak directions and its predictions blow up (the interpolation peak:
-  docs/transfer.md, "How many outcome scenes a fit needs"). The ridge keeps them small.
+  docs/results/confirm.md, "How many outcome scenes the fit needs"). The ridge keeps them small.
 """
 
 from __future__ import annotations

@@ -4,7 +4,7 @@ Every valid (task module, robot module) pair of each method (see `stitch.combos`
 with ``zero_shot.pairs``, across seeds, is stitched, evaluated on fixed seeds (episodes x
 repeats, a block of its own per training seed: :func:`pair_episodes`), then the pair's controls
 are evaluated as they are on the same episodes (its robot source, its task source, the oracle:
-`stitch.controls`, docs/transfer.md), so that every method and control is scored on identical
+`stitch.controls`, docs/controls.md), so that every method and control is scored on identical
 episodes; beside them, the chance level and task-blind floor of the target env on those episodes
 (:mod:`ps_ray.stitching.chance`: policies with no task knowledge, measured once per target env
 and seed before the trials start). The table, one row per pair (its record, :meth:`StitchedPair.to_row`:

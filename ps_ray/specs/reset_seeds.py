@@ -1,5 +1,5 @@
 """Reset seeds: every stage draws its episodes from a stream of its own, so no two stages see the
-same scene (docs/transfer.md, "Evaluation scenes no other stage has seen").
+same scene (docs/controls.md, "Evaluation scenes no other stage has seen").
 
 An env reset with a seed draws its whole scene (goal, markers, object) from it, so two stages that
 reset with one seed share a scene: before these streams the anchor sets and the zero-shot episodes

@@ -3,7 +3,7 @@
 A stitched pair's unstitched sources can fail at zero by construction (the robot source reaches the
 wrong marker every time), so a stitched policy above them is not yet a policy that knows the task.
 Chance is the level any purposeful mover of the target robot reaches without knowing what the task
-means (docs/transfer.md, "Chance"). Two such policies are scored on the pair's own evaluation
+means (docs/controls.md, "Chance"). Two such policies are scored on the pair's own evaluation
 episodes, and the higher is the control:
 
 - ``random_point``: each episode, drive the end effector (inverse kinematics on the target robot)
@@ -13,7 +13,7 @@ episodes, and the higher is the control:
 - ``random_actions``: uniform random actions.
 
 Chance is a floor for moving purposefully; the **task-blind floor** is the floor for a transfer
-claim: the best policy that lacks only the knowledge being transferred (docs/transfer.md, "The
+claim: the best policy that lacks only the knowledge being transferred (docs/controls.md, "The
 task-blind floor"). It can do every task that shares the target's scene on the target robot but
 is not told which one: it drives the end effector to one of the scene's candidate targets
 (``env.candidate_targets()``: on the marker family every marker) chosen uniformly. Its success is

@@ -60,7 +60,7 @@ def combos(
 
 def controls(zoo: ModuleZoo, combo: Combo) -> dict[str, ZooEntry]:
     """The unstitched policies to score beside a stitched pair, on its target env and episodes
-    (docs/transfer.md): ``robot_source``, the robot module's own policy (task Y, robot Rb) run on
+    (docs/controls.md): ``robot_source``, the robot module's own policy (task Y, robot Rb) run on
     task X as it is; ``task_source``, the task module's own policy (task X, robot Ra) run on robot
     Rb; ``oracle``, the policy the sweep trained on the target pair itself (task X, robot Rb, the
     robot module's seed; trained alone, also beside a co-trained grid's pair). A role is left out

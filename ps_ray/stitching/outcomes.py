@@ -158,7 +158,7 @@ def decode_anchors(
     (``theirs``) and the robot source where the task source ends in it (``mine_on_anchors``), by an
     affine map from a scene's two outcomes to the scene, fitted by least squares on the candidate
     scenes (``mine``, ``theirs_on_mine``). It reads between the candidates instead of taking the
-    nearest (docs/transfer.md, "Anchors matched by meaning": closer to the known correspondence,
+    nearest (docs/notebook/transfer_log.md, "Anchors matched by meaning": closer to the known correspondence,
     and no better zero-shot: its scenes need not be ones the task module saw). Unlike the latent
     translation it needs no ridge: 7 unknowns per output (two 3-D outcomes and an offset) from
     hundreds of candidate scenes, far from the rows-equal-unknowns peak of least squares."""

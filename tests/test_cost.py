@@ -62,9 +62,9 @@ def many_trials(n: int, **resources) -> SweepSpec:
 def test_the_workload_of_the_smoke_sweep_is_counted_from_its_spec():
     loads = {load.stage: load for load in workload(load_sweep(SWEEPS / "smoke.yaml"))}
     assert list(loads) == ["anchors_plain", "train", "zero_shot", "few_shot"]
-    # 2 methods x 2 robots x 2 reach halves x 2 seeds, 600 env steps each
-    assert len(loads["train"].trials) == 16 and loads["train"].env_steps == 16 * 600
-    assert loads["train"].updates == 16 * int((600 - 300) * 0.4)
+    # 2 methods x 2 robots x 2 reach halves x 2 seeds, 400 env steps each
+    assert len(loads["train"].trials) == 16 and loads["train"].env_steps == 16 * 400
+    assert loads["train"].updates == 16 * int((400 - 200) * 0.4)
     assert len(loads["anchors_plain"].trials) == 2  # a plain policy per reach half
     # per method and seed, each of the 4 task modules (half X, Ra) meets the one robot module of
     # (the other half, the other arm): 4 pairs; 16 pairs run as 2 trials of 8
@@ -72,11 +72,11 @@ def test_the_workload_of_the_smoke_sweep_is_counted_from_its_spec():
     # each pair evaluated with its three controls (robot source, task source, oracle), and chance
     # (two policies) once on each of the 4 target envs (2 arms x 2 halves) per training seed (2:
     # each seed's own episodes); reach holds one target per scene, so no task-blind floor
-    assert loads["zero_shot"].eval_steps == (16 * 4 + 4 * 2 * 2) * 4 * 2 * 50
+    assert loads["zero_shot"].eval_steps == (16 * 4 + 4 * 2 * 2) * 2 * 2 * 50
     assert loads["zero_shot"].updates == 0
     # max_pairs 1 per method, plus one from-scratch run per target
     # and one unstitched start (the pair's robot source as it is) per pair
-    assert len(loads["few_shot"].trials) == 2 * 3 and loads["few_shot"].env_steps == 6 * 600
+    assert len(loads["few_shot"].trials) == 2 * 3 and loads["few_shot"].env_steps == 6 * 300
 
 
 def test_the_grid_stage_is_priced_per_cell_and_its_held_out_pairs_beside_the_alone_ones():

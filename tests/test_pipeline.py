@@ -227,7 +227,7 @@ def test_a_pipeline_killed_in_training_and_in_zero_shot_resumes_without_redoing_
     client = mlflow.MlflowClient(f"sqlite:///{root / 'mlflow.db'}")
     for run in train_runs:  # a trial cut short resumed from its checkpoint: no step logged twice
         steps = [m.step for m in client.get_metric_history(run.info.run_id, "env_steps")]
-        assert len(steps) == len(set(steps)) and run.data.metrics["env_steps"] >= 600, run.info.run_name
+        assert len(steps) == len(set(steps)) and run.data.metrics["env_steps"] >= 400, run.info.run_name
         # MLflow ends on the trial's best-so-far, also for a trial restored from its final checkpoint
         assert run.data.metrics.get("best_eval_success") == final_best[run.data.tags[TRIAL_KEY_TAG]]
     # and the trials cut short by the kills were relaunched from their checkpoints, not from scratch

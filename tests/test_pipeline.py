@@ -374,6 +374,29 @@ def test_report_embeds_every_figure_and_table(smoke):
     )
 
 
+def test_the_zoo_of_a_sweep_indexes_its_sources_on_one_anchor_set_and_stitches_deterministically(smoke):
+    """The smoke folder's module zoo: every trained source and the plain anchor sources; the ps
+    sources of one interface width share the sweep's one anchor set; a stitch of two of them
+    scores the same fixed episodes however the envs are batched."""
+    from ps_ray.stitching.evaluate import evaluate
+    from ps_ray.stitching.stitch import stitch_policies
+    from ps_ray.stitching.zoo import ModuleZoo
+
+    spec, root, _ = smoke
+    zoo = ModuleZoo.from_sweep(root)
+    plain = [e for e in zoo if e.key.method == "plain"]
+    assert len(zoo) == 16 + 2 and {e.stage for e in plain} == {"plain_source"} and len(plain) == 2
+    ps = [e for e in zoo if e.key.method == "ps"]
+    assert len(ps) == 8 and len({e.signature.anchor_hash for e in ps}) == 1  # one anchor set per sweep
+    task = next(e for e in ps if e.robot == "panda")
+    robot = next(e for e in ps if e.robot == "panda_l3" and e.key.seed == task.key.seed)
+    nets, signature = stitch_policies(task, robot)
+    batched = evaluate((nets, signature), "panda_l3", robot.task, episodes=2, repeats=1, num_envs=2)
+    assert batched["success_mean"] in (0.0, 0.5, 1.0)  # two fixed episodes
+    alone = evaluate((nets, signature), "panda_l3", robot.task, episodes=2, repeats=1, num_envs=1)
+    assert alone["success_mean"] == batched["success_mean"]  # the stitched policy is deterministic
+
+
 def _digests(folder: Path) -> dict[str, str]:
     return {
         str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest()

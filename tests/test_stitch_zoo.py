@@ -7,7 +7,6 @@ import re
 from pathlib import Path
 
 import pytest
-import yaml
 
 from ps_ray.envs import make
 from ps_ray.envs.core import effective_gripper
@@ -15,7 +14,7 @@ from ps_ray.nets.obs import dims_from_spaces
 from ps_ray.stitching.matrix import combos, controls
 from ps_ray.stitching.paper import PANDA_L3_GRIPPER, PAPER_COMBOS
 from ps_ray.stitching.rule import check_stitchable, default_target
-from ps_ray.stitching.stitch import env_dims, stitch_policies
+from ps_ray.stitching.stitch import env_dims
 from ps_ray.stitching.zoo import ModuleZoo, read_entry
 from ps_ray.store.checkpoint import seal
 from tests.stitch_sources import K, fake_sweep, make_nets, spec, write_trial
@@ -81,51 +80,6 @@ def test_a_zoo_entry_needs_its_training_spec(tmp_path):
     path.with_name("spec.json").unlink()
     with pytest.raises(ValueError, match="spec.json: missing or unreadable training spec"):
         read_entry(path, "run")
-
-
-def test_zoo_from_a_real_tiny_sweep(tmp_path, ray_local, tiny_train):
-    from ps_ray.pipeline.sweep import run_sweep
-    from ps_ray.specs.sweep import load_sweep
-    from ps_ray.store.layout import sweep_layout
-
-    train = tiny_train
-    path = tmp_path / "tiny.yaml"
-    path.write_text(
-        yaml.safe_dump(
-            {
-                "name": "tiny",
-                "methods": ["ps"],
-                "robots": ["panda", "panda_l3"],
-                "tasks": ["reach"],
-                "seeds": [1],
-                "interface_dims": [8],
-                "train": train,
-                "anchors": {"episodes": 12},
-                "max_concurrent": 2,
-                "storage": str(tmp_path / "store"),
-            }
-        )
-    )
-    spec_ = load_sweep(path)
-    grid = run_sweep(spec_, progress=False)
-    assert not [r for r in grid if r.error]
-    zoo = ModuleZoo.from_sweep(sweep_layout(spec_).root)
-    assert {str(k) for k in zoo.keys()} == {  # the plain anchor source policy included
-        "ps/panda/reach/1/i8",
-        "ps/panda_l3/reach/1/i8",
-        "plain/panda/reach/1/i8",
-    }
-    assert zoo.get("plain/panda/reach/1/i8").stage == "plain_source"
-    a, b = zoo.get("ps/panda/reach/1/i8"), zoo.get("ps/panda_l3/reach/1/i8")
-    assert a.signature.anchor_hash == b.signature.anchor_hash  # one anchor set per sweep
-    nets, signature = stitch_policies(a, b)
-    from ps_ray.stitching.evaluate import evaluate
-
-    result = evaluate((nets, signature), "panda_l3", "reach", episodes=2, repeats=1, num_envs=2)
-    assert result["success_mean"] in (0.0, 0.5, 1.0)  # two fixed episodes
-    # the same episodes however the envs are batched: the stitched policy is deterministic
-    again = evaluate((nets, signature), "panda_l3", "reach", episodes=2, repeats=1, num_envs=1)
-    assert again["success_mean"] == result["success_mean"]
 
 
 # -- matrix and paper combinations ---------------------------------------------------------------

@@ -137,7 +137,7 @@ def test_check_prints_the_projection_and_refuses_a_bad_core_count(tmp_path, comm
         timeout=120,
     )
     assert run.returncode == 0, run.stderr[-2000:]
-    assert "total: 26 trials, 14,400 training env steps" in run.stdout
+    assert "total: 26 trials, 9,000 training env steps" in run.stdout
     assert "on 16 cores" in run.stdout and "rates: conservative defaults" in run.stdout
     # this machine, then cluster.yaml's two worker kinds side by side, with the GPU figures' source
     lines = run.stdout.splitlines()

@@ -8,6 +8,7 @@ import re
 import shutil
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
@@ -34,6 +35,12 @@ def test_the_demo_reproduces_the_study_and_the_stitch_beats_every_control():
     assert all(figures["stitched"] > figures[key] + 0.2 for key in controls)  # a stitch that works
     gain = figures["stitched"] - max(figures[key] for key in controls)
     assert f"transfer gain: {gain:+.2f} over the best control (task-blind floor)" in out
+    # the README shows this table as the demo prints it: its block is the demo's output, line by line
+    readme = (Path(__file__).parents[1] / "README.md").read_text()
+    block = readme.split("  policy   ", 1)[1].split("```", 1)[0]
+    shown = [line.rstrip() for line in ("  policy   " + block).splitlines() if line.strip()]
+    printed = {line.rstrip() for line in out.splitlines()}
+    assert len(shown) >= 8 and [line for line in shown if line not in printed] == []
 
 
 @pytest.mark.e2e

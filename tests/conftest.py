@@ -249,7 +249,6 @@ HEAVY_FIRST = (
     "test_tracking.py",
     "test_jobs.py",
     "test_demo.py",
-    "test_checkpoint.py",
     "test_stitch_zoo.py",
     "test_evaluate_pair.py",
 )

@@ -20,8 +20,11 @@ from tests.code_paths import PS_CONSOLIDATED
 
 
 def test_a_killed_run_refuses_a_second_writer_while_alive_and_resumes_from_its_checkpoint(
-    tmp_path, train_cmd
+    tmp_path, train_cmd, planted
 ):
+    """Killed mid-run: a second writer is refused while it lives; the resume goes on from the
+    checkpoint and ends as a run never killed, bit for bit; a later resume never runs pickles
+    planted in the checkpoint, and one whose replay segment was altered is refused in one line."""
     run_dir = tmp_path / "run"
     first = subprocess.Popen(
         train_cmd(run_dir, 100_000),
@@ -78,6 +81,23 @@ def test_a_killed_run_refuses_a_second_writer_while_alive_and_resumes_from_its_c
     assert all(torch.equal(resumed[k], uninterrupted[k]) for k in resumed)
     straight_metrics = pd.read_csv(straight_dir / "metrics.csv")
     assert metrics.drop(columns="wall_s").equals(straight_metrics.drop(columns="wall_s"))
+
+    # Checkpoints are ps_ray's own files (docs/state.md): pickles planted where Ray or RLlib would
+    # look are never run by a resume, and a replay segment altered since its checkpoint is refused.
+    assert not list(run_dir.rglob("*.pkl"))
+    planted(run_dir / "checkpoint")
+    ended = json.loads((run_dir / "result.json").read_text())["env_steps"]
+    again = subprocess.run(train_cmd(run_dir, ended + 100), capture_output=True, text=True, timeout=300)
+    assert again.returncode == 0, again.stderr[-2000:]
+    assert f"resumed at {ended} env steps" in again.stdout and not planted.marker.exists()
+    assert not (run_dir / "checkpoint" / "replay.npz").exists()  # the buffer lives in segment files
+    (segment,) = sorted((run_dir / "replay").glob("*.npz"))[-1:]
+    segment.write_bytes(b"PK\x03\x04 planted".ljust(segment.stat().st_size, b"\0"))
+    refused = subprocess.run(train_cmd(run_dir, ended + 200), capture_output=True, text=True, timeout=300)
+    assert refused.returncode == 2
+    last = refused.stderr.strip().splitlines()[-1]
+    assert last.startswith("ps-ray train: error:") and "not a usable ps_ray checkpoint" in last
+    assert f"replay segment {segment} does not match its checkpoint" in last and not planted.marker.exists()
 
 
 def test_a_run_directory_refuses_another_policy(tmp_path, train_cmd):

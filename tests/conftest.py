@@ -7,26 +7,26 @@ collection when it uses a fixture of :data:`E2E_FIXTURES`. Learning checks are `
 else is the fast lane (``./run.sh test-fast``: ``-m "not slow and not e2e"``), and a fast-lane test
 that starts Ray or such a subprocess fails, naming the marker it lacks."""
 
-import html
+import atexit
 import os
 import pickle
-import re
+import shutil
 import subprocess
 import sys
 import tempfile
-import time
-import urllib.request
 from pathlib import Path
 
 import pytest
 import torch
 
-from ps_ray.analysis.browser import run_chromium
+from tests.processes import cli_process, page_text
+from tests.small_runs import RAY_PICKLES, TINY_TRAIN, TRAIN_ARGS, HostilePickle
 
 torch.set_num_threads(1)
 os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
 # No test reads this machine's measured rates (`ps-ray bench rates`): projections use the defaults.
 os.environ["PS_RAY_CACHE"] = tempfile.mkdtemp(prefix="ps_ray_cache_")
+atexit.register(shutil.rmtree, os.environ["PS_RAY_CACHE"], ignore_errors=True)  # no litter in /tmp
 
 
 def _init_local_ray() -> None:
@@ -46,12 +46,6 @@ def _shutdown_ray() -> None:
 
     os.environ.pop("RAY_ADDRESS", None)
     ray.shutdown()
-
-
-def own_ray_env() -> dict[str, str]:
-    """This process's environment without RAY_ADDRESS: a subprocess started with it starts its
-    own Ray, for tests that kill a run together with every process it started."""
-    return {k: v for k, v in os.environ.items() if k != "RAY_ADDRESS"}
 
 
 @pytest.fixture(scope="session")
@@ -126,14 +120,6 @@ def two_node_cluster():
             _init_local_ray()
 
 
-# A small `ps-ray train` on the point task: PS, interface 8, checkpoints every 3 steps.
-TRAIN_ARGS = (
-    "--task point --method ps --interface-dim 8 --hidden 32 --learning-starts 200 "
-    "--random-episodes 2 --episodes-per-step 4 --checkpoint-every 3 --eval-every 3 "
-    "--eval-episodes 4 --batch-size 64 --anchor-episodes 20"
-).split()
-
-
 @pytest.fixture
 def train_cmd():
     """``train_cmd(run_dir, env_steps)``: the command line of that small training run."""
@@ -154,19 +140,6 @@ def train_cmd():
     return command
 
 
-class _Planted:
-    """A pickle that, if ever loaded, writes a marker file."""
-
-    def __init__(self, marker):
-        self.marker = str(marker)
-
-    def __reduce__(self):
-        return (exec, (f"open({self.marker!r}, 'w').write('pickle ran')",))
-
-
-RAY_PICKLES = ("algorithm_state.pkl", "class_and_ctor_args.pkl", "state.pkl", "params.pkl", "tuner.pkl")
-
-
 @pytest.fixture(scope="session")
 def planted(tmp_path_factory):
     """``planted(folder, names=RAY_PICKLES)`` writes hostile pickles there; ``planted.marker``
@@ -176,23 +149,10 @@ def planted(tmp_path_factory):
 
     def plant(folder, names=RAY_PICKLES) -> None:
         for name in names:
-            (Path(folder) / name).write_bytes(pickle.dumps(_Planted(marker)))
+            (Path(folder) / name).write_bytes(pickle.dumps(HostilePickle(marker)))
 
     plant.marker = marker
     return plant
-
-
-# Training settings small enough for a sweep of several trials in a test (real RLlib runs).
-TINY_TRAIN = {
-    "env_steps": 300,
-    "hidden": 32,
-    "learning_starts": 100,
-    "random_episodes": 2,
-    "eval_every": 2,
-    "eval_episodes": 2,
-    "checkpoint_every": 2,
-    "batch_size": 32,
-}
 
 
 @pytest.fixture(scope="session")
@@ -200,38 +160,18 @@ def tiny_train() -> dict:
     return dict(TINY_TRAIN)
 
 
-def _cli(*args: str, env: dict | None = None, own_ray: bool = False, **kwargs) -> subprocess.Popen:
-    return subprocess.Popen(
-        [sys.executable, "-m", "ps_ray.cli", *args],
-        env={**(own_ray_env() if own_ray else os.environ), **(env or {})},
-        stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT,
-        text=True,
-        **kwargs,
-    )
-
-
 @pytest.fixture(scope="session")
 def cli(ray_local):
     """``cli(*args, env=None, own_ray=False, **popen_kwargs)``: ``ps-ray`` in a subprocess, output
     in one pipe; it joins the session's Ray unless ``own_ray``."""
-    return _cli
-
-
-def _visible_text(page: str | Path, *, wait_ms: int = 20_000, timeout: float = 120) -> str:
-    """The text of ``page`` after its scripts ran for ``wait_ms`` of virtual time (tags, scripts
-    and styles removed, whitespace collapsed)."""
-    wait = (f"--virtual-time-budget={wait_ms}",) if wait_ms else ()
-    dom = run_chromium(page, *wait, "--dump-dom", width=1400, height=1000, timeout=timeout)
-    dom = re.sub(r"<(script|style)\b.*?</\1>", " ", dom, flags=re.S)
-    return " ".join(html.unescape(re.sub(r"<[^>]+>", " ", dom)).split())
+    return cli_process
 
 
 @pytest.fixture
 def visible_text():
     """The text of a page (file or URL) in headless Chromium once its scripts ran: what a person
     reads."""
-    return _visible_text
+    return page_text
 
 
 # The heaviest modules first: under `pytest -n 2` the longest one starts at once instead of last.
@@ -260,15 +200,3 @@ def pytest_collection_modifyitems(items):
             item.add_marker(pytest.mark.e2e)
     rank = {name: i for i, name in enumerate(HEAVY_FIRST)}
     items.sort(key=lambda item: rank.get(item.path.name, len(rank)))
-
-
-def wait_until_serving(base: str, server: subprocess.Popen, what: str, timeout: float = 300) -> None:
-    """Poll ``<base>/health`` until the server answers; fail if it exited or the time ran out."""
-    deadline = time.time() + timeout
-    while True:
-        try:
-            with urllib.request.urlopen(f"{base}/health", timeout=2):
-                return
-        except OSError:
-            assert server.poll() is None and time.time() < deadline, f"{what} did not start"
-            time.sleep(0.5)

@@ -15,7 +15,7 @@ import mlflow
 import pytest
 import yaml
 
-from tests.conftest import own_ray_env
+from tests.processes import own_ray_env
 
 REPO = Path(__file__).resolve().parents[1]
 BIN = Path(sys.executable).parent

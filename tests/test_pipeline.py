@@ -33,8 +33,8 @@ from ps_ray.store.checkpoint import latest as latest_checkpoint
 from ps_ray.store.layout import SweepLayout
 from ps_ray.store.stages import stage_state
 from ps_ray.store.tracking import TRIAL_KEY_TAG
-from tests.conftest import own_ray_env, wait_until_serving
 from tests.plan_checks import assert_stages_launched_their_plans
+from tests.processes import own_ray_env, wait_until_serving
 
 SMOKE = Path(__file__).resolve().parents[1] / "sweeps" / "smoke.yaml"
 FIGURES = {

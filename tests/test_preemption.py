@@ -15,7 +15,7 @@ from ray.core.generated.common_pb2 import ActorDiedErrorContext, NodeDeathInfo
 from ray.exceptions import ActorDiedError, LocalRayletDiedError, NodeDiedError, WorkerCrashedError
 
 from ps_ray.pipeline.preemption import failures, node_lost, preempted
-from tests.conftest import own_ray_env
+from tests.processes import own_ray_env
 
 NODE_ID = "0f5d1c3a9e4b2c7d8e6f1a2b3c4d5e6f7a8b9c0d1e2f3a4b5c6d7e8f"
 ACTOR_ID = bytes.fromhex("c40f61913112a78fb3dab2ab01000000")

@@ -14,7 +14,7 @@ from ps_ray.rllib.algo import algo_config
 from ps_ray.specs.resources import StageResources, device_tags, learner_device
 from ps_ray.specs.sweep import SweepSpec
 from ps_ray.specs.train import TrainSpec
-from tests.conftest import own_ray_env
+from tests.processes import own_ray_env
 
 GRID = {"name": "r", "methods": ["ablation"], "robots": ["panda"], "tasks": ["reach"], "seeds": [1]}
 

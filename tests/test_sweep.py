@@ -210,7 +210,7 @@ def test_ctrl_c_after_a_tune_stage_interrupts_the_driver_at_once(tmp_path):
     import subprocess
     import sys
 
-    from tests.conftest import own_ray_env
+    from tests.processes import own_ray_env
 
     proc = subprocess.run(
         [sys.executable, "-c", AFTER_TUNE, str(tmp_path / "tune" / "one")],

@@ -34,7 +34,7 @@ from ps_ray.store.tracking import (
     git_commit,
     runs_page,
 )
-from tests.conftest import wait_until_serving
+from tests.processes import wait_until_serving
 
 
 @pytest.fixture(scope="module")

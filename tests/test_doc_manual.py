@@ -12,6 +12,7 @@ from pathlib import Path
 import pytest
 
 import ps_ray
+from tests.test_doc_links import FENCE
 from tests.test_doc_names import resolves
 
 ROOT = Path(__file__).parents[1]
@@ -19,7 +20,6 @@ DOCS = ROOT / "docs"
 NOTEBOOK = DOCS / "notebook"
 RESULTS = DOCS / "results"
 MANUAL = [ROOT / "README.md", *sorted(p for p in DOCS.rglob("*.md") if NOTEBOOK not in p.parents)]
-FENCE = re.compile(r"^```.*?^```", re.S | re.M)
 
 # A commit hash: 7-40 lowercase hex characters with at least one digit and one letter, not part of
 # a longer word, path or number ("deadbeef" has no digit, "1,000,003" is a number); and any 7-40

@@ -8,11 +8,12 @@ that library callers who catch ``ValueError`` keep working."""
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import types
 import typing
 from collections.abc import Iterable, Mapping
-from typing import Any
+from typing import Annotated, Any
 
 
 class UserError(ValueError):
@@ -25,11 +26,19 @@ def choice_error(kind: str, value: object, choices: Iterable[object], plural: st
     return UserError(f"unknown {kind} {value!r}; valid {plural or kind + 's'}: {listed}")
 
 
+@dataclasses.dataclass(frozen=True)
+class Words:
+    """How messages say what an annotated field takes ("an integer 0..99999"), in place of the words
+    of its type and constraints: ``Annotated[int, Field(ge=0), Words("...")]``."""
+
+    text: str
+
+
 @functools.cache
 def type_hints(cls: type) -> dict[str, Any]:
-    """``typing.get_type_hints(cls)``, once per class: a spec is checked field by field many
-    thousand times when a large sweep is planned."""
-    return typing.get_type_hints(cls)
+    """``typing.get_type_hints(cls)`` with ``Annotated`` metadata kept, once per class: a spec is
+    checked field by field many thousand times when a large sweep is planned."""
+    return typing.get_type_hints(cls, include_extras=True)
 
 
 def fits(value: Any, hint: Any) -> bool:
@@ -38,6 +47,8 @@ def fits(value: Any, hint: Any) -> bool:
     for a tuple (of the annotation's length, or any length for ``tuple[T, ...]``), a mapping for a
     ``Mapping``, any member for a union. Other annotations are checked by their spec."""
     origin, args = typing.get_origin(hint), typing.get_args(hint)
+    if origin is Annotated:
+        return fits(value, args[0])
     if origin in (typing.Union, types.UnionType):
         return any(fits(value, a) for a in args)
     if hint is type(None):
@@ -56,14 +67,30 @@ def fits(value: Any, hint: Any) -> bool:
     return True
 
 
-def describe(hint: Any) -> str:
-    """An annotation in words: "an integer", "a number or null", "a list of strings"."""
+def words(hint: Any) -> str | None:
+    """The :class:`Words` an annotation (or a member of its union) carries, if any."""
     origin, args = typing.get_origin(hint), typing.get_args(hint)
+    if origin is Annotated:
+        given = [m.text for m in hint.__metadata__ if isinstance(m, Words)]
+        return given[0] if given else words(args[0])
     if origin in (typing.Union, types.UnionType):
-        return " or ".join(describe(a) for a in args)
+        return next((w for a in args if (w := words(a))), None)
+    return None
+
+
+def describe(hint: Any) -> str:
+    """An annotation in words: "an integer", "a number or null", "a list of strings"; a number
+    that may be an integer (``int | float``) is "a number"."""
+    if (given := words(hint)) is not None:
+        return given
+    origin, args = typing.get_origin(hint), typing.get_args(hint)
+    if origin is Annotated:
+        return describe(args[0])
+    if origin in (typing.Union, types.UnionType):
+        return " or ".join(describe(a) for a in args if not (a is int and float in args))
     if origin is tuple:
         return f"a list of {describe(args[0]).removeprefix('a ').removeprefix('an ')}s"
-    if origin is not None and issubclass(origin, Mapping):
+    if (origin is not None and issubclass(origin, Mapping)) or dataclasses.is_dataclass(hint):
         return "a mapping"
     names = {int: "an integer", float: "a number", str: "a string", bool: "true or false", type(None): "null"}
     return names.get(hint, getattr(hint, "__name__", str(hint)))

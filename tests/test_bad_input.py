@@ -97,7 +97,7 @@ CASES = [  # (arguments, with {f} the input folder and {out} a path that must no
     ),
     ("zero-shot {f}/sweep.yaml --methods ps", "method 'ps' is not trained by this sweep; valid: ablation"),
     ("zero-shot {f}/sweep.yaml", "sweeps/never: no trained sweep there; train it first"),
-    ("few-shot {f}/sweep.yaml --env-steps 0", "few_shot.env_steps must be positive, got 0"),
+    ("few-shot {f}/sweep.yaml --env-steps 0", "few_shot.env_steps must be a positive integer, got 0"),
     (
         "render --policy {f}/reach.safetensors --task push --png {out}",
         "reach.safetensors: cannot run here: task dim: policy 3 vs target env (panda, push) 15",

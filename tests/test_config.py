@@ -167,14 +167,14 @@ seeds: [1]
             GOOD + "grid: {methods: [ablation]}\n",
             "GridSettings: method 'ablation' is not trained by this sweep",
         ),
-        (GOOD + "zero_shot: {episodes: 0}\n", "zero_shot.episodes must be positive, got 0"),
+        (GOOD + "zero_shot: {episodes: 0}\n", "zero_shot.episodes must be a positive integer, got 0"),
         (
             GOOD + "zero_shot: {pairs: diagonal}\n",
             "unknown zero_shot.pairs 'diagonal'; valid: same_seed, cross_seed, both",
         ),
         (
             GOOD + "few_shot: {critic_warmup_updates: -1}\n",
-            "few_shot.critic_warmup_updates must be >= 0, got -1",
+            "few_shot.critic_warmup_updates must be a non-negative integer, got -1",
         ),
         (
             GOOD + "few_shot: {env_steps: 100, collect_steps: 200}\n",
@@ -195,7 +195,7 @@ seeds: [1]
             'tasks: duplicate entries "reach"; list each once',
         ),
         (GOOD + "max_concurrent: lots\n", "sweep.max_concurrent must be an integer or null, got 'lots'"),
-        (GOOD + "max_concurrent: -3\n", "sweep.max_concurrent must be positive, got -3"),
+        (GOOD + "max_concurrent: -3\n", "sweep.max_concurrent must be a positive integer, got -3"),
         (GOOD + "max_failures: -1\n", "sweep.max_failures must be a non-negative integer, got -1"),
         (GOOD + "storage: 5\n", "sweep.storage must be a string, got 5"),
         (GOOD + "train: 5\n", "sweep.train must be a mapping, got 5"),
@@ -223,7 +223,7 @@ seeds: [1]
         ),
         (
             GOOD + "train: {target_success: 1.5}\n",
-            "target_success must be a number in (0, 1] or null, got 1.5",
+            "target_success must be in (0, 1], got 1.5",
         ),
         (
             GOOD.replace("[ps]", "[ps, ablation]") + "zero_shot: {translate: {ablation: [warp]}}\n",

@@ -77,16 +77,16 @@ def test_a_sweep_gives_each_stage_its_resources_outside_its_training_identity():
 @pytest.mark.parametrize(
     "resources, message",
     [
-        ({"train": {"cpu": 0}}, "resources.train: resources cpu must be positive, got 0"),
-        ({"train": {"gpu": -1}}, "resources.train: resources gpu must be >= 0, got -1"),
+        ({"train": {"cpu": 0}}, "resources.train.cpu must be a positive number, got 0"),
+        ({"train": {"gpu": -1}}, "resources.train.gpu must be a non-negative number, got -1"),
         ({"train": {"gpu": 1.5}}, "whole number of GPUs, got 1.5"),
         ({"train": {"gpus": 1}}, "resources.train: unknown key 'gpus'; valid keys: cpu, gpu, compile"),
         (
             {"train": {"compile": "yes"}},
-            "resources.train: resources compile must be true or false, got 'yes'",
+            "resources.train.compile must be true or false, got 'yes'",
         ),
         ({"trian": {}}, "unknown key 'trian'; valid keys: train, grid, zero_shot, few_shot"),
-        ({"train": {"cpu": "two"}}, "resources cpu must be a number, got 'two'"),
+        ({"train": {"cpu": "two"}}, "resources.train.cpu must be a number, got 'two'"),
     ],
 )
 def test_bad_resources_are_one_line(resources, message):

@@ -94,7 +94,7 @@ def test_the_draws_are_the_same_every_time_and_inside_the_space(tmp_path):
             "unknown search.scheduler 'hyperband'; valid: asha, none",
         ),
         ({"space": SPACE, "metric": "reward"}, "unknown search.metric 'reward'; valid: eval_success"),
-        ({"space": SPACE, "reduction_factor": 1}, "search.reduction_factor must be an integer >= 2"),
+        ({"space": SPACE, "reduction_factor": 1}, "search.reduction_factor must be >= 2, got 1"),
         ({"space": SPACE, "samples": 0}, "search.samples must be a positive integer"),
         ({"space": SPACE, "budget": 3}, "unknown key 'budget'; valid keys: space, samples"),
     ],

@@ -6,6 +6,7 @@ import argparse
 import dataclasses
 
 from ps_ray.cli.args import Parser, positive_int, seed_int
+from ps_ray.specs.engine import flag_type, type_hints
 from ps_ray.specs.names import LATENT_TRANSLATIONS
 from ps_ray.specs.train import TrainSpec
 
@@ -81,7 +82,7 @@ def _grid_parser(sub) -> None:
 
 def _train_spec_flags(p, skip: tuple[str, ...] = ()) -> None:
     """A flag per TrainSpec field (its help text is the field's doc), but ``skip``."""
-    defaults = TrainSpec()
+    defaults, hints = TrainSpec(), type_hints(TrainSpec)
     for f in dataclasses.fields(TrainSpec):
         if f.name in skip:
             continue
@@ -89,11 +90,10 @@ def _train_spec_flags(p, skip: tuple[str, ...] = ()) -> None:
         if f.name in ("robot", "task"):
             p.add_argument(f"--{f.name}", default=getattr(defaults, f.name).text, help=help)
             continue
-        kind = next((t for t in (float, int, str) if t.__name__ in str(f.type)), str)
         p.add_argument(
             f"--{f.name.replace('_', '-')}",
             dest=f.name,
-            type=kind,
+            type=flag_type(hints[f.name]),
             default=getattr(defaults, f.name),
             help=help,
         )

@@ -14,6 +14,7 @@ from typing import Any
 from ps_ray.envs.core import env_widths
 from ps_ray.errors import UserError
 from ps_ray.specs.defaults import INTERFACE_DIM
+from ps_ray.specs.engine import Seq, spec
 from ps_ray.specs.names import EnvPart, parse_spec_text
 from ps_ray.specs.titles import env_title, title, width_tag
 from ps_ray.specs.train import POINT_TASK, SpecError, TrainSpec
@@ -162,19 +163,17 @@ def grid_run_of(source_key: str) -> str | None:
     return f"grid/{method}/{seed}{''.join('/' + w for w in width)}/held_out={held}"
 
 
-@dataclass(frozen=True)
+@spec("grid")
 class GridSettings:
     """The sweep's grid stage (key ``grid``): for each method, seed and interface width, one
     co-trained grid over the sweep's robots x tasks per held-out cell."""
 
-    held_out: tuple[str, ...] = ()  # "robot/task", one grid each; () : each cell in turn
-    methods: tuple[str, ...] = ()  # default: the sweep's methods
+    held_out: Seq[str] = ()  # "robot/task", one grid each; () : each cell in turn
+    methods: Seq[str] = ()  # default: the sweep's methods
 
     def __post_init__(self) -> None:
         from ps_ray.specs.methods import method_key
-        from ps_ray.specs.train import check_types
 
-        check_types(self, "grid")
         try:
             object.__setattr__(self, "methods", tuple(method_key(m) for m in self.methods))
         except UserError as e:

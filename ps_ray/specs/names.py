@@ -8,10 +8,13 @@ import hashlib
 import json
 import re
 from collections.abc import Iterator, Mapping
-from typing import Any
+from typing import Annotated, Any
+
+from pydantic import BeforeValidator
 
 from ps_ray.errors import UserError
 from ps_ray.specs.defaults import INTERFACE_DIM
+from ps_ray.specs.engine import Invalid
 from ps_ray.specs.modes import AnchorGoals
 
 # How a stitch aligns its interface, by name: a latent translation fitted between the two task
@@ -209,3 +212,13 @@ def readable(text: str) -> str:
         return " ".join([match.group(1), *words])
 
     return _VARIANT.sub(one, text)
+
+
+def env_part(value: Any) -> EnvPart:
+    """A robot or task as a spec field reads it (a name or a mapping): the one type :class:`EnvPart`."""
+    if not isinstance(value, (str, Mapping)):
+        raise Invalid("must be a name or a mapping")
+    return EnvPart(value)
+
+
+Part = Annotated[EnvPart, BeforeValidator(env_part)]  # a spec field holding a robot or a task

@@ -17,36 +17,27 @@ sweep's training identity: a sweep resumed on other hardware keeps its trials.
 
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass
+from typing import Annotated, Any
+
+from pydantic import AfterValidator, Field
 
 from ps_ray.errors import UserError
-from ps_ray.specs.stages import STAGES_WITH_TRIALS
+from ps_ray.specs.engine import Invalid, Number, finite, spec, sub_spec
 
 
-@dataclass(frozen=True)
+@spec("resources")
 class StageResources:
     """One trial's request: ``cpu`` cores (torch threads follow them) and a ``gpu`` share; and
     ``compile``: the learner's forward pass compiled (RLlib's ``torch_compile_learner``), off by
     default because it measured slower on CPU cores (docs/cost.md)."""
 
-    cpu: float = 1
-    gpu: float = 0
+    cpu: Annotated[Number, Field(gt=0), AfterValidator(finite)] = 1
+    gpu: Annotated[Number, Field(ge=0), AfterValidator(finite)] = 0
     compile: bool = False
 
     def __post_init__(self) -> None:
-        for name, low in (("cpu", 0), ("gpu", 0)):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-                raise UserError(f"resources {name} must be a number, got {value!r}")
-            if value < low or (name == "cpu" and value == 0):
-                raise UserError(
-                    f"resources {name} must be {'positive' if name == 'cpu' else '>= 0'}, got {value}"
-                )
-        if not isinstance(self.compile, bool):
-            raise UserError(f"resources compile must be true or false, got {self.compile!r}")
         if self.gpu > 1 and not float(self.gpu).is_integer():
-            raise UserError(f"resources gpu above 1 must be a whole number of GPUs, got {self.gpu}")
+            raise Invalid(f"gpu above 1 must be a whole number of GPUs, got {self.gpu}")
 
     def tune_request(self) -> dict[str, float]:
         return {"cpu": self.cpu, **({"gpu": self.gpu} if self.gpu else {})}
@@ -56,32 +47,18 @@ class StageResources:
         return max(1, int(self.cpu))
 
 
-@dataclass(frozen=True)
+def _stage(stage: str) -> Any:
+    return Annotated[StageResources, sub_spec(StageResources, f"resources.{stage}")]
+
+
+@spec("resources")
 class ResourcesSpec:
     """Each stage's per-trial request (default: one CPU, no GPU)."""
 
-    train: StageResources = StageResources()
-    grid: StageResources = StageResources()
-    zero_shot: StageResources = StageResources()
-    few_shot: StageResources = StageResources()
-
-    def __post_init__(self) -> None:
-        for stage in STAGES_WITH_TRIALS:
-            value = getattr(self, stage)
-            if isinstance(value, dict):
-                unknown = [k for k in value if k not in ("cpu", "gpu", "compile")]
-                if unknown:
-                    raise UserError(
-                        f"resources.{stage}: unknown key {unknown[0]!r}; valid keys: cpu, gpu, compile"
-                    )
-                try:
-                    object.__setattr__(self, stage, StageResources(**value))
-                except UserError as e:
-                    raise UserError(f"resources.{stage}: {e}") from None
-            elif not isinstance(value, StageResources):
-                raise UserError(
-                    f"resources.{stage}: expected a mapping like {{cpu: 1, gpu: 0}}, got {value!r}"
-                )
+    train: _stage("train") = StageResources()
+    grid: _stage("grid") = StageResources()
+    zero_shot: _stage("zero_shot") = StageResources()
+    few_shot: _stage("few_shot") = StageResources()
 
 
 def device_tags(resources: StageResources) -> dict[str, str]:

@@ -13,13 +13,14 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass
-from typing import Any
+from typing import Annotated, Any
 
-from ps_ray.errors import UserError
+from pydantic import Field
+
+from ps_ray.specs.engine import OneOf, Positive, SpecError, spec
 from ps_ray.specs.modes import Scheduler, SearchMetric
 from ps_ray.specs.names import readable
-from ps_ray.specs.train import SpecError, TrainSpec, check_types
+from ps_ray.specs.train import TrainSpec
 
 # How a setting is drawn: the Tune sample function each one maps to (ray.tune.search.sample).
 DISTRIBUTIONS = ("choice", "uniform", "loguniform", "randint")
@@ -30,31 +31,21 @@ NOT_SEARCHED = ("method", "robot", "task", "seed", "interface_dim", "env_steps",
 SEARCHABLE = tuple(f.name for f in dataclasses.fields(TrainSpec) if f.name not in NOT_SEARCHED)
 
 
-@dataclass(frozen=True)
+@spec("search")
 class SearchSpec:
     """``space`` maps a ``train`` key to one distribution, e.g. ``{loguniform: [1e-4, 3e-3]}``,
     ``{choice: [0.95, 0.98]}``; an empty space is no search."""
 
     space: Mapping[str, Any] = dataclasses.field(default_factory=dict)
-    samples: int = 8  # settings drawn; every trial of the grid runs once per setting
+    samples: Positive = 8  # settings drawn; every trial of the grid runs once per setting
     seed: int = 0  # random state of the draws
-    scheduler: Scheduler = Scheduler.ASHA  # Tune's ASHA on ``metric`` over env steps, or none
-    metric: SearchMetric = SearchMetric.EVAL_SUCCESS  # what ASHA compares at a rung
-    grace_env_steps: int = 25_000  # no trial is stopped before this many env steps (ASHA's first rung)
-    reduction_factor: int = 3  # ASHA keeps the top 1/reduction_factor of each rung
+    # Tune's ASHA on ``metric`` over env steps, or none
+    scheduler: OneOf[Scheduler] = Scheduler.ASHA
+    metric: OneOf[SearchMetric] = SearchMetric.EVAL_SUCCESS  # what ASHA compares at a rung
+    grace_env_steps: Positive = 25_000  # no trial is stopped before this many env steps (ASHA's first rung)
+    reduction_factor: Annotated[int, Field(ge=2)] = 3  # ASHA keeps the top 1/reduction_factor of each rung
 
     def __post_init__(self) -> None:
-        for key, mode in (("scheduler", Scheduler), ("metric", SearchMetric)):
-            try:
-                object.__setattr__(self, key, mode.of(getattr(self, key), f"search.{key}"))
-            except UserError as e:
-                raise SpecError(str(e)) from None
-        check_types(self, "search")
-        for key in ("samples", "grace_env_steps"):
-            if getattr(self, key) <= 0:
-                raise SpecError(f"search.{key} must be a positive integer, got {getattr(self, key)}")
-        if self.reduction_factor < 2:
-            raise SpecError(f"search.reduction_factor must be an integer >= 2, got {self.reduction_factor}")
         for key, value in self.space.items():
             _check_distribution(key, value)
 

@@ -7,14 +7,16 @@ import dataclasses
 import functools
 import json
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any
+
+from pydantic import BeforeValidator
 
 from ps_ray.envs.robots import resolve_robot
 from ps_ray.envs.tasks import resolve_task
 from ps_ray.envs.tasks.markers import Markers
 from ps_ray.specs.defaults import INTERFACE_DIM
+from ps_ray.specs.engine import NonNegative, Positive, SpecError, parse, spec, sub_spec
 from ps_ray.specs.grid import GridSettings
 from ps_ray.specs.names import EnvPart, plain_json, scene_fit
 from ps_ray.specs.resources import ResourcesSpec
@@ -26,10 +28,9 @@ from ps_ray.specs.stage_settings import (
     ReportSpec,
     ZeroShotSpec,
     method_keys,
-    positive,
 )
 from ps_ray.specs.stages import NOT_TRAINING, STAGES
-from ps_ray.specs.train import SpecError, TrainSpec, check_keys, check_types
+from ps_ray.specs.train import TrainSpec
 
 SUB_SPECS = {
     "anchors": AnchorSpec,
@@ -43,28 +44,42 @@ SUB_SPECS = {
 SEARCH_STAGES = ("train", "report")  # a searched trial is a candidate setting, not a source to stitch
 
 
-@dataclass(frozen=True)
+def _listed(value: Any) -> tuple:
+    return tuple(value) if isinstance(value, (list, tuple)) else (value,)
+
+
+# A grid's list (a single value is a list of one); its entries are checked by the trials' TrainSpecs,
+# whose messages name the field ("seed must be an integer 0..99999, got 'abc'")
+Listed = Annotated[tuple[Any, ...], BeforeValidator(_listed)]
+
+
+def _sub(cls: type, key: str) -> Any:
+    return Annotated[cls, sub_spec(cls, key)]
+
+
+@spec("sweep", where="sweep")
 class SweepSpec:
     """A grid of training trials (methods x robots x tasks x seeds) run as Ray Tune trials."""
 
     name: str
-    methods: tuple[str, ...]
-    robots: tuple[EnvPart, ...]
-    tasks: tuple[EnvPart, ...]
-    seeds: tuple[int, ...]
-    stages: tuple[str, ...] = ("train",)
-    interface_dims: tuple[int, ...] = (INTERFACE_DIM,)
+    methods: Listed
+    robots: Listed
+    tasks: Listed
+    seeds: Listed
+    stages: Listed = ("train",)
+    interface_dims: Listed = (INTERFACE_DIM,)
     # TrainSpec fields shared by every trial (`ps-ray train --help`), checked when it loads (trials())
     train: Mapping[str, Any] = dataclasses.field(default_factory=dict)
-    anchors: AnchorSpec = AnchorSpec()
-    grid: GridSettings = GridSettings()
-    zero_shot: ZeroShotSpec = ZeroShotSpec()
-    few_shot: FewShotSpec = FewShotSpec()
-    report: ReportSpec = ReportSpec()
-    resources: ResourcesSpec = ResourcesSpec()  # per trial of each stage (ps_ray.specs.resources)
-    search: SearchSpec = SearchSpec()  # training settings searched over (ps_ray.specs.search)
-    max_concurrent: int | None = None  # default: one trial per available CPU
-    max_failures: int = 2  # retries of a crashed trial, from its last checkpoint
+    anchors: _sub(AnchorSpec, "anchors") = AnchorSpec()
+    grid: _sub(GridSettings, "grid") = GridSettings()
+    zero_shot: _sub(ZeroShotSpec, "zero_shot") = ZeroShotSpec()
+    few_shot: _sub(FewShotSpec, "few_shot") = FewShotSpec()
+    report: _sub(ReportSpec, "report") = ReportSpec()
+    # per trial of each stage (ps_ray.specs.resources)
+    resources: _sub(ResourcesSpec, "resources") = ResourcesSpec()
+    search: _sub(SearchSpec, "search") = SearchSpec()  # training settings searched over (ps_ray.specs.search)
+    max_concurrent: Positive | None = None  # default: one trial per available CPU
+    max_failures: NonNegative = 2  # retries of a crashed trial, from its last checkpoint
     storage: str = "runs/sweeps"
     tracking_uri: str | None = None  # default: sqlite under <storage>/<name>/
     # what the sweep is for, the MLflow experiment's description (default: the file's header)
@@ -74,11 +89,6 @@ class SweepSpec:
     def __post_init__(self) -> None:
         if not isinstance(self.name, str) or not self.name.replace("_", "").replace("-", "").isalnum():
             raise SpecError(f"sweep name must be letters, digits, '-' or '_', got {self.name!r}")
-        # the grid's lists are checked per trial, by TrainSpec, with messages naming the field
-        check_types(self, "sweep", skip=("methods", "robots", "tasks", "seeds", "interface_dims", "stages"))
-        positive("sweep", max_concurrent=self.max_concurrent)
-        if self.max_failures < 0:
-            raise SpecError(f"sweep.max_failures must be a non-negative integer, got {self.max_failures}")
         for stage in self.stages:
             if stage not in STAGES:
                 raise SpecError(f"unknown stage {stage!r}; valid stages: {', '.join(STAGES)}")
@@ -189,19 +199,7 @@ class SweepSpec:
     def from_mapping(cls, data: Mapping[str, Any], where: str = "sweep") -> SweepSpec:
         if not isinstance(data, Mapping):
             raise SpecError(f"{where}: expected a mapping at the top level, got {type(data).__name__}")
-        check_keys(data, cls, where)
-        fields = dict(data)
-        for key in ("methods", "robots", "tasks", "seeds", "stages", "interface_dims"):
-            if key in fields:
-                value = fields[key]
-                fields[key] = tuple(value) if isinstance(value, (list, tuple)) else (value,)
-        for key, sub in SUB_SPECS.items():
-            if key in fields:
-                fields[key] = _sub_spec(sub, fields[key], f"{where}: {key}")
-        try:
-            return cls(**fields)
-        except TypeError as e:
-            raise SpecError(f"{where}: {e}") from None
+        return parse(cls, data, where)
 
 
 def _identity(key: str, value: Any) -> Any:
@@ -214,19 +212,6 @@ def _identity(key: str, value: Any) -> Any:
     except (ValueError, TypeError):
         pass  # an unknown robot or task fails later, naming the choices
     return json.dumps(value, sort_keys=True, default=plain_json)
-
-
-def _sub_spec(cls, data: Any, where: str):
-    """A nested mapping as a typed spec; unknown keys fail with the valid ones listed."""
-    if data is None:
-        data = {}
-    if not isinstance(data, Mapping):
-        raise SpecError(f"{where}: expected a mapping, got {data!r}")
-    check_keys(data, cls, where)
-    try:
-        return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in data.items()})
-    except TypeError as e:
-        raise SpecError(f"{where}: {e}") from None
 
 
 def load_sweep(path: str | Path, sets: Sequence[str] = ()) -> SweepSpec:

@@ -11,6 +11,7 @@ from pathlib import Path
 import pandas as pd
 
 from ps_ray.analysis.plots import search_curves
+from ps_ray.specs.modes import Scheduler
 from ps_ray.specs.sweep import SweepSpec
 from ps_ray.specs.trial import TrainTrial
 from ps_ray.store.attempts import PARAMS_FILE, STOPPED, UNFINISHED, outcomes, read_rows
@@ -87,7 +88,7 @@ def search_section(report, spec: SweepSpec, stage_dir: Path) -> None:
 
 def _scheduler_words(spec: SweepSpec) -> str:
     search = spec.search
-    if search.scheduler == "none":
+    if search.scheduler == Scheduler.NONE:
         return "every trial ran its budget"
     cap = max(t.env_steps for t in spec.trials())
     rungs = ", ".join(f"{r:,}" for r in search.rungs(cap))

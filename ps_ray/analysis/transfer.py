@@ -14,6 +14,7 @@ import pandas as pd
 
 from ps_ray.analysis.stats import SIGN_TEST_MIN_SEEDS, estimate, newcombe, paired, t_interval
 from ps_ray.analysis.tables import ci, method_order
+from ps_ray.specs.modes import Pairing, TrialKind
 from ps_ray.specs.names import CONTROL_ROLES
 
 CONTROL_COLUMNS = {
@@ -49,7 +50,7 @@ def transfer_numbers(table: pd.DataFrame, episodes: int | None = None) -> pd.Dat
     rows = []
     for (method, pairing), part in table.groupby(["method", "pairing"], sort=False):
         seeds = part["seed"].to_numpy()
-        shared = pairing == "cross_seed"  # cyclic units share runs
+        shared = pairing == Pairing.CROSS_SEED  # cyclic units share runs
         row = {"method": method, "pairing": pairing, "cells": len(part), "seeds": len(np.unique(seeds))}
         row["upper_bound"] = reads_target(method)
         for column in ("success_mean", *CONTROL_COLUMNS, "wrong_target_mean"):
@@ -160,7 +161,7 @@ def co_training_numbers(table: pd.DataFrame) -> pd.DataFrame:
         alone = table[table["method"] == method.removesuffix(suffix)]
         both = table[table["method"] == method].merge(alone, on=keys, suffixes=("", "_alone"))
         for pairing, part in both.groupby("pairing", sort=False):
-            shared = pairing == "cross_seed"  # cyclic units share runs
+            shared = pairing == Pairing.CROSS_SEED  # cyclic units share runs
             diff = paired(part["success_mean"], part["success_mean_alone"], part["seed"], shared)
             seeds = part["seed"].to_numpy()
             rows.append(
@@ -250,7 +251,7 @@ def few_shot_steps(curves: pd.DataFrame, threshold: float = 0.8) -> pd.DataFrame
         ):
             e = estimate(part[column].to_numpy(), part["seed"].to_numpy())
             row[f"{name} [95% CI]"] = e.text(digits=digits)
-            if kind != "scratch" and len(both):
+            if kind != TrialKind.SCRATCH and len(both):
                 diff = paired(both[column], both[f"{column}_scratch"], both["seed"])
                 row[f"{name}: minus scratch (paired over seeds)"] = diff.text(digits=digits)
         rows.append(row)

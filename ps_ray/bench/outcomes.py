@@ -25,6 +25,7 @@ import yaml
 
 from ps_ray.cli.args import Parser, positive_int
 from ps_ray.errors import UserError
+from ps_ray.specs.modes import Pairing
 
 
 def run(
@@ -54,7 +55,7 @@ def run(
     for pair in found:
         if pair.translation and split_translation(pair.translation) == ("affine", fit):
             wanted = seeds is None or pair.seed in seeds
-            if wanted and taken.get(pair.seed, 0) < pairs_per_seed and pair.pairing == "same_seed":
+            if wanted and taken.get(pair.seed, 0) < pairs_per_seed and pair.pairing == Pairing.SAME_SEED:
                 taken[pair.seed] = taken.get(pair.seed, 0) + 1
                 chosen.append(pair)
     if not chosen:

@@ -7,6 +7,7 @@ import dataclasses
 
 from ps_ray.cli.args import Parser, positive_int, seed_int
 from ps_ray.specs.engine import flag_type, type_hints
+from ps_ray.specs.modes import Pairing
 from ps_ray.specs.names import LATENT_TRANSLATIONS
 from ps_ray.specs.train import TrainSpec
 
@@ -182,7 +183,7 @@ def _zero_shot_parser(sub) -> None:
     p.add_argument(
         "--pairs",
         default=None,
-        choices=("same_seed", "cross_seed", "both"),
+        choices=[p.value for p in Pairing],
         help="modules of one training seed, of two, or both (default: the spec's zero_shot.pairs)",
     )
     p.add_argument(

@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 
 from ps_ray.errors import UserError, choice_error
+from ps_ray.specs.modes import AnchorGoals
 from ps_ray.specs.names import ANCHOR_GOALS
 
 log = logging.getLogger(__name__)
@@ -89,7 +90,7 @@ def collect_task_states(
     if goals not in ANCHOR_GOALS:
         raise choice_error("goals", goals, ANCHOR_GOALS, "goals")
     episodes, wanted = int(episodes), _check_steps(steps)
-    last, relabel = wanted[-1], goals == "relabelled"
+    last, relabel = wanted[-1], goals == AnchorGoals.RELABELLED
     report_every = max(1, episodes // 10) if episodes >= 100 else 0
 
     rows: list[np.ndarray] = []

@@ -9,6 +9,7 @@ from pathlib import Path
 
 from ps_ray.plan.train import anchor_file
 from ps_ray.specs import reset_seeds
+from ps_ray.specs.modes import AnchorPolicy
 from ps_ray.specs.sweep import SweepSpec, anchor_sources, task_input_dim
 
 
@@ -42,7 +43,7 @@ def prepare_sweep_anchors(
             states = {}
             for source in (s for s in sources if task_input_dim(s.task) == dim):
                 policy = None
-                if spec.anchors.policy == "plain":
+                if spec.anchors.policy == AnchorPolicy.PLAIN:
                     policy = GreedyPolicy.from_file(plain_policies[source.label()])
                 states[source.task.text] = collect_task_states(
                     lambda source=source: make(source.robot, source.task),

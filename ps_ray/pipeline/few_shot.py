@@ -19,6 +19,7 @@ from ps_ray.errors import UserError
 from ps_ray.plan import few_shot as few_shot_plan
 from ps_ray.plan.catalogue import trained
 from ps_ray.plan.zero_shot import evaluated_pairs
+from ps_ray.specs.modes import TrialKind
 from ps_ray.specs.names import trial_key
 from ps_ray.specs.stage_settings import FewShotSpec
 from ps_ray.specs.sweep import SweepSpec
@@ -49,7 +50,7 @@ def _write_start(spec: SweepSpec, pair: StitchedPair, kind: str) -> None:
 
     path = few_shot_plan.start_file(spec, pair, kind)
     if not path.exists():
-        if kind == "stitched":
+        if kind == TrialKind.STITCHED:
             nets, signature = stitch_policies(pair.task_from_path, pair.robot_from_path)
         else:
             nets, signature = half_stitch(pair.task_from_path, pair.robot_from_path, kind, pair.seed)
@@ -109,7 +110,7 @@ def _source_tags(trial: TrainTrial, client, experiment_id: str) -> dict[str, str
     if trial.kind in STITCHED_STARTS:
         tags[PAIR_TAG] = trial.label
     start = trial.spec.init_policy
-    if trial.kind != "stitched" or not start:
+    if trial.kind != TrialKind.STITCHED or not start:
         return tags
     meta = read_signature(start)[1]
     return {**tags, **source_tags(client, experiment_id, meta["task_from"], meta["robot_from"], start)}

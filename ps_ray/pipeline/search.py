@@ -12,6 +12,7 @@ from types import SimpleNamespace
 
 from ray.tune.schedulers import ASHAScheduler, TrialScheduler
 
+from ps_ray.specs.modes import Scheduler
 from ps_ray.specs.search import SearchSpec
 from ps_ray.store.atomic import write_text
 from ps_ray.store.attempts import FINISHED, STOPPED_FILE, merged_rows, outcomes
@@ -44,7 +45,7 @@ def search_scheduler(
 ) -> MarkingASHA | None:
     """The scheduler of a search's training stage (None: no scheduler), told the curves of the
     ``trials`` (Tune configs) that earlier runs of the stage finished or stopped."""
-    if search.scheduler == "none":
+    if search.scheduler == Scheduler.NONE:
         return None
     scheduler = MarkingASHA(
         time_attr=TIME_ATTR,

@@ -9,6 +9,7 @@ from collections import Counter
 from pathlib import Path
 
 from ps_ray.plan.train import anchor_file
+from ps_ray.specs.modes import TrialKind
 from ps_ray.specs.names import trial_key
 from ps_ray.specs.stage_settings import FewShotSpec
 from ps_ray.specs.sweep import SweepSpec
@@ -44,7 +45,7 @@ def starts(settings: FewShotSpec) -> tuple[str, ...]:
 def start_file(spec: SweepSpec, pair: StitchedPair, kind: str) -> Path:
     """Where the policy file of a start of the pair (``kind``: one of :func:`starts`) stands: one
     name per (sources, kind), so a resumed stage finds the files its trials started from."""
-    name = f"{pair.task_from}|{pair.robot_from}" + ("" if kind == "stitched" else f"|{kind}")
+    name = f"{pair.task_from}|{pair.robot_from}" + ("" if kind == TrialKind.STITCHED else f"|{kind}")
     folder = sweep_layout(spec).stitched
     return folder / f"{hashlib.sha256(name.encode()).hexdigest()[:16]}.safetensors"
 
@@ -77,7 +78,7 @@ def plan(
         warm = {**base.to_dict(), "critic_warmup_updates": settings.critic_warmup_updates}
         for kind in starts(settings):
             start = TrainSpec.from_mapping({**warm, "init_policy": str(start_file(spec, pair, kind))})
-            name = "few_shot" if kind == "stitched" else kind
+            name = "few_shot" if kind == TrialKind.STITCHED else kind
             trials.append(TrainTrial(start, key=f"{name}/{pair.label}/{target}", label=pair.label, kind=kind))
         own = pair.controls.get("robot_source")
         if settings.unstitched and own is not None:  # the robot source as it is, fine-tuned

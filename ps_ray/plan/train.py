@@ -3,6 +3,7 @@ sources (one per drawn setting of a search)."""
 
 from __future__ import annotations
 
+from ps_ray.specs.modes import AnchorPolicy
 from ps_ray.specs.sweep import SweepSpec, anchor_sources, task_input_dim
 from ps_ray.specs.train import TrainSpec
 from ps_ray.specs.trial import TrainTrial
@@ -21,7 +22,7 @@ def anchor_file(spec: SweepSpec, trial: TrainSpec) -> str | None:
 def plain_sources(spec: SweepSpec) -> list[TrainTrial]:
     """The plain policies whose greedy rollouts give the anchor states (anchors.policy plain,
     without an anchor file); none otherwise."""
-    if spec.anchors.policy != "plain" or spec.anchors.file:
+    if spec.anchors.policy != AnchorPolicy.PLAIN or spec.anchors.file:
         return []
     return [TrainTrial(source) for source in anchor_sources(spec)]
 

@@ -10,6 +10,7 @@ from typing import Any
 
 from ps_ray.errors import UserError
 from ps_ray.specs import reset_seeds
+from ps_ray.specs.modes import Pairing
 from ps_ray.specs.stage_settings import ZeroShotSpec
 from ps_ray.specs.sweep import SweepSpec, seed_pairs
 from ps_ray.stitching.matrix import combos, controls
@@ -42,7 +43,7 @@ def matrix(
         shown = f"{method} {CO_TRAINED}" if grid else method
         for kind_of_pair, seed, robot_seed in seed_pairs(spec.seeds, pairing):
             for combo in combos(zoo, method, seed, robot_seed=robot_seed, grid=grid):
-                seeds = str(seed) if kind_of_pair == "same_seed" else f"{seed}x{robot_seed}"
+                seeds = str(seed) if kind_of_pair == Pairing.SAME_SEED else f"{seed}x{robot_seed}"
                 t, r = combo.task_from, combo.robot_from
                 found = {role: Control(str(e.key), str(e.path)) for role, e in controls(zoo, combo).items()}
                 for kind in kinds:
@@ -91,7 +92,7 @@ def evaluated_pairs(
     others (a sweep that skips zero-shot)."""
     methods = list(methods or spec.methods)
     by_method = {
-        m: [p for p in table or [] if p.method == m and p.pairing == "same_seed" and not p.translation]
+        m: [p for p in table or [] if p.method == m and p.pairing == Pairing.SAME_SEED and not p.translation]
         for m in methods
     }
     missing = [m for m in methods if not by_method[m]]

@@ -15,6 +15,7 @@ from ps_ray.envs.core import env_widths
 from ps_ray.errors import UserError
 from ps_ray.specs.defaults import INTERFACE_DIM
 from ps_ray.specs.engine import Seq, spec
+from ps_ray.specs.modes import AnchorPolicy
 from ps_ray.specs.names import EnvPart, parse_spec_text
 from ps_ray.specs.titles import env_title, title, width_tag
 from ps_ray.specs.train import POINT_TASK, SpecError, TrainSpec
@@ -198,7 +199,7 @@ class GridSettings:
                         except SpecError as e:
                             raise SpecError(f"grid: {e}") from None
         anchors = sweep.anchors
-        if "train" not in sweep.stages and anchors.policy == "plain" and not anchors.file:
+        if "train" not in sweep.stages and anchors.policy == AnchorPolicy.PLAIN and not anchors.file:
             if any(g.base.resolved.uses_anchors for g in out):
                 raise SpecError(
                     "grid: anchors.policy 'plain' rolls out the plain sources the train stage "

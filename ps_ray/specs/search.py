@@ -78,7 +78,7 @@ class SearchSpec:
 
     def rungs(self, max_env_steps: int) -> list[int]:
         """ASHA's rungs (env steps at which a trial below the cut is stopped), as Tune builds them."""
-        if self.scheduler == "none" or self.grace_env_steps >= max_env_steps:
+        if self.scheduler == Scheduler.NONE or self.grace_env_steps >= max_env_steps:
             return []
         count = int(math.log(max_env_steps / self.grace_env_steps) / math.log(self.reduction_factor) + 1)
         rungs = (self.grace_env_steps * self.reduction_factor**k for k in range(count))

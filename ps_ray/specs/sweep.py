@@ -18,6 +18,7 @@ from ps_ray.envs.tasks.markers import Markers
 from ps_ray.specs.defaults import INTERFACE_DIM
 from ps_ray.specs.engine import NonNegative, Positive, SpecError, parse, spec, sub_spec
 from ps_ray.specs.grid import GridSettings
+from ps_ray.specs.modes import Pairing
 from ps_ray.specs.names import EnvPart, plain_json, scene_fit
 from ps_ray.specs.resources import ResourcesSpec
 from ps_ray.specs.search import SearchSpec
@@ -251,9 +252,9 @@ def seed_pairs(seeds: tuple[int, ...], pairing: str) -> list[tuple[str, int, int
     """(pairing, task module's seed, robot module's seed): same seed, and/or each seed's task
     modules with the next seed's robot modules (cyclically: every seed once on each side)."""
     out = []
-    if pairing in ("same_seed", "both"):
+    if pairing in (Pairing.SAME_SEED, Pairing.BOTH):
         out += [("same_seed", s, s) for s in seeds]
-    if pairing in ("cross_seed", "both") and len(seeds) > 1:
+    if pairing in (Pairing.CROSS_SEED, Pairing.BOTH) and len(seeds) > 1:
         out += [("cross_seed", s, seeds[(i + 1) % len(seeds)]) for i, s in enumerate(seeds)]
     return out
 

@@ -14,6 +14,7 @@ import torch
 
 from ps_ray.nets.from_signature import build_nets
 from ps_ray.nets.sac import SACNets
+from ps_ray.specs.modes import TrialKind
 from ps_ray.specs.trial import HALVES
 from ps_ray.stitching.rule import check_stitchable
 from ps_ray.stitching.stitch import PolicySource, load_source, stitch_policies
@@ -35,6 +36,6 @@ def half_stitch(
         fresh = build_nets(signature, None if anchors is None else anchors.detach().cpu())
     if fresh.actor.task.projection_off and not signature.projection_off:
         fresh.actor.task.switch_relative_on()  # a deferred projection: on, as in the sources it meets
-    if keep == "robot_module":
+    if keep == TrialKind.ROBOT_MODULE:
         return stitch_policies((fresh, signature), (nets_r, sig_r))
     return stitch_policies((nets_t, sig_t), (fresh, signature))

@@ -209,7 +209,7 @@ seeds: [1]
             'anchors.source_tasks: duplicate entries "reach"; list each once',
         ),
         (GOOD + "few_shot: {scratch: maybe}\n", "few_shot.scratch must be true or false, got 'maybe'"),
-        (GOOD + "report: {seed: 1.5}\n", "report.seed must be an integer, got 1.5"),
+        (GOOD + "report: {seed: 1.5}\n", "report.seed must be an integer 0..1099511627775, got 1.5"),
         (
             GOOD + "report: {few_shot_threshold: 1.5}\n",
             "report.few_shot_threshold must be in (0, 1], got 1.5",

@@ -13,7 +13,7 @@ from pathlib import Path
 
 from ps_ray.cli.args import flag_of
 from ps_ray.cli.listing import cmd_list
-from ps_ray.cli.parsers import build_parser
+from ps_ray.cli.parsers import STAGE_FLAGS, build_parser
 from ps_ray.cli.paths import output_file
 from ps_ray.errors import UserError
 from ps_ray.pipeline.stage import StageError, StageInterrupted, raise_on_errors
@@ -147,13 +147,13 @@ def _given(args: argparse.Namespace, *names: str) -> dict:
 
 
 @contextlib.contextmanager
-def _trained_sweep(args: argparse.Namespace, stage: str, *flags: str):
+def _trained_sweep(args: argparse.Namespace, stage: str):
     """The sweep spec with a stage's flags applied and checked (as if written in the YAML), held
     under the sweep's lock. An untrained sweep is refused in one line and no folder is made; a
     sweep another driver holds is refused as locked, even while its training is still starting."""
 
     spec = _load(args)
-    settings = dataclasses.replace(getattr(spec, stage), **_given(args, *flags))
+    settings = dataclasses.replace(getattr(spec, stage), **_given(args, *STAGE_FLAGS.get(stage, ())))
     spec = dataclasses.replace(spec, **{stage: settings})  # checked like the YAML's own settings
     untrained = UserError(
         f"{sweep_layout(spec).root}: no trained sweep there; train it first (ps-ray sweep {args.sweep})"
@@ -170,9 +170,7 @@ def cmd_zero_shot(args: argparse.Namespace) -> int:
     from ps_ray.pipeline.zero_shot import run_zero_shot
     from ps_ray.pipeline.zero_shot_table import summary
 
-    with _trained_sweep(
-        args, "zero_shot", "methods", "episodes", "repeats", "seed", "pairs", "pairs_per_trial"
-    ) as spec:
+    with _trained_sweep(args, "zero_shot") as spec:
         table = run_zero_shot(spec, resume=args.resume)
     columns = ["method", "pairing", "seed", "label", "success_mean", "best_unstitched", "chance_success"]
     columns += ["task_blind_success", "wrong_target_mean", "oracle_success", "transfer_gain"]
@@ -184,8 +182,7 @@ def cmd_zero_shot(args: argparse.Namespace) -> int:
 def cmd_few_shot(args: argparse.Namespace) -> int:
     from ps_ray.pipeline.few_shot import curves, run_few_shot
 
-    flags = ("env_steps", "collect_steps", "methods", "max_pairs", "pairs_per_seed", "critic_warmup_updates")
-    with _trained_sweep(args, "few_shot", *flags) as spec:
+    with _trained_sweep(args, "few_shot") as spec:
         results = run_few_shot(spec, resume=args.resume)
     for key, points in sorted(curves(results).items()):
         print(key, " ".join(f"{steps}:{success:.2f}" for steps, success in points))

@@ -4,11 +4,12 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+from enum import Enum
 
 from ps_ray.cli.args import Parser, positive_int, seed_int
-from ps_ray.specs.engine import flag_type, type_hints
-from ps_ray.specs.modes import Pairing
+from ps_ray.specs.engine import flag_kwargs, type_hints
 from ps_ray.specs.names import LATENT_TRANSLATIONS
+from ps_ray.specs.sweep import SUB_SPECS
 from ps_ray.specs.train import TrainSpec
 
 
@@ -91,12 +92,45 @@ def _train_spec_flags(p, skip: tuple[str, ...] = ()) -> None:
         if f.name in ("robot", "task"):
             p.add_argument(f"--{f.name}", default=getattr(defaults, f.name).text, help=help)
             continue
+        flag = f"--{f.name.replace('_', '-')}"
         p.add_argument(
-            f"--{f.name.replace('_', '-')}",
-            dest=f.name,
-            type=flag_type(hints[f.name]),
-            default=getattr(defaults, f.name),
-            help=help,
+            flag, dest=f.name, default=getattr(defaults, f.name), help=help, **flag_kwargs(hints[f.name])
+        )
+
+
+# The settings of a stage that its own command takes as flags, each over the sweep file's value
+STAGE_FLAGS = {
+    "zero_shot": ("methods", "episodes", "repeats", "seed", "pairs", "pairs_per_trial"),
+    "few_shot": (
+        "env_steps",
+        "collect_steps",
+        "methods",
+        "max_pairs",
+        "pairs_per_seed",
+        "critic_warmup_updates",
+    ),
+}
+
+
+def _stage_flags(p, stage: str) -> None:
+    """A flag per setting in :data:`STAGE_FLAGS`, read as the settings' spec field reads it."""
+    settings = SUB_SPECS[stage]
+    hints, defaults = type_hints(settings), settings()
+    for name in STAGE_FLAGS[stage]:
+        default = getattr(defaults, name)
+        said = (
+            "the sweep's methods"
+            if name == "methods"
+            else default.value
+            if isinstance(default, Enum)
+            else default
+        )
+        p.add_argument(
+            f"--{name.replace('_', '-')}",
+            dest=name,
+            default=None,
+            help=f"{stage}.{name} for this run (default: the sweep file's, else {said})",
+            **flag_kwargs(hints[name]),
         )
 
 
@@ -174,24 +208,7 @@ def _zero_shot_parser(sub) -> None:
     p = sub.add_parser("zero-shot", help="evaluate every stitched pair of a trained sweep (Tune)")
     _verbose_flag(p)
     _sweep_arg(p, "the sweep YAML whose trained policies are stitched")
-    p.add_argument("--methods", nargs="+", default=None, help="default: the spec's zero_shot.methods")
-    p.add_argument("--episodes", type=int, default=None, help="default: the spec's (200)")
-    p.add_argument("--repeats", type=int, default=None, help="default: the spec's (5)")
-    p.add_argument(
-        "--seed", type=seed_int, default=None, help="the episodes' seed in the zero-shot reset-seed block"
-    )
-    p.add_argument(
-        "--pairs",
-        default=None,
-        choices=[p.value for p in Pairing],
-        help="modules of one training seed, of two, or both (default: the spec's zero_shot.pairs)",
-    )
-    p.add_argument(
-        "--pairs-per-trial",
-        type=int,
-        default=None,
-        help="pairs evaluated in one Tune trial (default: the spec's zero_shot.pairs_per_trial, 8)",
-    )
+    _stage_flags(p, "zero_shot")
     p.add_argument("--resume", action="store_true", help="finish an interrupted matrix")
     p.add_argument("--storage", default=None, help="override the spec's storage directory")
 
@@ -200,27 +217,7 @@ def _few_shot_parser(sub) -> None:
     p = sub.add_parser("few-shot", help="fine-tune stitched policies of a sweep, beside from-scratch runs")
     _verbose_flag(p)
     _sweep_arg(p, "the sweep YAML whose trained policies are stitched")
-    p.add_argument("--env-steps", type=int, default=None, help="fine-tuning budget per trial")
-    p.add_argument(
-        "--collect-steps",
-        type=int,
-        default=None,
-        help="env steps collected before the first update (the paper: 10 epochs)",
-    )
-    p.add_argument("--methods", nargs="+", default=None, help="default: the spec's few_shot.methods")
-    p.add_argument("--max-pairs", type=int, default=None, help="stitched pairs per method")
-    p.add_argument(
-        "--pairs-per-seed",
-        type=int,
-        default=None,
-        help="stitched pairs per method and seed (paired over seeds)",
-    )
-    p.add_argument(
-        "--critic-warmup-updates",
-        type=int,
-        default=None,
-        help="first updates of a trained start that fit its critics alone (actor frozen)",
-    )
+    _stage_flags(p, "few_shot")
     p.add_argument(
         "--resume", action="store_true", help="finish only the missing trials of an interrupted stage"
     )

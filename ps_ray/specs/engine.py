@@ -17,6 +17,7 @@ raise :class:`SpecError` with their own line, or :class:`Invalid` to have it pre
 from __future__ import annotations
 
 import dataclasses
+import enum
 import functools
 import math
 import types
@@ -183,9 +184,9 @@ def failure(error: ValidationError, cls: type, where: str | None, prefix: str | 
     return SpecError(f"{name} must be {describe(hint)}, got {value!r}")
 
 
-def base_types(hint: Any) -> set[type]:
+def base_types(hint: Any) -> set[Any]:
     """The plain types an annotation holds: ``{int}`` for ``Positive``, ``{int, float, NoneType}``
-    for ``Number | None``."""
+    for ``Number | None``, ``{tuple[str, ...]}`` for ``Seq[str]``."""
     if typing.get_origin(hint) is Annotated:
         return base_types(hint.__origin__)
     if typing.get_origin(hint) in (typing.Union, types.UnionType):
@@ -201,7 +202,14 @@ def read_number(text: str) -> int | float:
         return float(text)
 
 
-def flag_type(hint: Any) -> Callable[[str], Any]:
-    """How a command-line flag reads a field's text: an integer, a number, or the text itself."""
-    held = base_types(hint)
-    return read_number if float in held else int if int in held else str
+def flag_kwargs(hint: Any) -> dict[str, Any]:
+    """How an ``argparse`` flag reads a field (``type``, ``nargs``, ``choices``), from its annotation:
+    an integer, a number, a list (of words or numbers), one of a mode's words, or the text itself."""
+    held = base_types(hint) - {type(None)}
+    items = [typing.get_args(h)[0] for h in held if typing.get_origin(h) is tuple]
+    if items:
+        return {"nargs": "+", **flag_kwargs(items[0])}
+    modes = [h for h in held if isinstance(h, type) and issubclass(h, enum.Enum)]
+    if modes:
+        return {"choices": [m.value for m in modes[0]]}
+    return {"type": read_number if float in held else int if int in held else str}

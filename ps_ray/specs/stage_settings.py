@@ -8,15 +8,20 @@ import json
 from collections.abc import Mapping
 from typing import Annotated, Any
 
+from pydantic import Field
+
 from ps_ray.envs.robots import resolve_robot
 from ps_ray.envs.tasks import resolve_task
-from ps_ray.errors import UserError
+from ps_ray.errors import UserError, Words
 from ps_ray.specs.engine import NonNegative, Number, OneOf, Positive, Seq, SpecError, between, spec
 from ps_ray.specs.methods import method_key, reanchoring_problem
 from ps_ray.specs.modes import AnchorGoals, AnchorPolicy, Pairing
 from ps_ray.specs.names import EnvPart, Part, translations_problem
+from ps_ray.specs.reset_seeds import MAX_STAGE_SEED
 
 ANCHOR_POLICIES = tuple(AnchorPolicy)
+# a stage's seed: where its fixed episodes start in the stage's block (ps_ray.specs.reset_seeds)
+StageSeed = Annotated[int, Field(ge=0, lt=MAX_STAGE_SEED), Words(f"an integer 0..{MAX_STAGE_SEED - 1}")]
 
 
 def method_keys(where: str, methods: Any) -> Any:
@@ -39,7 +44,7 @@ class AnchorSpec:
     robot: Part = EnvPart("panda")  # the robot of the rollouts (task states do not depend on it)
     episodes: Positive = 200
     steps: Seq[int] = (5, 6, 7, 8, 9)
-    seed: int = 0
+    seed: StageSeed = 0
     # roll out trained plain policies (paper) or random actions
     policy: OneOf[AnchorPolicy] = AnchorPolicy.PLAIN
     goals: OneOf[AnchorGoals] = AnchorGoals.REAL  # the states' desired goals (ps_ray.data.collect)
@@ -76,7 +81,7 @@ class ZeroShotSpec:
 
     episodes: Positive = 200  # the paper: 200 episodes x 5 repeats
     repeats: Positive = 5
-    seed: int = 0  # first evaluation seed
+    seed: StageSeed = 0  # first evaluation seed
     methods: Seq[str] = ()  # default: the sweep's methods
     # method -> translations also evaluated for its pairs, e.g. {ablation: [affine]}: rows
     # "ablation+affine" (ps_ray.nets.translation); "@outcome" etc.: ps_ray.stitching.outcomes
@@ -146,6 +151,6 @@ class ReportSpec:
     """The analysis stage: interface dumps on fixed probe states, plots, tables, HTML report."""
 
     probes_per_group: Positive = 250  # task states per goal quadrant
-    seed: int = 0  # probe-state seed
+    seed: StageSeed = 0  # probe-state seed
     # the few-shot table's "env steps to" this greedy success
     few_shot_threshold: Annotated[Number, between(0, 1, "(]")] = 0.8

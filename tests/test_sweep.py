@@ -76,15 +76,58 @@ def history(path: Path, run, key: str) -> list[tuple[int, float]]:
     return sorted((m.step, m.value) for m in client.get_metric_history(run.info.run_id, key))
 
 
-def test_sweep_tracks_one_mlflow_run_per_trial_with_artifacts(tmp_path, cli, tiny_train):
+def _interrupt_when_one_trial_finished(path: Path, proc) -> str:
+    """Ctrl-C the sweep once one training trial finished and the next is running; its output."""
+    deadline = time.time() + 300
+    while True:
+        status = [r.info.status for k, r in runs(path).items() if not k.startswith("anchors_")]
+        if sorted(status) == ["FINISHED", "RUNNING"]:
+            break
+        assert time.time() < deadline and proc.poll() is None, "no trial finished in time"
+        time.sleep(0.5)  # the first finished, the second started
+    proc.send_signal(signal.SIGINT)  # what Ctrl-C or `kill -INT` sends the driver
+    out, _ = proc.communicate(timeout=300)
+    assert proc.returncode == 130, out[-3000:]
+    return out
+
+
+def test_a_sweep_stopped_by_ctrl_c_resumes_never_unpickling_and_tracks_one_mlflow_run_per_trial(
+    tmp_path, cli, tiny_train, planted
+):
+    """Ctrl-C mid-sweep ends it in one line; `sweep --resume` runs only the unfinished trials and
+    loads none of the pickles planted where Tune and RLlib look; the finished sweep has one MLflow
+    run per trial, nested under its stage's, with its artifacts and logged model. (A SIGKILL in
+    training and the resume after it: tests/test_pipeline.py's fixture.)"""
     distilled = "ps_distilled+consolidate_updates=300"  # of 2,000: enough to align at this size
     methods = ("ps", distilled, "ablation")
-    path = write_sweep(tmp_path, "track", tiny_train, methods=methods, seeds=(1,))
-    proc = cli("sweep", str(path))
-    out, _ = proc.communicate(timeout=600)
-    assert proc.returncode == 0, out[-3000:]
+    path = write_sweep(tmp_path, "track", tiny_train, methods=methods, seeds=(1,), max_concurrent=1)
+    out = _interrupt_when_one_trial_finished(path, cli("sweep", str(path)))
+    assert "Traceback" not in out
+    assert out.strip().splitlines()[-1] == (
+        "ps-ray sweep: interrupted: 1 of 3 training trials finished, 2 not; "
+        "the same command with --resume finishes it"
+    )
+    (last_view,) = [line for line in out.splitlines() if "train: 1 done, 1 interrupted, 0 running" in line]
+    assert "0 failed, 1 pending" in last_view  # the live view
+    assert not last_view.endswith("ETA 0:00"), last_view  # the interrupted trial's work is left
+    ((done_name, done),) = [
+        (n, r) for n, r in runs(path).items() if r.info.status == "FINISHED" and "anchors_" not in n
+    ]
+    done_history = history(path, done, "env_steps")
+    # Anyone who can write to shared storage could plant these where Tune and RLlib look.
+    folder = sweep_layout(load_sweep(path)).root
+    for place in [folder, *folder.glob("tune*"), *folder.glob("tune*/*"), *folder.glob("tune*/*/check*")]:
+        if place.is_dir():
+            planted(place)
+
+    resumed = cli("sweep", str(path), "--resume")
+    out, _ = resumed.communicate(timeout=600)
+    assert resumed.returncode == 0, out[-3000:]
+    assert "3/3 trials finished" in out
+    assert not planted.marker.exists(), "a planted pickle was loaded on resume"
     found = runs(path)
-    # the plain source policy of the anchor stage is tracked too
+    assert history(path, found[done_name], "env_steps") == done_history  # not rerun
+    # one run per trial, the interrupted one's too; the plain source policy of the anchor stage too
     plain = "anchors_plain/plain/panda/reach/1/i8"
     consolidated = f"{distilled}/panda/reach/1/i8"
     assert sorted(found) == ["ablation/panda/reach/1/i8", plain, "ps/panda/reach/1/i8", consolidated]
@@ -93,7 +136,7 @@ def test_sweep_tracks_one_mlflow_run_per_trial_with_artifacts(tmp_path, cli, tin
     names = {key: run.info.run_name for key, run in found.items()}
     assert names[plain] == "panda/reach · plain · 1 · i8 · plain policy for the anchor states"
     assert names[consolidated] == f"panda/reach · {distilled} · 1 · i8"
-    client = mlflow.MlflowClient(f"sqlite:///{sweep_layout(load_sweep(path)).root / 'mlflow.db'}")
+    client = mlflow.MlflowClient(f"sqlite:///{folder / 'mlflow.db'}")
     for run in found.values():  # each nested under its stage's run
         parent = client.get_run(run.data.tags["mlflow.parentRunId"])
         assert parent.data.tags["ps_ray.stage_run"] == run.data.tags["ps_ray.stage"] == parent.info.run_name
@@ -115,7 +158,7 @@ def test_sweep_tracks_one_mlflow_run_per_trial_with_artifacts(tmp_path, cli, tin
         assert {"policy.safetensors", "signature.json", "spec.json"} <= artifacts
     # each source is a logged MLflow model: loaded by its run's URI, it acts as its policy file does
     run = found["ablation/panda/reach/1/i8"]
-    mlflow.set_tracking_uri(f"sqlite:///{sweep_layout(load_sweep(path)).root / 'mlflow.db'}")
+    mlflow.set_tracking_uri(f"sqlite:///{folder / 'mlflow.db'}")
     assert run.data.tags["ps_ray.model"] == "panda-reach-ablation-1-i8"  # named as its run: told apart
     model = mlflow.pyfunc.load_model(f"runs:/{run.info.run_id}/{run.data.tags['ps_ray.model']}")
     obs = example_observation("panda", "reach")
@@ -125,55 +168,15 @@ def test_sweep_tracks_one_mlflow_run_per_trial_with_artifacts(tmp_path, cli, tin
     ps_artifacts = {a.path for a in client.list_artifacts(found["ps/panda/reach/1/i8"].info.run_id)}
     assert any(a.startswith("anchors_3d") for a in ps_artifacts)
     # a consolidating method's trial consolidates once it is done, before its last checkpoint;
-    # ps_distilled's policy there has its relative projection switched on, and says so
-    trial = next((sweep_layout(load_sweep(path)).root / "tune").glob("*method_ps_distilled*"))
+    # ps_distilled's policy there has its relative projection switched on, and says so (an
+    # interrupted trial resumes in a Tune folder of its own: the last one that checkpointed)
+    tried = [t for t in (folder / "tune").glob("*method_ps_distilled*") if any(t.glob("checkpoint_*"))]
+    trial = max(tried, key=lambda t: max(c.stat().st_mtime for c in t.glob("checkpoint_*")))
     last = latest_checkpoint(sorted(trial.glob("checkpoint_*")))
     progress = json.loads((last / "progress.json").read_text())
     assert progress["consolidated"]["gap_after"] < 0.5 * progress["consolidated"]["gap_before"]
     assert json.loads((last / "signature.json").read_text())["projection_off"] is False
     assert load_policy(last / "policy.safetensors")[0].actor.task.projection is not None
-
-
-def test_ctrl_c_stops_a_sweep_in_one_line_and_resume_finishes_it_never_unpickling(
-    tmp_path, cli, tiny_train, planted
-):
-    """Ctrl-C mid-sweep ends it in one line; `sweep --resume` runs only the unfinished trial and
-    loads none of the pickles planted where Tune and RLlib look. (A SIGKILL in training and the
-    resume after it: tests/test_pipeline.py's fixture.)"""
-    path = write_sweep(tmp_path, "ctrlc", {**tiny_train, "env_steps": 600}, seeds=(1, 2), max_concurrent=1)
-    proc = cli("sweep", str(path))
-    deadline = time.time() + 300
-    while sorted(r.info.status for r in runs(path).values()) != ["FINISHED", "RUNNING"]:
-        assert time.time() < deadline and proc.poll() is None, "no trial finished in time"
-        time.sleep(0.5)  # the first finished, the second started
-    proc.send_signal(signal.SIGINT)  # what Ctrl-C or `kill -INT` sends the driver
-    out, _ = proc.communicate(timeout=300)
-    assert proc.returncode == 130, out[-3000:]
-    assert "Traceback" not in out
-    assert out.strip().splitlines()[-1] == (
-        "ps-ray sweep: interrupted: 1 of 2 training trials finished, 1 not; "
-        "the same command with --resume finishes it"
-    )
-    (last_view,) = [line for line in out.splitlines() if "train: 1 done, 1 interrupted, 0 running" in line]
-    assert "0 failed, 0 pending" in last_view  # the live view
-    assert not last_view.endswith("ETA 0:00"), last_view  # the interrupted trial's work is left
-    ((done_name, done),) = [(n, r) for n, r in runs(path).items() if r.info.status == "FINISHED"]
-    done_history = history(path, done, "env_steps")
-    # Anyone who can write to shared storage could plant these where Tune and RLlib look.
-    folder = sweep_layout(load_sweep(path)).root
-    for place in [folder, *folder.glob("tune*"), *folder.glob("tune*/*"), *folder.glob("tune*/*/check*")]:
-        if place.is_dir():
-            planted(place)
-
-    resumed = cli("sweep", str(path), "--resume")
-    out, _ = resumed.communicate(timeout=600)
-    assert resumed.returncode == 0, out[-3000:]
-    assert "2/2 trials finished" in out
-    after = runs(path)
-    assert sorted(after) == [f"ablation/panda/reach/{s}/i8" for s in (1, 2)]  # one run per trial
-    assert all(r.info.status == "FINISHED" for r in after.values())
-    assert history(path, after[done_name], "env_steps") == done_history  # not rerun
-    assert not planted.marker.exists(), "a planted pickle was loaded on resume"
 
 
 # One Tune run through the stages' runner, then Ctrl-C (SIGINT to itself) while the driver does

@@ -3,9 +3,11 @@ that mark it if anything ever loads them."""
 
 from __future__ import annotations
 
+from tests.point_env import POINT_ENV
+
 # A small `ps-ray train` on the point task: PS, interface 8, checkpoints every 3 steps.
 TRAIN_ARGS = (
-    "--task point --method ps --interface-dim 8 --hidden 32 --learning-starts 200 "
+    f"--env {POINT_ENV} --method ps --interface-dim 8 --hidden 32 --learning-starts 200 "
     "--random-episodes 2 --episodes-per-step 4 --checkpoint-every 3 --eval-every 3 "
     "--eval-episodes 4 --batch-size 64 --anchor-episodes 20"
 ).split()

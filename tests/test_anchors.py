@@ -25,7 +25,7 @@ from ps_ray.data.anchors import (
     select_anchors,
 )
 from ps_ray.data.collect import collect_task_states
-from ps_ray.envs.point import PointGoalEnv
+from tests.point_env import PointGoalEnv
 
 
 def blobs(n_blobs: int = 5, per_blob: int = 40, dim: int = 3, seed: int = 0):

@@ -14,6 +14,7 @@ from ps_ray.rllib.algo import algo_config
 from ps_ray.specs.resources import StageResources, device_tags, learner_device
 from ps_ray.specs.sweep import SweepSpec
 from ps_ray.specs.train import TrainSpec
+from tests.point_env import POINT_ENV
 from tests.processes import own_ray_env
 
 GRID = {"name": "r", "methods": ["ablation"], "robots": ["panda"], "tasks": ["reach"], "seeds": [1]}
@@ -137,7 +138,7 @@ def test_a_compiled_learner_compiles_its_module_and_trains(ray_local):
 
     spec = TrainSpec(
         method="ablation",
-        task="point",
+        env=POINT_ENV,
         hidden=32,
         interface_dim=8,
         learning_starts=100,

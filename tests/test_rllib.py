@@ -19,9 +19,10 @@ from ps_ray.specs.methods import method_spec, spec_json
 from ps_ray.specs.train import TrainSpec
 from ps_ray.store.signature import Signature, read_signature
 from tests.code_paths import PS_CONSOLIDATED
+from tests.point_env import POINT_ENV
 
 SMALL = dict(
-    task="point",
+    env=POINT_ENV,
     hidden=64,
     interface_dim=16,
     learning_starts=200,

@@ -17,6 +17,7 @@ from safetensors.torch import load_file
 from ps_ray.nets.policy_file import load_policy
 from ps_ray.store.signature import read_signature
 from tests.code_paths import PS_CONSOLIDATED
+from tests.point_env import POINT_ENV
 
 
 def test_a_killed_run_refuses_a_second_writer_while_alive_and_resumes_from_its_checkpoint(
@@ -103,7 +104,7 @@ def test_a_killed_run_refuses_a_second_writer_while_alive_and_resumes_from_its_c
 def test_a_run_directory_refuses_another_policy(tmp_path, train_cmd):
     run_dir = tmp_path / "run"
     run_dir.mkdir()
-    (run_dir / "spec.json").write_text(json.dumps({"method": "ablation", "task": "point"}))
+    (run_dir / "spec.json").write_text(json.dumps({"method": "ablation", "env": POINT_ENV}))
     proc = subprocess.run(train_cmd(run_dir, 100), capture_output=True, text=True, timeout=120)
     assert proc.returncode == 2
     assert "holds a run of another spec (changed: " in proc.stderr
@@ -120,8 +121,8 @@ def test_training_stops_early_at_the_success_target(tmp_path):
         "-m",
         "ps_ray.cli",
         "train",
-        "--task",
-        "point",
+        "--env",
+        POINT_ENV,
         "--method",
         "ablation",
         "--interface-dim",

@@ -19,7 +19,7 @@ from ps_ray.errors import UserError
 from ps_ray.pipeline.stage import StageError, StageInterrupted, raise_on_errors
 from ps_ray.specs import reset_seeds
 from ps_ray.specs.names import parse_spec_text
-from ps_ray.specs.train import POINT_TASK, TrainSpec
+from ps_ray.specs.train import TrainSpec
 from ps_ray.store.layout import sweep_layout
 from ps_ray.store.lock import folder_lock
 
@@ -32,7 +32,7 @@ def cmd_train(args: argparse.Namespace) -> int:
     for key, resolve in (("robot", resolve_robot), ("task", resolve_task)):
         try:  # each checked on its own, so its error names its own flag
             fields[key] = parse_spec_text(getattr(args, key))
-            if args.task != POINT_TASK:  # the physics-free point env takes any robot
+            if args.env is None:  # a gymnasium env by id stands in for robot and task
                 resolve(fields[key])
         except (UserError, ValueError, TypeError) as e:
             raise UserError(f"--{key}: {e}") from None

@@ -17,7 +17,7 @@ from . import BUILTIN_PAIRS
 from .core import RobotTaskEnv, make
 
 RLLIB_ENV = "ps_ray"
-RLLIB_POINT_ENV = "ps_ray_point"  # the physics-free PointGoalEnv, for fast learning checks
+RLLIB_GYM_ENV = "ps_ray_gym"  # any gymnasium env of ps_ray's observation layout, by id (TrainSpec.env)
 RLLIB_GRID_ENV = "ps_ray_grid"  # the trained cells of a co-trained grid side by side (GridEnv)
 NAMESPACE = "ps_ray"
 
@@ -34,7 +34,7 @@ def create_env(env_config: Mapping[str, Any]) -> RobotTaskEnv:
 
 def register(rllib: bool = True) -> list[str]:
     """Register the gymnasium ids (idempotent) and, if ``rllib``, the Tune envs ``"ps_ray"``,
-    ``"ps_ray_point"`` and ``"ps_ray_grid"``."""
+    ``"ps_ray_gym"`` and ``"ps_ray_grid"``."""
     ids = []
     for robot, task in BUILTIN_PAIRS:
         ids.append(env_id(robot, task))
@@ -44,9 +44,8 @@ def register(rllib: bool = True) -> list[str]:
         from ray.tune.registry import register_env
 
         from .grid import GridEnv
-        from .point import PointGoalEnv
 
         register_env(RLLIB_ENV, create_env)
-        register_env(RLLIB_POINT_ENV, lambda env_config: PointGoalEnv(**dict(env_config)))
+        register_env(RLLIB_GYM_ENV, lambda env_config: gymnasium.make(env_config["id"]))
         register_env(RLLIB_GRID_ENV, lambda env_config: GridEnv(env_config["cells"]))
     return ids

@@ -11,7 +11,6 @@ from typing import Any
 
 from ps_ray.specs.stages import stage as stage_record
 from ps_ray.specs.sweep import SweepSpec
-from ps_ray.specs.train import POINT_TASK
 from ps_ray.specs.trial import GridTrial, TrainTrial
 from ps_ray.store.layout import sweep_layout
 from ps_ray.store.mlflow_values import flatten_params
@@ -170,7 +169,8 @@ def _trial_model(trial) -> tuple[Path, Any, Any, str] | None:
     """A finished source's policy file, env and title, to log as its run's MLflow model."""
     policy = Path(trial.checkpoint.path) / POLICY_FILE if trial.checkpoint is not None else None
     record = record_of(trial)
-    found = policy is not None and policy.exists() and record.spec.task != POINT_TASK  # physics-free
+    # a run of a gymnasium env given by id has no robot and task to log its model with
+    found = policy is not None and policy.exists() and record.spec.env is None
     return (policy, record.spec.robot, record.spec.task, record.title) if found else None
 
 

@@ -33,10 +33,11 @@ PROGRESS_FILE = "progress.json"
 
 
 def make_env(spec: TrainSpec):
-    if spec.env_name == "ps_ray_point":
-        from ps_ray.envs.point import PointGoalEnv
+    """The env of a run: its robot and task, or the gymnasium env its ``env`` names."""
+    if spec.env is not None:
+        import gymnasium
 
-        return PointGoalEnv()
+        return gymnasium.make(spec.env)
     from ps_ray.envs import make
 
     return make(**spec.env_config)

@@ -115,7 +115,7 @@ class ModularSAC(SAC):
         super().setup(config)
         cfg = self.config
         # A driver-side env instance supplies spaces, horizon and compute_reward for relabelling.
-        self._reward_env = self.env_creator(cfg.env_config)
+        self._reward_env = self.env_creator(cfg.env_config).unwrapped  # a gymnasium env's own methods
         space = self._reward_env.observation_space
         self.replay = HindsightReplay(
             {k: (s.shape, np.float32) for k, s in space.spaces.items()},

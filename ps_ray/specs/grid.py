@@ -18,7 +18,7 @@ from ps_ray.specs.engine import Seq, spec
 from ps_ray.specs.modes import AnchorPolicy
 from ps_ray.specs.names import EnvPart, parse_spec_text
 from ps_ray.specs.titles import env_title, title, width_tag
-from ps_ray.specs.train import POINT_TASK, SpecError, TrainSpec
+from ps_ray.specs.train import SpecError, TrainSpec
 
 Cell = tuple[EnvPart, EnvPart]  # (robot, task)
 HELD_OUT_SEPARATOR = ";"  # between the cells of a grid's held-out text (a task's JSON has commas)
@@ -56,8 +56,8 @@ class GridSpec:
             if len(set(parts)) != len(parts):
                 raise SpecError(f"grid {name} repeat one: {[p.text for p in parts]}")
             object.__setattr__(self, name, parts)
-        if self.base.task == POINT_TASK:
-            raise SpecError("a grid trains robot x task cells; the point task has no robot")
+        if self.base.env is not None:
+            raise SpecError(f"a grid trains robot x task cells; env {self.base.env!r} has no robot and task")
         cells = [(r, t) for r in self.robots for t in self.tasks]
         held = []
         for robot, task in self.held_out:

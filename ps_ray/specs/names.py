@@ -186,10 +186,16 @@ def short_name(value: Any, limit: int = 64) -> str:
     return f"{base}#{hashlib.sha256(text.encode()).hexdigest()[:8]}"
 
 
+KEY_FIELDS = ("method", "robot", "task", "seed")
+
+
 def trial_key(spec: Mapping[str, Any]) -> str:
-    """``method/robot/task/seed``, plus ``/i<dim>`` for a non-default interface dim: the name of
-    a trial's run directory, MLflow run and zoo entry."""
-    key = "/".join(short_name(spec.get(k)) for k in ("method", "robot", "task", "seed"))
+    """``method/robot/task/seed`` (``method/<env>/seed`` for a gymnasium env given by id), plus
+    ``/i<dim>`` for a non-default interface dim: the name of a trial's run directory, MLflow run
+    and zoo entry."""
+    env = spec.get("env")
+    parts = [spec.get("method"), env.rpartition(":")[2].replace("/", "-"), spec.get("seed")] if env else None
+    key = "/".join(map(str, parts)) if parts else "/".join(short_name(spec.get(k)) for k in KEY_FIELDS)
     dim = spec.get("interface_dim", INTERFACE_DIM)
     return key if dim == INTERFACE_DIM else f"{key}/i{dim}"
 

@@ -13,6 +13,7 @@ from typing import Annotated, Any
 
 from pydantic import AfterValidator, Field
 
+from ps_ray.envs.registry import RLLIB_ENV, RLLIB_GYM_ENV
 from ps_ray.envs.robots import resolve_robot
 from ps_ray.envs.tasks import resolve_task
 from ps_ray.errors import Words
@@ -29,8 +30,6 @@ from ps_ray.specs.engine import (
 from ps_ray.specs.methods import OPTIONS, PRESETS, MethodSpec, method_key, method_spec
 from ps_ray.specs.names import EnvPart, Part, plain_json, trial_key
 from ps_ray.specs.reset_seeds import MAX_RUN_SEED
-
-POINT_TASK = "point"  # the physics-free PointGoalEnv (robot is ignored), for fast checks
 
 Width = Annotated[int, Field(gt=0, le=MAX_WIDTH)]
 PositiveNumber = Annotated[Number, Field(gt=0)]
@@ -51,7 +50,7 @@ RESUMABLE_CHANGES = (
 
 
 # Settings added after runs were recorded: written only where they differ from these defaults.
-LATER_SETTINGS = {"target_entropy": None, "relabel_prob": 0.8}
+LATER_SETTINGS = {"target_entropy": None, "relabel_prob": 0.8, "env": None}
 
 
 def require_same(stored: Mapping[str, Any], current: Mapping[str, Any], what: str, advice: str) -> None:
@@ -65,6 +64,21 @@ def require_same(stored: Mapping[str, Any], current: Mapping[str, Any], what: st
 def setting(default: Any, help: str) -> Any:
     """A spec field with its documentation, read by the code and by ``ps-ray train --help``."""
     return dataclasses.field(default=default, metadata={"help": help})
+
+
+def _check_gym_id(env: str) -> None:
+    """A gymnasium id this Python can make (``module:Name-v0`` imports the module that registers it)."""
+    import importlib
+
+    import gymnasium
+
+    module, _, name = env.rpartition(":")
+    try:
+        if module:
+            importlib.import_module(module)
+        gymnasium.spec(name)
+    except (gymnasium.error.Error, ImportError) as e:
+        raise SpecError(f"env {env!r} is not a gymnasium id this Python can make ({e})") from None
 
 
 @spec(where="train spec")
@@ -115,14 +129,22 @@ class TrainSpec:
         200, "random-policy episodes collected for anchors when anchors is None"
     )
     init_policy: str | None = setting(None, "start from these weights (a stitched policy: few-shot)")
+    env: str | None = setting(
+        None,
+        "a gymnasium id, trained in place of robot and task: any goal-conditioned env with ps_ray's "
+        "observation layout (robot_state, task_state, achieved_goal, desired_goal), e.g. "
+        "tests.point_env:PointGoal-v0; trained and evaluated, never stitched",
+    )
 
     def __post_init__(self) -> None:
-        if self.task != POINT_TASK:
-            try:
-                resolve_robot(self.robot)
-                resolve_task(self.task)
-            except (ValueError, TypeError) as e:
-                raise SpecError(str(e)) from None
+        if self.env is not None:
+            _check_gym_id(self.env)
+            return
+        try:
+            resolve_robot(self.robot)
+            resolve_task(self.task)
+        except (ValueError, TypeError) as e:
+            raise SpecError(str(e)) from None
 
     @classmethod
     def from_mapping(cls, data: Mapping[str, Any], where: str = "train spec") -> TrainSpec:
@@ -139,8 +161,8 @@ class TrainSpec:
 
     @property
     def env_config(self) -> dict[str, Any]:
-        if self.task == POINT_TASK:
-            return {}
+        if self.env is not None:
+            return {"id": self.env}
         return {"robot": self.robot.spelling, "task": self.task.spelling}
 
     @functools.cached_property
@@ -150,7 +172,8 @@ class TrainSpec:
 
     @property
     def env_name(self) -> str:
-        return "ps_ray_point" if self.task == POINT_TASK else "ps_ray"
+        """The Tune env the run trains on (``ps_ray.envs.registry``)."""
+        return RLLIB_GYM_ENV if self.env is not None else RLLIB_ENV
 
     def identity(self) -> dict[str, Any]:
         """What defines the policy being trained; budget and reporting settings may change on resume."""

@@ -116,12 +116,10 @@ def start_problems(spec, signature: Signature) -> list[str]:
     ``init_policy`` it is): another method, interface dim or hidden width, nets that cannot run
     its env, or a stitch aligned at stitch time (for zero-shot use only); empty when it can. Reads
     the signature alone: no nets are built."""
-    from ps_ray.specs.train import POINT_TASK
-
     wanted = (spec.method, spec.interface_dim, spec.hidden)
     found = (signature.method, signature.interface_dim, signature.hidden)
     problems = [] if found == wanted else [f"(method, interface dim, hidden) {found} vs {wanted}"]
-    if spec.task != POINT_TASK:
+    if spec.env is None:
         problems += target_problems(signature, (spec.robot, spec.task))
     if signature.translation:
         problems.append(f"a stitch aligned at stitch time ({signature.translation}) is for zero-shot use")

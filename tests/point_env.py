@@ -1,14 +1,15 @@
-"""A trivial goal-conditioned point-mass env with the same observation layout as the robot envs.
+"""A trivial goal-conditioned point-mass env with the same observation layout as the robot envs,
+for tests: it needs no physics engine, so learning tests of the SAC + HER machinery run in seconds.
 
-It needs no physics engine, so learning tests of the SAC + HER machinery run in seconds.
-"""
+Trained as any gymnasium env of that layout is, by its id (``ps-ray train --env`` :data:`POINT_ENV`):
+gymnasium imports this module from the id and makes the env registered here."""
 
 from __future__ import annotations
 
 import gymnasium as gym
 import numpy as np
 
-from .goals import SUCCESS_DISTANCE, goal_reward
+from ps_ray.envs.goals import SUCCESS_DISTANCE, goal_reward
 
 
 class PointGoalEnv(gym.Env):
@@ -61,3 +62,8 @@ class PointGoalEnv(gym.Env):
 
     def compute_reward(self, achieved_goal, desired_goal, info):
         return goal_reward(achieved_goal, desired_goal)
+
+
+POINT_ENV = "tests.point_env:PointGoal-v0"  # the module gymnasium imports, then the id it registers
+if "PointGoal-v0" not in gym.registry:
+    gym.register("PointGoal-v0", entry_point=PointGoalEnv)

@@ -212,7 +212,7 @@ def test_the_task_normaliser_sees_the_hindsight_goals_training_reads(ray_local, 
 
     spec = TrainSpec(
         method=method,
-        **{**SMALL, "task": "reach_red", "learning_starts": 10**6, "eval_every": 10**6},
+        **{**SMALL, "env": None, "task": "reach_red", "learning_starts": 10**6, "eval_every": 10**6},
     )
     anchors = np.random.default_rng(0).uniform(-0.1, 0.2, (16, 9)).astype(np.float32)
     algo = algo_config(spec, anchors).build_algo()

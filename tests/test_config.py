@@ -142,6 +142,7 @@ seeds: [1]
         (GOOD + "train: {env_steps: -1}\n", "env_steps must be a positive integer, got -1"),
         (GOOD.replace("seeds: [1]", "seeds: abc"), "seed must be an integer 0..99999, got 'abc'"),
         (GOOD + "train: {method: ps}\n", "train.method is set by the sweep grid"),
+        (GOOD + "train: {env: CartPole-v1}\n", "train.env: a sweep trains robots x tasks"),
         (
             GOOD + "stages: [train, fly]\n",
             "unknown stage 'fly'; valid stages: train, grid, zero_shot, few_shot, report",

@@ -179,6 +179,10 @@ class SweepSpec:
         for key in ("method", "robot", "task", "seed", "interface_dim"):
             if key in overrides:
                 raise SpecError(f"train.{key} is set by the sweep grid; remove it from 'train'")
+        if overrides.get("env") is not None:
+            raise SpecError(
+                "train.env: a sweep trains robots x tasks; train a gymnasium env with ps-ray train --env"
+            )
         draws = dict(enumerate(self.search.draws())) if self.search.active else {None: {}}
         return tuple(
             (

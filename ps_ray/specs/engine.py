@@ -166,7 +166,7 @@ def failure(error: ValidationError, cls: type, where: str | None, prefix: str | 
     where = where or cls.__spec_where__
     if kind in ("unexpected_keyword_argument", "extra_forbidden"):
         return _unknown(cls, where, loc[0])
-    if kind == "missing_argument":
+    if kind in ("missing", "missing_argument"):
         return SpecError(f"{where}: missing key {loc[0]!r}")
     prefix = cls.__spec_prefix__ if prefix is None else prefix
     field = str(loc[0]) if loc else ""
@@ -179,7 +179,7 @@ def failure(error: ValidationError, cls: type, where: str | None, prefix: str | 
     if kind in _CONSTRAINTS:
         said = words(hint) or _bound(_CONSTRAINTS[kind], ctx, hint)
         return SpecError(f"{name} must be {said}, got {value!r}")
-    if cause is not None and not isinstance(cause, Invalid):
+    if cause is not None:  # a validator's own ValueError
         return SpecError(f"{name}: {cause}")
     return SpecError(f"{name} must be {describe(hint)}, got {value!r}")
 

@@ -76,6 +76,10 @@ CASES = [  # (arguments, with {f} the input folder and {out} a path that must no
     ("train --anchors {f}/evil.npy --run-dir {out}", "evil.npy: neither an .npy nor an .npz file"),
     ("train --seed -1 --run-dir {out}", "seed must be an integer 0..99999, got -1"),
     (
+        "train --env nosuch:Thing-v0 --run-dir {out}",
+        "--env: env 'nosuch:Thing-v0' is not a gymnasium id this Python can make (No module named 'nosuch')",
+    ),
+    (
         "train --eval-every -2 --run-dir {out}",
         "--eval-every: eval_every must be a non-negative integer, got -2",
     ),

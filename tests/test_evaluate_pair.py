@@ -90,3 +90,25 @@ def test_a_pair_and_its_outcome_translation_are_scored_beside_the_same_controls(
     assert float(
         read_signature(tmp_path / "fitted" / STITCHED_FILE)[1]["translation_ridge"]
     ) == pytest.approx(fitted["translation_ridge"], rel=1e-5)
+
+
+def test_a_resumed_stage_reads_its_chance_levels_instead_of_measuring_them_again(tmp_path, monkeypatch):
+    """The zero-shot stage keeps each target env's chance level and floor in the sweep folder: a
+    resumed stage reads the same figures back and runs no chance episode; other episodes (another
+    count) are measured afresh."""
+    import ps_ray.stitching.chance
+    from ps_ray.pipeline.zero_shot import chance_levels
+
+    pair, stream = zoo_pair(ExampleZoo.load(), ""), Episodes(2, 1, 0)
+    first = chance_levels([pair], stream, progress=False, kept=tmp_path)
+    (level,) = first.values()
+    assert 0 <= level["chance_success"] <= 1 and level["task_blind_success"] == 0.5  # two markers
+    assert len(list(tmp_path.glob("*.json"))) == 1
+
+    def measured(*args, **kwargs):
+        raise AssertionError("a kept chance level was measured again")
+
+    monkeypatch.setattr(ps_ray.stitching.chance, "chance", measured)
+    assert chance_levels([pair], stream, progress=False, kept=tmp_path) == first
+    with pytest.raises(AssertionError, match="measured again"):
+        chance_levels([pair], Episodes(3, 1, 0), progress=False, kept=tmp_path)

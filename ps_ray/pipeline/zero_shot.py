@@ -17,6 +17,8 @@ batch; each pair is still one result row and one MLflow run.
 from __future__ import annotations
 
 import dataclasses
+import hashlib
+import json
 import time
 from pathlib import Path
 from typing import Any
@@ -49,6 +51,7 @@ from ps_ray.specs.stage_settings import ZeroShotSpec
 from ps_ray.specs.sweep import SweepSpec
 from ps_ray.stitching.pairs import StitchedPair
 from ps_ray.stitching.zoo import ModuleZoo
+from ps_ray.store.atomic import write_text
 from ps_ray.store.layout import sweep_layout
 from ps_ray.store.stage_run import StageRun, close_left_open, open_stage
 
@@ -130,14 +133,22 @@ def zero_shot_trial(config: dict[str, Any]) -> None:
         tune.report({**metrics, PAIR_KEY: pair.key, PAIR_FILES: str(keep), **times, **last})
 
 
+CHANCE_FORMAT = "ps_ray.chance/1"  # what a kept chance file holds; another version is measured again
+
+
 def chance_levels(
-    trials: list[StitchedPair], stream: Episodes, progress: bool, zoo: ModuleZoo | None = None
+    trials: list[StitchedPair],
+    stream: Episodes,
+    progress: bool,
+    zoo: ModuleZoo | None = None,
+    kept: Path | None = None,
 ) -> dict[str, dict]:
     """The chance control and task-blind floor (:func:`ps_ray.stitching.chance.chance`) of every
     target env the pairs run on, on each seed's episodes (:func:`pair_episodes` of ``stream``):
     they depend on nothing else, so each is measured once. Where no script does the scene's tasks
     (the push family), the floor runs the ``zoo``'s oracles of the scene's tasks at the pair's seed
-    (:func:`ps_ray.stitching.chance.scene_oracles`)."""
+    (:func:`ps_ray.stitching.chance.scene_oracles`). With ``kept`` (a folder), each level that
+    needs no oracles is written there once and read back by a resumed stage, not measured again."""
     from ps_ray.stitching.chance import chance, has_floor, scene_oracles, scripted_floor
 
     levels = {}
@@ -148,7 +159,16 @@ def chance_levels(
             oracles = None
             if zoo is not None and has_floor(pair.task) and not scripted_floor(pair.task):
                 oracles = scene_oracles(zoo, pair.robot, pair.task, pair.seed)
+            file = (
+                None if kept is None or oracles is not None else kept / f"{_chance_name(pair, episodes)}.json"
+            )
+            if (found := _kept_level(file)) is not None:
+                levels[key] = found
+                continue
             levels[key] = chance(pair.robot, pair.task, episodes.kwargs(), oracles)
+            if file is not None:
+                file.parent.mkdir(parents=True, exist_ok=True)
+                write_text(file, json.dumps({"format": CHANCE_FORMAT, "levels": levels[key]}))
             if progress:
                 found = levels[key]
                 floor = found["task_blind_success"]
@@ -160,6 +180,20 @@ def chance_levels(
                     flush=True,
                 )
     return levels
+
+
+def _kept_level(file: Path | None) -> dict | None:
+    """A chance level kept by an earlier run of the stage (None: none, or of another format)."""
+    if file is None or not file.exists():
+        return None
+    kept = json.loads(file.read_text())
+    return kept["levels"] if kept.get("format") == CHANCE_FORMAT else None
+
+
+def _chance_name(pair: StitchedPair, episodes: Episodes) -> str:
+    """A kept chance file's name: a digest of the target env and its episodes."""
+    what = {"robot": pair.robot.text, "task": pair.task.text, "episodes": episodes.kwargs()}
+    return hashlib.sha256(json.dumps(what, sort_keys=True).encode()).hexdigest()[:20]
 
 
 def _fit_states(pair: StitchedPair, fit: FitSettings, sources: Sources) -> np.ndarray | None:
@@ -323,7 +357,7 @@ def _evaluate(
     folder, by_key = sweep_layout(spec).tune_zero_shot, {pair.key: pair for pair in trials}
     evaluated = {"episodes": settings.episodes, "repeats": settings.repeats}
     stream = stream_of(settings)  # each seed's block of the zero-shot stream
-    chance = chance_levels(trials, stream, progress, zoo)
+    chance = chance_levels(trials, stream, progress, zoo, sweep_layout(spec).chance)
     fit = FitSettings.of(settings, str(sweep_layout(spec).outcomes))
     tracking_uri, experiment_id = tracking
     callback = RowRunsCallback(

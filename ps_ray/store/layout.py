@@ -81,6 +81,12 @@ class SweepLayout:
         return self.root / "outcomes"
 
     @property
+    def chance(self) -> Path:
+        """The zero-shot stage's chance levels and task-blind floors, one JSON file per target env
+        and episodes (ps_ray.pipeline.zero_shot.chance_levels): measured once, read on resume."""
+        return self.root / "chance"
+
+    @property
     def few_shot(self) -> Path:
         return self.root / "few_shot"
 

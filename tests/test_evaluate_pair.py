@@ -97,7 +97,7 @@ def test_a_resumed_stage_reads_its_chance_levels_instead_of_measuring_them_again
     resumed stage reads the same figures back and runs no chance episode; other episodes (another
     count) are measured afresh."""
     import ps_ray.stitching.chance
-    from ps_ray.pipeline.zero_shot import chance_levels
+    from ps_ray.pipeline.chance_levels import chance_levels
 
     pair, stream = zoo_pair(ExampleZoo.load(), ""), Episodes(2, 1, 0)
     first = chance_levels([pair], stream, progress=False, kept=tmp_path)

@@ -83,7 +83,7 @@ class SweepLayout:
     @property
     def chance(self) -> Path:
         """The zero-shot stage's chance levels and task-blind floors, one JSON file per target env
-        and episodes (ps_ray.pipeline.zero_shot.chance_levels): measured once, read on resume."""
+        and episodes (ps_ray.pipeline.chance_levels): measured once, read on resume."""
         return self.root / "chance"
 
     @property

@@ -1,5 +1,5 @@
-"""`ps-ray run sweeps/smoke.yaml` end to end (the README's pipeline), killed in training and in
-zero-shot and resumed; `ps-ray report` rebuilt idempotently and opened in headless Chromium."""
+"""`ps-ray run sweeps/smoke.yaml` end to end (the README's pipeline), killed in training and
+resumed; `ps-ray report` rebuilt idempotently and opened in headless Chromium."""
 
 from __future__ import annotations
 
@@ -62,19 +62,6 @@ def _checkpoints(root: Path, since: float, at_least: int) -> bool:
     return False
 
 
-def _a_pair_reported(root: Path, _since: float) -> bool:
-    """A zero-shot batch has reported one of its pairs and not its last: a kill now cuts a batch."""
-    from ps_ray.pipeline.zero_shot import PAIR_KEY
-    from ps_ray.store.attempts import FINISHED, read_rows
-
-    for trial in SweepLayout(root).tune_zero_shot.glob("*/"):
-        with contextlib.suppress(FileNotFoundError, ValueError):
-            rows = read_rows(trial)
-            if any(PAIR_KEY in row for row in rows) and not any(row.get(FINISHED) for row in rows):
-                return True
-    return False
-
-
 @dataclasses.dataclass(frozen=True)
 class Kill:
     """A moment at which the fixture SIGKILLs `ps-ray run` (driver and the Ray processes it
@@ -95,12 +82,11 @@ KILLS = (
         look=0.05,
         near=lambda root, since: _checkpoints(root, since, 1),
     ),
-    # during zero-shot, inside a batch: a pair reported, the batch's others not yet
-    Kill("zero_shot batch", _a_pair_reported),
 )
-# Few-shot and report are killed in no run of their own: their resume is the zero-shot
-# stage's path (stage markers, a Tune folder resumed: tests/test_zero_shot.py for few-shot) and a
-# report rebuilt whole (the `rebuilt` fixture below checks it is byte-identical).
+# The later stages are killed in no run of this file: a zero-shot batch cut after some of its pairs
+# resumes with only the others (tests/test_zero_shot.py), few-shot resumes as the training stage
+# does (stage markers, a Tune folder resumed), and a report is rebuilt whole (the `rebuilt`
+# fixture below checks it is byte-identical).
 
 
 def _kill_at(run: subprocess.Popen, root: Path, kill: Kill) -> None:
@@ -173,12 +159,11 @@ def _runs(root: Path, stage: str):
     ]
 
 
-def test_a_pipeline_killed_in_training_and_in_zero_shot_resumes_without_redoing_finished_work(smoke):
-    spec, root, (in_train, in_zero_shot, last) = smoke
+def test_a_pipeline_killed_in_training_resumes_without_redoing_finished_work(smoke):
+    spec, root, (in_train, last) = smoke
     assert "[1/4] train: starting" in in_train
-    assert "[1/4] train: resuming" in in_zero_shot and "[2/4] zero_shot: starting" in in_zero_shot
-    assert "[1/4] train: done earlier, skipped (16 training trials)" in last
-    assert "[2/4] zero_shot: resuming" in last and "[3/4] few_shot: starting" in last
+    assert "[1/4] train: resuming" in last and "[2/4] zero_shot: starting" in last
+    assert "[3/4] few_shot: starting" in last
     assert "[4/4] report: starting" in last and "[4/4] report: done" in last
     assert f"report: {root / 'report' / 'index.html'}" in last
     from ps_ray.pipeline.zero_shot import PAIR_KEY
@@ -190,8 +175,7 @@ def test_a_pipeline_killed_in_training_and_in_zero_shot_resumes_without_redoing_
         assert len(found) == count, folder
         for tries in found.values():
             assert sum(bool(read_rows(t)) and bool(read_rows(t)[-1].get(FINISHED)) for t in tries) == 1
-    # zero-shot runs its 16 pairs in batches; the batch cut by the kill is not run again whole:
-    # every pair was evaluated exactly once, whatever batch it ended up in
+    # zero-shot ran its 16 pairs in batches, each pair once
     reported = [
         row[PAIR_KEY]
         for result in layout.tune_zero_shot.glob("*/result.json")
@@ -199,12 +183,6 @@ def test_a_pipeline_killed_in_training_and_in_zero_shot_resumes_without_redoing_
         if PAIR_KEY in row
     ]
     assert len(reported) == len(set(reported)) == 16
-    cut = [  # the batch the kill cut: some pairs reported, never finished, and not run again
-        t
-        for t in layout.tune_zero_shot.glob("*/")
-        if read_rows(t) and not any(r.get(FINISHED) for r in read_rows(t))
-    ]
-    assert cut, "the zero-shot kill cut no batch"
     final_best = {}  # trial key -> its best greedy success at the end
     for trial, tries in attempts(layout.tune_train, "trial").items():  # best-so-far never fell
         best = [r["best_eval_success"] for r in merged_rows(tries) if "best_eval_success" in r]
@@ -230,7 +208,7 @@ def test_a_pipeline_killed_in_training_and_in_zero_shot_resumes_without_redoing_
         assert len(steps) == len(set(steps)) and run.data.metrics["env_steps"] >= 400, run.info.run_name
         # MLflow ends on the trial's best-so-far, also for a trial restored from its final checkpoint
         assert run.data.metrics.get("best_eval_success") == final_best[run.data.tags[TRIAL_KEY_TAG]]
-    # and the trials cut short by the kills were relaunched from their checkpoints, not from scratch
+    # and the trials cut short by the kill were relaunched from their checkpoints, not from scratch
     relaunched = [  # later attempts of trials whose earlier attempts left a verified checkpoint
         later
         for folders in attempts(root / "tune", "trial").values()

@@ -163,11 +163,12 @@ def test_batches_are_even_and_fill_whole_rounds_of_concurrent_trials():
 
 def test_pairs_run_in_batches_and_a_resume_keeps_each_pair_whatever_batch_it_ran_in(trained_matrix):
     """Batching changes how many Tune trials start, never a pair's figures; a resumed matrix
-    evaluates only the pairs that have no result row."""
+    evaluates only the pairs that have no result row, whether their batch was cut by a kill after
+    its first pair or never started."""
     import shutil
 
     from ps_ray.pipeline.zero_shot import PAIR_KEY
-    from ps_ray.store.attempts import attempts, read_rows
+    from ps_ray.store.attempts import RESULT_FILE, attempts, read_rows
 
     spec, root = trained_matrix, sweep_layout(trained_matrix).root
     folder = root / "tune_zero_shot"
@@ -179,13 +180,19 @@ def test_pairs_run_in_batches_and_a_resume_keeps_each_pair_whatever_batch_it_ran
     found = attempts(folder, "batch")
     assert sorted(len(json.loads(k)) for k in found) == [2, 2]
 
-    lost_batch = next(iter(found.values()))[0]  # one batch never ran: a resume runs its two pairs
+    # one batch as a kill leaves it: its first pair reported, its second not: a resume runs the
+    # second alone, and one batch never started (its folder gone) runs its two pairs again
+    cut, lost_batch = (tries[0] for tries in found.values())
+    result = cut / RESULT_FILE
+    first, second = (row[PAIR_KEY] for row in read_rows(cut))
+    result.write_text(result.read_text().splitlines(keepends=True)[0] + '{"pair_key": "half a li')
     lost = [row[PAIR_KEY] for row in read_rows(lost_batch)]
     shutil.rmtree(lost_batch)
     run_zero_shot(spec, episodes=4, repeats=2, resume=True, progress=False)
-    rerun = [json.loads(k) for k in attempts(folder, "batch")]
-    assert sorted(len(b) for b in rerun) == [1, 1, 2]  # the kept batch, and the lost pairs as two
-    assert sorted(p["key"] for b in rerun if len(b) == 1 for p in b) == sorted(lost)
+    new = [json.loads(k) for k in attempts(folder, "batch") if k not in found]
+    # the three pairs without a row, in new batches; the cut one's first pair not run again
+    assert sorted(p["key"] for b in new for p in b) == sorted([*lost, second])
+    assert [row[PAIR_KEY] for row in read_rows(cut)] == [first]
     pd.testing.assert_frame_equal(figures(), batched)  # batching never changes a pair's figures
     client = mlflow.MlflowClient(f"sqlite:///{root / 'mlflow.db'}")
     experiment = client.get_experiment_by_name("matrix")

@@ -3,9 +3,11 @@ stderr naming the bad value, and writes nothing (no run or sweep folder, no outp
 
 from __future__ import annotations
 
+import json
 import pickle
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
@@ -150,22 +152,43 @@ CASES = [  # (arguments, with {f} the input folder and {out} a path that must no
 ]
 
 
+@pytest.fixture(scope="module")
+def outcomes(files, tmp_path_factory):
+    """Every case of CASES run in one process (tests/cli_cases.py), each in a folder of its own:
+    (that folder, its exit code, its stderr, which paths it must not write exist)."""
+    root = tmp_path_factory.mktemp("cases")
+    cases = []
+    for i, (args, _) in enumerate(CASES):
+        (folder := root / str(i)).mkdir()
+        out = folder / "out"
+        absent = [str(out), str(files / "sweeps"), str(folder / "PICKLE_RAN")]
+        cases.append({"argv": args.format(f=files, out=out).split(), "cwd": str(folder), "absent": absent})
+    (root / "cases.json").write_text(json.dumps(cases))
+    proc = subprocess.run(
+        [sys.executable, "-m", "tests.cli_cases", root / "cases.json", root / "results.json"],
+        capture_output=True,
+        text=True,
+        timeout=600,
+        cwd=Path(__file__).resolve().parents[1],
+    )
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    return json.loads((root / "results.json").read_text())
+
+
 @pytest.mark.e2e
 @pytest.mark.parametrize(
-    "args, message", CASES, ids=[c[0].split(" --")[0] + f"-{i}" for i, c in enumerate(CASES)]
+    "case, message",
+    enumerate(c[1] for c in CASES),
+    ids=[c[0].split(" --")[0] + f"-{i}" for i, c in enumerate(CASES)],
 )
-def test_bad_input_is_one_line_exit_2_and_writes_nothing(files, tmp_path, args, message):
-    out = tmp_path / "out"
-    argv = args.format(f=files, out=out).split()
-    proc = subprocess.run(
-        [sys.executable, "-m", "ps_ray.cli", *argv], capture_output=True, text=True, timeout=120, cwd=tmp_path
-    )
-    assert proc.returncode == 2, proc.stderr[-3000:]
-    (line,) = proc.stderr.strip().splitlines()  # one line, nothing else on stderr
-    assert "error" in line and message in line, proc.stderr[-3000:]
-    assert "Traceback" not in proc.stderr and "usage:" not in proc.stderr
-    assert not out.exists() and not (files / "sweeps").exists()
-    assert not (tmp_path / "PICKLE_RAN").exists()
+def test_bad_input_is_one_line_exit_2_and_writes_nothing(outcomes, case, message):
+    found = outcomes[case]
+    stderr = found["stderr"]
+    assert found["code"] == 2, stderr[-3000:]
+    (line,) = stderr.strip().splitlines()  # one line, nothing else on stderr
+    assert "error" in line and message in line, stderr[-3000:]
+    assert "Traceback" not in stderr and "usage:" not in stderr
+    assert not found["present"], f"written: {found['present']}"  # no output, no sweep, no pickle ran
 
 
 @pytest.mark.e2e

@@ -8,7 +8,7 @@ from ps_ray.cli.commands import main
 from ps_ray.envs.robots import ROBOTS
 from ps_ray.envs.tasks import TASKS
 from ps_ray.specs.methods import PRESETS
-from ps_ray.specs.names import TRANSLATION_CHOICES, split_translation
+from ps_ray.specs.names import TRANSLATION_CHOICES, Translation
 
 SWEEPS = sorted((Path(__file__).parents[1] / "sweeps").glob("*.yaml"))
 
@@ -21,7 +21,7 @@ def test_list_names_every_robot_task_method_translation_and_shipped_sweep_once(c
         assert firsts.count(name) == 1, name
     (listed,) = [line for line in lines if line.startswith("  orthogonal")]
     assert listed.strip().split(", ") == list(TRANSLATION_CHOICES)
-    assert all(split_translation(kind) for kind in TRANSLATION_CHOICES)  # each one a command accepts
+    assert all(Translation(kind) == kind for kind in TRANSLATION_CHOICES)  # each one a command accepts
     described = [line for line in lines if line.startswith("  ") and line.split()[0] in ROBOTS]
     assert any("joint 3 locked" in line for line in described) and any(
         "180 degrees" in line for line in described

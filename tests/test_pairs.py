@@ -55,11 +55,21 @@ def a_pair(translation: str = "") -> StitchedPair:
     )
 
 
-@pytest.mark.parametrize("translation", ["", "orthogonal"])
+@pytest.mark.parametrize("translation", ["", "orthogonal", "affine@outcome"])
 def test_a_pair_survives_the_tune_config_and_the_csv_row(tmp_path, translation):
     pair = a_pair(translation)
-    assert StitchedPair.from_dict(json.loads(json.dumps(pair.to_dict()))) == pair
-    assert StitchedPair.from_row(pair.to_row()) == pair
+    for back in (
+        StitchedPair.from_dict(json.loads(json.dumps(pair.to_dict()))),
+        StitchedPair.from_row(pair.to_row()),
+    ):
+        assert back == pair
+        # its translation read back as the parsed record, written as its name
+        kind, _, fit = translation.partition("@")
+        assert (
+            (back.translation.kind, back.translation.fit) == (kind, fit)
+            if translation
+            else back.translation == ""
+        )
     row = pair.to_row()
     assert row["task"] == '{"goal_region": "q1", "name": "reach"}'  # exact, not the short name
     assert (row["robot_source"], row["robot_source_path"]) == (pair.robot_from, pair.robot_from_path)
@@ -207,3 +217,16 @@ def test_the_clips_run_each_source_in_its_own_env_as_the_table_says(sweep_spec, 
         for clip, key in ((task_source, pair.task_from), (robot_source, pair.robot_from)):
             entry = zoo.get(key)  # the env the source was trained in
             assert clip.env == f"{short_name(entry.robot)}, {short_name(entry.task)}" and clip.path.is_file()
+
+
+def test_a_translation_is_parsed_once_into_its_kind_and_fit():
+    from ps_ray.errors import UserError
+    from ps_ray.specs.names import Translation
+
+    anchored = Translation("anchors@both")
+    assert (anchored.kind, anchored.fit, anchored.scene_fit) == ("anchors", "both", True)
+    assert Translation("affine@swapped").scene_fit and not Translation("affine@outcome").scene_fit
+    assert Translation(anchored) is anchored and json.dumps([anchored]) == '["anchors@both"]'
+    for bad in ("anchors", "affine@nowhere", "rotate"):  # re-anchoring needs a fit; unknown names
+        with pytest.raises(UserError, match=f"unknown translation '{bad}'; valid: orthogonal, affine, "):
+            Translation(bad)

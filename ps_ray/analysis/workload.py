@@ -10,7 +10,7 @@ from dataclasses import dataclass
 
 from ps_ray.envs import EPISODE_STEPS
 from ps_ray.plan.stages import PLANS
-from ps_ray.specs.names import CROSSED_FITS, split_translation
+from ps_ray.specs.names import CROSSED_FITS
 from ps_ray.specs.sweep import SweepSpec
 from ps_ray.specs.train import TrainSpec
 from ps_ray.stitching.chance import CHANCE_POLICIES, candidate_count, scene_oracles, scripted_floor
@@ -102,7 +102,7 @@ def zero_shot_load(spec: SweepSpec, zoo: ModuleZoo, pairs: list[StitchedPair]) -
     # most `outcome_scenes` candidates); the swapped scenes need no rollout
     rollouts: dict[tuple[str, str], int] = {}
     for p in pairs:
-        kind, fit = split_translation(p.translation) if p.translation else ("", "")
+        kind, fit = (p.translation.kind, p.translation.fit) if p.translation else ("", "")
         if not fit or fit == "swapped":
             continue
         t, r = p.task_from, p.robot_from

@@ -39,7 +39,6 @@ def run(
     from ps_ray.analysis.stats import estimate
     from ps_ray.nets.policy_file import load_policy
     from ps_ray.plan.zero_shot import pair_episodes, stream_of
-    from ps_ray.specs.names import split_translation
     from ps_ray.specs.sweep import SweepSpec
     from ps_ray.stitching.evaluate import evaluate
     from ps_ray.stitching.outcomes import fit_env_steps, fit_pairs
@@ -53,7 +52,7 @@ def run(
     spec = SweepSpec.from_mapping(yaml.safe_load((sweep / "sweep.yaml").read_text()), where=str(sweep))
     chosen, taken = [], {}
     for pair in found:
-        if pair.translation and split_translation(pair.translation) == ("affine", fit):
+        if pair.translation and (pair.translation.kind, pair.translation.fit) == ("affine", fit):
             wanted = seeds is None or pair.seed in seeds
             if wanted and taken.get(pair.seed, 0) < pairs_per_seed and pair.pairing == Pairing.SAME_SEED:
                 taken[pair.seed] = taken.get(pair.seed, 0) + 1

@@ -43,7 +43,6 @@ from ps_ray.plan.zero_shot import (
     check_kept,
     stream_of,
 )
-from ps_ray.specs.names import split_translation
 from ps_ray.specs.stage_settings import ZeroShotSpec
 from ps_ray.specs.sweep import SweepSpec
 from ps_ray.stitching.pairs import StitchedPair
@@ -135,7 +134,7 @@ def _fit_states(pair: StitchedPair, fit: FitSettings, sources: Sources) -> np.nd
 
     if not pair.translation:
         return None
-    kind, where = split_translation(pair.translation)
+    kind, where = pair.translation.kind, pair.translation.fit
     if kind == "anchors":  # the robot module's anchors, matched in the task module's task
         anchors = sources(pair.robot_from_path)[0].actor.anchors
         if anchors is None:
@@ -165,11 +164,10 @@ def evaluate_pair(
     from ps_ray.stitching.stitch import stitch_policies, translation_ridge
 
     sources = sources or Sources()
-    kind, where = split_translation(pair.translation) if pair.translation else (None, "")
     stitched = stitch_policies(
         sources(pair.task_from_path),
         sources(pair.robot_from_path),
-        translation=kind,
+        translation=pair.translation.kind if pair.translation else None,
         fit_states=_fit_states(pair, fit, sources),
     )
     result = evaluate(stitched, pair.robot, pair.task, **episodes.kwargs())
@@ -177,7 +175,8 @@ def evaluate_pair(
     ridge = translation_ridge(stitched[0])
     metrics["translation_ridge"] = np.nan if ridge is None else ridge
     metrics["fit_env_steps"] = 0
-    if where:  # what the fit rolled out, cached or not
+    if pair.translation and pair.translation.fit:  # what the fit rolled out, cached or not
+        kind, where = pair.translation.kind, pair.translation.fit
         n_anchors = len(sources(pair.robot_from_path)[0].actor.anchors) if kind == "anchors" else 0
         metrics["fit_env_steps"] = fit_cost(kind, where, pair.sources[0], fit.scenes, n_anchors, fit.cache)
     controls = {}

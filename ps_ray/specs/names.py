@@ -46,19 +46,30 @@ TRANSLATION_CHOICES = (
 )
 
 
-def split_translation(name: str) -> tuple[str, str]:
-    """``"affine@outcome"`` -> ``("affine", "outcome")``; ``"affine"`` -> ``("affine", "")``;
-    UserError naming the valid choices for anything else."""
-    kind, _, fit = name.partition("@")
-    if (fit and name not in TRANSLATION_CHOICES) or (not fit and kind not in LATENT_TRANSLATIONS):
-        raise UserError(f"unknown translation {name!r}; valid: {', '.join(TRANSLATION_CHOICES)}")
-    return kind, fit
+class Translation(str):
+    """A translation as a sweep names it, parsed once: ``kind`` (one of TRANSLATIONS) and ``fit``,
+    where its fit states come from ("" the same task states through both task modules, or one of
+    ANCHOR_FITS). A str, so that configs, tables and MLflow hold its name; an unknown name is a
+    UserError naming the valid choices."""
 
+    kind: str
+    fit: str
 
-def scene_fit(translation: str) -> bool:
-    """Whether a translation's fit sets scenes from task inputs or swaps their markers (the
-    marker family only): any ``anchors@`` re-anchoring, and ``@swapped``."""
-    return translation.startswith("anchors@") or translation.endswith("@swapped")
+    def __new__(cls, name: str) -> Translation:
+        if isinstance(name, Translation):
+            return name
+        kind, _, fit = str(name).partition("@")
+        if (fit and name not in TRANSLATION_CHOICES) or (not fit and kind not in LATENT_TRANSLATIONS):
+            raise UserError(f"unknown translation {name!r}; valid: {', '.join(TRANSLATION_CHOICES)}")
+        self = super().__new__(cls, name)
+        self.kind, self.fit = kind, fit
+        return self
+
+    @property
+    def scene_fit(self) -> bool:
+        """Whether its fit sets scenes from task inputs or swaps their markers (the marker family
+        only): any ``anchors@`` re-anchoring, and ``@swapped``."""
+        return self.kind == "anchors" or self.fit == "swapped"
 
 
 def translations_problem(kinds: Any) -> str | None:
@@ -67,7 +78,7 @@ def translations_problem(kinds: Any) -> str | None:
         return f"expected a list of translations, got {kinds!r}; valid: {', '.join(TRANSLATION_CHOICES)}"
     for kind in kinds:
         try:
-            split_translation(kind if isinstance(kind, str) else repr(kind))
+            Translation(kind if isinstance(kind, str) else repr(kind))
         except UserError as e:
             return str(e)
     return f"duplicate translation in {list(kinds)}" if len(set(kinds)) != len(kinds) else None

@@ -16,7 +16,7 @@ from ps_ray.errors import UserError, Words
 from ps_ray.specs.engine import NonNegative, Number, OneOf, Positive, Seq, SpecError, between, spec
 from ps_ray.specs.methods import method_key, reanchoring_problem
 from ps_ray.specs.modes import AnchorGoals, AnchorPolicy, Pairing
-from ps_ray.specs.names import EnvPart, Part, translations_problem
+from ps_ray.specs.names import EnvPart, Part, Translation, translations_problem
 from ps_ray.specs.reset_seeds import MAX_STAGE_SEED
 
 ANCHOR_POLICIES = tuple(AnchorPolicy)
@@ -116,9 +116,10 @@ class ZeroShotSpec:
             count = min(pairs, -(-count // slots) * slots)
         return [pairs // count + (i < pairs % count) for i in range(count)] if pairs else []
 
-    def translations(self, method: str) -> tuple[str, ...]:
+    def translations(self, method: str) -> tuple[Translation, ...]:
+        """The translations ``translate`` names for ``method`` (checked when the spec loaded)."""
         kinds = self.translate.get(method, ())
-        return (kinds,) if isinstance(kinds, str) else tuple(kinds)
+        return tuple(map(Translation, (kinds,) if isinstance(kinds, str) else kinds))
 
 
 @spec("few_shot")

@@ -19,7 +19,7 @@ from ps_ray.specs.defaults import INTERFACE_DIM
 from ps_ray.specs.engine import NonNegative, Positive, SpecError, parse, spec, sub_spec
 from ps_ray.specs.grid import GridSettings
 from ps_ray.specs.modes import Pairing
-from ps_ray.specs.names import EnvPart, plain_json, scene_fit
+from ps_ray.specs.names import EnvPart, plain_json
 from ps_ray.specs.resources import ResourcesSpec
 from ps_ray.specs.search import SearchSpec
 from ps_ray.specs.search import name as search_name
@@ -144,7 +144,7 @@ class SweepSpec:
         """A stitch that sets a scene from a task input (``anchors@``) or swaps its markers
         (``@swapped``) needs tasks of the marker family: refused here, not after training."""
         zero_shot = self.zero_shot
-        needing = [t for m in zero_shot.translate for t in zero_shot.translations(m) if scene_fit(t)]
+        needing = [t for m in zero_shot.translate for t in zero_shot.translations(m) if t.scene_fit]
         other = [t.short for t in self.tasks if not issubclass(resolve_task(t).family, Markers)]
         if needing and other:
             raise SpecError(

@@ -14,11 +14,11 @@ import json
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 from ps_ray.errors import UserError
 from ps_ray.specs.modes import Pairing
-from ps_ray.specs.names import CONTROL_ROLES, EnvPart, parse_spec_text, plain_json
+from ps_ray.specs.names import CONTROL_ROLES, EnvPart, Translation, parse_spec_text, plain_json
 from ps_ray.specs.titles import env_title, title
 
 # fields that are a robot or task (an EnvPart; its text in a row)
@@ -47,7 +47,7 @@ class StitchedPair:
 
     key: str  # zero_shot/<method>/<label>/<seed or seed x robot_seed>
     method: str  # <method>+<translation> for a translated stitch
-    translation: str  # "" for none
+    translation: Translation | Literal[""]  # "" for none
     pairing: str  # same_seed or cross_seed
     seed: int  # the task module's
     robot_seed: int  # the robot module's
@@ -66,6 +66,8 @@ class StitchedPair:
     def __post_init__(self) -> None:
         for name in ENV_FIELDS:
             object.__setattr__(self, name, EnvPart(getattr(self, name)))
+        if self.translation:
+            object.__setattr__(self, "translation", Translation(self.translation))
 
     @property
     def sources(self) -> tuple[tuple[str, EnvPart, EnvPart], tuple[str, EnvPart, EnvPart]]:

@@ -55,20 +55,16 @@ class GridRun(TrainingRun):
 
     def __init__(self, grid: GridSpec, anchor_sets: list, *, threads: int = 1) -> None:
         """``anchor_sets``: each task's (PS) or None; ``threads``: torch's CPU threads."""
-        import time
-
         import torch
 
         from ps_ray.rllib.algo import grid_algo_config
 
         torch.set_num_threads(threads)
-        self.grid, self.spec = grid, grid.base
+        self.grid = grid
         self.keys = [cell_key(i) for i in range(len(grid.cells))]
         self.metric_fields = METRIC_FIELDS + tuple(f"eval_{k}_success" for k in self.keys)
-        self.algo = grid_algo_config(
-            grid, [None if a is None else a.anchors for a in anchor_sets]
-        ).build_algo()
-        self.replay_store = None
+        anchors = [None if a is None else a.anchors for a in anchor_sets]
+        self.begin(grid.base, grid_algo_config(grid, anchors).build_algo())
         replay = self.algo.replays[self.keys[0]]  # every cell has the same widths (GridSpec)
         self.signatures = [
             Signature(
@@ -85,10 +81,6 @@ class GridRun(TrainingRun):
             )
             for _, t in grid.cells
         ]
-        self.start, self.start_steps = time.time(), 0
-        self.streak, self.best = 0, None
-        self.consolidation = grid.base.resolved.consolidate  # all cells together, once trained
-        self.consolidated: dict[str, float] = {}
 
     def save(self, directory: Path) -> None:
         directory = Path(directory)

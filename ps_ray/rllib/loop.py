@@ -120,10 +120,8 @@ class TrainingRun:
         from ps_ray.store.signature import Signature
 
         torch.set_num_threads(threads)
-        self.spec = spec
         anchors = None if anchor_set is None else anchor_set.anchors
-        self.algo = algo_config(spec, anchors, gpu=gpu, compile=compile).build_algo()
-        self.algo.replay_store = self.replay_store = replay_store
+        self.begin(spec, algo_config(spec, anchors, gpu=gpu, compile=compile).build_algo(), replay_store)
         self.signature = Signature(
             method=spec.method,
             settings=spec_json(spec.resolved),
@@ -132,13 +130,19 @@ class TrainingRun:
             anchor_hash="" if anchor_set is None else anchor_set.hash,
             **self.algo.replay_dims,
         )
+        if spec.init_policy is not None:
+            self.algo.load_policy_weights(spec.init_policy)
+
+    def begin(self, spec: TrainSpec, algo, replay_store: Path | None = None) -> None:
+        """The loop's state at its start, for a source and a grid alike: ``spec`` sets its budget,
+        stopping rule and consolidation, ``algo`` is what it trains."""
+        self.spec, self.algo = spec, algo
+        self.algo.replay_store = self.replay_store = replay_store
         self.start, self.start_steps = time.time(), 0
         self.streak = 0  # evaluations in a row at or above spec.target_success
         self.best: float | None = None  # the best greedy success so far (kept across resumes)
         self.consolidation = spec.resolved.consolidate
         self.consolidated: dict[str, float] = {}  # figures of the consolidation after the last step
-        if spec.init_policy is not None:
-            self.algo.load_policy_weights(spec.init_policy)
 
     @property
     def env_steps(self) -> int:

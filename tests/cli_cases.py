@@ -4,8 +4,10 @@ once for all of them rather than once a case (about 2.5 s each here).
 
 CASES.json holds a list of ``{"argv": [...], "cwd": DIR, "absent": [PATH, ...]}``. RESULTS.json
 gets, per case, its exit code, everything written to the stderr file descriptor while it ran
-(Python's and C libraries' alike, as a subprocess of its own would show it) and which of its
-``absent`` paths exist after it."""
+(Python's and C libraries' alike) and which of its ``absent`` paths exist after it; one JSON line
+per case, written as it ends. What a process prints once (at import, a warning's first time, at
+exit) shows here in one case at most, so tests/test_bad_input.py also runs one case of each
+command in a process of its own and compares."""
 
 from __future__ import annotations
 
@@ -14,6 +16,7 @@ import os
 import sys
 import tempfile
 import traceback
+import warnings
 from pathlib import Path
 
 from ps_ray.cli.commands import main
@@ -22,14 +25,19 @@ from ps_ray.cli.commands import main
 def run_case(argv: list[str], cwd: str) -> tuple[int, str]:
     """``ps-ray *argv`` in ``cwd``: its exit code and its stderr."""
     os.chdir(cwd)
+    warnings.simplefilter(
+        "default"
+    )  # a changed filter forgets which warnings were shown: each case sees its own
     with tempfile.TemporaryFile(mode="w+") as err:
         sys.stderr.flush()
         saved = os.dup(2)
         os.dup2(err.fileno(), 2)
         try:
             code = main(argv)
-        except SystemExit as e:  # argparse and explicit exits
-            code = e.code if isinstance(e.code, int) else 1
+        except SystemExit as e:  # argparse and explicit exits, as the interpreter ends on them
+            code = 0 if e.code is None else e.code if isinstance(e.code, int) else 1
+            if not isinstance(e.code, int | None):
+                print(e.code, file=sys.stderr)
         except BaseException:  # a bug: its traceback, as the interpreter would print it
             traceback.print_exc()
             code = 1
@@ -42,12 +50,12 @@ def run_case(argv: list[str], cwd: str) -> tuple[int, str]:
 
 
 def run_cases(cases_file: str, results_file: str) -> None:
-    results = []
-    for case in json.loads(Path(cases_file).read_text()):
-        code, stderr = run_case(case["argv"], case["cwd"])
-        present = [p for p in case["absent"] if os.path.exists(p)]
-        results.append({"code": code, "stderr": stderr, "present": present})
-    Path(results_file).write_text(json.dumps(results))
+    with open(results_file, "w") as out:
+        for case in json.loads(Path(cases_file).read_text()):
+            code, stderr = run_case(case["argv"], case["cwd"])
+            present = [p for p in case["absent"] if os.path.exists(p)]
+            out.write(json.dumps({"code": code, "stderr": stderr, "present": present}) + "\n")
+            out.flush()  # a case that hangs or crashes the process leaves the others' results
 
 
 if __name__ == "__main__":

@@ -152,17 +152,20 @@ CASES = [  # (arguments, with {f} the input folder and {out} a path that must no
 ]
 
 
+def _case_args(files: Path, folder: Path, args: str) -> list[str]:
+    return args.format(f=files, out=folder / "out").split()
+
+
 @pytest.fixture(scope="module")
 def outcomes(files, tmp_path_factory):
     """Every case of CASES run in one process (tests/cli_cases.py), each in a folder of its own:
-    (that folder, its exit code, its stderr, which paths it must not write exist)."""
+    per case its exit code, its stderr and which of the paths it must not write exist."""
     root = tmp_path_factory.mktemp("cases")
     cases = []
     for i, (args, _) in enumerate(CASES):
         (folder := root / str(i)).mkdir()
-        out = folder / "out"
-        absent = [str(out), str(files / "sweeps"), str(folder / "PICKLE_RAN")]
-        cases.append({"argv": args.format(f=files, out=out).split(), "cwd": str(folder), "absent": absent})
+        absent = [str(folder / "out"), str(files / "sweeps"), str(folder / "PICKLE_RAN")]
+        cases.append({"argv": _case_args(files, folder, args), "cwd": str(folder), "absent": absent})
     (root / "cases.json").write_text(json.dumps(cases))
     proc = subprocess.run(
         [sys.executable, "-m", "tests.cli_cases", root / "cases.json", root / "results.json"],
@@ -171,8 +174,9 @@ def outcomes(files, tmp_path_factory):
         timeout=600,
         cwd=Path(__file__).resolve().parents[1],
     )
-    assert proc.returncode == 0, proc.stderr[-3000:]
-    return json.loads((root / "results.json").read_text())
+    results = [json.loads(line) for line in (root / "results.json").read_text().splitlines()]
+    assert proc.returncode == 0, f"case {len(results)} ended the process: {proc.stderr[-3000:]}"
+    return [{**case, **result} for case, result in zip(cases, results, strict=True)]
 
 
 @pytest.mark.e2e
@@ -189,6 +193,27 @@ def test_bad_input_is_one_line_exit_2_and_writes_nothing(outcomes, case, message
     assert "error" in line and message in line, stderr[-3000:]
     assert "Traceback" not in stderr and "usage:" not in stderr
     assert not found["present"], f"written: {found['present']}"  # no output, no sweep, no pickle ran
+
+
+@pytest.mark.e2e
+def test_a_case_of_each_command_shows_alone_what_it_showed_beside_the_others(outcomes):
+    """What a process prints once (at import, a warning's first time, at exit) would show in one
+    shared case at most: the first case of each command, run again in a process of its own in the
+    same folder, exits the same and prints the same stderr."""
+    firsts = {}
+    for i, (args, _) in enumerate(CASES):
+        firsts.setdefault(" ".join(args.split()[: 2 if args.startswith("bench") else 1]), i)
+    assert len(firsts) >= 10  # train, render, stitch, report, run, sweep, zero-shot, few-shot, benches
+    for command, i in firsts.items():
+        case = outcomes[i]
+        proc = subprocess.run(
+            [sys.executable, "-m", "ps_ray.cli", *case["argv"]],
+            capture_output=True,
+            text=True,
+            timeout=120,
+            cwd=case["cwd"],
+        )
+        assert (proc.returncode, proc.stderr) == (case["code"], case["stderr"]), command
 
 
 @pytest.mark.e2e

@@ -21,7 +21,8 @@ def test_list_names_every_robot_task_method_translation_and_shipped_sweep_once(c
         assert firsts.count(name) == 1, name
     (listed,) = [line for line in lines if line.startswith("  orthogonal")]
     assert listed.strip().split(", ") == list(TRANSLATION_CHOICES)
-    assert all(Translation(kind) == kind for kind in TRANSLATION_CHOICES)  # each one a command accepts
+    parsed = [Translation(kind) for kind in TRANSLATION_CHOICES]  # each one a command accepts
+    assert all(t == (f"{t.kind}@{t.fit}" if t.fit else t.kind) for t in parsed)  # parsed into its parts
     described = [line for line in lines if line.startswith("  ") and line.split()[0] in ROBOTS]
     assert any("joint 3 locked" in line for line in described) and any(
         "180 degrees" in line for line in described

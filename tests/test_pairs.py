@@ -63,13 +63,10 @@ def test_a_pair_survives_the_tune_config_and_the_csv_row(tmp_path, translation):
         StitchedPair.from_row(pair.to_row()),
     ):
         assert back == pair
-        # its translation read back as the parsed record, written as its name
-        kind, _, fit = translation.partition("@")
-        assert (
-            (back.translation.kind, back.translation.fit) == (kind, fit)
-            if translation
-            else back.translation == ""
-        )
+        if translation:  # read back as the parsed record, written as its name
+            assert (back.translation.kind, back.translation.fit) == tuple(translation.partition("@")[::2])
+        else:
+            assert back.translation == ""
     row = pair.to_row()
     assert row["task"] == '{"goal_region": "q1", "name": "reach"}'  # exact, not the short name
     assert (row["robot_source"], row["robot_source_path"]) == (pair.robot_from, pair.robot_from_path)

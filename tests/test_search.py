@@ -182,12 +182,11 @@ def test_asha_stops_the_settings_that_do_not_learn_and_a_killed_search_resumes_w
     # every row after the first update carries the entropy temperature and the policy's entropy
     learning = [r for r in read_rows(after["search00"][0]) if r["env_steps"] > 400 and not r.get(FINISHED)]
     assert learning and all(0 < r["alpha"] < 1 and isinstance(r["entropy"], float) for r in learning)
-    for name in ("search01",):
-        marked = [f for f in after[name] if (f / STOPPED_FILE).is_file()]
-        assert len(marked) == 1, name
-        mark = json.loads((marked[0] / STOPPED_FILE).read_text())
-        assert 2000 <= mark["env_steps"] < CAP  # stopped at the rung, before the budget
-        assert mark["best_eval_success"] < read_rows(after["search00"][0])[-1]["best_eval_success"]
+    marked = [f for f in after["search01"] if (f / STOPPED_FILE).is_file()]  # the setting that cannot learn
+    assert len(marked) == 1
+    mark = json.loads((marked[0] / STOPPED_FILE).read_text())
+    assert 2000 <= mark["env_steps"] < CAP  # stopped at the rung, before the budget
+    assert mark["best_eval_success"] < read_rows(after["search00"][0])[-1]["best_eval_success"]
     # a second resume has nothing left to run: stopped trials count as done
     again = cli("sweep", str(path), "--resume")
     out, _ = again.communicate(timeout=300)

@@ -93,9 +93,9 @@ def test_a_killed_run_refuses_a_second_writer_while_alive_and_resumes_from_its_c
     ended = json.loads((run_dir / "result.json").read_text())["env_steps"]
     best_before = float(read_signature(run_dir / "best_policy.safetensors")[1]["eval_success"])
     os.replace(run_dir / "checkpoint", run_dir / "checkpoint.old")  # the moment of the kill
-    with open(run_dir / "metrics.csv", "a") as f:
-        f.write(f"999,{ended + 100},1,0.0,,,,,1.0\n")
-    again = subprocess.run(train_cmd(run_dir, ended + 100), capture_output=True, text=True, timeout=300)
+    with open(run_dir / "metrics.csv", "a") as f:  # a row after that checkpoint, claiming best 1.0
+        f.write(f"999,{ended + 100},1,0.0,,,,1.0,1.0\n")
+    again = subprocess.run(train_cmd(run_dir, ended + 400), capture_output=True, text=True, timeout=300)
     assert again.returncode == 0, again.stderr[-2000:]
     assert f"resumed at {ended} env steps" in again.stdout and not planted.marker.exists()
     assert (run_dir / "checkpoint").is_dir() and not (run_dir / "checkpoint.old").exists()
@@ -108,7 +108,7 @@ def test_a_killed_run_refuses_a_second_writer_while_alive_and_resumes_from_its_c
     assert not (run_dir / "checkpoint" / "replay.npz").exists()  # the buffer lives in segment files
     (segment,) = sorted((run_dir / "replay").glob("*.npz"))[-1:]
     segment.write_bytes(b"PK\x03\x04 planted".ljust(segment.stat().st_size, b"\0"))
-    refused = subprocess.run(train_cmd(run_dir, ended + 200), capture_output=True, text=True, timeout=300)
+    refused = subprocess.run(train_cmd(run_dir, ended + 800), capture_output=True, text=True, timeout=300)
     assert refused.returncode == 2
     last = refused.stderr.strip().splitlines()[-1]
     assert last.startswith("ps-ray train: error:") and "not a usable ps_ray checkpoint" in last

@@ -175,10 +175,9 @@ def evaluate_pair(
     ridge = translation_ridge(stitched[0])
     metrics["translation_ridge"] = np.nan if ridge is None else ridge
     metrics["fit_env_steps"] = 0
-    if pair.translation and pair.translation.fit:  # what the fit rolled out, cached or not
-        kind, where = pair.translation.kind, pair.translation.fit
-        n_anchors = len(sources(pair.robot_from_path)[0].actor.anchors) if kind == "anchors" else 0
-        metrics["fit_env_steps"] = fit_cost(kind, where, pair.sources[0], fit.scenes, n_anchors, fit.cache)
+    if (t := pair.translation) and t.fit:  # what the fit rolled out, cached or not
+        n_anchors = len(sources(pair.robot_from_path)[0].actor.anchors) if t.kind == "anchors" else 0
+        metrics["fit_env_steps"] = fit_cost(t.kind, t.fit, pair.sources[0], fit.scenes, n_anchors, fit.cache)
     controls = {}
     for role, control in pair.controls.items():
         controls[role] = unstitched = sources.evaluated(control.path, pair, episodes)

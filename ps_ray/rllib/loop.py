@@ -135,7 +135,8 @@ class TrainingRun:
 
     def begin(self, spec: TrainSpec, algo, replay_store: Path | None = None) -> None:
         """The loop's state at its start, for a source and a grid alike: ``spec`` sets its budget,
-        stopping rule and consolidation, ``algo`` is what it trains."""
+        stopping rule and consolidation (a grid's: every cell at once), ``algo`` is what it trains,
+        ``replay_store`` where its replay segments are kept (None: whole in each checkpoint)."""
         self.spec, self.algo = spec, algo
         self.algo.replay_store = self.replay_store = replay_store
         self.start, self.start_steps = time.time(), 0

@@ -169,5 +169,5 @@ def pairs_from_table(path: Path) -> list[StitchedPair] | None:
         return None
     try:
         return [StitchedPair.from_row(row, path.parent) for row in rows]
-    except (KeyError, ValueError) as e:  # a damaged table: one line naming it
+    except (KeyError, ValueError, UserError) as e:  # a damaged table: one line naming it
         raise UserError(f"{path}: unreadable pair row ({e})") from None

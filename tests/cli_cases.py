@@ -25,9 +25,8 @@ from ps_ray.cli.commands import main
 def run_case(argv: list[str], cwd: str) -> tuple[int, str]:
     """``ps-ray *argv`` in ``cwd``: its exit code and its stderr."""
     os.chdir(cwd)
-    warnings.simplefilter(
-        "default"
-    )  # a changed filter forgets which warnings were shown: each case sees its own
+    # a changed filter forgets which warnings were shown: each case sees its own first time
+    warnings.simplefilter("default")
     with tempfile.TemporaryFile(mode="w+") as err:
         sys.stderr.flush()
         saved = os.dup(2)

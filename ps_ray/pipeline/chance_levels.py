@@ -63,11 +63,15 @@ def chance_levels(
 
 
 def _kept_level(file: Path | None) -> dict | None:
-    """A chance level kept by an earlier run of the stage (None: none, or of another format)."""
+    """A chance level kept by an earlier run of the stage (None: none, unreadable, or of another
+    format: it is measured again)."""
     if file is None or not file.exists():
         return None
-    kept = json.loads(file.read_text())
-    return kept["levels"] if kept.get("format") == CHANCE_FORMAT else None
+    try:
+        kept = json.loads(file.read_text())
+    except (OSError, ValueError):  # damaged by hand or by the disk: measuring again costs minutes
+        return None
+    return kept.get("levels") if isinstance(kept, dict) and kept.get("format") == CHANCE_FORMAT else None
 
 
 def _chance_name(pair: StitchedPair, episodes: Episodes) -> str:

@@ -6,6 +6,11 @@ the observation is a Dict of the cells' own Dict observations (keys :func:`cell_
 the cells' actions side by side. Each cell keeps its own physics, seed, reward and info; the
 grid's reward is their sum (the learner never reads it: hindsight replay recomputes each cell's).
 All cells truncate after the same ``max_episode_steps``.
+
+A population of sources (:mod:`ps_ray.rllib.population_sac`) steps its members the same way, but
+each member resets as its own source would: ``seed_offsets`` gives each cell's offset from the
+env's reset seed (``seed + offset``: the member's own reset-seed block), instead of the grid's
+``seed * n + i``.
 """
 
 from __future__ import annotations
@@ -17,7 +22,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from .core import RobotTaskEnv, make
+from .core import make
 
 
 def cell_key(index: int) -> str:
@@ -25,18 +30,30 @@ def cell_key(index: int) -> str:
     return f"c{index:02d}"
 
 
-class GridEnv(gym.Env):
-    """``cells``: the env configs (``{"robot": ..., "task": ..., **options}``) of the trained cells."""
+def make_cell(config: Mapping[str, Any]) -> gym.Env:
+    """A cell's env: ``{"robot": ..., "task": ..., **options}``, or a gymnasium env ``{"id": ...}``
+    (a population of sources of one registered env, as ``ps-ray train --env`` trains one)."""
+    if "id" in config:
+        return gym.make(config["id"])
+    return make(**dict(config))
 
-    def __init__(self, cells: Sequence[Mapping[str, Any]]) -> None:
+
+class GridEnv(gym.Env):
+    """``cells``: the env configs of the trained cells (:func:`make_cell`);
+    ``seed_offsets``: each cell's reset seed is the env's plus its offset (None: a grid's)."""
+
+    def __init__(self, cells: Sequence[Mapping[str, Any]], seed_offsets: Sequence[int] | None = None) -> None:
         if not cells:
             raise ValueError("a grid env needs at least one cell")
-        self.envs: list[RobotTaskEnv] = [make(**dict(cell)) for cell in cells]
+        if seed_offsets is not None and len(seed_offsets) != len(cells):
+            raise ValueError(f"{len(seed_offsets)} seed offsets for {len(cells)} cells")
+        self.seed_offsets = None if seed_offsets is None else [int(o) for o in seed_offsets]
+        self.envs: list[gym.Env] = [make_cell(cell) for cell in cells]
         self.keys = [cell_key(i) for i in range(len(self.envs))]
         self.observation_space = spaces.Dict({k: e.observation_space for k, e in zip(self.keys, self.envs)})
         self.action_dims = [e.action_space.shape[0] for e in self.envs]
         self.action_space = spaces.Box(-1.0, 1.0, shape=(sum(self.action_dims),), dtype=np.float32)
-        self.max_episode_steps = self.envs[0].max_episode_steps
+        self.max_episode_steps = self.envs[0].unwrapped.max_episode_steps
         self._cuts = np.cumsum(self.action_dims)[:-1]
 
     def split_actions(self, actions: np.ndarray) -> list[np.ndarray]:
@@ -46,10 +63,17 @@ class GridEnv(gym.Env):
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         super().reset(seed=seed)
         results = [
-            env.reset(seed=None if seed is None else seed * len(self.envs) + i, options=options)
-            for i, env in enumerate(self.envs)
+            env.reset(seed=self.cell_seed(seed, i), options=options) for i, env in enumerate(self.envs)
         ]
         return {k: r[0] for k, r in zip(self.keys, results)}, {k: r[1] for k, r in zip(self.keys, results)}
+
+    def cell_seed(self, seed: int | None, index: int) -> int | None:
+        """The reset seed of cell ``index`` when the env is reset with ``seed``."""
+        if seed is None:
+            return None
+        if self.seed_offsets is None:
+            return seed * len(self.envs) + index
+        return seed + self.seed_offsets[index]
 
     def step(self, action: np.ndarray):
         results = [env.step(a) for env, a in zip(self.envs, self.split_actions(action))]

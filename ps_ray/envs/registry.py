@@ -47,5 +47,7 @@ def register(rllib: bool = True) -> list[str]:
 
         register_env(RLLIB_ENV, create_env)
         register_env(RLLIB_GYM_ENV, lambda env_config: gymnasium.make(env_config["id"]))
-        register_env(RLLIB_GRID_ENV, lambda env_config: GridEnv(env_config["cells"]))
+        register_env(
+            RLLIB_GRID_ENV, lambda env_config: GridEnv(env_config["cells"], env_config.get("seed_offsets"))
+        )
     return ids

@@ -1,4 +1,4 @@
-"""AlgorithmConfig for one (robot, task, method, seed) TrainSpec, or for a co-trained grid."""
+"""AlgorithmConfig for one (robot, task, method, seed) TrainSpec, a co-trained grid, or a population."""
 
 from __future__ import annotations
 
@@ -7,8 +7,11 @@ from ray.rllib.algorithms.algorithm_config import TorchCompileWhatToCompile
 
 from ps_ray.envs.registry import RLLIB_GRID_ENV, register
 from ps_ray.rllib.grid_sac import GridSACConfig
+from ps_ray.rllib.population_sac import PopulationSACConfig
 from ps_ray.rllib.sac_her import TRAIN_SETTINGS, ModularSACConfig
 from ps_ray.specs.grid import GridSpec
+from ps_ray.specs.population import PopulationSpec
+from ps_ray.specs.reset_seeds import run_block
 from ps_ray.specs.resources import learner_device
 from ps_ray.specs.train import TrainSpec
 
@@ -34,6 +37,29 @@ def grid_algo_config(grid: GridSpec, anchors: list[np.ndarray | None]) -> GridSA
     }
     env_config = {"cells": [grid.cell_spec(c).env_config for c in cells]}
     return configure(GridSACConfig(), grid.base, RLLIB_GRID_ENV, env_config, model_config, 0, False)
+
+
+def population_algo_config(
+    population: PopulationSpec, anchors: list[np.ndarray | None]
+) -> PopulationSACConfig:
+    """The config of a population (:mod:`ps_ray.rllib.population_sac`): a grid of K tasks and K
+    robots whose cells are (i, i); ``anchors`` per member. Its own seed (the first member's)
+    draws only the initial weights and the exploration noise."""
+    members = population.members
+    model_config = {
+        "tasks": len(members),
+        "robots": len(members),
+        "cells": [[i, i] for i in range(len(members))],
+        "anchors": [None if a is None else np.asarray(a, np.float32).tolist() for a in anchors],
+        "member_seeds": [m.seed for m in members],
+    }
+    env_config = {
+        "cells": [m.env_config for m in members],
+        "seed_offsets": [run_block(m.seed).start for m in members],
+    }
+    return configure(
+        PopulationSACConfig(), population.base, RLLIB_GRID_ENV, env_config, model_config, 0, False
+    )
 
 
 def configure(

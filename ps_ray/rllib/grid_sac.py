@@ -78,17 +78,22 @@ class GridSAC(ModularSAC):
             key: HindsightReplay(
                 {k: (s.shape, np.float32) for k, s in env.observation_space.spaces.items()},
                 action_dim=env.action_space.shape[0],
-                horizon=env.max_episode_steps,
+                horizon=env.unwrapped.max_episode_steps,
                 capacity_episodes=cfg.buffer_episodes,
-                reward_fn=lambda a, d, env=env: env.compute_reward(a, d, None),
+                reward_fn=lambda a, d, env=env.unwrapped: env.compute_reward(a, d, None),
                 relabel_prob=cfg.relabel_prob,
-                seed=None if cfg.seed is None else cfg.seed * 1_000 + i,
+                seed=seed,
             )
-            for i, (key, env) in enumerate(zip(self.keys, self._grid_env.envs))
+            for key, env, seed in zip(self.keys, self._grid_env.envs, self.replay_seeds())
         }
         self.method = method_spec(cfg.model_config["method"])
         self.counters = {"env_steps": 0, "episodes": 0, "updates": 0}  # per cell, but updates
         self.replay_store = None  # a grid checkpoint holds its buffers whole
+
+    def replay_seeds(self) -> list[int | None]:
+        """Each cell's replay seed: a grid's from its own seed."""
+        seed = self.config.seed
+        return [None if seed is None else seed * 1_000 + i for i in range(len(self.keys))]
 
     def gather(self) -> int:
         cfg = self.config

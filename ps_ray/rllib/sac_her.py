@@ -216,12 +216,17 @@ class ModularSAC(SAC):
         their own, which the stopping rule (it reads the periodic ones) never saw."""
         return episode_stats(self.collect_episodes(explore=False, random=False, n=episodes, final=final))
 
+    @property
+    def run_seed(self) -> int | None:
+        """The seed whose reset-seed block the run draws its episodes from (ps_ray.specs.reset_seeds)."""
+        return self.config.seed
+
     def collect_episodes(self, *, explore: bool, random: bool, n: int, final: bool = False) -> list:
         """n whole episodes per env runner. Training episodes get fresh reset seeds (derived from
         the run's seed and episode count, so a resumed run does not replay old goals); greedy
         evaluations reuse one fixed seed, so every evaluation sees the same episodes; the final
         evaluation (``final``) another fixed seed, so its episodes are none of those."""
-        seed = run_episode_seed(self.config.seed, self.counters["episodes"], explore=explore, final=final)
+        seed = run_episode_seed(self.run_seed, self.counters["episodes"], explore=explore, final=final)
 
         def sample(runner):
             # RLlib re-seeds the envs with its config seed on every num_episodes call, which

@@ -17,6 +17,10 @@ GRID_FILE = "grid.json"  # the GridSpec; also in every checkpoint
 CELLS_FOLDER = "cells"  # each trained cell as a source: cells/<robot>-<task>/{spec.json, policy.safetensors}
 
 
+# A population's checkpoint (ps_ray.rllib.population_train): its members as a grid's cells, and
+POPULATION_FILE = "population.json"  # the PopulationSpec; in every checkpoint
+
+
 def cell_policy_file(index: int) -> str:
     """The ``index``-th trained cell's policy file in a grid checkpoint."""
     return f"policy_c{index:02d}.safetensors"  # c00, c01, ...: the grid env's cell keys
@@ -25,6 +29,11 @@ def cell_policy_file(index: int) -> str:
 def cell_spec_file(index: int) -> str:
     """Its TrainSpec, beside it."""
     return f"spec_c{index:02d}.json"
+
+
+def cell_result_file(index: int) -> str:
+    """A population member's final figures, once it has stopped."""
+    return f"result_c{index:02d}.json"
 
 
 # The columns of metrics.csv, one row per training step (also the keys of a sweep trial's results)

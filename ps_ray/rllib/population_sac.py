@@ -1,0 +1,35 @@
+"""PopulationSAC: several sources trained in one learner (:class:`ps_ray.specs.population.PopulationSpec`).
+
+A population is a co-trained grid whose cells share nothing: member i is cell (i, i) of a grid
+with one task module and one robot module per member (:mod:`ps_ray.rllib.grid_module`), so its
+loss, gradients, temperature and Adam slots are its own, and one update of the population is one
+update of each member. What makes each member its source rather than a grid's cell: it resets
+from its own source's reset-seed block (:class:`ps_ray.envs.grid.GridEnv` ``seed_offsets``; the
+population's own seed draws nothing) and its replay is seeded with its own seed. Stopping is per
+member (:mod:`ps_ray.rllib.population_train`).
+"""
+
+from __future__ import annotations
+
+from ps_ray.rllib.grid_sac import GridSAC, GridSACConfig
+
+
+class PopulationSACConfig(GridSACConfig):
+    def __init__(self, algo_class=None):
+        super().__init__(algo_class=algo_class or PopulationSAC)
+
+
+class PopulationSAC(GridSAC):
+    @classmethod
+    def get_default_config(cls) -> PopulationSACConfig:
+        return PopulationSACConfig()
+
+    @property
+    def run_seed(self) -> int:
+        """0: each member's env adds its own block's start (``seed_offsets``), so a member draws
+        the reset seeds its source would draw alone."""
+        return 0
+
+    def replay_seeds(self) -> list[int]:
+        """Each member's replay seed is its own seed, as its source's alone."""
+        return list(self.config.model_config["member_seeds"])

@@ -1,0 +1,164 @@
+"""A population of sources trained in one learner (docs/cost.md "Populations"): each member draws
+its own source's scenes, stops on its own and is exported as an ordinary source; its spec's
+refusals; a resumed population keeps what its stopped members were."""
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from ps_ray.envs.grid import GridEnv
+from ps_ray.rllib.population_train import member_streaks
+from ps_ray.specs.population import PopulationSpec
+from ps_ray.specs.reset_seeds import run_block
+from ps_ray.specs.train import SpecError, TrainSpec
+from ps_ray.store.run_layout import cell_policy_file, cell_result_file, cell_spec_file
+from tests.point_env import POINT_ENV
+
+SMALL = dict(
+    method="ablation",
+    hidden=32,
+    interface_dim=8,
+    learning_starts=100,
+    random_episodes=1,
+    episodes_per_step=1,
+    num_envs=1,
+    eval_every=1,
+    eval_episodes=2,
+    checkpoint_every=2,
+    batch_size=32,
+    env_steps=150,
+)
+
+
+def member(robot: str, task: str, seed: int, **changes) -> TrainSpec:
+    return TrainSpec.from_mapping({**SMALL, "robot": robot, "task": task, "seed": seed, **changes})
+
+
+MEMBERS = (member("panda", "reach_red", 5), member("panda_far", "reach_blue", 6))
+
+
+@pytest.mark.parametrize(
+    "members, message",
+    [
+        ((), "a population needs at least one member"),
+        ((MEMBERS[0], MEMBERS[0]), "a population's members repeat one"),
+        (
+            (MEMBERS[0], member("panda", "reach_blue", 5, hidden=64)),
+            "may differ only in robot, task, seed; ablation/panda/reach_blue/5/i8 differs from "
+            "ablation/panda/reach_red/5/i8 in hidden",
+        ),
+        ((MEMBERS[0], member("panda", "push", 5)), "must share their widths"),
+        ((member("panda", "reach_red", 5, method="ps_distilled"),), "consolidates its actor"),
+    ],
+)
+def test_a_population_refuses_members_that_cannot_stack(members, message):
+    with pytest.raises(SpecError, match=message.replace("(", r"\(")):
+        PopulationSpec(members)
+
+
+def test_a_population_spec_round_trips_and_its_key_names_its_members():
+    population = PopulationSpec(MEMBERS)
+    again = PopulationSpec.from_mapping(json.loads(json.dumps(population.to_dict())))
+    assert again == population
+    assert population.run_key.startswith("population/ablation/i8/2x")
+    other = PopulationSpec((MEMBERS[0], member("panda_far", "reach_blue", 7)))
+    assert other.run_key != population.run_key
+    budget = PopulationSpec(tuple(member(m.robot, m.task, m.seed, env_steps=999) for m in MEMBERS))
+    assert budget.identity() == population.identity()  # a budget may change on resume
+
+
+def test_each_member_resets_from_its_own_source_s_block():
+    offsets = [run_block(m.seed).start for m in MEMBERS]
+    env = GridEnv([m.env_config for m in MEMBERS], seed_offsets=offsets)
+    assert [env.cell_seed(40, i) for i in range(2)] == [5 * 1_000_003 + 40, 6 * 1_000_003 + 40]
+    obs, _ = env.reset(seed=40)
+    from ps_ray.envs.core import make
+
+    for key, spec, offset in zip(env.keys, MEMBERS, offsets):
+        alone, _ = make(**spec.env_config).reset(seed=40 + offset)
+        for name, value in alone.items():
+            np.testing.assert_array_equal(obs[key][name], value)
+    assert GridEnv([m.env_config for m in MEMBERS]).cell_seed(40, 1) == 81  # a grid's: seed * n + i
+
+
+def test_each_member_stops_after_its_own_evaluations_in_a_row():
+    row = {"eval_c00_success": 0.9, "eval_c01_success": 0.4}
+    assert member_streaks([1, 1], row, 0.9, 2) == ([2, 0], [0])
+    assert member_streaks([2, 0], {"eval_c01_success": 0.95}, 0.9, 2) == ([2, 1], [])  # c00 not evaluated
+    assert member_streaks([2, 1], {"eval_c00_success": 1.0, "eval_c01_success": 1.0}, 0.9, 2) == ([3, 2], [1])
+
+
+@pytest.mark.e2e
+def test_members_draw_their_sources_scenes_stop_on_their_own_and_resume_as_they_stopped(tmp_path):
+    from ps_ray.nets.policy_file import load_policy
+    from ps_ray.rllib.loop import TrainingRun, start_local_ray
+    from ps_ray.rllib.population_train import PopulationRun
+
+    start_local_ray()
+    population = PopulationSpec(MEMBERS)
+    run = PopulationRun(population, [None, None])
+    alone = TrainingRun(MEMBERS[1], None)
+    for _ in range(3):
+        run.step()
+        alone.step()
+    # member 1's training episodes start where its source's alone do (same reset seeds)
+    ours, theirs = run.algo.replays["c01"].episodes(0, 3), alone.algo.replay.episodes(0, 3)
+    for name in ("achieved_goal", "desired_goal", "robot_state"):
+        np.testing.assert_array_equal(ours[f"obs/{name}"][:, 0], theirs[f"obs/{name}"][:, 0])
+    assert not np.array_equal(
+        ours["obs/achieved_goal"][:, 0], run.algo.replays["c00"].episodes(0, 3)["obs/achieved_goal"][:, 0]
+    )
+    alone.stop()
+    run.stop()
+
+    # on the point env, each member stops at its own target: finally evaluated and exported then,
+    # its file kept while the population trains on; the run ends once every member has stopped
+    settings = dict(
+        env=POINT_ENV, learning_starts=200, random_episodes=2, episodes_per_step=4, batch_size=64,
+        updates_per_step=0.5, eval_every=5, eval_episodes=20, target_success=0.3, target_evals=2,
+        env_steps=40_000, hidden=64, checkpoint_every=1000,
+    )  # fmt: skip
+    points = [TrainSpec.from_mapping({**SMALL, **settings, "seed": seed}) for seed in (1, 2)]
+    stopping = PopulationSpec(tuple(points))
+    run = PopulationRun(stopping, [None, None])
+    rows = [tick.row for tick in run.ticks()]
+    assert run.converged and run.env_steps < 40_000
+    for index in range(2):  # the step its own evaluations met the target twice in a row
+        evals = [
+            (r["env_steps"], r[f"eval_c0{index}_success"])
+            for r in rows
+            if r.get(f"eval_c0{index}_success") is not None
+        ]
+        met = next(steps for (_, a), (steps, b) in zip(evals, evals[1:]) if a >= 0.3 and b >= 0.3)
+        assert run.stopped[index]["env_steps"] == met
+    assert run.env_steps == max(f["env_steps"] for f in run.stopped.values())
+    folder = tmp_path / "checkpoint"
+    folder.mkdir()
+    run.save(folder)
+    final = run.final_eval()
+    live = run.algo.cell_nets()
+    run.stop()
+    for index, spec in enumerate(stopping.members):
+        nets, signature = load_policy(folder / cell_policy_file(index))
+        assert (signature.method, signature.interface_dim, signature.robot_dim) == ("ablation", 8, 2)
+        assert TrainSpec.from_mapping(json.loads((folder / cell_spec_file(index)).read_text())) == spec
+        result = json.loads((folder / cell_result_file(index)).read_text())
+        assert result == run.stopped[index] and final[f"c0{index}_success"] == result["success"]
+        moved = [
+            not torch.equal(a, b) for a, b in zip(nets.actor.parameters(), live[index].actor.parameters())
+        ]
+        stopped_first = run.stopped[index]["env_steps"] < run.env_steps
+        assert any(moved) == stopped_first  # the file is the member as it stopped, not as it is now
+    # resumed: done, nothing trained, each member's file and figures as it stopped
+    files = {i: (folder / cell_policy_file(i)).read_bytes() for i in range(2)}
+    resumed = PopulationRun(stopping, [None, None])
+    resumed.restore(folder)
+    assert resumed.done and resumed.stopped == run.stopped
+    assert list(resumed.ticks())[-1].row["env_steps"] == run.env_steps
+    again = tmp_path / "again"
+    again.mkdir()
+    resumed.save(again)
+    resumed.stop()
+    assert {i: (again / cell_policy_file(i)).read_bytes() for i in range(2)} == files

@@ -162,3 +162,60 @@ def test_members_draw_their_sources_scenes_stop_on_their_own_and_resume_as_they_
     resumed.save(again)
     resumed.stop()
     assert {i: (again / cell_policy_file(i)).read_bytes() for i in range(2)} == files
+
+
+def test_a_sweep_s_population_groups_its_sources_in_trials_of_k_and_prices_each_member():
+    import dataclasses
+
+    from ps_ray.analysis.cost import project, trial_seconds, workload
+    from ps_ray.plan import train
+    from ps_ray.specs.sweep import SweepSpec
+    from tests.test_cost import RATES
+
+    solo = SweepSpec(
+        name="many",
+        methods=("ablation", "plain"),
+        robots=("panda", "panda_l3"),
+        tasks=({"name": "reach", "goal_region": "q1"}, {"name": "reach", "goal_region": "q3"}),
+        seeds=(1, 2, 3),
+        train={"env_steps": 2000, "learning_starts": 1000},
+    )
+    spec = dataclasses.replace(solo, population=5)
+    trials = train.plan(spec)
+    # a method's twelve sources in trials of up to five, in the sweep's order; methods never mixed
+    assert [len(t.members) for t in trials] == [5, 5, 2, 5, 5, 2]
+    assert all(len({m.spec.method for m in t.members}) == 1 for t in trials)
+    assert [m.spec for t in trials for m in t.members] == [t.spec for t in train.plan(solo)]
+    # the same work, priced member by member, in six trials instead of 24: each trial's start once
+    ours, theirs = workload(spec)[0], workload(solo)[0]
+    assert (ours.env_steps, ours.updates, ours.eval_steps) == (
+        theirs.env_steps,
+        theirs.updates,
+        theirs.eval_steps,
+    )
+    assert len(ours.trials) == 6 and ours.members == (5, 5, 2, 5, 5, 2)
+    saved = sum(trial_seconds(theirs, RATES)) - sum(trial_seconds(ours, RATES))
+    assert saved == pytest.approx((24 - 6) * RATES.trial_s)
+    assert project(spec, rates=RATES).core_s == pytest.approx(project(solo, rates=RATES).core_s - saved)
+
+
+@pytest.mark.parametrize(
+    "changes, message",
+    [
+        ({"search": {"space": {"lr": {"choice": [0.001, 0.0003]}}, "samples": 2}}, "a search ranks each drawn setting"),
+        ({"methods": ["ps_distilled"]}, "method ps_distilled consolidates its actor"),
+    ],
+)
+def test_a_sweep_refuses_a_population_it_cannot_form(changes, message):
+    from ps_ray.specs.sweep import SweepSpec
+
+    data = {
+        "name": "x",
+        "methods": ["ablation"],
+        "robots": ["panda"],
+        "tasks": ["reach"],
+        "seeds": [1],
+        "population": 2,
+    }
+    with pytest.raises(SpecError, match=message):
+        SweepSpec.from_mapping({**data, **changes})

@@ -12,6 +12,7 @@ import pytest
 import torch
 import yaml
 
+from ps_ray.analysis.results import curves as curves_of
 from ps_ray.nets.policy_file import load_policy
 from ps_ray.pipeline.few_shot import curves, run_few_shot
 from ps_ray.pipeline.sweep import run_sweep
@@ -21,6 +22,7 @@ from ps_ray.plan.catalogue import trained
 from ps_ray.plan.zero_shot import matrix
 from ps_ray.specs.sweep import load_sweep
 from ps_ray.stitching.pairs import pairs_from_table
+from ps_ray.stitching.zoo import ModuleZoo
 from ps_ray.store.layout import sweep_layout
 from ps_ray.store.signature import read_signature
 from tests.plan_checks import assert_stages_launched_their_plans
@@ -40,6 +42,7 @@ def trained_matrix(tmp_path_factory, ray_local, tiny_train):
                 "seeds": [1],
                 "interface_dims": [8],
                 "train": tiny_train,
+                "population": 2,  # the four sources in two trials of two (docs/cost.md "Populations")
                 "max_concurrent": 2,
                 "storage": str(tmp_path / "store"),
             }
@@ -52,6 +55,13 @@ def trained_matrix(tmp_path_factory, ray_local, tiny_train):
 
 def test_zero_shot_matrix_of_a_sweep(trained_matrix, tmp_path):
     spec = trained_matrix
+    # trained as two population trials of two sources; the zoo and the training curves hold
+    # each source as one trained alone
+    sources = sorted(t.label() for t in spec.trials())
+    assert len(list(sweep_layout(spec).tune_train.glob("*/params.json"))) == 2
+    zoo = ModuleZoo.from_sweep(sweep_layout(spec).root)
+    assert sorted(str(e.key) for e in zoo) == sources and {e.stage for e in zoo} == {"train"}
+    assert sorted(curves_of(sweep_layout(spec).tune_train)["run"].unique()) == sources
     found = matrix(spec, trained(spec))
     by_key = {pair.key: pair for pair in found}
     # task module of (region X, arm A) with robot module of (region Y != X, arm B != A)
@@ -103,8 +113,22 @@ def test_zero_shot_matrix_of_a_sweep(trained_matrix, tmp_path):
         r for r in client.search_runs([experiment.experiment_id]) if "ps_ray.trial_key" in r.data.tags
     ]
     stages = [r.data.tags["ps_ray.stage"] for r in found_runs]
-    # one run per stitched pair, its controls' figures among its metrics
-    assert stages.count("zero_shot") == 4 and stages.count("train") == 4
+    # one run per stitched pair, its controls' figures among its metrics; one per population
+    # trial and, nested under it, one per source it trained, as a source trained alone has
+    assert stages.count("zero_shot") == 4 and stages.count("train") == 2 + 4
+    populations = {
+        r.info.run_id: r for r in found_runs if r.data.tags["ps_ray.trial_key"].startswith("population/")
+    }
+    members = [r for r in found_runs if r.data.tags.get("mlflow.parentRunId") in populations]
+    assert sorted(r.data.tags["ps_ray.trial_key"] for r in members) == sorted(
+        t.label() for t in spec.trials()
+    )
+    for run in members:  # its own figures, spec and files
+        assert 0 <= run.data.metrics["final_success"] <= 1 and run.data.params["seed"] == "1"
+        names = {a.path for a in client.list_artifacts(run.info.run_id)}
+        assert len({n for n in names if n.startswith("policy_c")}) == 1 and any(
+            n.startswith("spec_c") for n in names
+        )
     # each stitched pair's run links to the training runs of its two sources
     train_runs = {
         r.data.tags["ps_ray.trial_key"]: r.info.run_id
@@ -219,12 +243,12 @@ def test_a_sweep_with_a_damaged_policy_file_is_refused_before_any_trial_starts(t
     shutil.copytree(sweep_layout(trained_matrix).root, copy / trained_matrix.name)
     shutil.rmtree(copy / trained_matrix.name / "tune_zero_shot", ignore_errors=True)
     spec = dataclasses.replace(trained_matrix, storage=str(copy))
-    policy = sorted((copy / spec.name / "tune").glob("*/checkpoint_*/policy.safetensors"))[0]
+    policy = sorted((copy / spec.name / "tune").glob("*/checkpoint_*/policy_c01.safetensors"))[-1]
     with open(policy, "r+b") as f:
         f.seek(100)
         f.write(b"damaged")
     with pytest.raises(
-        UserError, match=f"{policy.parent}: not a usable ps_ray checkpoint .policy.safetensors"
+        UserError, match=f"{policy.parent}: not a usable ps_ray checkpoint .policy_c01.safetensors"
     ):
         run_zero_shot(spec, episodes=4, repeats=2, progress=False)
     assert not (copy / spec.name / "tune_zero_shot").exists()

@@ -74,10 +74,10 @@ class Projection:
     gpu_rates: GpuRates
 
 
-def _trial_s(spec: TrainSpec | None, load: StageLoad, rates: Rates, n: int) -> float:
+def _trial_s(spec: TrainSpec | None, load: StageLoad, rates: Rates, n: int, sources: int = 1) -> float:
     if spec is None:  # an evaluation-only trial: its share of the stage's evaluation steps
         return rates.trial_s + load.eval_steps / max(n, 1) * rates.eval_step_s
-    own = train_load(load.stage, [spec])
+    own = train_load(load.stage, [spec] * sources)  # a population: each member's work
     return (
         rates.trial_s
         + own.env_steps * rates.env_step_s
@@ -88,7 +88,7 @@ def _trial_s(spec: TrainSpec | None, load: StageLoad, rates: Rates, n: int) -> f
 
 def trial_seconds(load: StageLoad, rates: Rates) -> list[float]:
     """Projected core-seconds of each trial of a stage."""
-    return [_trial_s(s, load, rates, len(load.trials)) for s in load.trials]
+    return [_trial_s(s, load, rates, len(load.trials), load.sources(i)) for i, s in enumerate(load.trials)]
 
 
 def _wall_s(loads: list[StageLoad], rates: Rates, cores: int, max_concurrent: int | None) -> float:

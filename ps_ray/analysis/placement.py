@@ -57,13 +57,20 @@ def placed(spec: SweepSpec, kind: NodeKind) -> tuple[dict[str, StageResources], 
 
 
 def trial_time(
-    spec: TrainSpec | None, load: StageLoad, rates: Rates, gpu: GpuRates, r: StageResources, effective: float
+    spec: TrainSpec | None,
+    load: StageLoad,
+    rates: Rates,
+    gpu: GpuRates,
+    r: StageResources,
+    effective: float,
+    sources: int = 1,
 ) -> float:
-    """Seconds of one trial (``spec`` None: an evaluation-only trial) at ``effective`` cores."""
+    """Seconds of one trial (``spec`` None: an evaluation-only trial) at ``effective`` cores;
+    ``sources``: the sources it trains (a population's K, each member's work counted)."""
     cpu = cpu_factor(effective)
     if spec is None:
         return (rates.trial_s + load.eval_steps / max(len(load.trials), 1) * rates.eval_step_s) * cpu
-    own = train_load(load.stage, [spec])
+    own = train_load(load.stage, [spec] * sources)
     if r.gpu:
         update = gpu.update_s(rates.size_unit(spec), r.gpu, min(1.0, effective), rates.method_factor(spec))
     else:
@@ -97,7 +104,9 @@ def on_kind(
         slots = max(1, min(per * kind.nodes, max_concurrent or n, n))
         nodes = math.ceil(slots / per)
         effective = kind.effective_cores(math.ceil(slots / nodes), r.threads)
-        times = [trial_time(s, load, rates, gpu, r, effective) for s in load.trials]
+        times = [
+            trial_time(s, load, rates, gpu, r, effective, load.sources(i)) for i, s in enumerate(load.trials)
+        ]
         stage_wall = rates.stage_s + max(sum(times) / slots, max(times))
         at_once[load.stage] = slots
         wall += stage_wall

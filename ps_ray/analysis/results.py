@@ -34,25 +34,42 @@ def curves(stage_dir: Path) -> pd.DataFrame:
     records = []
     for folders in attempts(stage_dir, "trial").values():
         trial = json.loads((folders[-1] / PARAMS_FILE).read_text())["trial"]
-        spec = trial["spec"]
-        run = trial.get("key") or trial_key(spec)
-        fields = {
-            "run": run,
-            "kind": trial.get("kind", "train"),
-            "label": trial.get("label", run),
-            "method": spec["method"],
-            "robot": short_name(spec["robot"]),
-            "task": short_name(spec["task"]),
-            "seed": spec["seed"],
-            "interface_dim": spec["interface_dim"],
-        }
-        for row in merged_rows(folders):
-            for key in ("eval_success", "final_success"):
-                if row.get(key) is not None:
-                    records.append({**fields, "env_steps": row["env_steps"], "success": row[key]})
+        rows = merged_rows(folders)
+        if "population" in trial:  # each member a run of its own, up to its stop
+            for index, member in enumerate(trial["population"]):
+                records += _points(member, rows, f"c{index:02d}_")
+        else:
+            records += _points(trial, rows)
     frame = pd.DataFrame(records, columns=CURVE_COLUMNS)
     # a final evaluation at the step of a periodic one replaces it (more episodes)
     return frame.drop_duplicates(["run", "env_steps"], keep="last").reset_index(drop=True)
+
+
+def _points(trial: dict, rows: list[dict], member: str = "") -> list[dict]:
+    """One source's curve points from its trial's rows (``member``: a population member's
+    prefix, ``c00_``: its own evaluations, up to the step it stopped at)."""
+    spec = trial["spec"]
+    run = trial.get("key") or trial_key(spec)
+    fields = {
+        "run": run,
+        "kind": trial.get("kind", "train"),
+        "label": trial.get("label", run),
+        "method": spec["method"],
+        "robot": short_name(spec["robot"]),
+        "task": short_name(spec["task"]),
+        "seed": spec["seed"],
+        "interface_dim": spec["interface_dim"],
+    }
+    final = next((r for r in reversed(rows) if r.get(f"final_{member}success") is not None), {})
+    stop = final.get(f"final_{member}env_steps", final.get("env_steps"))
+    points = []
+    for row in rows:
+        periodic, last = row.get(f"eval_{member}success"), row.get(f"final_{member}success")
+        if periodic is not None and (stop is None or not member or row["env_steps"] <= stop):
+            points.append({**fields, "env_steps": row["env_steps"], "success": periodic})
+        if last is not None:  # a member's final figures are from its stop
+            points.append({**fields, "env_steps": stop if member else row["env_steps"], "success": last})
+    return points
 
 
 def final_success(curves_frame: pd.DataFrame) -> pd.DataFrame:

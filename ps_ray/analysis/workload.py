@@ -27,6 +27,11 @@ class StageLoad:
     env_steps: int
     updates: int
     eval_steps: int
+    members: tuple[int, ...] = ()  # the sources each trial trains (a population's K); (): one each
+
+    def sources(self, index: int) -> int:
+        """How many sources trial ``index`` trains (a population trains K, every other trial one)."""
+        return self.members[index] if self.members else 1
 
 
 def train_load(stage: str, specs: list[TrainSpec]) -> StageLoad:
@@ -44,7 +49,13 @@ def _train(spec: SweepSpec, zoo: ModuleZoo) -> list[StageLoad]:
 
     plain = train.plain_sources(spec)
     loads = [train_load("anchors_plain", [t.spec for t in plain])] if plain else []
-    return [*loads, train_load("train", [t.spec for t in PLANS["train"](spec, zoo)])]
+    trials = PLANS["train"](spec, zoo)
+    if spec.population == 1:
+        return [*loads, train_load("train", [t.spec for t in trials])]
+    # a population trial trains each of its members: priced as their sum (docs/cost.md "Populations")
+    members = train_load("train", [m.spec for t in trials for m in t.sources])
+    bases = [t.sources[0].spec for t in trials]
+    return [*loads, dataclasses.replace(members, trials=bases, members=tuple(len(t.sources) for t in trials))]
 
 
 def _grid(spec: SweepSpec, zoo: ModuleZoo) -> list[StageLoad]:

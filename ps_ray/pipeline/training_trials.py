@@ -11,10 +11,18 @@ from typing import Any
 
 from ps_ray.specs.stages import stage as stage_record
 from ps_ray.specs.sweep import SweepSpec
-from ps_ray.specs.trial import GridTrial, TrainTrial
+from ps_ray.specs.trial import GridTrial, PopulationTrial, TrainTrial, training_trial
 from ps_ray.store.layout import sweep_layout
 from ps_ray.store.mlflow_values import flatten_params
-from ps_ray.store.run_layout import METRIC_FIELDS, POLICY_FILE, SIGNATURE_FILE, SPEC_FILE
+from ps_ray.store.run_layout import (
+    METRIC_FIELDS,
+    POLICY_FILE,
+    SIGNATURE_FILE,
+    SPEC_FILE,
+    cell_policy_file,
+    cell_result_file,
+    cell_spec_file,
+)
 
 # What each training result sends to MLflow: the metrics.csv columns but the step and the clock.
 METRIC_KEYS = tuple(k for k in METRIC_FIELDS if k not in ("iteration", "wall_s")) + ("alpha", "entropy")
@@ -34,6 +42,8 @@ def sweep_trial(config: dict[str, Any]) -> None:
     from ps_ray.rllib.loop import TrainingRun
     from ps_ray.store.attempts import replay_store
 
+    if "population" in config["trial"]:
+        return population_trial(config)
     trial = TrainTrial.of(config["trial"])
     spec = trial.spec
     if trial.anchors:
@@ -51,6 +61,20 @@ def sweep_trial(config: dict[str, Any]) -> None:
         compile=config.get("compile", False),
         replay_store=replay_store(config, "trial"),
     )
+    report_ticks(run, config, "trial")
+
+
+def population_trial(config: dict[str, Any]) -> None:
+    """One :class:`ps_ray.rllib.population_train.PopulationRun`: the trial's sources in one learner."""
+    import ray
+
+    from ps_ray.data.anchor_file import load_anchor_set
+    from ps_ray.rllib.population_train import PopulationRun
+
+    trial = PopulationTrial.of(config["trial"])
+    anchor_sets = [None if m.anchors is None else load_anchor_set(m.anchors) for m in trial.members]
+    granted = ray.get_runtime_context().get_assigned_resources()
+    run = PopulationRun(trial.population, anchor_sets, threads=max(1, int(granted.get("CPU", 1))))
     report_ticks(run, config, "trial")
 
 
@@ -90,7 +114,7 @@ def report_ticks(run, config: dict[str, Any], key: str) -> None:
 
 
 def run_tune(
-    trials: list[TrainTrial] | list[GridTrial],
+    trials: list[TrainTrial] | list[GridTrial] | list[PopulationTrial],
     *,
     folder: Path,
     stage: str,
@@ -134,6 +158,7 @@ def run_tune(
             # run keeps their first record
             step_key="env_steps",
             once_per_step=True,
+            members_fn=_member_runs,  # a population's members: a run each, under the trial's
         )
         results = run_trials(
             trainable or sweep_trial,
@@ -148,27 +173,59 @@ def run_tune(
             resources=resources,
             constants={"compile": resources.compile},  # how to run, not what: not the trial's identity
             scheduler_fn=scheduler_fn,
-            budgets=[t.spec.env_steps if isinstance(t, TrainTrial) else None for t in trials],
+            budgets=[_budget(t) for t in trials],
         )
         stage_run.record(*stage_summary(results))
     return results
 
 
-def record_of(trial) -> TrainTrial:
+def _member_runs(trial) -> list:
+    """A population trial's members as MLflow runs of their own (each an ordinary source's: its
+    trial key, title and spec); none for any other trial."""
+    from ps_ray.pipeline.tune_tracking import MemberRun
+
+    if "population" not in trial.config["trial"]:
+        return []
+    record = PopulationTrial.of(trial.config["trial"])
+    return [
+        MemberRun(
+            key=m.run_name,
+            name=m.title,
+            params=flatten_params(m.spec.to_dict()),
+            prefix=f"c{i:02d}_",
+            files=(cell_policy_file(i), cell_spec_file(i), cell_result_file(i)),
+        )
+        for i, m in enumerate(record.members)
+    ]
+
+
+def _budget(trial) -> int | None:
+    """A trial's env steps (a population's: each member's); None where the live view cannot
+    count them (a grid's)."""
+    return trial.sources[0].spec.env_steps if isinstance(trial, (TrainTrial, PopulationTrial)) else None
+
+
+def record_of(trial) -> TrainTrial | PopulationTrial:
     """A training stage's Tune trial as its record (its config is ``{"trial": record.config()}``)."""
-    return TrainTrial.of(trial.config["trial"])
+    return training_trial(trial.config["trial"])
 
 
 def _spec_params(trial) -> dict[str, str]:
     """A training trial's MLflow params: its spec's fields as the config holds them (nested
-    robot/task as ``robot.x``)."""
+    robot/task as ``robot.x``); a population's: its first member's and every member's key."""
+    record = record_of(trial)
+    if isinstance(record, PopulationTrial):
+        members = [m.run_name for m in record.members]
+        return {**flatten_params(record.members[0].spec.to_dict()), "members": ", ".join(members)}
     return flatten_params(trial.config["trial"]["spec"])
 
 
 def _trial_model(trial) -> tuple[Path, Any, Any, str] | None:
     """A finished source's policy file, env and title, to log as its run's MLflow model."""
-    policy = Path(trial.checkpoint.path) / POLICY_FILE if trial.checkpoint is not None else None
     record = record_of(trial)
+    if isinstance(record, PopulationTrial):
+        return None  # its members' policy files are in its checkpoint (not yet logged as models)
+    policy = Path(trial.checkpoint.path) / POLICY_FILE if trial.checkpoint is not None else None
     # a run of a gymnasium env given by id has no robot and task to log its model with
     found = policy is not None and policy.exists() and record.spec.env is None
     return (policy, record.spec.robot, record.spec.task, record.title) if found else None
@@ -176,10 +233,13 @@ def _trial_model(trial) -> tuple[Path, Any, Any, str] | None:
 
 def _trial_artifacts(trial) -> list[Path]:
     """Module weights, interface signature, resolved spec and anchors of a finished trial."""
+    record = record_of(trial)
+    if isinstance(record, PopulationTrial):
+        return []  # its members' files are in its checkpoint
     paths = []
     if trial.checkpoint is not None:
         paths += [Path(trial.checkpoint.path) / name for name in (POLICY_FILE, SIGNATURE_FILE, SPEC_FILE)]
-    anchors = record_of(trial).anchors
+    anchors = record.anchors
     if anchors:
         paths.append(Path(anchors))
     return [p for p in paths if p.exists()]

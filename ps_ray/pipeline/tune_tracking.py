@@ -6,6 +6,7 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -13,6 +14,7 @@ from ray.tune import Callback
 
 from ps_ray.store.tracking import (
     GIT_COMMIT_TAG,
+    PARENT_TAG,
     TrialTracker,
     _client,
     _first_line,
@@ -27,6 +29,33 @@ log = logging.getLogger(__name__)
 
 
 # ---------------------------------------------------------------------------------- Tune
+
+
+@dataclass(frozen=True)
+class MemberRun:
+    """A source trained inside a trial (a population's member): its own MLflow run, nested under
+    the trial's, logging the trial's per-member columns (``eval_<prefix>success`` as
+    ``eval_success``); ``files``: its files in the trial's checkpoint, logged as artifacts."""
+
+    key: str
+    name: str
+    params: Mapping[str, Any]
+    prefix: str  # "c00_"
+    files: tuple[str, ...] = ()
+
+
+MEMBER_COLUMNS = ("train_", "eval_", "final_")  # a member's own figures carry its prefix after these
+SHARED_COLUMNS = ("env_steps", "updates")  # every member's, as the trial's
+
+
+def member_metric(key: str, prefix: str) -> str | None:
+    """The trial's column a member's metric ``key`` is read from (None: the member has none)."""
+    if key in SHARED_COLUMNS:
+        return key
+    for head in MEMBER_COLUMNS:
+        if key.startswith(head):
+            return head + prefix + key[len(head) :]
+    return None
 
 
 def lookup(result: Mapping[str, Any], key: str) -> Any:
@@ -73,6 +102,7 @@ class MLflowTuneCallback(Callback):
         step_key: str = "training_iteration",
         flush_secs: float = 60.0,
         once_per_step: bool = False,
+        members_fn: Callable[[Trial], Sequence[MemberRun]] | None = None,
     ) -> None:
         if flush_every < 1:
             raise ValueError(f"flush_every must be >= 1, got {flush_every}")
@@ -92,6 +122,8 @@ class MLflowTuneCallback(Callback):
         self.model_fn = model_fn
         self.step_key = step_key
         self.once_per_step = once_per_step
+        self.members_fn = members_fn
+        self._members: dict[str, list[tuple[MemberRun, TrialTracker]]] = {}  # trial key -> its members'
         self._trackers: dict[str, TrialTracker] = {}
         self._results: dict[str, int] = {}
         self._last_flush: dict[str, float] = {}
@@ -100,7 +132,7 @@ class MLflowTuneCallback(Callback):
     # Tuner.restore unpickles the callback from the experiment state: keep no store handles there.
     def __getstate__(self) -> dict[str, Any]:
         state = dict(self.__dict__)
-        state.update(_trackers={}, _results={}, _last_flush={}, _client_cache=None)
+        state.update(_trackers={}, _members={}, _results={}, _last_flush={}, _client_cache=None)
         return state
 
     @property
@@ -128,7 +160,26 @@ class MLflowTuneCallback(Callback):
             )
             self._results[key] = 0
             self._last_flush[key] = time.monotonic()
+            self._members[key] = [
+                (m, self._member_tracker(m, self._trackers[key], trial)) for m in self._member_runs(trial)
+            ]
         return self._trackers[key]
+
+    def _member_runs(self, trial: Trial) -> Sequence[MemberRun]:
+        return self.members_fn(trial) if self.members_fn is not None else ()
+
+    def _member_tracker(self, member: MemberRun, parent: TrialTracker, trial: Trial) -> TrialTracker:
+        tags = {**self.tags, "ps_ray.tune_trial_id": trial.trial_id, PARENT_TAG: parent.run_id}
+        return TrialTracker(
+            self.tracking_uri,
+            self.experiment_id,
+            member.key,
+            params=member.params,
+            tags=tags,
+            client=self._client,
+            once_per_step=self.once_per_step,
+            name=member.name,
+        )
 
     def run_id(self, trial: Trial) -> str:
         return self.tracker(trial).run_id
@@ -148,6 +199,15 @@ class MLflowTuneCallback(Callback):
             timestamp_ms=int(stamp * 1000) if stamp else None,
         )
         key = tracker.trial_key
+        for member, member_tracker in self._members[key]:
+            columns = {k: member_metric(k, member.prefix) for k in self.metric_keys}
+            # a member's final figures are those of the step it stopped at
+            stopped = lookup(result, f"final_{member.prefix}env_steps")
+            member_tracker.log_metrics(
+                {k: lookup(result, c) for k, c in columns.items() if c is not None},
+                step=int(stopped) if stopped is not None else int(step) if step is not None else 0,
+                timestamp_ms=int(stamp * 1000) if stamp else None,
+            )
         self._results[key] += 1
         due = time.monotonic() - self._last_flush[key] >= self.flush_secs
         if self._results[key] % self.flush_every == 0 or due:
@@ -177,6 +237,11 @@ class MLflowTuneCallback(Callback):
             self._guard(
                 "log the policy as a model", log_policy_model, self.tracking_uri, tracker.run_id, *model
             )
+        folder = Path(trial.checkpoint.path) if trial.checkpoint is not None else None
+        for member, member_tracker in self._members.get(tracker.trial_key, ()):
+            for name in member.files if folder is not None else ():
+                if (folder / name).exists():
+                    self._guard(f"log artifact {name}", member_tracker.log_artifact, folder / name)
         self._close(trial, "FINISHED")
 
     def on_trial_error(self, iteration: int, trials: list[Trial], trial: Trial, **info: Any) -> None:
@@ -185,15 +250,21 @@ class MLflowTuneCallback(Callback):
     def on_experiment_end(self, trials: list[Trial], **info: Any) -> None:
         """Trials still open (interrupted) are flushed and marked KILLED; a resume reopens them."""
         for key in list(self._trackers):
+            for _, member_tracker in self._members.pop(key, ()):
+                self._guard(f"close run of {member_tracker.trial_key}", member_tracker.close, "KILLED")
             self._guard(f"close run of {key}", self._trackers.pop(key).close, "KILLED")
 
     def _flush(self, tracker: TrialTracker) -> None:
+        for _, member_tracker in self._members.get(tracker.trial_key, ()):
+            self._guard(f"flush metrics of {member_tracker.trial_key}", member_tracker.flush)
         self._guard(f"flush metrics of {tracker.trial_key}", tracker.flush)
         self._last_flush[tracker.trial_key] = time.monotonic()
 
     def _close(self, trial: Trial, status: str) -> None:
         tracker = self.tracker(trial)
         del self._trackers[tracker.trial_key]
+        for _, member_tracker in self._members.pop(tracker.trial_key, ()):
+            self._guard(f"close run of {member_tracker.trial_key}", member_tracker.close, status)
         self._guard(f"close run of {tracker.trial_key}", tracker.close, status)
 
     @staticmethod

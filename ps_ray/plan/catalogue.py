@@ -33,7 +33,8 @@ def planned(spec: SweepSpec) -> ModuleZoo:
 
     trains = "train" in spec.stages
     for trial in train.plan(spec) if trains or "grid" not in spec.stages else ():
-        add(trial.spec.to_dict(), "train")
+        for source in trial.sources:  # a population's members are sources
+            add(source.spec.to_dict(), "train")
     for trial in train.plain_sources(spec) if trains else ():
         add(trial.spec.to_dict(), "plain_source")
     for trial in grid.plan(spec) if "grid" in spec.stages else ():

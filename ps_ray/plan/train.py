@@ -3,10 +3,14 @@ sources (one per drawn setting of a search)."""
 
 from __future__ import annotations
 
+import json
+
+from ps_ray.envs.core import env_widths
 from ps_ray.specs.modes import AnchorPolicy
+from ps_ray.specs.population import shared_settings
 from ps_ray.specs.sweep import SweepSpec, anchor_sources, task_input_dim
 from ps_ray.specs.train import TrainSpec
-from ps_ray.specs.trial import TrainTrial
+from ps_ray.specs.trial import PopulationTrial, TrainTrial
 from ps_ray.store.layout import sweep_layout
 
 
@@ -27,10 +31,26 @@ def plain_sources(spec: SweepSpec) -> list[TrainTrial]:
     return [TrainTrial(source) for source in anchor_sources(spec)]
 
 
-def plan(spec: SweepSpec) -> list[TrainTrial]:
+def plan(spec: SweepSpec) -> list[TrainTrial] | list[PopulationTrial]:
     """The train stage's trials: each source with its anchor set; a search's, each named by its
-    drawn setting (run ``<trial key>/searchNN``)."""
-    return [
+    drawn setting (run ``<trial key>/searchNN``). With ``population`` K above 1, the sources in
+    trials of up to K that share everything but robot, task and seed (and their widths), in
+    the sweep's order."""
+    sources = [
         TrainTrial(t, anchor_file(spec, t), key=f"{t.label()}/{name}" if name else "", label=name)
         for name, t in spec.named_trials()
     ]
+    if spec.population == 1:
+        return sources
+    groups: dict[str, list[TrainTrial]] = {}
+    for source in sources:
+        shape = json.dumps([shared_settings(source.spec), _widths(source.spec)], sort_keys=True)
+        groups.setdefault(shape, []).append(source)
+    k = spec.population
+    return [
+        PopulationTrial(tuple(group[i : i + k])) for group in groups.values() for i in range(0, len(group), k)
+    ]
+
+
+def _widths(spec: TrainSpec) -> tuple[int, int, int] | None:
+    return None if spec.env is not None else env_widths(spec.robot, spec.task)

@@ -19,6 +19,8 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from ps_ray.envs.goals import ROBOT_KEY, TASK_KEYS
 from ps_ray.envs.grid import cell_key
 from ps_ray.rllib.loop import PROGRESS_FILE, TrainingRun
@@ -33,6 +35,8 @@ from ps_ray.store.run_layout import (
     cell_spec_file,
 )
 from ps_ray.store.signature import Signature
+
+MEMBER_FIGURES = ("success", "touching")  # each member's own columns of a row: train_c00_success, ...
 
 
 def member_streaks(
@@ -65,7 +69,12 @@ class PopulationRun(TrainingRun):
         self.population = population
         members = population.members
         self.keys = [cell_key(i) for i in range(len(members))]
-        self.metric_fields = METRIC_FIELDS + tuple(f"eval_{k}_success" for k in self.keys)
+        self.metric_fields = METRIC_FIELDS + tuple(
+            f"{stage}_{k}_{figure}"
+            for k in self.keys
+            for stage in ("train", "eval")
+            for figure in MEMBER_FIGURES
+        )
         anchors = [None if a is None else a.anchors for a in anchor_sets]
         self.begin(population.base, population_algo_config(population, anchors).build_algo())
         replay = self.algo.replays[self.keys[0]]  # every member has the same widths (PopulationSpec)
@@ -96,6 +105,11 @@ class PopulationRun(TrainingRun):
 
     def step(self) -> dict[str, Any]:
         row = super().step()
+        for index in self.stopped:  # a stopped member's figures end at its stop
+            for name in [
+                n for n in row if n.startswith(("train_", "eval_")) and f"_{self.keys[index]}_" in n
+            ]:
+                del row[name]
         if self.spec.target_success is None:
             return row
         self.streaks, met = member_streaks(
@@ -122,16 +136,22 @@ class PopulationRun(TrainingRun):
             return [p.read_bytes() for p in paths]
 
     def final_eval(self) -> dict[str, float]:
-        """Each member's final figures (``c<i>_success``, ``c<i>_touching``): a stopped member's
-        from its stop, the others' now; ``success`` and ``touching`` their mean."""
+        """Each member's final figures (``c<i>_success``, ``c<i>_touching``) and the env steps they
+        are at (``c<i>_env_steps``): a stopped member's from its stop, the others' now; ``success``
+        and ``touching`` the worst member's, as a grid's."""
         live = [i for i in range(len(self.keys)) if i not in self.stopped]
         now = self.algo.evaluate_greedy(self.spec.eval_episodes * 2, final=True) if live else {}
         out: dict[str, float] = {}
         for index, key in enumerate(self.keys):
-            source = self.stopped.get(index) or {k: now[f"{key}_{k}"] for k in ("success", "touching")}
-            out.update({f"{key}_success": source["success"], f"{key}_touching": source["touching"]})
-        for name in ("success", "touching"):
-            out[name] = sum(out[f"{k}_{name}"] for k in self.keys) / len(self.keys)
+            figures = self.stopped.get(index) or {
+                "success": now[f"{key}_success"],
+                "touching": now[f"{key}_touching"],
+                "env_steps": self.env_steps,
+            }
+            out.update({f"{key}_{name}": value for name, value in figures.items()})
+        out["success"] = min(out[f"{k}_success"] for k in self.keys)
+        touching = [out[f"{k}_touching"] for k in self.keys]
+        out["touching"] = float("nan") if np.isnan(touching).all() else float(np.nanmin(touching))
         return out
 
     def save(self, directory: Path) -> None:

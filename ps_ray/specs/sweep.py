@@ -79,6 +79,9 @@ class SweepSpec:
     # per trial of each stage (ps_ray.specs.resources)
     resources: _sub(ResourcesSpec, "resources") = ResourcesSpec()
     search: _sub(SearchSpec, "search") = SearchSpec()  # training settings searched over (ps_ray.specs.search)
+    # sources per train-stage trial: up to K sources that share their method and widths trained in
+    # one learner (ps_ray.specs.population, docs/cost.md "Populations"); 1: a trial per source
+    population: Positive = 1
     max_concurrent: Positive | None = None  # default: one trial per available CPU
     max_failures: NonNegative = 2  # retries of a crashed trial, from its last checkpoint
     storage: str = "runs/sweeps"
@@ -124,7 +127,18 @@ class SweepSpec:
                     )
         if self.search.active:
             self._check_search()
-        self.trials()  # every trial's TrainSpec is validated before anything starts
+            if self.population > 1:
+                raise SpecError(
+                    f"population {self.population}: a search ranks each drawn setting by a trial of its "
+                    "own; valid with a search: population 1"
+                )
+        trials = self.trials()  # every trial's TrainSpec is validated before anything starts
+        consolidating = [t.method for t in trials if t.resolved.consolidate is not None]
+        if self.population > 1 and consolidating:
+            raise SpecError(
+                f"population {self.population}: method {consolidating[0]} consolidates its actor when a "
+                "run ends, which a population does not do; valid: population 1 for it"
+            )
         self._check_marker_scenes()
         if "grid" in self.stages:
             self.grid.grids(self)
@@ -153,11 +167,13 @@ class SweepSpec:
             )
 
     def to_dict(self) -> dict[str, Any]:
-        """Plain JSON-able data (tuples as lists); no ``search`` key without a search, so a
-        sweep recorded before searches existed keeps its identity."""
+        """Plain JSON-able data (tuples as lists); no ``search`` key without a search and no
+        ``population`` key at 1, so a sweep recorded before either existed keeps its identity."""
         data = json.loads(json.dumps(dataclasses.asdict(self), default=plain_json))
         if not self.search.active:
             del data["search"]
+        if self.population == 1:  # a sweep recorded before populations existed keeps its identity
+            del data["population"]
         return data
 
     def training_identity(self) -> dict[str, Any]:

@@ -13,8 +13,9 @@ from typing import Any
 
 from ps_ray.specs.grid import GridSpec
 from ps_ray.specs.modes import TrialKind
-from ps_ray.specs.names import readable, trial_key
-from ps_ray.specs.titles import spec_title
+from ps_ray.specs.names import readable, short_name, trial_key
+from ps_ray.specs.population import PopulationSpec
+from ps_ray.specs.titles import spec_title, title, width_tag
 from ps_ray.specs.train import TrainSpec
 
 # What a training trial is: a source of the grid or of the anchors, or a few-shot start
@@ -59,6 +60,11 @@ class TrainTrial:
     def row(self) -> str:
         return self.label or self.run_name
 
+    @property
+    def sources(self) -> tuple[TrainTrial, ...]:
+        """The sources this trial trains: itself (a population: its members)."""
+        return (self,)
+
     def config(self) -> dict[str, Any]:
         """The Tune config: spec and anchors, and key, label and kind where they are not the
         defaults (a source's config is ``{"spec", "anchors"}``, as it always was)."""
@@ -97,3 +103,44 @@ class GridTrial:
     @classmethod
     def of(cls, config: Mapping[str, Any]) -> GridTrial:
         return cls(GridSpec.from_mapping(config["grid"]), tuple(config["anchors"]))
+
+
+@dataclass(frozen=True)
+class PopulationTrial:
+    """Sources of the train stage trained in one learner (:class:`ps_ray.specs.population.PopulationSpec`):
+    each member an ordinary source trial (its spec and anchor-set file), in member order."""
+
+    members: tuple[TrainTrial, ...]
+
+    @property
+    def sources(self) -> tuple[TrainTrial, ...]:
+        return self.members
+
+    @property
+    def population(self) -> PopulationSpec:
+        return PopulationSpec(tuple(m.spec for m in self.members))
+
+    @property
+    def run_name(self) -> str:
+        return self.population.run_key
+
+    @property
+    def title(self) -> str:
+        """``population of 4 · ablation · seeds 411-412``: its MLflow run name."""
+        first = self.members[0].spec
+        seeds = sorted({m.spec.seed for m in self.members})
+        seed_text = f"seed {seeds[0]}" if len(seeds) == 1 else f"seeds {seeds[0]}-{seeds[-1]}"
+        width = width_tag(first.interface_dim)
+        return title(f"population of {len(self.members)}", short_name(first.method), seed_text, width)
+
+    def config(self) -> dict[str, Any]:
+        return {"population": [m.config() for m in self.members], "key": self.run_name}
+
+    @classmethod
+    def of(cls, config: Mapping[str, Any]) -> PopulationTrial:
+        return cls(tuple(TrainTrial.of(m) for m in config["population"]))
+
+
+def training_trial(config: Mapping[str, Any]) -> TrainTrial | PopulationTrial:
+    """The record of a train-stage Tune config: a source's, or a population's."""
+    return PopulationTrial.of(config) if "population" in config else TrainTrial.of(config)

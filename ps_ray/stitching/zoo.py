@@ -14,7 +14,9 @@ When one key appears twice, a "train" entry beats a "plain_source" one, then the
 A co-trained grid's cells (``<sweep>/tune_grid/<trial>/checkpoint_N/``, stage "grid",
 :mod:`ps_ray.pipeline.grid`) are entries too, their key tagged with the grid's held-out cells
 (``ablation/panda/reach_red/401/held_out=panda_far/reach_blue``): :meth:`ModuleZoo.select` keeps
-each grid's cells apart, and from the policies trained alone (its default).
+each grid's cells apart, and from the policies trained alone (its default). A population trial of
+the train stage (``tune/``, :mod:`ps_ray.rllib.population_train`) gives each member as an ordinary
+"train" entry (``policy_c<i>.safetensors`` and ``spec_c<i>.json`` of its checkpoint).
 """
 
 from __future__ import annotations
@@ -31,7 +33,14 @@ from ps_ray.specs.methods import method_key
 from ps_ray.specs.names import EnvPart, readable, short_name, trial_key
 from ps_ray.specs.titles import ANCHOR_POLICY, env_title, title, width_tag
 from ps_ray.store.layout import SweepLayout
-from ps_ray.store.run_layout import GRID_FILE, POLICY_FILE, SPEC_FILE, cell_policy_file, cell_spec_file
+from ps_ray.store.run_layout import (
+    GRID_FILE,
+    POLICY_FILE,
+    POPULATION_FILE,
+    SPEC_FILE,
+    cell_policy_file,
+    cell_spec_file,
+)
 from ps_ray.store.signature import Signature, read_signature
 
 if TYPE_CHECKING:
@@ -136,7 +145,9 @@ def _latest_checkpoints(stage_dir: Path) -> tuple[list[Path], list[str]]:
     from ps_ray.store.attempts import attempts, checkpoint_dirs
 
     policies, problems = [], []
-    for folders in attempts(stage_dir, "trial").values():
+    for trial, folders in attempts(stage_dir, "trial").items():
+        if "population" in json.loads(trial):
+            continue  # its members are read by _population_members
         found = checkpoint_dirs(folders)
         best = checkpoint.latest(found, checkpoint.POLICY_ONLY)
         if best is not None:
@@ -184,9 +195,12 @@ class ModuleZoo:
                     raise UserError(unusable[0])
                 problems += unusable
             grids, unusable = _grid_cells(layout.tune_grid)
+            members, unusable_members = _population_members(layout.tune_train)
+            unusable += unusable_members
             if unusable and strict:
                 raise UserError(unusable[0])
             problems += unusable
+            grids += members  # a population's members: sources trained alone, in one learner
             if not found and not grids:  # a sweep may co-train grids and train nothing alone
                 raise UserError(
                     f"{sweep}: no trained policies (expected tune/<trial>/checkpoint_*/{POLICY_FILE})"
@@ -286,6 +300,39 @@ def _grid_cells(stage_dir: Path) -> tuple[list[ZooEntry], list[str]]:
                 best / cell_policy_file(i), "grid", best / cell_spec_file(i), grid.held_out_text
             )
             entries.append(entry)
+    return entries, problems
+
+
+def _population_members(stage_dir: Path) -> tuple[list[ZooEntry], list[str]]:
+    """Every member of each population trial's furthest verified checkpoint (the train stage's
+    ``tune/``: :mod:`ps_ray.rllib.population_train`), each an ordinary train-stage source, and a
+    problem line per population trial that has none."""
+    from ps_ray.specs.population import PopulationSpec
+    from ps_ray.store import checkpoint
+    from ps_ray.store.attempts import attempts, checkpoint_dirs
+
+    entries, problems = [], []
+    for trial, folders in attempts(stage_dir, "trial").items():
+        if "population" not in json.loads(trial):
+            continue
+        found = checkpoint_dirs(folders)
+        best = checkpoint.latest(found, (checkpoint.STATE_FILE, POPULATION_FILE))
+        try:
+            if best is None:
+                if found:
+                    checkpoint.verify(
+                        found[-1], (checkpoint.STATE_FILE, POPULATION_FILE)
+                    )  # names the problem
+                continue
+            path = best / POPULATION_FILE
+            n = len(PopulationSpec.from_mapping(json.loads(path.read_text()), where=str(path)).members)
+            checkpoint.verify(best, tuple(f(i) for i in range(n) for f in (cell_policy_file, cell_spec_file)))
+        except UserError as e:
+            problems.append(str(e))
+            continue
+        entries += [
+            read_entry(best / cell_policy_file(i), "train", best / cell_spec_file(i)) for i in range(n)
+        ]
     return entries, problems
 
 

@@ -123,7 +123,14 @@ def test_members_draw_their_sources_scenes_stop_on_their_own_and_resume_as_they_
     points = [TrainSpec.from_mapping({**SMALL, **settings, "seed": seed}) for seed in (1, 2)]
     stopping = PopulationSpec(tuple(points))
     run = PopulationRun(stopping, [None, None])
-    rows = [tick.row for tick in run.ticks()]
+    rows, first_stop = [], tmp_path / "first_stop"
+    for tick in run.ticks():
+        rows.append(tick.row)
+        if run.stopped and not first_stop.exists():  # a stop is checkpointed at once
+            assert tick.checkpoint or run.done  # done: the last tick saves it
+            first_stop.mkdir()
+            run.save(first_stop)
+            at_first_stop = (dict(run.stopped), list(run.streaks), run.env_steps)
     assert run.converged and run.env_steps < 40_000
     for index in range(2):  # the step its own evaluations met the target twice in a row
         evals = [
@@ -151,6 +158,15 @@ def test_members_draw_their_sources_scenes_stop_on_their_own_and_resume_as_they_
         ]
         stopped_first = run.stopped[index]["env_steps"] < run.env_steps
         assert any(moved) == stopped_first  # the file is the member as it stopped, not as it is now
+    # resumed from the first stop's checkpoint: the stop and the member's file as they were
+    early = PopulationRun(stopping, [None, None])
+    early.restore(first_stop)
+    assert (early.stopped, early.streaks, early.env_steps) == at_first_stop
+    for index in early.stopped:
+        assert (first_stop / cell_policy_file(index)).read_bytes() == (
+            folder / cell_policy_file(index)
+        ).read_bytes()
+    early.stop()
     # resumed: done, nothing trained, each member's file and figures as it stopped
     files = {i: (folder / cell_policy_file(i)).read_bytes() for i in range(2)}
     resumed = PopulationRun(stopping, [None, None])
@@ -186,6 +202,8 @@ def test_a_sweep_s_population_groups_its_sources_in_trials_of_k_and_prices_each_
     assert [len(t.members) for t in trials] == [5, 5, 2, 5, 5, 2]
     assert all(len({m.spec.method for m in t.members}) == 1 for t in trials)
     assert [m.spec for t in trials for m in t.members] == [t.spec for t in train.plan(solo)]
+    leftover = train.plan(dataclasses.replace(solo, population=11))  # one left over trains alone
+    assert [len(t.sources) for t in leftover] == [11, 1, 11, 1] and leftover[1] == train.plan(solo)[11]
     # the same work, priced member by member, in six trials instead of 24: each trial's start once
     ours, theirs = workload(spec)[0], workload(solo)[0]
     assert (ours.env_steps, ours.updates, ours.eval_steps) == (
@@ -202,8 +220,12 @@ def test_a_sweep_s_population_groups_its_sources_in_trials_of_k_and_prices_each_
 @pytest.mark.parametrize(
     "changes, message",
     [
-        ({"search": {"space": {"lr": {"choice": [0.001, 0.0003]}}, "samples": 2}}, "a search ranks each drawn setting"),
+        (
+            {"search": {"space": {"lr": {"choice": [0.001, 0.0003]}}, "samples": 2}},
+            "a search ranks each drawn setting",
+        ),
         ({"methods": ["ps_distilled"]}, "method ps_distilled consolidates its actor"),
+        ({"resources": {"train": {"gpu": 0.5}}}, "a population learns on the CPU, uncompiled, for now"),
     ],
 )
 def test_a_sweep_refuses_a_population_it_cannot_form(changes, message):

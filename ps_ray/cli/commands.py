@@ -77,7 +77,12 @@ def cmd_sweep(args: argparse.Namespace) -> int:
 
     spec = _load(args)
     check_inputs(spec)  # the files it starts from, before any folder is made
-    print(f"sweep {spec.name!r}: {len(spec.trials())} training trials")
+    counts = f"{len(spec.trials())} training trials"
+    if spec.population > 1:  # sources in fewer trials
+        from ps_ray.plan.train import plan
+
+        counts = f"{len(spec.trials())} sources in {len(plan(spec))} trials of up to {spec.population}"
+    print(f"sweep {spec.name!r}: {counts}")
     if args.check:
         from ps_ray.cli.check import print_check
 

@@ -31,11 +31,11 @@ def plain_sources(spec: SweepSpec) -> list[TrainTrial]:
     return [TrainTrial(source) for source in anchor_sources(spec)]
 
 
-def plan(spec: SweepSpec) -> list[TrainTrial] | list[PopulationTrial]:
+def plan(spec: SweepSpec) -> list[TrainTrial | PopulationTrial]:
     """The train stage's trials: each source with its anchor set; a search's, each named by its
     drawn setting (run ``<trial key>/searchNN``). With ``population`` K above 1, the sources in
     trials of up to K that share everything but robot, task and seed (and their widths), in
-    the sweep's order."""
+    the sweep's order; a source left over alone is a trial of its own."""
     sources = [
         TrainTrial(t, anchor_file(spec, t), key=f"{t.label()}/{name}" if name else "", label=name)
         for name, t in spec.named_trials()
@@ -47,9 +47,8 @@ def plan(spec: SweepSpec) -> list[TrainTrial] | list[PopulationTrial]:
         shape = json.dumps([shared_settings(source.spec), _widths(source.spec)], sort_keys=True)
         groups.setdefault(shape, []).append(source)
     k = spec.population
-    return [
-        PopulationTrial(tuple(group[i : i + k])) for group in groups.values() for i in range(0, len(group), k)
-    ]
+    chunks = [group[i : i + k] for group in groups.values() for i in range(0, len(group), k)]
+    return [PopulationTrial(tuple(c)) if len(c) > 1 else c[0] for c in chunks]  # one left over: alone
 
 
 def _widths(spec: TrainSpec) -> tuple[int, int, int] | None:

@@ -44,7 +44,7 @@ def population_algo_config(
 ) -> PopulationSACConfig:
     """The config of a population (:mod:`ps_ray.rllib.population_sac`): a grid of K tasks and K
     robots whose cells are (i, i); ``anchors`` per member. Its own seed (the first member's)
-    draws only the initial weights and the exploration noise."""
+    draws the initial weights, the exploration noise and the warm-up actions."""
     members = population.members
     model_config = {
         "tasks": len(members),

@@ -186,8 +186,12 @@ class TrainingRun:
         row = self.position()  # a run restored already done takes no step
         while not self.done:
             row = self.step()
-            yield Tick(row, checkpoint=not self.done and row["iteration"] % self.spec.checkpoint_every == 0)
+            yield Tick(row, checkpoint=not self.done and self.checkpoint_due(row))
         yield Tick(row, checkpoint=True, finished=self.finish())
+
+    def checkpoint_due(self, row: dict[str, Any]) -> bool:
+        """Whether the step of ``row`` ends with a checkpoint (every ``checkpoint_every`` steps)."""
+        return row["iteration"] % self.spec.checkpoint_every == 0
 
     def position(self) -> dict[str, Any]:
         """Where the run stands without a step: iteration, env steps and the best so far."""

@@ -4,9 +4,10 @@ A population is a co-trained grid whose cells share nothing: member i is cell (i
 with one task module and one robot module per member (:mod:`ps_ray.rllib.grid_module`), so its
 loss, gradients, temperature and Adam slots are its own, and one update of the population is one
 update of each member. What makes each member its source rather than a grid's cell: it resets
-from its own source's reset-seed block (:class:`ps_ray.envs.grid.GridEnv` ``seed_offsets``; the
-population's own seed draws nothing) and its replay is seeded with its own seed. Stopping is per
-member (:mod:`ps_ray.rllib.population_train`).
+from its own source's reset-seed block (:class:`ps_ray.envs.grid.GridEnv` ``seed_offsets``) and
+its replay is seeded with its own seed; the population's own seed (its first member's) draws the
+initial weights, the exploration noise and the warm-up actions. Stopping is per member
+(:mod:`ps_ray.rllib.population_train`).
 """
 
 from __future__ import annotations
@@ -27,7 +28,8 @@ class PopulationSAC(GridSAC):
     @property
     def run_seed(self) -> int:
         """0: each member's env adds its own block's start (``seed_offsets``), so a member draws
-        the reset seeds its source would draw alone."""
+        the reset seeds its source would draw alone (the warm-up actions, drawn for all members
+        at once, come from the population's own seed, the first member's)."""
         return 0
 
     def replay_seeds(self) -> list[int]:

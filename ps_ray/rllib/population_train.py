@@ -96,6 +96,7 @@ class PopulationRun(TrainingRun):
         ]
         self.streaks = [0] * len(members)
         self.stopped: dict[int, dict[str, float]] = {}  # member -> its final figures, at its stop
+        self._stopped_now = False  # a member stopped in the latest step: checkpoint it at once
         self._stopped_files: dict[int, bytes] = {}  # member -> its policy file, as it stopped
 
     @property
@@ -116,6 +117,7 @@ class PopulationRun(TrainingRun):
             self.streaks, row, self.spec.target_success, self.spec.target_evals
         )
         met = [i for i in met if i not in self.stopped]
+        self._stopped_now = bool(met)
         if met:  # finally evaluated and exported now, as each member's source alone would be
             figures = self.algo.evaluate_greedy(self.spec.eval_episodes * 2, final=True)
             files = self._policy_files()
@@ -128,6 +130,11 @@ class PopulationRun(TrainingRun):
                 }
                 self._stopped_files[index] = files[index]
         return row
+
+    def checkpoint_due(self, row: dict[str, Any]) -> bool:
+        """Also at a member's stop, as a source alone checkpoints when it stops: a kill after it
+        loses neither the stop nor the member's policy as it stopped."""
+        return self._stopped_now or super().checkpoint_due(row)
 
     def _policy_files(self) -> list[bytes]:
         with tempfile.TemporaryDirectory() as directory:
@@ -180,7 +187,10 @@ class PopulationRun(TrainingRun):
         super().restore(directory)  # verified whole before anything is read
         state = json.loads((Path(directory) / PROGRESS_FILE).read_text())
         self.streaks = [int(s) for s in state["streaks"]]
-        self.stopped = {int(i): {k: float(v) for k, v in f.items()} for i, f in state["stopped"].items()}
+        self.stopped = {
+            int(i): {k: int(v) if k == "env_steps" else float(v) for k, v in f.items()}
+            for i, f in state["stopped"].items()
+        }
         self._stopped_files = {i: (Path(directory) / cell_policy_file(i)).read_bytes() for i in self.stopped}
 
     def progress_line(self, row: dict[str, Any]) -> str:

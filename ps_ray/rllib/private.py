@@ -15,13 +15,14 @@ RAY_CHECKED = "2.60.0"
 NO_METRICS_REDUCE: dict[str, Any] = {"_no_metrics_reduce": True}
 
 
-def set_runner_seed(runner, seed: int) -> None:
+def set_runner_seed(runner, seed: int, action_seed: int | None = None) -> None:
     """SingleAgentEnvRunner re-seeds its envs from the private ``_seed`` on every
     ``sample(num_episodes=...)`` call; without this each call would replay the same goals.
     Its ``random_actions`` come from ``env.action_space.sample()``, which nothing seeds (gymnasium
-    draws OS entropy): seeding it here makes the warm-up episodes, and so a run, repeatable."""
+    draws OS entropy): seeding it here (from ``action_seed``, default ``seed``) makes the warm-up
+    episodes, and so a run, repeatable."""
     runner._seed = seed
-    runner.env.action_space.seed(seed)
+    runner.env.action_space.seed(seed if action_seed is None else action_seed)
 
 
 def mark_weights_changed(learner: Learner) -> None:

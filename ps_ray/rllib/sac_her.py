@@ -218,7 +218,8 @@ class ModularSAC(SAC):
 
     @property
     def run_seed(self) -> int | None:
-        """The seed whose reset-seed block the run draws its episodes from (ps_ray.specs.reset_seeds)."""
+        """The seed whose reset-seed block the run draws its episodes' scenes from
+        (ps_ray.specs.reset_seeds); its warm-up random actions always come from its own seed's."""
         return self.config.seed
 
     def collect_episodes(self, *, explore: bool, random: bool, n: int, final: bool = False) -> list:
@@ -227,11 +228,13 @@ class ModularSAC(SAC):
         evaluations reuse one fixed seed, so every evaluation sees the same episodes; the final
         evaluation (``final``) another fixed seed, so its episodes are none of those."""
         seed = run_episode_seed(self.run_seed, self.counters["episodes"], explore=explore, final=final)
+        actions = run_episode_seed(self.config.seed, self.counters["episodes"], explore=explore, final=final)
 
         def sample(runner):
             # RLlib re-seeds the envs with its config seed on every num_episodes call, which
             # would replay the same goals forever: set the seed of this call instead.
-            set_runner_seed(runner, seed + RUNNER_STRIDE * runner.worker_index)
+            offset = RUNNER_STRIDE * runner.worker_index
+            set_runner_seed(runner, seed + offset, actions + offset)
             return runner.sample(num_episodes=n, explore=explore, random_actions=random)
 
         results = self.env_runner_group.foreach_env_runner(

@@ -15,7 +15,7 @@ from ps_ray.specs.grid import GridSpec
 from ps_ray.specs.modes import TrialKind
 from ps_ray.specs.names import readable, short_name, trial_key
 from ps_ray.specs.population import PopulationSpec
-from ps_ray.specs.titles import spec_title, title, width_tag
+from ps_ray.specs.titles import env_title, spec_title, title, width_tag
 from ps_ray.specs.train import TrainSpec
 
 # What a training trial is: a source of the grid or of the anchors, or a few-shot start
@@ -126,12 +126,16 @@ class PopulationTrial:
 
     @property
     def title(self) -> str:
-        """``population of 4 · ablation · seeds 411-412``: its MLflow run name."""
+        """``population of 4 from panda/reach q1 · ablation · seeds 411, 412``: its MLflow run name."""
         first = self.members[0].spec
-        seeds = sorted({m.spec.seed for m in self.members})
-        seed_text = f"seed {seeds[0]}" if len(seeds) == 1 else f"seeds {seeds[0]}-{seeds[-1]}"
-        width = width_tag(first.interface_dim)
-        return title(f"population of {len(self.members)}", short_name(first.method), seed_text, width)
+        seeds = ", ".join(map(str, sorted({m.spec.seed for m in self.members})))
+        start = f"population of {len(self.members)} from {env_title(first.robot, first.task)}"
+        return title(
+            start,
+            short_name(first.method),
+            f"seed{'s' * (',' in seeds)} {seeds}",
+            width_tag(first.interface_dim),
+        )
 
     def config(self) -> dict[str, Any]:
         return {"population": [m.config() for m in self.members], "key": self.run_name}

@@ -241,3 +241,15 @@ def test_a_sweep_refuses_a_population_it_cannot_form(changes, message):
     }
     with pytest.raises(SpecError, match=message):
         SweepSpec.from_mapping({**data, **changes})
+
+
+def test_a_population_is_placed_on_the_cpu_of_a_gpu_node_until_its_batched_update_is_built():
+    from ps_ray.analysis.hardware import GPU_CLUSTER
+    from ps_ray.analysis.placement import placed
+    from ps_ray.specs.sweep import SweepSpec
+
+    data = {"name": "x", "methods": ["ablation"], "robots": ["panda"], "tasks": ["reach"], "seeds": [1, 2]}
+    solo, notes = placed(SweepSpec.from_mapping(data), GPU_CLUSTER)
+    assert solo["train"].gpu > 0  # a source alone gets docs/cluster.md's GPU layout there
+    population, notes = placed(SweepSpec.from_mapping({**data, "population": 2}), GPU_CLUSTER)
+    assert population["train"].gpu == 0 and "populations of 2 learn on the CPU, the GPU idle" in notes[0]

@@ -45,6 +45,10 @@ def placed(spec: SweepSpec, kind: NodeKind) -> tuple[dict[str, StageResources], 
         if r.gpu and not kind.gpus:
             out[stage] = StageResources(cpu=r.cpu)
             notes.append(f"{stage}: its gpu {r.gpu:g} dropped, trained on the CPU (no GPU here)")
+        elif stage == "train" and spec.population > 1:
+            out[stage] = r  # a population learns on the CPU (its batched GPU update is not built)
+            if kind.gpus:
+                notes.append(f"train: populations of {spec.population} learn on the CPU, the GPU idle")
         elif not r.gpu and kind.gpus and stage_record(stage).trains:
             out[stage] = GPU_LAYOUT
             notes.append(

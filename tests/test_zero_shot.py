@@ -125,6 +125,7 @@ def test_zero_shot_matrix_of_a_sweep(trained_matrix, tmp_path):
     )
     for run in members:  # its own figures, spec and files
         assert 0 <= run.data.metrics["final_success"] <= 1 and run.data.params["seed"] == "1"
+        assert "ps_ray.model" in run.data.tags  # its policy a logged model, as a source's
         names = {a.path for a in client.list_artifacts(run.info.run_id)}
         assert len({n for n in names if n.startswith("policy_c")}) == 1 and any(
             n.startswith("spec_c") for n in names

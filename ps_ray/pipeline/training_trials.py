@@ -6,6 +6,7 @@ in MLflow under the stage's run (:func:`run_tune`)."""
 from __future__ import annotations
 
 import tempfile
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -158,7 +159,8 @@ def run_tune(
             # run keeps their first record
             step_key="env_steps",
             once_per_step=True,
-            members_fn=_member_runs,  # a population's members: a run each, under the trial's
+            # a population's members: a run each, under the trial's, each policy a model as a source's
+            members_fn=partial(_member_runs, models=spec.log_models and stage == "train"),
         )
         results = run_trials(
             trainable or sweep_trial,
@@ -179,9 +181,10 @@ def run_tune(
     return results
 
 
-def _member_runs(trial) -> list:
+def _member_runs(trial, *, models: bool = False) -> list:
     """A population trial's members as MLflow runs of their own (each an ordinary source's: its
-    trial key, title and spec); none for any other trial."""
+    trial key, title and spec, and with ``models`` its policy as a logged model); none for any
+    other trial."""
     from ps_ray.pipeline.tune_tracking import MemberRun
 
     if "population" not in trial.config["trial"]:
@@ -194,6 +197,7 @@ def _member_runs(trial) -> list:
             params=flatten_params(m.spec.to_dict()),
             prefix=f"c{i:02d}_",
             files=(cell_policy_file(i), cell_spec_file(i), cell_result_file(i)),
+            model=(m.spec.robot, m.spec.task) if models and m.spec.env is None else None,
         )
         for i, m in enumerate(record.members)
     ]

@@ -41,7 +41,8 @@ class MemberRun:
     name: str
     params: Mapping[str, Any]
     prefix: str  # "c00_"
-    files: tuple[str, ...] = ()
+    files: tuple[str, ...] = ()  # its policy file first
+    model: tuple[Any, Any] | None = None  # (robot, task): its policy file logged as a model
 
 
 MEMBER_COLUMNS = ("train_", "eval_", "final_")  # a member's own figures carry its prefix after these
@@ -244,6 +245,12 @@ class MLflowTuneCallback(Callback):
             for name in member.files if folder is not None else ():
                 if (folder / name).exists():
                     self._guard(f"log artifact {name}", member_tracker.log_artifact, folder / name)
+            if member.model is not None and folder is not None and (folder / member.files[0]).exists():
+                from ps_ray.pipeline.policy_models import log_policy_model
+
+                policy = folder / member.files[0]
+                args = (self.tracking_uri, member_tracker.run_id, policy, *member.model, member.name)
+                self._guard("log the policy as a model", log_policy_model, *args)
         self._close(trial, "FINISHED")
 
     def on_trial_error(self, iteration: int, trials: list[Trial], trial: Trial, **info: Any) -> None:

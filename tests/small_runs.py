@@ -26,6 +26,22 @@ TINY_TRAIN = {
 }
 
 
+# A co-trained grid's or a population's cells at test size (real RLlib runs, one env each).
+CELL_TRAIN = {
+    "method": "ablation",
+    "hidden": 32,
+    "interface_dim": 8,
+    "learning_starts": 100,
+    "random_episodes": 1,
+    "episodes_per_step": 1,
+    "num_envs": 1,
+    "eval_every": 2,
+    "eval_episodes": 2,
+    "checkpoint_every": 2,
+    "batch_size": 32,
+}
+
+
 class HostilePickle:
     """A pickle that, if ever loaded, writes a marker file."""
 

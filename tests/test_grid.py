@@ -15,24 +15,11 @@ from ps_ray.envs.tasks import resolve_task
 from ps_ray.specs.grid import GridSpec
 from ps_ray.specs.train import TrainSpec
 from ps_ray.store.layout import sweep_layout
+from tests.small_runs import CELL_TRAIN
 
 ROBOTS, TASKS = ["panda", "panda_far"], ["reach_red", "reach_blue"]
 HELD_OUT = "panda_far/reach_blue"
-SMALL = dict(
-    method="ablation",
-    seed=3,
-    hidden=32,
-    interface_dim=8,
-    learning_starts=100,
-    random_episodes=1,
-    episodes_per_step=1,
-    num_envs=1,
-    eval_every=2,
-    eval_episodes=2,
-    checkpoint_every=2,
-    batch_size=32,
-    anchor_episodes=4,
-)
+SMALL = dict(CELL_TRAIN, seed=3, anchor_episodes=4)
 
 
 def grid_args(run_dir, env_steps, *extra):

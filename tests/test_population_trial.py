@@ -15,21 +15,9 @@ from ps_ray.specs.reset_seeds import run_block
 from ps_ray.specs.train import SpecError, TrainSpec
 from ps_ray.store.run_layout import cell_policy_file, cell_result_file, cell_spec_file
 from tests.point_env import POINT_ENV
+from tests.small_runs import CELL_TRAIN
 
-SMALL = dict(
-    method="ablation",
-    hidden=32,
-    interface_dim=8,
-    learning_starts=100,
-    random_episodes=1,
-    episodes_per_step=1,
-    num_envs=1,
-    eval_every=1,
-    eval_episodes=2,
-    checkpoint_every=2,
-    batch_size=32,
-    env_steps=150,
-)
+SMALL = dict(CELL_TRAIN, eval_every=1, env_steps=150)
 
 
 def member(robot: str, task: str, seed: int, **changes) -> TrainSpec:

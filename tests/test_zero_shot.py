@@ -119,6 +119,8 @@ def test_zero_shot_matrix_of_a_sweep(trained_matrix, tmp_path):
     populations = {
         r.info.run_id: r for r in found_runs if r.data.tags["ps_ray.trial_key"].startswith("population/")
     }
+    for run in populations.values():  # the settings its members share, and their keys
+        assert "seed" not in run.data.params and len(run.data.params["members"].split(", ")) == 2
     members = [r for r in found_runs if r.data.tags.get("mlflow.parentRunId") in populations]
     assert sorted(r.data.tags["ps_ray.trial_key"] for r in members) == sorted(
         t.label() for t in spec.trials()

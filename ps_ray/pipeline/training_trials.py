@@ -10,6 +10,7 @@ from functools import partial
 from pathlib import Path
 from typing import Any
 
+from ps_ray.specs.population import shared_settings
 from ps_ray.specs.stages import stage as stage_record
 from ps_ray.specs.sweep import SweepSpec
 from ps_ray.specs.trial import GridTrial, PopulationTrial, TrainTrial, training_trial
@@ -216,11 +217,11 @@ def record_of(trial) -> TrainTrial | PopulationTrial:
 
 def _spec_params(trial) -> dict[str, str]:
     """A training trial's MLflow params: its spec's fields as the config holds them (nested
-    robot/task as ``robot.x``); a population's: its first member's and every member's key."""
+    robot/task as ``robot.x``); a population's: the settings its members share, and their keys."""
     record = record_of(trial)
     if isinstance(record, PopulationTrial):
-        members = [m.run_name for m in record.members]
-        return {**flatten_params(record.members[0].spec.to_dict()), "members": ", ".join(members)}
+        shared = flatten_params(shared_settings(record.members[0].spec))
+        return {**shared, "members": ", ".join(m.run_name for m in record.members)}
     return flatten_params(trial.config["trial"]["spec"])
 
 

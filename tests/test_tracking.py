@@ -520,6 +520,61 @@ def test_a_checkpoint_flushes_the_trials_metrics(store):
     assert [(m.step, m.value) for m in history] == [(1, 1.0), (2, 2.0), (3, 3.0)]
 
 
+def test_a_populations_members_each_get_a_run_of_their_own_that_ends_at_their_stop(store):
+    """Each member of a population trial logs its own columns (``eval_c01_success`` as
+    ``eval_success``) into a run of its own, nested under the trial's; a member that stopped logs
+    nothing more but its final figures, at the step it stopped."""
+    from ray.tune.experiment import Trial
+
+    from ps_ray.pipeline.tune_tracking import MemberRun
+
+    exp = new_experiment(store, "population")
+    keys = ["ablation/panda/reach/1", "ablation/panda/reach/2"]
+    members = [
+        MemberRun(key=k, name=f"member {k}", params={"seed": k[-1]}, prefix=f"c0{i}_")
+        for i, k in enumerate(keys)
+    ]
+    callback = MLflowTuneCallback(
+        store["uri"],
+        exp,
+        metric_keys=["env_steps", "eval_success", "best_eval_success", "final_success"],
+        key_fn=lambda trial: "population/ablation/2xabc",
+        params_fn=lambda trial: {},
+        step_key="env_steps",
+        once_per_step=True,
+        members_fn=lambda trial: members,
+    )
+    trial = Trial("__fake", config={}, stub=True)
+    # member 2 stops at 100 env steps: its columns leave the rows, its final figures come last
+    rows = [
+        {"env_steps": 100, "eval_success": 0.2, "best_eval_success": 0.2},
+        {"env_steps": 200, "eval_success": 0.5, "best_eval_success": 0.5},
+        {"env_steps": 300, "eval_success": 0.95, "best_eval_success": 0.95, "final_success": 0.85},
+    ]
+    rows[0].update(eval_c00_success=0.2, eval_c01_success=0.9)
+    rows[1].update(eval_c00_success=0.5)
+    rows[2].update(eval_c00_success=0.95, final_c00_success=0.9, final_c00_env_steps=300)
+    rows[2].update(final_c01_success=0.85, final_c01_env_steps=100)
+    for row in rows:
+        callback.on_trial_result(0, [trial], trial, row)
+    callback.on_trial_complete(0, [trial], trial)
+    runs = {r.data.tags[TRIAL_KEY_TAG]: r for r in runs_of(store, exp)}
+    parent = runs.pop("population/ablation/2xabc")
+    assert set(runs) == set(keys) and {r.data.tags[PARENT_TAG] for r in runs.values()} == {parent.info.run_id}
+
+    def history(key: str, metric: str) -> list:
+        return [(m.step, m.value) for m in store["client"].get_metric_history(runs[key].info.run_id, metric)]
+
+    assert history(keys[0], "eval_success") == [(100, 0.2), (200, 0.5), (300, 0.95)]
+    assert history(keys[0], "final_success") == [(300, 0.9)]
+    assert history(keys[1], "eval_success") == [(100, 0.9)] and history(keys[1], "final_success") == [
+        (100, 0.85)
+    ]
+    assert history(keys[1], "env_steps") == [(100, 100.0)]
+    assert "best_eval_success" not in runs[keys[0]].data.metrics  # the trial's, not a member's
+    assert runs[keys[1]].info.run_name == f"member {keys[1]}" and runs[keys[1]].info.status == "FINISHED"
+
+
 ENSURE_WHEN_TOLD = """
 import sys, time
 from pathlib import Path

@@ -201,13 +201,13 @@ class MLflowTuneCallback(Callback):
         )
         key = tracker.trial_key
         for member, member_tracker in self._members[key]:
-            columns = {k: member_metric(k, member.prefix) for k in self.metric_keys}
+            columns = {k: c for k in self.metric_keys if (c := member_metric(k, member.prefix)) is not None}
             if all(lookup(result, c) is None for c in columns.values() if c not in SHARED_COLUMNS):
                 continue  # none of its own figures: it has stopped (its final ones come last)
             # a member's final figures are those of the step it stopped at
             stopped = lookup(result, f"final_{member.prefix}env_steps")
             member_tracker.log_metrics(
-                {k: lookup(result, c) for k, c in columns.items() if c is not None},
+                {k: lookup(result, c) for k, c in columns.items()},
                 step=int(stopped) if stopped is not None else int(step) if step is not None else 0,
                 timestamp_ms=int(stamp * 1000) if stamp else None,
             )

@@ -83,11 +83,13 @@ class GridSACModule(TorchRLModule, InferenceOnlyAPI):
 
     # -- learning ------------------------------------------------------------------------------
     def _forward_train(self, batch: dict[str, Any], **kwargs) -> dict[str, Any]:
+        """Each cell the batch holds (a population's stopped members are left out of it)."""
         out = {}
         for key, cell in zip(self.keys, self.cells):
             prefix = key + "/"
             cell_batch = {k[len(prefix) :]: v for k, v in batch.items() if k.startswith(prefix)}
-            out.update({prefix + k: v for k, v in sac_forward(cell, cell_batch).items()})
+            if cell_batch:
+                out.update({prefix + k: v for k, v in sac_forward(cell, cell_batch).items()})
         return out
 
     def get_non_inference_attributes(self) -> list[str]:
@@ -122,6 +124,8 @@ class GridSACLearner(ModularSACLearner):
         total = 0.0
         for index, key in enumerate(module.keys):
             prefix = key + "/"
+            if prefix + "rewards" not in batch:
+                continue  # not in this update: its parameters get no gradient, Adam leaves them be
             fwd = {k[len(prefix) :]: v for k, v in fwd_out.items() if k.startswith(prefix)}
             losses = sac_losses(fwd, batch[prefix + "rewards"], log_alpha[index], hp, module.dims.action_dim)
             total = total + (

@@ -64,6 +64,10 @@ def cell_stats(episodes: list, key: str) -> dict[str, float]:
 
 
 class GridSAC(ModularSAC):
+    # cells that left (a population's stopped members): their steps go to no replay or normaliser,
+    # their minibatches leave the updates (no gradient, so Adam leaves their parameters be)
+    stopped: frozenset[str] = frozenset()
+
     @classmethod
     def get_default_config(cls) -> GridSACConfig:
         return GridSACConfig()
@@ -102,6 +106,8 @@ class GridSAC(ModularSAC):
                 explore=True, n=cfg.episodes_per_step, random=self.counters["episodes"] < cfg.random_episodes
             )
         for index, (key, (obs, actions)) in enumerate(grid_arrays(episodes, self.keys, self.cuts).items()):
+            if key in self.stopped:
+                continue
             self.replays[key].add_episodes(obs, actions)
             self.see(self.replays[key], obs, lambda module, i=index: module.cells[i])
         self._log_cell_stats("train", episodes)
@@ -114,7 +120,8 @@ class GridSAC(ModularSAC):
 
     def sample_batch(self, n_updates: int) -> dict[str, torch.Tensor]:
         size = self.config.train_batch_size
-        return grid_train_batch({k: r.sample_many(n_updates, size) for k, r in self.replays.items()})
+        live = {k: r for k, r in self.replays.items() if k not in self.stopped}
+        return grid_train_batch({k: r.sample_many(n_updates, size) for k, r in live.items()})
 
     def log_evaluation(self) -> None:
         self._log_cell_stats(

@@ -95,9 +95,8 @@ class ModularSACLearner(SACTorchLearner):
         """Gradient updates applied so far: the critic optimiser's step count (restored with the
         checkpoint, so a resumed run keeps counting)."""
         optimizer = self.get_optimizer(module_id, "critic")
-        for slots in optimizer.state.values():
-            return int(slots["step"])
-        return 0
+        # the most any parameter has had (a population's stopped members are updated no more)
+        return max((int(slots["step"]) for slots in optimizer.state.values()), default=0)
 
     def compute_gradients(self, loss_per_module, **kwargs):
         return gradients_in_one_backward(self, loss_per_module, **kwargs)

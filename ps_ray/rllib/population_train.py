@@ -3,9 +3,9 @@ over a :class:`ps_ray.rllib.population_sac.PopulationSAC`, with a stopping rule 
 
 Each member stops as its source alone would: at ``target_success`` in ``target_evals`` greedy
 evaluations in a row (its own, ``eval_c<i>_success``). A member that stops is finally evaluated
-then (on the episodes its source's final evaluation would use) and its policy file is kept as it
-was at that moment; its weights may move on in the population's updates, which touch no other
-member. The run ends when every member has stopped, or at the budget.
+then (on the episodes its source's final evaluation would use), its policy file kept as it was at
+that moment, and it is updated no more (its minibatches leave the updates; its env is still
+stepped with the others). The run ends when every member has stopped, or at the budget.
 
 A checkpoint holds the population's learner and replays (a grid's), each member's policy file,
 spec and, once stopped, result, and population.json.
@@ -129,6 +129,7 @@ class PopulationRun(TrainingRun):
                     "env_steps": self.env_steps,
                 }
                 self._stopped_files[index] = files[index]
+            self.algo.stopped = frozenset(self.keys[i] for i in self.stopped)
         return row
 
     def checkpoint_due(self, row: dict[str, Any]) -> bool:
@@ -192,6 +193,7 @@ class PopulationRun(TrainingRun):
             for i, f in state["stopped"].items()
         }
         self._stopped_files = {i: (Path(directory) / cell_policy_file(i)).read_bytes() for i in self.stopped}
+        self.algo.stopped = frozenset(self.keys[i] for i in self.stopped)
 
     def progress_line(self, row: dict[str, Any]) -> str:
         members = "  ".join(

@@ -271,69 +271,68 @@ class ModuleZoo:
         return sorted({e.key.grid for e in self if e.key.method == method and e.key.grid})
 
 
-def _grid_cells(stage_dir: Path) -> tuple[list[ZooEntry], list[str]]:
-    """Every trained cell of each grid trial's furthest verified checkpoint (its policy files
-    hashed), and a problem line per trial that has none."""
-    from ps_ray.specs.grid import GridSpec
-    from ps_ray.store import checkpoint
-    from ps_ray.store.attempts import attempts, checkpoint_dirs
-
-    entries, problems = [], []
-    for folders in attempts(stage_dir, "trial").values():
-        found = checkpoint_dirs(folders)
-        best = checkpoint.latest(found, (checkpoint.STATE_FILE, GRID_FILE))
-        try:
-            if best is None:
-                if found:
-                    checkpoint.verify(found[-1], (checkpoint.STATE_FILE, GRID_FILE))  # names the problem
-                continue
-            grid = GridSpec.from_mapping(
-                json.loads((best / GRID_FILE).read_text()), where=str(best / GRID_FILE)
-            )
-            n = len(grid.cells)
-            checkpoint.verify(best, tuple(f(i) for i in range(n) for f in (cell_policy_file, cell_spec_file)))
-        except UserError as e:
-            problems.append(str(e))
-            continue
-        for i in range(n):
-            entry = read_entry(
-                best / cell_policy_file(i), "grid", best / cell_spec_file(i), grid.held_out_text
-            )
-            entries.append(entry)
-    return entries, problems
-
-
-def _population_members(stage_dir: Path) -> tuple[list[ZooEntry], list[str]]:
-    """Every member of each population trial's furthest verified checkpoint (the train stage's
-    ``tune/``: :mod:`ps_ray.rllib.population_train`), each an ordinary train-stage source, and a
-    problem line per population trial that has none."""
-    from ps_ray.specs.population import PopulationSpec
+def _cell_entries(
+    stage_dir: Path, spec_file: str, read_spec, entry_of, trials=lambda trial: True
+) -> tuple[list[ZooEntry], list[str]]:
+    """The cells of each trial (``trials`` picks them by config) whose checkpoints hold several
+    policies (a grid's, a population's): from its furthest checkpoint whose ``spec_file`` verifies,
+    read by ``read_spec(path)`` -> (spec, cell count), every cell's policy and spec verified, each
+    cell's entry ``entry_of(spec, policy path, spec path)``; a problem line per trial without one."""
     from ps_ray.store import checkpoint
     from ps_ray.store.attempts import attempts, checkpoint_dirs
 
     entries, problems = [], []
     for trial, folders in attempts(stage_dir, "trial").items():
-        if "population" not in json.loads(trial):
+        if not trials(json.loads(trial)):
             continue
         found = checkpoint_dirs(folders)
-        best = checkpoint.latest(found, (checkpoint.STATE_FILE, POPULATION_FILE))
+        best = checkpoint.latest(found, (checkpoint.STATE_FILE, spec_file))
         try:
             if best is None:
                 if found:
-                    checkpoint.verify(
-                        found[-1], (checkpoint.STATE_FILE, POPULATION_FILE)
-                    )  # names the problem
+                    checkpoint.verify(found[-1], (checkpoint.STATE_FILE, spec_file))  # names the problem
                 continue
-            path = best / POPULATION_FILE
-            n = len(PopulationSpec.from_mapping(json.loads(path.read_text()), where=str(path)).members)
+            spec, n = read_spec(best / spec_file)
             checkpoint.verify(best, tuple(f(i) for i in range(n) for f in (cell_policy_file, cell_spec_file)))
         except UserError as e:
             problems.append(str(e))
             continue
-        entries += [
-            read_entry(best / cell_policy_file(i), "train", best / cell_spec_file(i)) for i in range(n)
-        ]
+        entries += [entry_of(spec, best / cell_policy_file(i), best / cell_spec_file(i)) for i in range(n)]
     return entries, problems
+
+
+def _grid_cells(stage_dir: Path) -> tuple[list[ZooEntry], list[str]]:
+    """Every trained cell of each grid trial, tagged with the grid's held-out cells."""
+    from ps_ray.specs.grid import GridSpec
+
+    def read(path: Path):
+        grid = GridSpec.from_mapping(json.loads(path.read_text()), where=str(path))
+        return grid, len(grid.cells)
+
+    return _cell_entries(
+        stage_dir,
+        GRID_FILE,
+        read,
+        lambda grid, policy, spec: read_entry(policy, "grid", spec, grid.held_out_text),
+    )
+
+
+def _population_members(stage_dir: Path) -> tuple[list[ZooEntry], list[str]]:
+    """Every member of each population trial of the train stage's ``tune/``
+    (:mod:`ps_ray.rllib.population_train`), each an ordinary train-stage source."""
+    from ps_ray.specs.population import PopulationSpec
+
+    def read(path: Path):
+        population = PopulationSpec.from_mapping(json.loads(path.read_text()), where=str(path))
+        return population, len(population.members)
+
+    return _cell_entries(
+        stage_dir,
+        POPULATION_FILE,
+        read,
+        lambda _, policy, spec: read_entry(policy, "train", spec),
+        trials=lambda trial: "population" in trial,
+    )
 
 
 def _preference(entry: ZooEntry) -> tuple[int, float]:

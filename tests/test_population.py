@@ -167,3 +167,35 @@ def test_the_update_benchmark_prices_a_population_per_source(capsys):
     assert [r[0] for r in rows] == ["1", "1", "2"] and rows[0][1] == "solo"
     solo, two = float(rows[0][2]), rows[2]  # K = 2: all of its update, then per source
     assert float(two[2]) == pytest.approx(float(two[1]) / 2, abs=0.01) and solo > 0
+
+
+@pytest.mark.parametrize("method", ["ps", "ablation", "plain"])
+def test_a_batched_pass_over_members_that_keep_their_own_parameters_is_their_solo_passes(method):
+    """members_forward + members_losses (the RLlib population learner's pass) give each member
+    the outputs, losses and gradients its own sac_forward + sac_losses give it."""
+    from ps_ray.nets.population import members_forward, members_losses
+
+    batched = [member(method, seed) for seed in (1, 2, 3)]
+    alone = [copy.deepcopy(nets) for nets in batched]
+    batch, rewards, noise = batches(3, 32, seed=0)
+    log_alpha = torch.tensor([0.1, -0.2, 0.3], requires_grad=True)
+    fwd = members_forward(batched, batch, noise)
+    losses = members_losses(fwd, rewards, log_alpha, HP, DIMS.action_dim)
+    losses["total"].sum().backward()
+    log_alpha_alone, total = log_alpha.detach().clone().requires_grad_(), 0.0
+    for i, nets in enumerate(alone):
+        own = sac_forward(nets, {k: v[i] for k, v in batch.items()}, (noise[0][i], noise[1][i]))
+        for name, value in own.items():
+            torch.testing.assert_close(fwd[name][i], value, rtol=1e-5, atol=1e-6, msg=name)
+        own_losses = sac_losses(own, rewards[i], log_alpha_alone[i], HP, DIMS.action_dim)
+        for name, value in own_losses.items():
+            torch.testing.assert_close(losses[name][i], value, rtol=1e-5, atol=1e-6, msg=name)
+        total = total + own_losses["total"]
+    total.backward()
+    for i, (ours, theirs) in enumerate(zip(batched, alone)):
+        for (name, got), want in zip(ours.named_parameters(), theirs.parameters(), strict=True):
+            if want.grad is None:  # targets: no gradient either way
+                assert got.grad is None, name
+            else:
+                torch.testing.assert_close(got.grad, want.grad, rtol=1e-4, atol=1e-6, msg=f"{i}: {name}")
+    torch.testing.assert_close(log_alpha.grad, log_alpha_alone.grad)

@@ -211,7 +211,7 @@ def test_a_sweep_s_population_groups_its_sources_in_trials_of_k_and_prices_each_
             "a search ranks each drawn setting",
         ),
         ({"methods": ["ps_distilled"]}, "method ps_distilled consolidates its actor"),
-        ({"resources": {"train": {"gpu": 0.5}}}, "a population learns on the CPU, uncompiled, for now"),
+        ({"resources": {"train": {"compile": True}}}, "a population's batched update runs uncompiled"),
     ],
 )
 def test_a_sweep_refuses_a_population_it_cannot_form(changes, message):
@@ -229,13 +229,118 @@ def test_a_sweep_refuses_a_population_it_cannot_form(changes, message):
         SweepSpec.from_mapping({**data, **changes})
 
 
-def test_a_population_is_placed_on_the_cpu_of_a_gpu_node_until_its_batched_update_is_built():
-    from ps_ray.analysis.hardware import GPU_CLUSTER
-    from ps_ray.analysis.placement import placed
+def test_a_population_on_a_gpu_updates_its_members_for_about_the_price_of_one():
+    """On a GPU node a population gets the GPU layout, and its K members' updates cost what one
+    source's does while launches bound them (K x the GPU's busy time under the launch time); on
+    a CPU its updates are K sources' updates."""
+    import dataclasses
+
+    from ps_ray.analysis.cost import workload
+    from ps_ray.analysis.hardware import DEFAULT_GPU_RATES, GPU_CLUSTER, GPU_LAYOUT
+    from ps_ray.analysis.placement import placed, trial_time
+    from ps_ray.specs.resources import StageResources
     from ps_ray.specs.sweep import SweepSpec
+    from tests.test_cost import RATES
 
     data = {"name": "x", "methods": ["ablation"], "robots": ["panda"], "tasks": ["reach"], "seeds": [1, 2]}
-    solo, notes = placed(SweepSpec.from_mapping(data), GPU_CLUSTER)
-    assert solo["train"].gpu > 0  # a source alone gets docs/cluster.md's GPU layout there
     population, notes = placed(SweepSpec.from_mapping({**data, "population": 2}), GPU_CLUSTER)
-    assert population["train"].gpu == 0 and "populations of 2 learn on the CPU, the GPU idle" in notes[0]
+    assert population["train"] == GPU_LAYOUT and "docs/cluster.md's layout" in notes[0]
+
+    load = workload(SweepSpec.from_mapping(data))[0]
+    updates_only = dataclasses.replace(RATES, trial_s=0.0, env_step_s=0.0, eval_step_s=0.0)
+
+    def seconds(r: StageResources, k: int) -> float:
+        return trial_time(load.trials[0], load, updates_only, DEFAULT_GPU_RATES, r, 1.0, k)
+
+    one = seconds(GPU_LAYOUT, 1)
+    assert 8 * DEFAULT_GPU_RATES.busy_s / GPU_LAYOUT.gpu < DEFAULT_GPU_RATES.launch_s  # launch-bound
+    assert seconds(GPU_LAYOUT, 8) == pytest.approx(one)
+    assert seconds(GPU_LAYOUT, 64) > one  # busy-bound: 64 x busy / share > launch
+    cpu = StageResources(cpu=1)
+    assert seconds(cpu, 8) == pytest.approx(8 * seconds(cpu, 1))
+
+
+def test_the_population_module_s_batched_pass_is_the_grid_s_loop_and_leaves_a_stopped_member_be():
+    """The population trial's module runs its members as one batched pass: each member's outputs
+    and gradients are what the co-trained grid's loop over cells gives it (same noise); a member
+    left out of the batch (stopped) gets no gradient and changes no other's."""
+    from ps_ray.nets.sac import sac_forward
+    from ps_ray.rllib.algo import population_algo_config
+    from ps_ray.rllib.population_module import STACKED, PopulationSACModule
+
+    config = population_algo_config(PopulationSpec(MEMBERS), [None, None])
+    env = GridEnv(**config.env_config)
+    torch.manual_seed(0)
+    module = PopulationSACModule(
+        observation_space=env.observation_space,
+        action_space=env.action_space,
+        model_config=config.model_config,
+    )
+    rng = torch.Generator().manual_seed(1)
+    widths = {"task_in": module.dims.task_dim, "robot_in": module.dims.robot_dim}
+    widths |= {"next_task_in": module.dims.task_dim, "next_robot_in": module.dims.robot_dim}
+    widths |= {"actions": module.dims.action_dim}
+    batch = {
+        f"{key}/{c}": torch.randn(16, w, generator=rng) for key in module.keys for c, w in widths.items()
+    }
+    batch |= {f"{key}/rewards": -torch.ones(16) for key in module.keys}
+    noise = tuple(torch.randn(2, 16, module.dims.action_dim, generator=rng) for _ in range(2))
+
+    def grads(members_batch, members_noise):
+        module.zero_grad(set_to_none=True)
+        fwd = module.forward_members(members_batch, members_noise)
+        (fwd[STACKED + "q"].sum() + fwd[STACKED + "q_policy"].sum()).backward()
+        return fwd, {n: p.grad.clone() for n, p in module.named_parameters() if p.grad is not None}
+
+    fwd, batched = grads(batch, noise)
+    module.zero_grad(set_to_none=True)
+    for index, (key, cell) in enumerate(zip(module.keys, module.cells)):
+        own = sac_forward(cell, {k.split("/")[1]: v for k, v in batch.items() if k.startswith(key)},
+                          (noise[0][index], noise[1][index]))  # fmt: skip
+        for name in ("q", "q_twin", "q_target_next", "logp", "q_policy"):
+            torch.testing.assert_close(fwd[STACKED + name][index], own[name], rtol=1e-5, atol=1e-6)
+        (own["q"].sum() + own["q_policy"].sum()).backward()
+    for name, parameter in module.named_parameters():
+        if parameter.grad is not None:
+            torch.testing.assert_close(batched[name], parameter.grad, rtol=1e-4, atol=1e-6, msg=name)
+    assert set(batched) == {n for n, p in module.named_parameters() if p.grad is not None}
+
+    stopped = {k: v for k, v in batch.items() if not k.startswith(module.keys[0])}  # member 0 left
+    _, rest = grads(stopped, (noise[0][1:], noise[1][1:]))
+    assert rest and not any(name.split(".")[1] == "0" for name in rest)  # tables keyed by member
+    for name, grad in rest.items():
+        torch.testing.assert_close(grad, batched[name], rtol=1e-4, atol=1e-6, msg=name)
+
+
+@pytest.mark.e2e
+def test_a_population_trains_alike_with_its_members_batched_or_looped(ray_local):
+    """The batched update (a GPU's default) and the grid's loop (a CPU's) draw each member's noise
+    in the same order from the same stream: two real trainings of one population, one batched and
+    one looped, end with the same weights to float rounding (after 20 updates; later, episodes
+    acted on by weights a rounding apart part in PyBullet, as any two builds' would)."""
+    from ray.rllib.core import DEFAULT_MODULE_ID
+
+    from ps_ray.rllib.algo import population_algo_config
+
+    def trained(batched: bool) -> list[torch.Tensor]:
+        config = population_algo_config(PopulationSpec(MEMBERS), [None, None])
+        config.rl_module(model_config={**config.model_config, "batched_update": batched})
+        algo = config.build_algo()
+        try:
+            chosen = algo.learner_group.foreach_learner(
+                lambda learner: learner.module[DEFAULT_MODULE_ID].batched_update
+            )
+            assert chosen.result_or_errors[0].get() is batched
+            start = [p.detach().clone() for view in algo.cell_nets() for p in view.parameters()]
+            for _ in range(2):
+                algo.train()
+            assert algo.counters["updates"] == 20
+            weights = [p.detach().clone() for view in algo.cell_nets() for p in view.parameters()]
+            assert any(not torch.equal(a, b) for a, b in zip(start, weights))
+            return weights
+        finally:
+            algo.stop()
+
+    looped, batched = trained(False), trained(True)
+    for a, b in zip(looped, batched, strict=True):
+        torch.testing.assert_close(a, b, rtol=1e-4, atol=1e-6)

@@ -45,10 +45,6 @@ def placed(spec: SweepSpec, kind: NodeKind) -> tuple[dict[str, StageResources], 
         if r.gpu and not kind.gpus:
             out[stage] = StageResources(cpu=r.cpu)
             notes.append(f"{stage}: its gpu {r.gpu:g} dropped, trained on the CPU (no GPU here)")
-        elif stage == "train" and spec.population > 1:
-            out[stage] = r  # a population learns on the CPU (its batched GPU update is not built)
-            if kind.gpus:
-                notes.append(f"train: populations of {spec.population} learn on the CPU, the GPU idle")
         elif not r.gpu and kind.gpus and stage_record(stage).trains:
             out[stage] = GPU_LAYOUT
             notes.append(
@@ -75,8 +71,9 @@ def trial_time(
     if spec is None:
         return (rates.trial_s + load.eval_steps / max(len(load.trials), 1) * rates.eval_step_s) * cpu
     own = train_load(load.stage, [spec] * sources)
-    if r.gpu:
-        update = gpu.update_s(rates.size_unit(spec), r.gpu, min(1.0, effective), rates.method_factor(spec))
+    if r.gpu:  # a population's K members update as one (launch-bound until K x busy is more)
+        unit = rates.size_unit(spec) * sources
+        update = gpu.update_s(unit, r.gpu, min(1.0, effective), rates.method_factor(spec)) / sources
     else:
         update = rates.update_s(spec) * update_factor(effective)
     serial = rates.trial_s + own.env_steps * rates.env_step_s + own.eval_steps * rates.eval_step_s

@@ -12,6 +12,11 @@ arithmetic, so K members cost about what one does (docs/cost.md "Populations").
 
 A member that stops (its target reached) or fails leaves with :meth:`Population.export` and
 :meth:`Population.keep`; the others go on exactly as before.
+
+:func:`members_forward` and :func:`members_losses` are the same batched pass for members that
+keep their own parameters (the RLlib population learner, :mod:`ps_ray.rllib.population_module`):
+their tensors are stacked differentiably on every pass, so each member's gradient lands on its
+own parameters and its own optimiser slots, and a stopped member is simply left out.
 """
 
 from __future__ import annotations
@@ -54,6 +59,46 @@ class _Losses(nn.Module):
         if warmup:  # critics only: zero gradients leave a fresh Adam's actor and temperature still
             return losses["critic"] + 0.0 * (losses["actor"] + losses["alpha"])
         return losses["total"]
+
+
+class _Forward(nn.Module):
+    """A member's :func:`sac_forward` as one module call (for ``functional_call`` on stacked state)."""
+
+    def __init__(self, nets: nn.Module) -> None:
+        super().__init__()
+        self.nets = nets
+
+    def forward(self, batch, next_noise, policy_noise) -> dict[str, Tensor]:
+        return sac_forward(self.nets, batch, (next_noise, policy_noise))
+
+
+def members_forward(
+    members: Sequence[nn.Module], batch: Mapping[str, Tensor], noise: tuple[Tensor, Tensor]
+) -> dict[str, Tensor]:
+    """:func:`sac_forward` of each member on its own batch, as one batched pass: batch tensors
+    ``[K, B, ...]``, noise ``[K, B, A]`` each; outputs ``[K, ...]``. Members built alike (the
+    modules of a :class:`~ps_ray.nets.sac.SACNets` or a grid cell's view); their parameters are
+    stacked with ``torch.stack``, so gradients flow back to each member's own."""
+    template = _Forward(members[0])  # its own tensors are swapped for the stacks during the call
+    named = [dict(m.named_parameters()) | dict(m.named_buffers()) for m in members]
+    state = {f"nets.{name}": torch.stack([n[name] for n in named]) for name in named[0]}
+
+    def one(member_state, member_batch, next_noise, policy_noise):
+        return torch.func.functional_call(template, member_state, (member_batch, next_noise, policy_noise))
+
+    return torch.func.vmap(one)(state, dict(batch), *noise)
+
+
+def members_losses(
+    fwd: Mapping[str, Tensor], rewards: Tensor, log_alpha: Tensor, hp: SACHyper, action_dim: int
+) -> dict[str, Tensor]:
+    """:func:`sac_losses` of each member (``fwd`` from :func:`members_forward`, rewards ``[K, B]``,
+    ``log_alpha`` ``[K]``): every loss ``[K]``, each member's from its own outputs only."""
+
+    def one(member_fwd, member_rewards, member_log_alpha):
+        return sac_losses(member_fwd, member_rewards, member_log_alpha, hp, action_dim)
+
+    return torch.func.vmap(one)(dict(fwd), rewards, log_alpha)
 
 
 class Population:

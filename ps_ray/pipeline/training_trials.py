@@ -76,7 +76,8 @@ def population_trial(config: dict[str, Any]) -> None:
     trial = PopulationTrial.of(config["trial"])
     anchor_sets = [None if m.anchors is None else load_anchor_set(m.anchors) for m in trial.members]
     granted = ray.get_runtime_context().get_assigned_resources()
-    run = PopulationRun(trial.population, anchor_sets, threads=max(1, int(granted.get("CPU", 1))))
+    threads = max(1, int(granted.get("CPU", 1)))
+    run = PopulationRun(trial.population, anchor_sets, threads=threads, gpu=granted.get("GPU", 0))
     report_ticks(run, config, "trial")
 
 

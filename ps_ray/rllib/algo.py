@@ -40,11 +40,12 @@ def grid_algo_config(grid: GridSpec, anchors: list[np.ndarray | None]) -> GridSA
 
 
 def population_algo_config(
-    population: PopulationSpec, anchors: list[np.ndarray | None]
+    population: PopulationSpec, anchors: list[np.ndarray | None], *, gpu: float = 0
 ) -> PopulationSACConfig:
     """The config of a population (:mod:`ps_ray.rllib.population_sac`): a grid of K tasks and K
-    robots whose cells are (i, i); ``anchors`` per member. Its own seed (the first member's)
-    draws the initial weights, the exploration noise and the warm-up actions."""
+    robots whose cells are (i, i); ``anchors`` per member; ``gpu``: the learner's GPU share (its
+    members then update as one batched pass). Its own seed (the first member's) draws the
+    initial weights, the exploration noise and the warm-up actions."""
     members = population.members
     model_config = {
         "tasks": len(members),
@@ -58,7 +59,7 @@ def population_algo_config(
         "seed_offsets": [run_block(m.seed).start for m in members],
     }
     return configure(
-        PopulationSACConfig(), population.base, RLLIB_GRID_ENV, env_config, model_config, 0, False
+        PopulationSACConfig(), population.base, RLLIB_GRID_ENV, env_config, model_config, gpu, False
     )
 
 

@@ -59,8 +59,10 @@ class PopulationRun(TrainingRun):
     """A :class:`TrainingRun` of a population: the same loop and checkpoints; each member stops on
     its own, and the run is done once all have (or at the budget)."""
 
-    def __init__(self, population: PopulationSpec, anchor_sets: Sequence, *, threads: int = 1) -> None:
-        """``anchor_sets``: each member's (PS) or None."""
+    def __init__(
+        self, population: PopulationSpec, anchor_sets: Sequence, *, threads: int = 1, gpu: float = 0
+    ) -> None:
+        """``anchor_sets``: each member's (PS) or None; ``gpu``: the learner's GPU share."""
         import torch
 
         from ps_ray.rllib.algo import population_algo_config
@@ -76,7 +78,7 @@ class PopulationRun(TrainingRun):
             for figure in MEMBER_FIGURES
         )
         anchors = [None if a is None else a.anchors for a in anchor_sets]
-        self.begin(population.base, population_algo_config(population, anchors).build_algo())
+        self.begin(population.base, population_algo_config(population, anchors, gpu=gpu).build_algo())
         replay = self.algo.replays[self.keys[0]]  # every member has the same widths (PopulationSpec)
         widths = {
             "task_dim": sum(replay.obs_spec[k][0][0] for k in TASK_KEYS),

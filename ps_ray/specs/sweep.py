@@ -133,11 +133,11 @@ class SweepSpec:
                     "own; valid with a search: population 1"
                 )
         train = self.resources.train
-        if self.population > 1 and (train.gpu or train.compile):
+        if self.population > 1 and train.compile:
             raise SpecError(
-                f"population {self.population}: a population learns on the CPU, uncompiled, for now (its "
-                "batched GPU update is not built); valid with population > 1: resources.train gpu 0, "
-                "compile false"
+                f"population {self.population}: a population's batched update runs uncompiled (its "
+                "vmapped pass is not checked under torch.compile); valid with population > 1: "
+                "resources.train compile false"
             )
         trials = self.trials()  # every trial's TrainSpec is validated before anything starts
         consolidating = [t.method for t in trials if t.resolved.consolidate is not None]

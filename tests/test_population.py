@@ -199,3 +199,19 @@ def test_a_batched_pass_over_members_that_keep_their_own_parameters_is_their_sol
             else:
                 torch.testing.assert_close(got.grad, want.grad, rtol=1e-4, atol=1e-6, msg=f"{i}: {name}")
     torch.testing.assert_close(log_alpha.grad, log_alpha_alone.grad)
+
+
+def test_a_captured_update_is_asked_for_on_a_gpu_only(capsys):
+    """`--graph` (a population's whole update as one CUDA graph) names what it needs, on a CPU
+    in one line with exit 2; the learner refuses capture without capturable Adam."""
+    from ps_ray.bench import update
+
+    with pytest.raises(SystemExit) as stop:
+        update.main(["--dims", "15,8,7", "--methods", "ablation", "--population", "2", "--graph"])
+    assert stop.value.code == 2
+    assert "--graph captures a population's update on a GPU: give --population K --devices cuda" in (
+        capsys.readouterr().err
+    )
+    population = Population([member("ablation", 1)])
+    with pytest.raises(ValueError, match="capturable=True"):
+        population.captured(*batches(1, 8, seed=0)[:2])

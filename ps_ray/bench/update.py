@@ -12,7 +12,8 @@ each method on each device (a CUDA update is timed to its end: the host waits fo
 ``--dims`` gives the widths instead of building the task's env, for a GPU host without PyBullet;
 ``--save DIR`` writes each row's nets, as its updates left them, as a policy file (written from
 the GPU, read and stitched on a CPU host). ``--population K ...`` times instead K sources of the
-first method updated as one (:mod:`ps_ray.nets.population`) beside K solo updates, per source.
+first method updated as one (:mod:`ps_ray.nets.population`) beside K solo updates, per source;
+with ``--graph`` also each population's whole update captured as one CUDA graph (a GPU only).
 """
 
 from __future__ import annotations
@@ -92,19 +93,32 @@ class UpdateLoop:
 class PopulationLoop:
     """``k`` members of one method updated as one population, each on a fixed random batch."""
 
-    def __init__(self, method: str, dims: NetDims, k: int, batch_size: int, interface_dim: int, device: str):
+    def __init__(
+        self,
+        method: str,
+        dims: NetDims,
+        k: int,
+        batch_size: int,
+        interface_dim: int,
+        device: str,
+        graph=False,
+    ):
         from ps_ray.nets.population import Population
 
         solos = [UpdateLoop(method, dims, batch_size, interface_dim, seed=i, device=device) for i in range(k)]
         self.device = torch.device(device)
-        self.population = Population([loop.nets for loop in solos])
+        self.population = Population([loop.nets for loop in solos], capturable=graph)
         self.batch = {key: torch.stack([loop.batch[key] for loop in solos]) for key in solos[0].batch}
         self.rewards = torch.stack([loop.rewards for loop in solos])
+        if graph:
+            self.step = self.population.captured(self.batch, self.rewards)
+        else:
+            self.step = lambda: self.population.update(self.batch, self.rewards)
 
     def timed(self, updates: int) -> float:
         start = time.perf_counter()
         for _ in range(updates):
-            self.population.update(self.batch, self.rewards)
+            self.step()
         if self.device.type == "cuda":
             torch.cuda.synchronize(self.device)
         return (time.perf_counter() - start) / updates
@@ -114,24 +128,29 @@ def population_table(method: str, dims: NetDims, sizes: list[int], args) -> None
     """Per source: K solo updates one after another against one update of a population of K."""
     device = args.devices[0]
     solo = UpdateLoop(method, dims, args.batch_size, args.interface_dim, device=device)
-    loops = {k: PopulationLoop(method, dims, k, args.batch_size, args.interface_dim, device) for k in sizes}
+    loops = {
+        (k, graph): PopulationLoop(method, dims, k, args.batch_size, args.interface_dim, device, graph)
+        for k in sizes
+        for graph in ((False, True) if args.graph else (False,))
+    }
     for loop in (solo, *loops.values()):
         loop.timed(3)
-    seconds = {"solo": [], **{k: [] for k in sizes}}
+    seconds = {"solo": [], **{key: [] for key in loops}}
     for _ in range(args.rounds):  # taking turns: a noisy machine slows them alike
         seconds["solo"].append(solo.timed(args.updates))
-        for k, loop in loops.items():
-            seconds[k].append(loop.timed(args.updates))
+        for key, loop in loops.items():
+            seconds[key].append(loop.timed(args.updates))
     base = float(np.median(seconds["solo"]))
     print(
         f"{method} on {device}, batch {args.batch_size}, interface {args.interface_dim}, 1 torch thread; "
         f"median over {args.rounds} rounds of {args.updates} updates"
     )
-    print(f"{'sources':>8}{'ms/update (all)':>17}{'ms per source':>15}{'/ solo':>8}")
-    print(f"{'1 solo':>8}{1000 * base:>17.2f}{1000 * base:>15.2f}{1.0:>8.2f}")
-    for k in sizes:
-        ms = 1000 * float(np.median(seconds[k]))
-        print(f"{k:>8}{ms:>17.2f}{ms / k:>15.2f}{ms / k / (1000 * base):>8.2f}")
+    print(f"{'sources':>8}{'ms/update (all)':>17}{'ms per source':>15}{'/ solo':>8}{'update':>8}")
+    print(f"{'1 solo':>8}{1000 * base:>17.2f}{1000 * base:>15.2f}{1.0:>8.2f}{'eager':>8}")
+    for k, graph in loops:
+        ms = 1000 * float(np.median(seconds[(k, graph)]))
+        kind = "graph" if graph else "eager"
+        print(f"{k:>8}{ms:>17.2f}{ms / k:>15.2f}{ms / k / (1000 * base):>8.2f}{kind:>8}")
 
 
 def task_dims(task: str) -> NetDims:
@@ -177,12 +196,19 @@ def main(argv: list[str] | None = None) -> None:
         metavar="K",
         help="time populations of K sources of the first method updated as one, per source",
     )
+    parser.add_argument(
+        "--graph",
+        action="store_true",
+        help="with --population on --devices cuda: also each whole update captured as one CUDA graph",
+    )
     args = parser.parse_args(argv)
     methods = list(dict.fromkeys(["ablation", *args.methods]))
     for method in methods:
         method_spec(method)  # an unknown name fails in one line before anything is built
     if "cuda" in args.devices and not torch.cuda.is_available():
         parser.error("--devices cuda: this torch finds no CUDA device")
+    if args.graph and (not args.population or args.devices[0] != "cuda"):
+        parser.error("--graph captures a population's update on a GPU: give --population K --devices cuda")
     torch.set_num_threads(1)
     dims = args.dims or task_dims(args.task)
     if args.population:

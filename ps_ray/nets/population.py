@@ -22,7 +22,7 @@ own parameters and its own optimiser slots, and a stopped member is simply left 
 from __future__ import annotations
 
 import copy
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 
 import torch
@@ -170,6 +170,24 @@ class Population:
         self.optimizer.step()
         self._polyak()
         return losses.detach()
+
+    def captured(self, batch: Mapping[str, Tensor], rewards: Tensor) -> Callable[[], None]:
+        """The whole update (passes, losses, backward, Adam, Polyak, fresh noise) on these
+        tensors, captured as one CUDA graph; returns its replay, one update of every member per
+        call. The tensors are the graph's inputs: refill them in place between replays. Needs
+        CUDA tensors and ``capturable=True`` (Adam's step counts on the GPU)."""
+        if not self.capturable:
+            raise ValueError("a captured update needs Population(..., capturable=True)")
+        side = torch.cuda.Stream()
+        side.wait_stream(torch.cuda.current_stream())
+        with torch.cuda.stream(side):  # warm-up off the capture: gradients and Adam slots allocated
+            for _ in range(3):
+                self.update(batch, rewards)
+        torch.cuda.current_stream().wait_stream(side)
+        graph = torch.cuda.CUDAGraph()
+        with torch.cuda.graph(graph):
+            self.update(batch, rewards)
+        return graph.replay
 
     @torch.no_grad()
     def _polyak(self) -> None:

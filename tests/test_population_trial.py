@@ -71,6 +71,39 @@ def test_each_member_resets_from_its_own_source_s_block():
     assert GridEnv([m.env_config for m in MEMBERS]).cell_seed(40, 1) == 81  # a grid's: seed * n + i
 
 
+def test_a_stopped_member_s_env_is_stepped_no_more_and_the_others_step_as_beside_it():
+    """A frozen cell (a stopped member) repeats its latest observation and info through steps and
+    resets however it is driven; the live cell's episodes, rewards and episode end are exactly
+    those it has beside a cell still stepped; freezing every cell is refused."""
+    offsets = [run_block(m.seed).start for m in MEMBERS]
+    both, frozen = (GridEnv([m.env_config for m in MEMBERS], seed_offsets=offsets) for _ in range(2))
+    rng = np.random.default_rng(0)
+    both.reset(seed=3)
+    held, held_info = frozen.reset(seed=3)
+    frozen.freeze([0])
+    for episode in range(2):
+        if episode:
+            ours, _ = both.reset(seed=4)
+            theirs, info = frozen.reset(seed=4)
+            for name, value in ours["c01"].items():
+                np.testing.assert_array_equal(theirs["c01"][name], value)
+            assert info["c00"] is held_info["c00"]
+        for step in range(both.max_episode_steps):
+            action = rng.uniform(-1, 1, both.action_space.shape).astype(np.float32)
+            ours, reward, _, ours_end, _ = both.step(action)
+            theirs, live_reward, _, theirs_end, info = frozen.step(action)
+            for name, value in ours["c01"].items():
+                np.testing.assert_array_equal(theirs["c01"][name], value)
+            for name, value in held["c00"].items():  # full-scale actions would move it
+                np.testing.assert_array_equal(theirs["c00"][name], value)
+            assert live_reward == frozen.envs[1].unwrapped.compute_reward(
+                theirs["c01"]["achieved_goal"], theirs["c01"]["desired_goal"], None
+            )
+            assert theirs_end == ours_end == (step == both.max_episode_steps - 1)
+    with pytest.raises(ValueError, match=r"cells \[0, 1\] cannot be frozen in a grid of 2"):
+        frozen.freeze([0, 1])
+
+
 def test_each_member_stops_after_its_own_evaluations_in_a_row():
     row = {"eval_c00_success": 0.9, "eval_c01_success": 0.4}
     assert member_streaks([1, 1], row, 0.9, 2) == ([2, 0], [0])
@@ -83,6 +116,7 @@ def test_members_draw_their_sources_scenes_stop_on_their_own_and_resume_as_they_
     from ps_ray.nets.policy_file import load_policy
     from ps_ray.rllib.loop import TrainingRun, start_local_ray
     from ps_ray.rllib.population_train import PopulationRun
+    from ps_ray.rllib.private import runner_envs
 
     start_local_ray()
     population = PopulationSpec(MEMBERS)
@@ -98,6 +132,13 @@ def test_members_draw_their_sources_scenes_stop_on_their_own_and_resume_as_they_
     assert not np.array_equal(
         ours["obs/achieved_goal"][:, 0], run.algo.replays["c00"].episodes(0, 3)["obs/achieved_goal"][:, 0]
     )
+    # a member that stops: its env is frozen (stepped no more) and nothing of its goes to its replay
+    run.algo.stopped = frozenset({"c00"})
+    assert [env.frozen for env in runner_envs(run.algo.env_runner)] == [{0}]
+    before = {key: replay.num_transitions for key, replay in run.algo.replays.items()}
+    run.step()
+    assert run.algo.replays["c00"].num_transitions == before["c00"]
+    assert run.algo.replays["c01"].num_transitions > before["c01"]
     alone.stop()
     run.stop()
 
@@ -119,6 +160,8 @@ def test_members_draw_their_sources_scenes_stop_on_their_own_and_resume_as_they_
             first_stop.mkdir()
             run.save(first_stop)
             at_first_stop = (dict(run.stopped), list(run.streaks), run.env_steps)
+            if len(run.stopped) == 1:  # its env is stepped no more; the other member's goes on
+                assert [env.frozen for env in runner_envs(run.algo.env_runner)] == [set(run.stopped)]
     assert run.converged and run.env_steps < 40_000
     for index in range(2):  # the step its own evaluations met the target twice in a row
         evals = [
@@ -148,6 +191,9 @@ def test_members_draw_their_sources_scenes_stop_on_their_own_and_resume_as_they_
     early = PopulationRun(stopping, [None, None])
     early.restore(first_stop)
     assert (early.stopped, early.streaks, early.env_steps) == at_first_stop
+    assert [env.frozen for env in runner_envs(early.algo.env_runner)] == [
+        set(early.stopped) if len(early.stopped) == 1 else set()
+    ]
     for index in early.stopped:
         assert (first_stop / cell_policy_file(index)).read_bytes() == (
             folder / cell_policy_file(index)

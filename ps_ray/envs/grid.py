@@ -10,7 +10,8 @@ All cells truncate after the same ``max_episode_steps``.
 A population of sources (:mod:`ps_ray.rllib.population_sac`) steps its members the same way, but
 each member resets as its own source would: ``seed_offsets`` gives each cell's offset from the
 env's reset seed (``seed + offset``: the member's own reset-seed block), instead of the grid's
-``seed * n + i``.
+``seed * n + i``. A member that stops is frozen (:meth:`GridEnv.freeze`): its env is neither
+stepped nor reset again, so its CPU goes to the members still training.
 """
 
 from __future__ import annotations
@@ -55,6 +56,17 @@ class GridEnv(gym.Env):
         self.action_space = spaces.Box(-1.0, 1.0, shape=(sum(self.action_dims),), dtype=np.float32)
         self.max_episode_steps = self.envs[0].unwrapped.max_episode_steps
         self._cuts = np.cumsum(self.action_dims)[:-1]
+        self.frozen: frozenset[int] = frozenset()
+        self._latest: list[tuple[Any, dict]] = []  # each cell's latest (observation, info)
+
+    def freeze(self, indices: Sequence[int]) -> None:
+        """Step and reset these cells no more (a population's stopped members): each repeats its
+        latest observation and info, with no reward, and the episode ends when the live cells'
+        do. The live cells step exactly as they would beside them (each cell has its own physics)."""
+        frozen = frozenset(int(i) for i in indices)
+        if len(frozen) >= len(self.envs) or not frozen <= set(range(len(self.envs))):
+            raise ValueError(f"cells {sorted(frozen)} cannot be frozen in a grid of {len(self.envs)}")
+        self.frozen = frozen
 
     def split_actions(self, actions: np.ndarray) -> list[np.ndarray]:
         """The grid's actions (any batch shape) as each cell's, in cell order."""
@@ -62,10 +74,15 @@ class GridEnv(gym.Env):
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         super().reset(seed=seed)
-        results = [
-            env.reset(seed=self.cell_seed(seed, i), options=options) for i, env in enumerate(self.envs)
+        self._latest = [
+            self._latest[i]
+            if i in self.frozen and self._latest
+            else env.reset(seed=self.cell_seed(seed, i), options=options)
+            for i, env in enumerate(self.envs)
         ]
-        return {k: r[0] for k, r in zip(self.keys, results)}, {k: r[1] for k, r in zip(self.keys, results)}
+        return {k: r[0] for k, r in zip(self.keys, self._latest)}, {
+            k: r[1] for k, r in zip(self.keys, self._latest)
+        }
 
     def cell_seed(self, seed: int | None, index: int) -> int | None:
         """The reset seed of cell ``index`` when the env is reset with ``seed``."""
@@ -76,10 +93,14 @@ class GridEnv(gym.Env):
         return seed + self.seed_offsets[index]
 
     def step(self, action: np.ndarray):
-        results = [env.step(a) for env, a in zip(self.envs, self.split_actions(action))]
-        obs = {k: r[0] for k, r in zip(self.keys, results)}
-        infos = {k: r[4] for k, r in zip(self.keys, results)}
-        reward = float(sum(r[1] for r in results))
+        actions = self.split_actions(action)
+        live = {i: self.envs[i].step(actions[i]) for i in range(len(self.envs)) if i not in self.frozen}
+        for i, r in live.items():
+            self._latest[i] = (r[0], r[4])
+        obs = {k: r[0] for k, r in zip(self.keys, self._latest)}
+        infos = {k: r[1] for k, r in zip(self.keys, self._latest)}
+        reward = float(sum(r[1] for r in live.values()))
+        results = live.values()
         return obs, reward, all(r[2] for r in results), all(r[3] for r in results), infos
 
     def close(self) -> None:

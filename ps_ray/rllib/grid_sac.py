@@ -26,6 +26,7 @@ from ps_ray.data.her import HindsightReplay
 from ps_ray.errors import UserError
 from ps_ray.nets.policy_file import save_policy
 from ps_ray.rllib.grid_module import GridSACLearner, GridSACModule, grid_modules, grid_train_batch
+from ps_ray.rllib.private import runner_envs
 from ps_ray.rllib.sac_her import ModularSAC, ModularSACConfig
 from ps_ray.specs.methods import method_spec
 from ps_ray.store.signature import Signature
@@ -64,9 +65,25 @@ def cell_stats(episodes: list, key: str) -> dict[str, float]:
 
 
 class GridSAC(ModularSAC):
-    # cells that left (a population's stopped members): their steps go to no replay or normaliser,
-    # their minibatches leave the updates (no gradient, so Adam leaves their parameters be)
-    stopped: frozenset[str] = frozenset()
+    _stopped: frozenset[str] = frozenset()
+
+    @property
+    def stopped(self) -> frozenset[str]:
+        """Cells that left (a population's stopped members): their envs are stepped no more
+        (:meth:`ps_ray.envs.grid.GridEnv.freeze`; the last to stop is left live, as the run ends
+        with it), nothing of theirs goes to a replay or normaliser, and their minibatches leave the
+        updates (no gradient, so Adam leaves their parameters be)."""
+        return self._stopped
+
+    @stopped.setter
+    def stopped(self, keys: frozenset[str]) -> None:
+        self._stopped = frozenset(keys)
+        frozen = [self.keys.index(k) for k in self._stopped]
+        if frozen and len(frozen) < len(self.keys):
+            self.env_runner_group.foreach_env_runner(
+                lambda runner: [env.freeze(frozen) for env in runner_envs(runner)],
+                local_env_runner=self.env_runner_group.num_remote_env_runners() == 0,
+            )
 
     @classmethod
     def get_default_config(cls) -> GridSACConfig:
@@ -129,7 +146,8 @@ class GridSAC(ModularSAC):
         )
 
     def evaluate_greedy(self, episodes: int, *, final: bool = False) -> dict[str, float]:
-        """Each cell's greedy success and touching (``<cell key>_success``), and the worst cell's."""
+        """Each cell's greedy success and touching (``<cell key>_success``), and the worst live
+        cell's (a stopped member's figures are those it stopped with, kept by its run)."""
         runs = self.collect_episodes(explore=False, random=False, n=episodes, final=final)
         return self._cell_figures(runs)
 
@@ -137,8 +155,9 @@ class GridSAC(ModularSAC):
         figures: dict[str, float] = {}
         for key in self.keys:
             figures.update({f"{key}_{k}": v for k, v in cell_stats(episodes, key).items()})
-        figures["success"] = min(figures[f"{key}_success"] for key in self.keys)
-        touching = [figures[f"{key}_touching"] for key in self.keys]
+        live = [key for key in self.keys if key not in self.stopped] or self.keys  # frozen: stale
+        figures["success"] = min(figures[f"{key}_success"] for key in live)
+        touching = [figures[f"{key}_touching"] for key in live]
         figures["touching"] = float("nan") if np.isnan(touching).all() else float(np.nanmin(touching))
         return figures
 

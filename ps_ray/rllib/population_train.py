@@ -4,8 +4,8 @@ over a :class:`ps_ray.rllib.population_sac.PopulationSAC`, with a stopping rule 
 Each member stops as its source alone would: at ``target_success`` in ``target_evals`` greedy
 evaluations in a row (its own, ``eval_c<i>_success``). A member that stops is finally evaluated
 then (on the episodes its source's final evaluation would use), its policy file kept as it was at
-that moment, and it is updated no more (its minibatches leave the updates; its env is still
-stepped with the others). The run ends when every member has stopped, or at the budget.
+that moment, and it is updated no more (its minibatches leave the updates) nor stepped (its env
+is frozen: ``GridEnv.freeze``). The run ends when every member has stopped, or at the budget.
 
 A checkpoint holds the population's learner and replays (a grid's), each member's policy file,
 spec and, once stopped, result, and population.json.

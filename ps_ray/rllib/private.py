@@ -25,6 +25,12 @@ def set_runner_seed(runner, seed: int, action_seed: int | None = None) -> None:
     runner.env.action_space.seed(seed if action_seed is None else action_seed)
 
 
+def runner_envs(runner) -> list:
+    """The env runner's own envs, unwrapped (SingleAgentEnvRunner holds a gymnasium vector env,
+    wrapped: ``DictInfoToList`` over a ``SyncVectorEnv`` of ``OrderEnforcing`` envs)."""
+    return [env.unwrapped for env in runner.env.unwrapped.envs]
+
+
 def mark_weights_changed(learner: Learner) -> None:
     """A change to the learner's weights outside ``Learner.update`` (consolidation): an env runner
     loads synced weights only when their ``_weights_seq_no`` is newer than its own (or 0), and only

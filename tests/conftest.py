@@ -1,9 +1,10 @@
 """Shared fixtures: one torch thread; one local Ray instance for the session, started by the first
-test that asks for it (``ray_local``); the two lanes of the suite.
+test that asks for it (``ray_local``); the three lanes of the suite.
 
 Lanes: a test that starts Ray, a Python or Chromium subprocess (a `ps-ray` command, the report in a
 browser), or rolls out many physics episodes, is end-to-end (``e2e``): marked by hand, or at
-collection when it uses a fixture of :data:`E2E_FIXTURES`. Learning checks are ``slow``. Everything
+collection when it uses a fixture of :data:`E2E_FIXTURES`. Minutes-long checks (learning with small
+budgets, cluster services) are ``slow``: ``./run.sh test-slow``, not CI's ``./run.sh test``. Everything
 else is the fast lane (``./run.sh test-fast``: ``-m "not slow and not e2e"``), and a fast-lane test
 that starts Ray or such a subprocess fails, naming the marker it lacks."""
 

@@ -20,6 +20,7 @@ def demo(*args: str) -> subprocess.CompletedProcess:
 
 
 @pytest.mark.e2e
+@pytest.mark.slow
 def test_the_demo_reproduces_the_study_and_the_stitch_beats_every_control():
     proc = demo()
     assert proc.returncode == 0, proc.stderr[-2000:]

@@ -43,6 +43,7 @@ for trial in (train, releasing(train)):  # three trials kept, then three release
 
 
 @pytest.mark.e2e
+@pytest.mark.slow
 def test_a_reused_worker_gives_each_trials_memory_back():
     """One process runs three trials as a reused worker did, then three releasing ones (the first
     of those trims what the kept ones left): the growth over the last two of each."""

@@ -88,6 +88,7 @@ def ray_head():
 
 
 @pytest.mark.e2e
+@pytest.mark.slow
 def test_sweep_submitted_as_a_ray_job_lands_in_mlflow(ray_head, tmp_path, tiny_train):
     address, env = ray_head
     storage = tmp_path / "store"

@@ -142,6 +142,7 @@ print(json.dumps({o.config["n"]: [o.error is None, o.metrics.get("launch")] for 
 
 
 @pytest.mark.e2e
+@pytest.mark.slow
 def test_trials_that_lost_their_node_are_launched_again_and_others_are_not(tmp_path):
     counts = tmp_path / "launches"
     counts.mkdir()

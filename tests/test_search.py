@@ -152,6 +152,7 @@ def _trial_folders(path: Path) -> dict[str, list[Path]]:
     return found
 
 
+@pytest.mark.slow
 def test_asha_stops_the_settings_that_do_not_learn_and_a_killed_search_resumes_without_repeats(tmp_path, cli):
     """The learner runs to its end; the search is killed as the second trial starts; the resumed
     search's scheduler knows the learner's curve, so it stops the other at the first rung, and the

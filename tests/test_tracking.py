@@ -108,6 +108,7 @@ def test_ensure_experiment_errors_are_one_line(store, tmp_path):
 
 
 @pytest.mark.e2e
+@pytest.mark.slow
 def test_a_tracking_server_as_docs_cluster_md_starts_it_takes_a_sweeps_runs(tmp_path):
     """`mlflow server` on 127.0.0.1 over a sqlite store (docs/cluster.md): an http URI passes the
     check, and a run logged through it keeps its artifacts in the sweep folder."""

@@ -236,7 +236,9 @@ def test_pairs_run_in_batches_and_a_resume_keeps_each_pair_whatever_batch_it_ran
 
 
 def test_a_sweep_with_a_damaged_policy_file_is_refused_before_any_trial_starts(trained_matrix, tmp_path):
-    """One line naming the damaged checkpoint, before Ray starts or the stage folder is made."""
+    """A population member's file damaged in its trial's furthest checkpoint: the zoo reads the
+    trial from the one before, as it reads a source alone; damaged in every checkpoint: one line
+    naming the furthest, before Ray starts or the stage folder is made."""
     import dataclasses
     import shutil
 
@@ -246,10 +248,22 @@ def test_a_sweep_with_a_damaged_policy_file_is_refused_before_any_trial_starts(t
     shutil.copytree(sweep_layout(trained_matrix).root, copy / trained_matrix.name)
     shutil.rmtree(copy / trained_matrix.name / "tune_zero_shot", ignore_errors=True)
     spec = dataclasses.replace(trained_matrix, storage=str(copy))
-    policy = sorted((copy / spec.name / "tune").glob("*/checkpoint_*/policy_c01.safetensors"))[-1]
-    with open(policy, "r+b") as f:
-        f.seek(100)
-        f.write(b"damaged")
+    from ps_ray.stitching.zoo import ModuleZoo
+
+    trial = next(
+        t for t in (copy / spec.name / "tune").glob("*/") if list(t.glob("checkpoint_*/policy_c01.*"))
+    )
+    policies = sorted(trial.glob("checkpoint_*/policy_c01.safetensors"))
+    assert len(policies) > 1
+    for number, policy in enumerate(reversed(policies)):
+        with open(policy, "r+b") as f:
+            f.seek(100)
+            f.write(b"damaged")
+        if number == 0:  # the furthest checkpoint damaged: the member is read from the one before
+            zoo = ModuleZoo.from_sweep(copy / spec.name)
+            used = {entry.path.parent for entry in zoo if entry.path.parent.parent == trial}
+            assert used == {policies[-2].parent}
+    policy = policies[-1]
     with pytest.raises(
         UserError, match=f"{policy.parent}: not a usable ps_ray checkpoint .policy_c01.safetensors"
     ):

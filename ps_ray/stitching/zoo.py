@@ -275,9 +275,10 @@ def _cell_entries(
     stage_dir: Path, spec_file: str, read_spec, entry_of, trials=lambda trial: True
 ) -> tuple[list[ZooEntry], list[str]]:
     """The cells of each trial (``trials`` picks them by config) whose checkpoints hold several
-    policies (a grid's, a population's): from its furthest checkpoint whose ``spec_file`` verifies,
-    read by ``read_spec(path)`` -> (spec, cell count), every cell's policy and spec verified, each
-    cell's entry ``entry_of(spec, policy path, spec path)``; a problem line per trial without one."""
+    policies (a grid's, a population's): from its furthest checkpoint whose ``spec_file`` and every
+    cell's policy and spec verify (an earlier one where a later is damaged, as for a source alone),
+    the spec read by ``read_spec(path)`` -> (spec, cell count), each cell's entry ``entry_of(spec,
+    policy path, spec path)``; a problem line per trial without one."""
     from ps_ray.store import checkpoint
     from ps_ray.store.attempts import attempts, checkpoint_dirs
 
@@ -292,8 +293,13 @@ def _cell_entries(
                 if found:
                     checkpoint.verify(found[-1], (checkpoint.STATE_FILE, spec_file))  # names the problem
                 continue
+            _, n = read_spec(best / spec_file)  # a trial's checkpoints share its spec
+            cells = tuple(f(i) for i in range(n) for f in (cell_policy_file, cell_spec_file))
+            whole = checkpoint.latest(found, (checkpoint.STATE_FILE, spec_file, *cells))
+            if whole is None:
+                checkpoint.verify(best, cells)  # names the problem
+            best = whole
             spec, n = read_spec(best / spec_file)
-            checkpoint.verify(best, tuple(f(i) for i in range(n) for f in (cell_policy_file, cell_spec_file)))
         except UserError as e:
             problems.append(str(e))
             continue

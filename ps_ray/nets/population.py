@@ -28,7 +28,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor, nn
 
-from ps_ray.nets.sac import SACHyper, SACNets, sac_forward, sac_losses
+from ps_ray.nets.sac import SACHyper, SACNets, sac_forward, sac_losses, trained_loss
 
 TRAINED = ("actor.", "critic.", "critic_twin.")  # parameter names the optimiser moves
 TARGETS = (("target_critic.", "critic."), ("target_critic_twin.", "critic_twin."))
@@ -55,10 +55,7 @@ class _Losses(nn.Module):
 
     def forward(self, batch, rewards, log_alpha, next_noise, policy_noise, warmup: bool) -> Tensor:
         fwd = sac_forward(self.nets, batch, (next_noise, policy_noise))
-        losses = sac_losses(fwd, rewards, log_alpha, self.hp, self.action_dim)
-        if warmup:  # critics only: zero gradients leave a fresh Adam's actor and temperature still
-            return losses["critic"] + 0.0 * (losses["actor"] + losses["alpha"])
-        return losses["total"]
+        return trained_loss(sac_losses(fwd, rewards, log_alpha, self.hp, self.action_dim), warmup)
 
 
 class _Forward(nn.Module):

@@ -180,3 +180,10 @@ def sac_losses(
         "q_mean": fwd["q"].detach().mean(),
         "entropy": -fwd["logp"].detach().mean(),
     }
+
+
+def trained_loss(losses: dict[str, Tensor], warmup: bool) -> Tensor:
+    """What the backward pass differentiates: every SAC loss, or during the critics' warm-up the
+    critics' only (zero gradients leave a fresh Adam's actor and temperature exactly still).
+    Element-wise, so a population's per-member losses pass too."""
+    return losses["critic"] + 0.0 * (losses["actor"] + losses["alpha"]) if warmup else losses["total"]

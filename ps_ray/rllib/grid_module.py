@@ -20,7 +20,7 @@ from ray.rllib.core.rl_module.torch.torch_rl_module import TorchRLModule
 from ps_ray.envs.goals import ROBOT_KEY, TASK_KEYS
 from ps_ray.nets.grid import ACTOR_TABLES, GRID_TABLES, add_grid_modules, grid_critic_pairs
 from ps_ray.nets.obs import split_obs
-from ps_ray.nets.sac import polyak_pairs, sac_forward, sac_losses, squashed_sample
+from ps_ray.nets.sac import polyak_pairs, sac_forward, sac_losses, squashed_sample, trained_loss
 from ps_ray.rllib.episodes import train_batch
 from ps_ray.rllib.learner import ModularSACLearner, sac_hyper
 from ps_ray.rllib.private import learner_module
@@ -128,20 +128,22 @@ class GridSACLearner(ModularSACLearner):
                 continue  # not in this update: its parameters get no gradient, Adam leaves them be
             fwd = {k[len(prefix) :]: v for k, v in fwd_out.items() if k.startswith(prefix)}
             losses = sac_losses(fwd, batch[prefix + "rewards"], log_alpha[index], hp, module.dims.action_dim)
-            total = total + (
-                losses["critic"] + 0.0 * (losses["actor"] + losses["alpha"]) if warm else losses["total"]
-            )
-            self.metrics.log_dict(
-                {
-                    f"{key}_critic_loss": losses["critic"],
-                    f"{key}_actor_loss": losses["actor"],
-                    f"{key}_alpha": log_alpha[index].detach().exp(),
-                    f"{key}_entropy": losses["entropy"],
-                },
-                key=module_id,
-                window=1,
-            )
+            total = total + trained_loss(losses, warm)
+            self.log_cell(module_id, key, losses, log_alpha[index])
         return total
+
+    def log_cell(self, module_id, key: str, losses: dict[str, torch.Tensor], log_alpha: torch.Tensor) -> None:
+        """One cell's losses, temperature and entropy, logged as-is (window 1)."""
+        self.metrics.log_dict(
+            {
+                f"{key}_critic_loss": losses["critic"],
+                f"{key}_actor_loss": losses["actor"],
+                f"{key}_alpha": log_alpha.detach().exp(),
+                f"{key}_entropy": losses["entropy"],
+            },
+            key=module_id,
+            window=1,
+        )
 
     @staticmethod
     def update_targets(module, tau: float) -> None:

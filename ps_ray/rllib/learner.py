@@ -11,7 +11,7 @@ from ray.rllib.core import DEFAULT_MODULE_ID
 from ray.rllib.core.rl_module.torch.torch_compile_config import TorchCompileConfig
 
 from ps_ray.nets.from_signature import load_nets_state, nets_state
-from ps_ray.nets.sac import SACHyper, polyak, sac_losses
+from ps_ray.nets.sac import SACHyper, polyak, sac_losses, trained_loss
 from ps_ray.rllib.private import after_update_without_target_sync, gradients_in_one_backward, learner_module
 
 OPTIMIZER_PREFIX = "optimizer."
@@ -72,10 +72,7 @@ class ModularSACLearner(SACTorchLearner):
         hp = sac_hyper(config)
         action_dim = batch["actions"].shape[-1]
         losses = sac_losses(fwd_out, batch["rewards"], self.curr_log_alpha[module_id], hp, action_dim)
-        total = losses["total"]
-        if self.updates_done(module_id) < config.critic_warmup_updates:
-            # critics only: zero gradients leave a fresh Adam's actor and temperature exactly still
-            total = losses["critic"] + 0.0 * (losses["actor"] + losses["alpha"])
+        total = trained_loss(losses, self.updates_done(module_id) < config.critic_warmup_updates)
         # Tensors are logged as-is (window 1) and reduced once per training step.
         self.metrics.log_dict(
             {

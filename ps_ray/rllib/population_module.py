@@ -21,6 +21,7 @@ from typing import Any
 import torch
 
 from ps_ray.nets.population import members_forward, members_losses
+from ps_ray.nets.sac import trained_loss
 from ps_ray.rllib.grid_module import GridSACLearner, GridSACModule
 from ps_ray.rllib.learner import sac_hyper
 from ps_ray.rllib.private import learner_module
@@ -81,19 +82,6 @@ class PopulationSACLearner(GridSACLearner):
             sac_hyper(config),
             module.dims.action_dim,
         )
-        warm = self.updates_done(module_id) < config.critic_warmup_updates
         for j, index in enumerate(members):
-            key = module.keys[index]
-            self.metrics.log_dict(
-                {
-                    f"{key}_critic_loss": losses["critic"][j],
-                    f"{key}_actor_loss": losses["actor"][j],
-                    f"{key}_alpha": log_alpha[j].detach().exp(),
-                    f"{key}_entropy": losses["entropy"][j],
-                },
-                key=module_id,
-                window=1,
-            )
-        if warm:  # critics only: zero gradients leave a fresh Adam's actor and temperature still
-            return (losses["critic"] + 0.0 * (losses["actor"] + losses["alpha"])).sum()
-        return losses["total"].sum()
+            self.log_cell(module_id, module.keys[index], {k: v[j] for k, v in losses.items()}, log_alpha[j])
+        return trained_loss(losses, self.updates_done(module_id) < config.critic_warmup_updates).sum()

@@ -462,6 +462,7 @@ def _free_port() -> int:
         return sock.getsockname()[1]
 
 
+@pytest.mark.slow  # a tracking UI served and read in a browser: a cluster service, as the tracking server
 def test_mlflow_ui_lists_the_runs_and_the_report_artifact(smoke, visible_text):
     """`mlflow ui` as `ps-ray run` prints it at the end, read in headless Chromium."""
     _, root, outs = smoke

@@ -358,7 +358,7 @@ def test_the_population_module_s_batched_pass_is_the_grid_s_loop_and_leaves_a_st
         torch.testing.assert_close(grad, batched[name], rtol=1e-4, atol=1e-6, msg=name)
 
 
-@pytest.mark.slow  # the fast lane checks the batched pass and losses against the loop, member by member
+@pytest.mark.e2e
 def test_a_population_trains_alike_with_its_members_batched_or_looped(ray_local):
     """The batched update (a GPU's default) and the grid's loop (a CPU's) draw each member's noise
     in the same order from the same stream: two real trainings of one population, one batched and

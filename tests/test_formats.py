@@ -7,18 +7,22 @@ from __future__ import annotations
 
 import json
 import re
+import shutil
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 import pytest
 
 from ps_ray.data import anchor_file, her
 from ps_ray.data.anchor_file import load_anchor_set
 from ps_ray.data.her import HindsightReplay
 from ps_ray.envs.goals import goal_reward
+from ps_ray.errors import UserError
 from ps_ray.stitching.example import EXAMPLE_DIR
+from ps_ray.stitching.pair_table import COLUMNS, pairs_from_table, read_table
 from ps_ray.store import checkpoint, replay, signature
-from ps_ray.store.formats import FORMATS
+from ps_ray.store.formats import CHECKPOINT, FORMATS, ZERO_SHOT_TABLE
 from ps_ray.store.npz import read_npz
 
 GOLDEN = Path(__file__).parent / "data" / "formats"
@@ -30,7 +34,6 @@ def _golden_ids() -> dict[str, object]:
     return {
         "anchor_set": f"{anchor['format']}/{anchor['version']}",  # written as two fields then
         "hindsight_replay": json.loads(str(read_npz(GOLDEN / "hindsight_replay-1.npz")["meta"]))["format"],
-        "checkpoint": json.loads((GOLDEN / "checkpoint-1" / "manifest.json").read_text())["format"],
         "replay_segments": json.loads((GOLDEN / "checkpoint-1" / "replay.json").read_text())["format"],
         "example_zoo": json.loads((EXAMPLE_DIR / "zoo.json").read_text())["format"],
     }
@@ -40,7 +43,8 @@ def test_every_format_has_one_id_style_and_a_golden_file_of_each_version_it_read
     """Every writer puts ``ps_ray.<name>/<version>`` in its files; each version a reader reads has
     a golden file (spelt as the ps_ray that wrote it did: old spellings resolve in
     ps_ray.store.formats alone). Bump a format and this fails until its new golden file is added."""
-    assert {f.name for f in FORMATS} == {f"ps_ray.{name}" for name in (*_golden_ids(), "policy")}
+    names = (*_golden_ids(), "checkpoint", "policy", "zero_shot_table")  # the last three: their own tests
+    assert {f.name for f in FORMATS} == {f"ps_ray.{name}" for name in names}
     for fmt in FORMATS:
         assert re.fullmatch(r"ps_ray\.[a-z_]+/[1-9][0-9]*", fmt.id), fmt.id
         assert fmt.version_of(fmt.id) == fmt.version and fmt.reads(fmt.id)
@@ -49,12 +53,19 @@ def test_every_format_has_one_id_style_and_a_golden_file_of_each_version_it_read
         fmt = next(f for f in FORMATS if f.name == f"ps_ray.{name}")
         assert fmt.version_of(found) == fmt.version == 1, (name, found)
     assert (checkpoint.FORMAT, replay.FORMAT, her._FORMAT, anchor_file.FORMAT, signature.FORMAT) == (
-        "ps_ray.checkpoint/1",
+        "ps_ray.checkpoint/2",
         "ps_ray.replay_segments/1",
         "ps_ray.hindsight_replay/1",
         "ps_ray.anchor_set/1",
         "ps_ray.policy/2",
     )
+    for name, fmt in (("checkpoint", CHECKPOINT), ("zero_shot_table", ZERO_SHOT_TABLE)):
+        assert fmt.version == 2 and sorted(p.stem for p in GOLDEN.glob(f"{name}-*")) == [
+            f"{name}-1",
+            f"{name}-2",
+        ]
+    assert ZERO_SHOT_TABLE.readable == ("ps_ray.zero_shot_table/1", "ps_ray.zero_shot_table/2")
+
     assert signature.FORMATS == ("ps_ray.policy/1", "ps_ray.policy/2")
     assert {p.parent.name for p in Path(__file__).parent.glob("data/policies_v*/*.safetensors")} == {
         "policies_v1",
@@ -95,9 +106,11 @@ def test_a_hindsight_replay_of_version_1_reads_back_its_episodes():
     assert batch["actions"].shape == (8, 2)
 
 
-def test_a_checkpoint_of_version_1_verifies_and_its_replay_segments_restore_the_buffer():
-    folder, store = GOLDEN / "checkpoint-1", GOLDEN / "replay_store-1"
+@pytest.mark.parametrize("version", [1, 2])
+def test_a_checkpoint_of_each_version_verifies_and_its_replay_segments_restore_the_buffer(version):
+    folder, store = GOLDEN / f"checkpoint-{version}", GOLDEN / "replay_store-1"
     assert checkpoint.verify(folder, replay_store=store) == folder
+    assert checkpoint.version(folder) == version
     saved = HindsightReplay.from_file(GOLDEN / "hindsight_replay-1.npz", goal_reward)
     spec = saved.obs_spec
     restored = HindsightReplay(spec, saved.action_dim, saved.horizon, saved.capacity_episodes, goal_reward)
@@ -110,3 +123,54 @@ def test_a_checkpoint_of_version_1_verifies_and_its_replay_segments_restore_the_
 def test_a_golden_file_is_plain_arrays_and_json_never_a_pickle(name):
     data = (GOLDEN / name).read_bytes()
     assert data[:2] == b"PK" and b"\x80\x04\x95" not in data  # a zip of .npy members, no pickle stream
+
+
+def test_a_zero_shot_table_of_either_version_reads_in_todays_layout_with_the_same_pairs(tmp_path):
+    """Version 1 (a push study's rows before tables named their format) and version 2 read as
+    the same table: every current column, ``format`` first, the figures as written."""
+    old, new = (read_table(GOLDEN / f"zero_shot_table-{v}.csv") for v in (1, 2))
+    pd.testing.assert_frame_equal(old, new)
+    assert list(new.columns) == list(COLUMNS) and set(new["format"]) == {"ps_ray.zero_shot_table/2"}
+    assert new["method"].tolist() == ["ablation", "ablation+affine", "ablation+affine@outcome"]
+    np.testing.assert_allclose(new["success_mean"], [0.05, 0.31, 0.21])
+    pairs = pairs_from_table(GOLDEN / "zero_shot_table-1.csv")
+    assert pairs == pairs_from_table(GOLDEN / "zero_shot_table-2.csv") and len(pairs) == 3
+    assert pairs[2].translation.fit == "outcome" and pairs[0].task_from_path.startswith(str(GOLDEN / "tune"))
+    # a version-1 table whose rows name no files yet: read, its pairs left to the zoo
+    older = pd.read_csv(GOLDEN / "zero_shot_table-1.csv").drop(columns=["task_from_path", "robot_from_path"])
+    older.drop(columns=["task_blind_success"]).to_csv(tmp_path / "zero_shot.csv", index=False)
+    assert read_table(tmp_path / "zero_shot.csv")["task_blind_success"].isna().all()
+    assert pairs_from_table(tmp_path / "zero_shot.csv") is None
+
+
+@pytest.mark.parametrize("found", ["ps_ray.zero_shot_table/3", "ps_ray.policy/2"])
+def test_a_zero_shot_table_of_a_newer_ps_ray_or_another_format_is_refused_in_one_line(tmp_path, found):
+    table = pd.read_csv(GOLDEN / "zero_shot_table-2.csv").assign(format=found)
+    table.to_csv(tmp_path / "zero_shot.csv", index=False)
+    with pytest.raises(UserError) as e:
+        read_table(tmp_path / "zero_shot.csv")
+    assert str(e.value) == (
+        f"{tmp_path / 'zero_shot.csv'}: not a zero-shot table this ps_ray reads (format {found}; "
+        "it reads ps_ray.zero_shot_table/1, ps_ray.zero_shot_table/2)"
+    )
+
+
+def test_the_learner_state_of_either_checkpoint_version_holds_a_generator_state(tmp_path):
+    """Version 2 keeps torch's generator state in the learner file, and a restore sets it; a
+    version-1 checkpoint written before it was kept draws on from the process's own."""
+    import torch
+    from safetensors.torch import save_file
+
+    from ps_ray.rllib.sac_her import TORCH_RNG, learner_state
+
+    torch.manual_seed(7)
+    seeded = torch.get_rng_state()
+    torch.manual_seed(0)
+    state = learner_state(GOLDEN / "checkpoint-2")
+    assert torch.equal(state[TORCH_RNG], seeded) and state["actor.weight"].tolist() == [[1.0, 2.0]]
+    old = tmp_path / "checkpoint"
+    shutil.copytree(GOLDEN / "checkpoint-1", old)
+    save_file({"actor.weight": torch.ones(1, 2)}, old / "learner.safetensors")
+    assert checkpoint.version(old) == 1
+    state = learner_state(old)
+    assert torch.equal(state[TORCH_RNG], torch.get_rng_state()) and set(state) == {"actor.weight", TORCH_RNG}

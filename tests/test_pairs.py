@@ -12,7 +12,6 @@ import pytest
 
 from ps_ray.analysis.clips import stitched_clips
 from ps_ray.analysis.page import Report
-from ps_ray.pipeline.zero_shot_table import CONTROL_KEYS, RESULT_KEYS, table_of, write_atomic_csv
 from ps_ray.plan import zero_shot as zero_shot_plan
 from ps_ray.plan.catalogue import trained
 from ps_ray.plan.few_shot import selected_pairs
@@ -20,7 +19,8 @@ from ps_ray.plan.zero_shot import evaluated_pairs
 from ps_ray.specs.names import short_name
 from ps_ray.specs.stage_settings import FewShotSpec, ZeroShotSpec
 from ps_ray.specs.sweep import SweepSpec
-from ps_ray.stitching.pairs import Control, StitchedPair, pairs_from_table
+from ps_ray.stitching.pair_table import CONTROL_KEYS, RESULT_KEYS, pairs_from_table, table_of, write_table
+from ps_ray.stitching.pairs import Control, StitchedPair
 from ps_ray.store.layout import SweepLayout, sweep_layout
 from tests.stitch_sources import K, write_trial
 from tests.stitch_sources import spec as train_spec
@@ -77,13 +77,13 @@ def test_a_pair_survives_the_tune_config_and_the_csv_row(tmp_path, translation):
     assert not any("path" in k for k in pair.shown())
     # as zero_shot.csv: written by the zero-shot stage, read back cell by cell as text
     path = tmp_path / "zero_shot.csv"
-    write_atomic_csv(table_of([(pair, {"success_mean": 0.5})]), path)
+    write_table(table_of([(pair, {"success_mean": 0.5})]), path)
     assert pairs_from_table(path) == [pair]
     assert pd.read_csv(path)["task_from_path"].tolist() == ["/sweep/tune/a/policy.safetensors"]
     # written by a sweep in /sweep: its files relative to it, found again wherever it was copied
     moved = tmp_path / "downloaded" / "zero_shot.csv"
     moved.parent.mkdir()
-    write_atomic_csv(table_of([(pair, {"success_mean": 0.5})], Path("/sweep")), moved)
+    write_table(table_of([(pair, {"success_mean": 0.5})], Path("/sweep")), moved)
     assert pd.read_csv(moved)["task_from_path"].tolist() == ["tune/a/policy.safetensors"]
     (found,) = pairs_from_table(moved)
     assert found.task_from_path == str(moved.parent / "tune/a/policy.safetensors")
@@ -145,7 +145,7 @@ def test_few_shot_reads_the_pairs_zero_shot_wrote_in_the_zoos_order(sweep_spec):
     matrix = zero_shot_plan.matrix(spec, trained(spec), translate=True, pairing="both")
     # per method: 4 seed pairings (2 same-seed, 2 cross-seed) x 4 stitchable pairs; ps translated too
     assert len(matrix) == 4 * 4 * 2 + 4 * 4
-    write_atomic_csv(table_of([(p, {"success_mean": 0.5}) for p in matrix]), table_path)
+    write_table(table_of([(p, {"success_mean": 0.5}) for p in matrix]), table_path)
     assert pairs_from_table(table_path) == matrix  # the matrix's order, every field
     for pair in matrix:
         files = [pair.task_from_path, pair.robot_from_path, *(c.path for c in pair.controls.values())]
@@ -173,24 +173,24 @@ def test_few_shot_reads_the_pairs_zero_shot_wrote_in_the_zoos_order(sweep_spec):
         ("ablation", 2),
     ]
     # a table written before its rows carried the sources' files: built from the zoo
-    old = table_of([(p, {}) for p in matrix]).drop(columns=["task_from_path", "robot_from_path"])
-    write_atomic_csv(old, table_path)
+    old = table_of([(p, {}) for p in matrix]).drop(columns=["format", "task_from_path", "robot_from_path"])
+    write_table(old, table_path)
     assert pairs_from_table(table_path) is None
     assert evaluated_pairs(spec, None, lambda: trained(spec)) == same_seed
 
 
-def write_table(spec: SweepSpec) -> list[StitchedPair]:
+def write_sweeps_table(spec: SweepSpec) -> list[StitchedPair]:
     """zero_shot.csv of the sweep's same-seed pairs, every figure 0.5; returns the pairs."""
     matrix = zero_shot_plan.matrix(spec, trained(spec))
     figures = {k: 0.5 for k in (*RESULT_KEYS, *CONTROL_KEYS)}
-    write_atomic_csv(table_of([(p, figures) for p in matrix]), sweep_layout(spec).zero_shot_table)
+    write_table(table_of([(p, figures) for p in matrix]), sweep_layout(spec).zero_shot_table)
     return matrix
 
 
 def test_the_reports_zero_shot_tables_show_no_files(sweep_spec, tmp_path):
     from ps_ray.analysis import report
 
-    write_table(sweep_spec)
+    write_sweeps_table(sweep_spec)
     page = Report(tmp_path / "report")
     report.zero_shot_section(page, sweep_spec, 0.8, lambda *a: None)
     shown = [item[1] for section in page.sections for kind, item in section.items if kind == "table"]
@@ -203,7 +203,7 @@ def test_the_reports_zero_shot_tables_show_no_files(sweep_spec, tmp_path):
 def test_the_clips_run_each_source_in_its_own_env_as_the_table_says(sweep_spec, tmp_path):
     from ps_ray.stitching.zoo import ModuleZoo
 
-    matrix = write_table(sweep_spec)
+    matrix = write_sweeps_table(sweep_spec)
     ((label, clips),) = stitched_clips(sweep_spec, tmp_path / "clips", pairs_per_method=1)
     zoo = ModuleZoo.from_sweep(sweep_layout(sweep_spec).root)
     assert len(clips) == 2 * 3  # per method: stitched, task source, robot source

@@ -17,6 +17,7 @@ from ps_ray.rllib.algo import algo_config
 from ps_ray.rllib.episodes import train_batch
 from ps_ray.specs.methods import method_spec, spec_json
 from ps_ray.specs.train import TrainSpec
+from ps_ray.store import checkpoint
 from ps_ray.store.signature import Signature, read_signature
 from tests.code_paths import PS_CONSOLIDATED
 from tests.point_env import POINT_ENV
@@ -67,6 +68,7 @@ def trained(ray_local, tmp_path_factory, request):
         algo.train()
     path = tmp_path_factory.mktemp("ckpt")
     algo.save_checkpoint(str(path))
+    checkpoint.seal(path)  # as the run loop does: only a sealed checkpoint is restored
     yield spec, anchors, algo, path, initial
     algo.stop()
 

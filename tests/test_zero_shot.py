@@ -21,7 +21,7 @@ from ps_ray.pipeline.zero_shot_table import summary
 from ps_ray.plan.catalogue import trained
 from ps_ray.plan.zero_shot import matrix
 from ps_ray.specs.sweep import load_sweep
-from ps_ray.stitching.pairs import pairs_from_table
+from ps_ray.stitching.pair_table import pairs_from_table
 from ps_ray.stitching.zoo import ModuleZoo
 from ps_ray.store.layout import sweep_layout
 from ps_ray.store.signature import read_signature

@@ -11,7 +11,8 @@ from ps_ray.plan.zero_shot import evaluated_pairs
 from ps_ray.specs import reset_seeds
 from ps_ray.specs.names import short_name
 from ps_ray.specs.sweep import SweepSpec
-from ps_ray.stitching.pairs import StitchedPair, pairs_from_table
+from ps_ray.stitching.pair_table import pairs_from_table
+from ps_ray.stitching.pairs import StitchedPair
 from ps_ray.store.layout import sweep_layout
 
 CLIP_SIZE = (240, 180)  # pixels; every second step, so a clip is about 26 frames

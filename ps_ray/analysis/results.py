@@ -12,6 +12,7 @@ from pathlib import Path
 import pandas as pd
 
 from ps_ray.specs.names import short_name, trial_key
+from ps_ray.stitching.pair_table import read_table
 from ps_ray.store.attempts import PARAMS_FILE, attempts, merged_rows
 
 CURVE_COLUMNS = [
@@ -80,7 +81,9 @@ def final_success(curves_frame: pd.DataFrame) -> pd.DataFrame:
 def zero_shot_results(path: Path) -> pd.DataFrame | None:
     """``zero_shot.csv`` of a sweep (its pairs in the matrix's order) sorted by method, pairing,
     seed and label, as the report shows it; None when the stage has not run."""
-    if not path.exists():
-        return None
-    table = pd.read_csv(path)
-    return table.sort_values(["method", "pairing", "seed", "label"]).reset_index(drop=True)
+    table = read_table(path)
+    return (
+        None
+        if table is None
+        else table.sort_values(["method", "pairing", "seed", "label"]).reset_index(drop=True)
+    )

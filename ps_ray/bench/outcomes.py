@@ -42,7 +42,7 @@ def run(
     from ps_ray.specs.sweep import SweepSpec
     from ps_ray.stitching.evaluate import evaluate
     from ps_ray.stitching.outcomes import fit_env_steps, fit_pairs
-    from ps_ray.stitching.pairs import pairs_from_table
+    from ps_ray.stitching.pair_table import pairs_from_table
     from ps_ray.stitching.stitch import stitch_policies, translation_ridge
 
     table = sweep / "zero_shot.csv"

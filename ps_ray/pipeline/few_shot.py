@@ -24,7 +24,8 @@ from ps_ray.specs.names import trial_key
 from ps_ray.specs.stage_settings import FewShotSpec
 from ps_ray.specs.sweep import SweepSpec
 from ps_ray.specs.trial import STITCHED_STARTS, TrainTrial
-from ps_ray.stitching.pairs import StitchedPair, pairs_from_table
+from ps_ray.stitching.pair_table import pairs_from_table
+from ps_ray.stitching.pairs import StitchedPair
 from ps_ray.store.layout import sweep_layout
 
 

@@ -27,13 +27,7 @@ import pandas as pd
 from ps_ray.errors import UserError
 from ps_ray.pipeline.chance_levels import chance_levels
 from ps_ray.pipeline.stage import connect, open_tracking, raise_on_errors
-from ps_ray.pipeline.zero_shot_table import (
-    CONTROL_KEYS,
-    RESULT_KEYS,
-    stage_metrics,
-    table_of,
-    write_atomic_csv,
-)
+from ps_ray.pipeline.zero_shot_table import stage_metrics
 from ps_ray.plan import zero_shot as zero_shot_plan
 from ps_ray.plan.catalogue import trained
 from ps_ray.plan.zero_shot import (
@@ -45,6 +39,7 @@ from ps_ray.plan.zero_shot import (
 )
 from ps_ray.specs.stage_settings import ZeroShotSpec
 from ps_ray.specs.sweep import SweepSpec
+from ps_ray.stitching.pair_table import CONTROL_KEYS, RESULT_KEYS, table_of, write_table
 from ps_ray.stitching.pairs import StitchedPair
 from ps_ray.stitching.zoo import ModuleZoo
 from ps_ray.store.layout import sweep_layout
@@ -263,7 +258,7 @@ def _table(spec: SweepSpec, trials: list[StitchedPair]) -> pd.DataFrame:
     if missing:  # every batch finished, so each of its pairs reported: a bug, never bad input
         raise RuntimeError(f"{len(missing)} pairs have no result row, e.g. {missing[0]}")
     table = table_of([(pair, rows[pair.key]) for pair in trials], sweep_layout(spec).root)
-    write_atomic_csv(table, sweep_layout(spec).zero_shot_table)
+    write_table(table, sweep_layout(spec).zero_shot_table)
     return table
 
 

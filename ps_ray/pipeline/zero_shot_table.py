@@ -1,54 +1,9 @@
-"""The zero-shot stage's table: a row per stitched pair (``zero_shot.csv``), its summary per
-method for the terminal, and the stage run's summary metrics in MLflow."""
+"""The zero-shot table's summary per method, for the terminal, and the stage run's summary
+metrics in MLflow (the table itself, ``zero_shot.csv``: :mod:`ps_ray.stitching.pair_table`)."""
 
 from __future__ import annotations
 
-from pathlib import Path
-from typing import Any
-
-import numpy as np
 import pandas as pd
-
-from ps_ray.specs.names import CONTROL_ROLES
-from ps_ray.stitching.pairs import StitchedPair
-from ps_ray.store.atomic import atomic_path
-
-RESULT_KEYS = (
-    "success_mean",
-    "success_std",
-    "touching_mean",
-    "touching_std",
-    "contact_mean",
-    "wrong_target_mean",  # ended at a candidate target the task does not name (NaN: one per scene)
-    "episodes_per_s",
-    "fit_env_steps",  # env steps the translation's fit rolled out (outcome matching; 0 for none)
-    "translation_ridge",  # the ridge strength the actor's latent map chose (NaN: no latent map)
-    "episodes_seed",  # the first reset seed of the pair's episodes (its training seed's own block)
-)
-# each control's success on the pair's episodes (ps_ray.stitching.matrix.controls), chance and the
-# task-blind floor on them, the better unstitched source, the best of all those and the gain over
-# it; the gain over the best of the sources and chance alone, as before the floor, beside it
-CONTROL_KEYS = (
-    *(f"{role}_success" for role in CONTROL_ROLES),
-    "chance_success",
-    "task_blind_success",
-    "task_blind_wrong_target",
-    "best_unstitched",
-    "best_control",
-    "transfer_gain",
-    "gain_over_chance",
-)
-
-
-def table_of(results: list[tuple[StitchedPair, dict[str, Any]]], root: Path | None = None) -> pd.DataFrame:
-    """One row per stitched pair from (pair, metrics), in the given (the matrix's) order: the
-    pair's record (:meth:`StitchedPair.to_row`: its sources' and controls' keys and files), its
-    success and touching, each control's success (``<role>_success``, NaN where the role does not
-    apply), ``chance_success``, ``best_unstitched``, ``best_control`` and ``transfer_gain``."""
-    keys = (*RESULT_KEYS, *CONTROL_KEYS)
-    return pd.DataFrame(
-        [{**pair.to_row(root), **{k: metrics.get(k, np.nan) for k in keys}} for pair, metrics in results]
-    )
 
 
 def summary(table: pd.DataFrame) -> pd.DataFrame:
@@ -63,23 +18,12 @@ def summary(table: pd.DataFrame) -> pd.DataFrame:
             "touching": grouped["touching_mean"].mean(),
             "best unstitched": grouped["best_unstitched"].mean(),
             "chance": grouped["chance_success"].mean(),
-            "task-blind floor": _mean_of(grouped, "task_blind_success"),
-            "wrong target": _mean_of(grouped, "wrong_target_mean"),
+            "task-blind floor": grouped["task_blind_success"].mean(),
+            "wrong target": grouped["wrong_target_mean"].mean(),
             "oracle": grouped["oracle_success"].mean(),
             "transfer gain": grouped["transfer_gain"].mean(),
         }
     )
-
-
-def _mean_of(grouped, column: str) -> pd.Series:
-    """A column's mean per group; NaN for a table from before the column existed."""
-    return grouped[column].mean() if column in grouped.obj.columns else grouped.size() * np.nan
-
-
-def write_atomic_csv(table: pd.DataFrame, path: Path) -> None:
-    """Write beside, then rename: a reader never sees half a table."""
-    with atomic_path(path) as partial:
-        table.to_csv(partial, index=False)
 
 
 def stage_metrics(table: pd.DataFrame) -> dict[str, float]:

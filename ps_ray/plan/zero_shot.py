@@ -87,7 +87,7 @@ def evaluated_pairs(
     methods: list[str] | None = None,
 ) -> list[StitchedPair]:
     """:func:`alone_pairs` as the zero-shot stage ran them: taken from ``table`` (its
-    ``zero_shot.csv``, read by the caller: :func:`ps_ray.stitching.pairs.pairs_from_table`; None:
+    ``zero_shot.csv``, read by the caller: :func:`ps_ray.stitching.pair_table.pairs_from_table`; None:
     no usable table) for the methods it evaluated, planned on ``zoo()`` (called only then) for the
     others (a sweep that skips zero-shot)."""
     methods = list(methods or spec.methods)

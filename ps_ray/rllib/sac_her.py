@@ -47,6 +47,7 @@ from ps_ray.rllib.private import (
 from ps_ray.specs.methods import ConsolidateSpec, method_spec, spec_json
 from ps_ray.specs.reset_seeds import RUNNER_STRIDE, run_episode_seed
 from ps_ray.specs.train import TrainSpec
+from ps_ray.store import checkpoint
 from ps_ray.store import replay as replay_segments
 from ps_ray.store.checkpoint import STATE_FILE
 from ps_ray.store.signature import Signature
@@ -71,6 +72,16 @@ TRAIN_SETTINGS = (
     "eval_every",
     "eval_episodes",
 )
+
+
+def learner_state(directory: Path) -> dict[str, torch.Tensor]:
+    """The learner file's tensors as a version-2 checkpoint holds them, with torch's generator
+    state: a version-1 checkpoint may have been written before it was kept, and then the
+    restored run draws on from this process's own, as it did then."""
+    tensors = load_file(directory / LEARNER_FILE)
+    if checkpoint.version(directory) == 1:
+        tensors.setdefault(TORCH_RNG, torch.get_rng_state())
+    return tensors
 
 
 class ModularSACConfig(SACConfig):
@@ -339,8 +350,8 @@ class ModularSAC(SAC):
     def load_checkpoint(self, checkpoint_dir: str) -> None:
         """Restore from a checkpoint folder that :func:`ps_ray.store.checkpoint.verify` accepted."""
         directory = Path(checkpoint_dir)
-        tensors = load_file(directory / LEARNER_FILE)
-        rng = tensors.pop(TORCH_RNG, None)  # absent from checkpoints written before it was kept
+        tensors = learner_state(directory)
+        rng = tensors.pop(TORCH_RNG)
         self.learner_group.foreach_learner(lambda learner: learner.load_training_state(tensors))
         self.env_runner_group.sync_weights(
             from_worker_or_learner_group=self.learner_group, inference_only=True
@@ -349,8 +360,7 @@ class ModularSAC(SAC):
         state = json.loads((directory / STATE_FILE).read_text())
         self.counters = {k: int(state["counters"][k]) for k in self.counters}
         set_training_iteration(self, int(state["iteration"]))
-        if rng is not None:  # last: nothing of the restore may draw after it
-            torch.set_rng_state(rng)
+        torch.set_rng_state(rng)  # last: nothing of the restore may draw after it
 
     def load_replay(self, directory: Path) -> None:
         if (directory / replay_segments.MANIFEST_FILE).is_file():

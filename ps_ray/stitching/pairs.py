@@ -2,13 +2,12 @@
 (the zero-shot stage's plan makes them: :mod:`ps_ray.plan.zero_shot`). The zero-shot trials'
 configs (:meth:`StitchedPair.to_dict`), the rows of ``zero_shot.csv`` (:meth:`StitchedPair.to_row`),
 few-shot's starts and the report's clips are this one record; few-shot and the clips read it back
-from the table (:func:`pairs_from_table`).
+from the table (:func:`ps_ray.stitching.pair_table.pairs_from_table`).
 
 Ray- and torch-free at import: the report reads the table through it."""
 
 from __future__ import annotations
 
-import csv
 import dataclasses
 import json
 from collections.abc import Mapping
@@ -16,7 +15,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
 
-from ps_ray.errors import UserError
 from ps_ray.specs.modes import Pairing
 from ps_ray.specs.names import CONTROL_ROLES, EnvPart, Translation, parse_spec_text, plain_json
 from ps_ray.specs.titles import env_title, title
@@ -155,19 +153,3 @@ class StitchedPair:
 def _text(value: Any) -> str:
     """A cell as text; a missing one (None, NaN) empty."""
     return "" if value is None or value != value else str(value)
-
-
-def pairs_from_table(path: Path) -> list[StitchedPair] | None:
-    """The pairs of a ``zero_shot.csv``, in its order (the matrix's, :func:`pairs`); None when
-    there is no table, or it was written before its rows carried the sources' files."""
-    if not path.is_file():
-        return None
-    with path.open(newline="") as f:
-        rows = list(csv.DictReader(f))
-    needed = [f.name for f in dataclasses.fields(StitchedPair) if f.name != "controls"]
-    if not rows or any(name not in rows[0] for name in needed):
-        return None
-    try:
-        return [StitchedPair.from_row(row, path.parent) for row in rows]
-    except (KeyError, ValueError, UserError) as e:  # a damaged table: one line naming it
-        raise UserError(f"{path}: unreadable pair row ({e})") from None

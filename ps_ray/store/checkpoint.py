@@ -92,6 +92,12 @@ def verify(
     return directory
 
 
+def version(directory: str | Path) -> int:
+    """The format version of a verified checkpoint (its readers' upgrades ask it)."""
+    manifest = json.loads((Path(directory) / MANIFEST).read_text())
+    return CHECKPOINT.version_of(manifest["format"])
+
+
 def env_steps(directory: str | Path) -> int:
     """Env steps of a verified checkpoint (for choosing the furthest of several)."""
     return int(json.loads((Path(directory) / STATE_FILE).read_text())["counters"]["env_steps"])

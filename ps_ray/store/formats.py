@@ -4,7 +4,9 @@ A writer puts :attr:`FileFormat.id` in its file; a reader asks :meth:`FileFormat
 for the version a file's id names, which also knows the ids an earlier ps_ray spelt another way,
 so old spellings are resolved here and nowhere else. A version newer than this code's, or an id
 of another format, is refused by the reader in one line; an older version goes through the one
-upgrade function beside its reader (``ps_ray.store.signature`` upgrades policy files 1 -> 2).
+upgrade function beside its reader: ``ps_ray.store.signature.upgrade`` (policy files 1 -> 2),
+``ps_ray.rllib.sac_her.learner_state`` (checkpoints), ``ps_ray.stitching.pair_table.upgrade``
+(zero-shot tables).
 tests/data/formats holds a golden file of each format and version, read by today's readers.
 """
 
@@ -44,11 +46,14 @@ class FileFormat:
         return version is not None and version <= self.version
 
 
-CHECKPOINT = FileFormat("ps_ray.checkpoint", 1, {"ps_ray-checkpoint-1": 1})
+# version 2: the learner file holds torch's generator state (a version-1 one may not)
+CHECKPOINT = FileFormat("ps_ray.checkpoint", 2, {"ps_ray-checkpoint-1": 1})
 REPLAY_SEGMENTS = FileFormat("ps_ray.replay_segments", 1, {"ps_ray-replay-segments-1": 1})
 HINDSIGHT_REPLAY = FileFormat("ps_ray.hindsight_replay", 1, {"ps_ray.HindsightReplay/1": 1})
 # an earlier ps_ray wrote the anchor set's name and version as two fields: its reader joins them
 ANCHOR_SET = FileFormat("ps_ray.anchor_set", 1)
 POLICY = FileFormat("ps_ray.policy", 2)
 EXAMPLE_ZOO = FileFormat("ps_ray.example_zoo", 1)
-FORMATS = (CHECKPOINT, REPLAY_SEGMENTS, HINDSIGHT_REPLAY, ANCHOR_SET, POLICY, EXAMPLE_ZOO)
+# zero_shot.csv names it in a ``format`` column; a table without one is of version 1
+ZERO_SHOT_TABLE = FileFormat("ps_ray.zero_shot_table", 2)
+FORMATS = (CHECKPOINT, REPLAY_SEGMENTS, HINDSIGHT_REPLAY, ANCHOR_SET, POLICY, EXAMPLE_ZOO, ZERO_SHOT_TABLE)

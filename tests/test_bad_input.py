@@ -148,7 +148,8 @@ CASES = [  # (arguments, with {f} the input folder and {out} a path that must no
         "train --method ps+nrom=layer --run-dir {out}",
         "method 'ps+nrom=layer': unknown option 'nrom'; valid: relative, center",
     ),
-    ("bench learn --methods ps_ref_actor --out {out}/b", "--baseline 'ablation' is not among --methods"),
+    ("bench learn --methods ps --out {out}/b", "--baseline 'ablation' is not among --methods"),
+    ("train --method ps_ln --run-dir {out}/r", "method 'ps_ln' is an old name; write it as 'ps+norm=layer'"),
 ]
 
 

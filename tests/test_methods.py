@@ -15,7 +15,8 @@ from ps_ray.nets.from_signature import signature_of
 from ps_ray.nets.policy_file import load_policy, save_policy
 from ps_ray.nets.sac import build_sac_nets
 from ps_ray.specs.dims import NetDims
-from ps_ray.specs.methods import LEGACY, PRESETS, MethodSpec, method_key, method_spec
+from ps_ray.specs.methods import PRESETS, MethodSpec, method_key, method_spec
+from ps_ray.specs.old_methods import LEGACY, upgrade_name
 from ps_ray.specs.sweep import SweepSpec
 from ps_ray.specs.train import SpecError
 from ps_ray.stitching.stitch import stitch_policies
@@ -32,7 +33,10 @@ def test_the_menu_is_short_and_every_old_row_is_a_preset_with_options():
     for name, key in LEGACY.items():
         preset, *options = method_key(key).split("+")
         assert preset in PRESETS and options, name
-        assert method_spec(name) == method_spec(key)  # the old name is only another spelling
+        assert upgrade_name(name) == key  # files that name it are read as the key (their upgrades)
+        with pytest.raises(UserError) as e:  # typed by a user, it is refused with the key to write
+            method_spec(name)
+        assert str(e.value) == f"method {name!r} is an old name; write it as {key!r}"
 
 
 def test_a_key_is_canonical_however_the_options_are_written():
@@ -73,7 +77,7 @@ def test_a_sweep_names_variants_by_their_settings_and_refuses_one_twice():
     spec = SweepSpec.from_mapping(
         {
             "name": "v",
-            "methods": ["ps", {"preset": "ps", "norm": "layer"}, "ps_ref_light"],
+            "methods": ["ps", {"preset": "ps", "norm": "layer"}, "ps+ref_weight=0.1+norm_reg=1+norm=layer"],
             "robots": ["panda"],
             "tasks": ["reach"],
             "seeds": [1],
@@ -86,7 +90,7 @@ def test_a_sweep_names_variants_by_their_settings_and_refuses_one_twice():
         SweepSpec.from_mapping(
             {
                 "name": "v",
-                "methods": ["ps_ln", "ps+norm=layer"],
+                "methods": [{"preset": "ps", "norm": "layer"}, "ps+norm=layer"],
                 "robots": ["panda"],
                 "tasks": ["reach"],
                 "seeds": [1],
@@ -109,7 +113,9 @@ def test_an_old_policy_file_loads_stitches_and_acts_as_it_did(row, expected):
     task_in, robot_in, action = expected["task_in"], expected["robot_in"], expected["action"]
     for seed in (0, 1):
         nets, signature = load_policy(OLD / f"{row}_{seed}.safetensors")
-        assert signature.method == method_key(row) and signature.spec == method_spec(row)
+        assert signature.method == method_key(upgrade_name(row)) and signature.spec == method_spec(
+            signature.method
+        )
         with torch.no_grad():
             mean, log_std = nets.eval().actor(task_in, robot_in)
             q = nets.critic(task_in, robot_in, action)

@@ -58,7 +58,7 @@ def _check_run_dir(spec: TrainSpec, run_dir: Path) -> None:
             raise UserError(f"{spec_file}: not a ps_ray run spec (not JSON text: {e})") from None
         if not isinstance(data, dict):
             raise UserError(f"{spec_file}: not a ps_ray run spec (a JSON {type(data).__name__})")
-        stored = TrainSpec.from_mapping(data, where=str(spec_file)).identity()
+        stored = TrainSpec.from_mapping(TrainSpec.upgrade(data), where=str(spec_file)).identity()
         require_same(
             stored, spec.identity(), f"{run_dir} holds a run of another spec", "use another --run-dir"
         )

@@ -30,6 +30,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from ps_ray.errors import UserError, describe
+from ps_ray.specs.old_methods import LEGACY
 
 REL_NORMS = ("none", "layer")
 CENTERINGS = ("none", "mean", "standard")
@@ -191,27 +192,6 @@ PRESETS: dict[str, MethodSpec] = {
     )
 }
 
-# Rows of the old method table, now written as options; policy files that name them still load.
-LEGACY: dict[str, str] = {
-    "ps_ln": "ps+norm=layer",
-    "ps_center": "ps+center=standard",
-    "ps_center_ln": "ps+center=standard+norm=layer",
-    "ps_mean_ln": "ps+center=mean+norm=layer",
-    "ps_nograd": "ps+anchor_grad=false",
-    "ps_scaled": "ps+scale=4",
-    "ps_normreg": "ps+norm_reg=1",
-    "ps_normreg_ln": "ps+norm=layer+norm_reg=1",
-    "ps_ref": "ps+norm=layer+norm_reg=1+ref_weight=1",
-    "ps_ref_light": "ps+norm=layer+norm_reg=1+ref_weight=0.1",
-    "ps_ref_actor": "ps+norm=layer+norm_reg=1+ref_weight=0.1+relative_critics=false",
-    "ps_ref_actor_weak": "ps+norm=layer+norm_reg=1+ref_weight=0.03+relative_critics=false",
-    "ps_ref_actor_sharp": (
-        "ps+norm=layer+norm_reg=1+ref_bandwidth=0.25+ref_weight=0.03+relative_critics=false"
-    ),
-    "ps_consolidated": (
-        "ps+consolidate=true+norm=layer+norm_reg=1+ref_weight=0.03+relative_critics=false+scale=0.25"
-    ),
-}
 
 _RELATIVE = {f.name: f for f in dataclasses.fields(RelativeSpec)}
 _CONSOLIDATE = {f"consolidate_{f.name}": f for f in dataclasses.fields(ConsolidateSpec)}
@@ -303,7 +283,8 @@ def _split(method: str | Mapping) -> tuple[str, dict[str, Any]]:
         if preset is None:
             raise UserError(f"method {_written(method)!r}: a mapping needs a preset ({', '.join(PRESETS)})")
     elif isinstance(method, str):
-        method = LEGACY.get(method, method)
+        if method in LEGACY:
+            raise UserError(f"method {method!r} is an old name; write it as {LEGACY[method]!r}")
         preset, *pairs = method.split("+")
         raw = {}
         for pair in pairs:
@@ -324,12 +305,12 @@ def _split(method: str | Mapping) -> tuple[str, dict[str, Any]]:
 
 
 def method_key(method: str | Mapping | MethodSpec) -> str:
-    """The canonical key of a method written any way (a legacy name becomes its options)."""
+    """The canonical key of a method written any way (options in any order, or a mapping)."""
     return method_spec(method).name
 
 
 def method_spec(method: str | Mapping | MethodSpec) -> MethodSpec:
-    """The resolved settings of a method key, a legacy name or a mapping; bad input: UserError."""
+    """The resolved settings of a method key or a mapping; bad input: UserError."""
     if isinstance(method, MethodSpec):
         return method
     preset, options = _split(method)

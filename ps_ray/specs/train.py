@@ -29,6 +29,7 @@ from ps_ray.specs.engine import (
 )
 from ps_ray.specs.methods import OPTIONS, PRESETS, MethodSpec, method_key, method_spec
 from ps_ray.specs.names import EnvPart, Part, plain_json, trial_key
+from ps_ray.specs.old_methods import upgrade_name
 from ps_ray.specs.reset_seeds import MAX_RUN_SEED
 
 Width = Annotated[int, Field(gt=0, le=MAX_WIDTH)]
@@ -157,6 +158,15 @@ class TrainSpec:
         for name, default in LATER_SETTINGS.items():
             if data[name] == default:
                 del data[name]
+        return data
+
+    @staticmethod
+    def upgrade(data: Any) -> Any:
+        """A training spec as any ps_ray wrote it (a run's or checkpoint's ``spec.json``), in
+        today's words: one written before the method menu may name an old row of it. Anything
+        else is returned as it is, for its reader to refuse."""
+        if isinstance(data, Mapping) and isinstance(data.get("method"), str):
+            return {**data, "method": upgrade_name(data["method"])}
         return data
 
     @property

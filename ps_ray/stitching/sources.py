@@ -11,6 +11,7 @@ from pathlib import Path
 
 from ps_ray.errors import UserError
 from ps_ray.specs.names import EnvPart
+from ps_ray.specs.train import TrainSpec
 from ps_ray.stitching.rule import EnvSpec, default_target
 from ps_ray.stitching.zoo import ModuleZoo
 from ps_ray.store.run_layout import POLICY_FILE, SPEC_FILE
@@ -38,7 +39,7 @@ def resolve_source(ref: str, zoo: ModuleZoo | None = None) -> Resolved:
         if not spec_path.is_file():
             return Resolved(path, _example_spec(path))
         try:
-            spec = dict(json.loads(spec_path.read_text()))
+            spec = dict(TrainSpec.upgrade(json.loads(spec_path.read_text())))
         except (json.JSONDecodeError, TypeError, ValueError, UnicodeDecodeError) as e:
             raise UserError(f"{spec_path}: unreadable training spec ({e})") from None
         missing = [key for key in ("robot", "task") if key not in spec]

@@ -26,12 +26,13 @@ import json
 from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from ps_ray.errors import UserError
 from ps_ray.specs.methods import method_key
 from ps_ray.specs.names import EnvPart, readable, short_name, trial_key
 from ps_ray.specs.titles import ANCHOR_POLICY, env_title, title, width_tag
+from ps_ray.specs.train import TrainSpec
 from ps_ray.store.layout import SweepLayout
 from ps_ray.store.run_layout import (
     GRID_FILE,
@@ -42,9 +43,6 @@ from ps_ray.store.run_layout import (
     cell_spec_file,
 )
 from ps_ray.store.signature import Signature, read_signature
-
-if TYPE_CHECKING:
-    pass
 
 STAGE_RANK = {"train": 0, "run": 0, "plain_source": 1}  # lower wins a duplicate key
 
@@ -106,7 +104,7 @@ class ZooEntry:
 def key_of(spec: Mapping[str, Any], grid: str = "") -> ZooKey:
     """The key of a TrainSpec dict; as a string, the trial key (MLflow run name)."""
     return ZooKey(
-        method_key(str(spec["method"])),  # a folder written before the menu may name an old row
+        method_key(str(spec["method"])),
         short_name(spec["robot"]),
         short_name(spec["task"]),
         int(spec["seed"]),
@@ -126,7 +124,7 @@ def read_entry(
     signature, _ = read_signature(path)
     spec_path = spec_path or path.parent / SPEC_FILE
     try:
-        spec = json.loads(spec_path.read_text())
+        spec = TrainSpec.upgrade(json.loads(spec_path.read_text()))
         key = key_of(spec, grid)
     except (OSError, json.JSONDecodeError, KeyError, TypeError, ValueError) as e:
         raise UserError(f"{spec_path}: missing or unreadable training spec ({e})") from None

@@ -19,6 +19,7 @@ from ps_ray.errors import UserError
 from ps_ray.specs.defaults import MAX_WIDTH
 from ps_ray.specs.dims import NetDims
 from ps_ray.specs.methods import MethodSpec, method_spec, spec_from_dict, spec_json
+from ps_ray.specs.old_methods import upgrade_name
 from ps_ray.store.formats import POLICY
 
 # 1: ``settings`` may be "" (the method is then a preset or an older menu name, resolved when read)
@@ -60,7 +61,11 @@ class Signature:
 
     @property
     def spec(self) -> MethodSpec:
-        return spec_from_dict(json.loads(self.settings)) if self.settings else method_spec(self.method)
+        """The resolved method: its settings, or (a version-1 file's, without them) the preset or
+        old row it names."""
+        if self.settings:
+            return spec_from_dict(json.loads(self.settings))
+        return method_spec(upgrade_name(self.method))
 
     def mismatches(self, other: Signature, fields: tuple[str, ...] | None = None) -> list[str]:
         names = fields or tuple(f.name for f in dataclasses.fields(self))
@@ -100,10 +105,8 @@ def upgrade(signature: Signature) -> Signature:
     """A signature read from any version as the current version writes it: a version-1 file
     without settings names a preset or an older menu name, resolved here; a setting added after
     a file was written takes its default, as the nets it was trained with were built."""
-    if not signature.settings:
-        spec = method_spec(signature.method)
-        return dataclasses.replace(signature, method=spec.name, settings=spec_json(spec))
-    return dataclasses.replace(signature, settings=spec_json(signature.spec))
+    spec = signature.spec  # a version-1 file's names a preset or an old row: :attr:`Signature.spec`
+    return dataclasses.replace(signature, method=spec.name, settings=spec_json(spec))
 
 
 def signature_problem(signature: Signature) -> str | None:

@@ -198,6 +198,7 @@ def test_transfer_table_pairs_each_stitched_cell_with_its_controls():
     stays out of the best."""
     from ps_ray.analysis.transfer import controls_met, transfer_numbers, transfer_text
     from ps_ray.pipeline.zero_shot import gain
+    from ps_ray.stitching.pair_table import upgrade
 
     rows = []
     for seed, shift in ((1, 0.5), (2, 0.6), (3, 0.4)):
@@ -214,7 +215,7 @@ def test_transfer_table_pairs_each_stitched_cell_with_its_controls():
                 | metrics
                 | gain(metrics)
             )
-    table = pd.DataFrame(rows)
+    table = upgrade(pd.DataFrame(rows), 1)  # as read_table gives it: the other columns NaN
     assert table.loc[1, "best_unstitched"] == 0.05  # label b: only the robot source applies
     assert table.loc[1, "best_control"] == 0.08  # ... and chance is above it
     numbers = transfer_numbers(table).iloc[0]
@@ -224,7 +225,7 @@ def test_transfer_table_pairs_each_stitched_cell_with_its_controls():
     assert numbers["chance_success"] == pytest.approx(0.08)
     # a table from before the chance control: the gain over the unstitched sources, chance "–"
     older = table.drop(columns=["chance_success", "best_control"])
-    older["transfer_gain"] = older["success_mean"] - older["best_unstitched"]
+    older = upgrade(older.assign(transfer_gain=older["success_mean"] - older["best_unstitched"]), 1)
     old = transfer_numbers(older).iloc[0]
     assert old["gain_diff"] == pytest.approx(np.mean([0.5, 0.6, 0.4]) - np.mean([0.1, 0.05]))
     assert transfer_text(transfer_numbers(older)).iloc[0]["chance (no task knowledge)"] == "–"
@@ -249,6 +250,7 @@ def test_the_task_blind_floor_raises_the_bar_and_the_old_gain_stays_beside_it():
     cross-seed rows have their intervals widened for the runs they share and no p-value."""
     from ps_ray.analysis.transfer import transfer_numbers, transfer_text
     from ps_ray.pipeline.zero_shot import gain
+    from ps_ray.stitching.pair_table import upgrade
 
     rows = []
     for method in ("ablation+affine@swapped", "ablation+affine@outcome"):
@@ -266,7 +268,7 @@ def test_the_task_blind_floor_raises_the_bar_and_the_old_gain_stays_beside_it():
                 }
                 row = {"method": method, "pairing": pairing, "seed": seed, "label": "a"}
                 rows.append(row | metrics | gain(metrics))
-    numbers = transfer_numbers(pd.DataFrame(rows))
+    numbers = transfer_numbers(upgrade(pd.DataFrame(rows), 1))
     assert list(numbers["method"])[-2:] == ["ablation+affine@swapped"] * 2  # upper bounds last
     same = numbers[
         (numbers["method"] == "ablation+affine@outcome") & (numbers["pairing"] == "same_seed")

@@ -22,7 +22,7 @@ from ps_ray.errors import UserError
 from ps_ray.stitching.example import EXAMPLE_DIR
 from ps_ray.stitching.pair_table import COLUMNS, pairs_from_table, read_table
 from ps_ray.store import checkpoint, replay, signature
-from ps_ray.store.formats import CHECKPOINT, FORMATS, ZERO_SHOT_TABLE
+from ps_ray.store.formats import CHECKPOINT, FORMATS, ZERO_SHOT_TABLE, id_in
 from ps_ray.store.npz import read_npz
 
 GOLDEN = Path(__file__).parent / "data" / "formats"
@@ -32,7 +32,7 @@ def _golden_ids() -> dict[str, object]:
     """The format id each golden file carries, as its reader finds it."""
     anchor = json.loads(str(read_npz(GOLDEN / "anchor_set-1.npz")["meta"]))
     return {
-        "anchor_set": f"{anchor['format']}/{anchor['version']}",  # written as two fields then
+        "anchor_set": id_in(anchor),  # written as two fields then
         "hindsight_replay": json.loads(str(read_npz(GOLDEN / "hindsight_replay-1.npz")["meta"]))["format"],
         "replay_segments": json.loads((GOLDEN / "checkpoint-1" / "replay.json").read_text())["format"],
         "example_zoo": json.loads((EXAMPLE_DIR / "zoo.json").read_text())["format"],

@@ -4,8 +4,8 @@ wrong-target rate, and the transfer gain (stitched minus the best of the unstitc
 chance and the floor) as a paired comparison over seeds, beside the gain over the sources and
 chance alone (docs/controls.md). Cross-seed units share runs: their intervals are widened for it
 and carry no p-value (ps_ray.analysis.stats). Rows whose translation reads the task's target
-(``@swapped``) are upper bounds, listed after the label-free rows. Tables from before a control
-lack its column."""
+(``@swapped``) are upper bounds, listed after the label-free rows. A table is in the current
+layout (:func:`ps_ray.stitching.pair_table.read_table`): a control not measured is NaN."""
 
 from __future__ import annotations
 
@@ -32,14 +32,9 @@ def reads_target(method: str) -> bool:
     return any(fit in str(method) for fit in UPPER_BOUND_FITS)
 
 
-def best_control_column(table: pd.DataFrame) -> str:
-    """What the gain is taken over: the best control with chance, or (older tables) without."""
-    return "best_control" if "best_control" in table.columns else "best_unstitched"
-
-
 def has_controls(table: pd.DataFrame) -> bool:
-    """Whether a zero-shot table carries its controls (tables from before them do not)."""
-    return "transfer_gain" in table.columns
+    """Whether any pair of a zero-shot table was scored beside its controls."""
+    return bool(table["transfer_gain"].notna().any())
 
 
 def transfer_numbers(table: pd.DataFrame, episodes: int | None = None) -> pd.DataFrame:
@@ -54,20 +49,19 @@ def transfer_numbers(table: pd.DataFrame, episodes: int | None = None) -> pd.Dat
         row = {"method": method, "pairing": pairing, "cells": len(part), "seeds": len(np.unique(seeds))}
         row["upper_bound"] = reads_target(method)
         for column in ("success_mean", *CONTROL_COLUMNS, "wrong_target_mean"):
-            cells = part.dropna(subset=[column]) if column in part.columns else part.iloc[:0]
+            cells = part.dropna(subset=[column])
             if cells.empty:
                 row[column], row[f"{column}_lo"], row[f"{column}_hi"] = np.nan, np.nan, np.nan
                 continue
             values = cells[column].to_numpy()
             e = estimate(values, cells["seed"].to_numpy(), shared_runs=shared, rate=True)
             row[column], row[f"{column}_lo"], row[f"{column}_hi"] = e.mean, e.mean_lo, e.mean_hi
-        best = best_control_column(part)
-        cells = part.dropna(subset=[best])
-        gain = paired(cells["success_mean"], cells[best], cells["seed"], shared) if len(cells) else None
+        cells = part.dropna(subset=["best_control"])
+        best = cells["best_control"]
+        gain = paired(cells["success_mean"], best, cells["seed"], shared) if len(cells) else None
         for field in ("diff", "lo", "hi", "p", "wins", "losses"):
             row[f"gain_{field}"] = np.nan if gain is None else getattr(gain, field)
-        has_old = "gain_over_chance" in part.columns
-        old = part.dropna(subset=["gain_over_chance"]) if has_old else part.iloc[:0]
+        old = part.dropna(subset=["gain_over_chance"])
         before = (
             paired(old["success_mean"], old["success_mean"] - old["gain_over_chance"], old["seed"], shared)
             if len(old)
@@ -76,11 +70,11 @@ def transfer_numbers(table: pd.DataFrame, episodes: int | None = None) -> pd.Dat
         for field in ("diff", "lo", "hi"):
             row[f"chance_gain_{field}"] = np.nan if before is None else getattr(before, field)
         row["pairs_above_every_control"] = int((cells["transfer_gain"] > 0).sum())
-        lo, hi = newcombe(cells["success_mean"], cells[best], episodes or 1)
+        lo, hi = newcombe(cells["success_mean"], best, episodes or 1)
         row["pairs_surely_above"] = int((lo > 0).sum()) if episodes else np.nan
         row["pairs_surely_below"] = int((hi < 0).sum()) if episodes else np.nan
         row["episodes"] = episodes or np.nan
-        row["fit_env_steps"] = part["fit_env_steps"].mean() if "fit_env_steps" in part.columns else np.nan
+        row["fit_env_steps"] = part["fit_env_steps"].mean()
         rows.append(row)
     out = pd.DataFrame(rows)
     if out.empty:

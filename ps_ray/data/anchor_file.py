@@ -13,7 +13,7 @@ import numpy as np
 from ps_ray.data.anchors import AnchorSet, _as_states, anchor_hash, select_anchors, selection_provenance
 from ps_ray.errors import UserError
 from ps_ray.store.atomic import atomic_file, file_sha256
-from ps_ray.store.formats import ANCHOR_SET
+from ps_ray.store.formats import ANCHOR_SET, id_in
 from ps_ray.store.npz import NPY_MAGIC, ZIP_MAGIC, NpzError, magic, read_npy, read_npz
 
 FORMAT = ANCHOR_SET.id
@@ -59,9 +59,7 @@ def _parse_anchor_npz(members: dict[str, np.ndarray]) -> AnchorSet:
         raise NpzError(f"'meta' is not valid JSON ({exc})") from None
     if not isinstance(meta, dict):
         raise NpzError(f"'meta' does not describe a {FORMAT} file")
-    found = meta.get("format")
-    if "version" in meta:  # an earlier ps_ray wrote the name and the version apart
-        found = f"{found}/{meta['version']}"
+    found = id_in(meta)
     if ANCHOR_SET.version_of(found) is None:
         raise NpzError(f"'meta' does not describe a {FORMAT} file")
     if not ANCHOR_SET.reads(found):

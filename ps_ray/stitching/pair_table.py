@@ -101,8 +101,12 @@ def read_table(path: Path, *, as_text: bool = False) -> pd.DataFrame | None:
 def upgrade(table: pd.DataFrame, version: int, empty: Any = np.nan) -> pd.DataFrame:
     """A table of ``version`` as the current version writes it. Version 1 gets every column it
     lacks, empty (``empty``): a figure not measured then, or the sources' files of a table
-    written before its rows named them (its pairs come from the zoo again)."""
+    written before its rows named them (its pairs come from the zoo again); one from before
+    chance joined the controls has its best unstitched source as its best control."""
     if version == 1:
+        if "best_control" not in table.columns and "best_unstitched" in table.columns:
+            # before chance joined the controls, the best of them was the best unstitched source
+            table = table.assign(best_control=table["best_unstitched"])
         table = table.assign(**{c: empty for c in COLUMNS if c not in table.columns})
         table["format"] = ZERO_SHOT_TABLE.id
     return table[[*COLUMNS, *(c for c in table.columns if c not in COLUMNS)]]

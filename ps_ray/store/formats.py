@@ -47,10 +47,17 @@ class FileFormat:
 
 
 # version 2: the learner file holds torch's generator state (a version-1 one may not)
+def id_in(meta: Mapping[str, object]) -> object:
+    """The format id a file's JSON metadata holds: its ``format``, joined to its ``version`` where
+    an earlier ps_ray wrote them apart (anchor sets)."""
+    found = meta.get("format")
+    return f"{found}/{meta['version']}" if "version" in meta else found
+
+
 CHECKPOINT = FileFormat("ps_ray.checkpoint", 2, {"ps_ray-checkpoint-1": 1})
 REPLAY_SEGMENTS = FileFormat("ps_ray.replay_segments", 1, {"ps_ray-replay-segments-1": 1})
 HINDSIGHT_REPLAY = FileFormat("ps_ray.hindsight_replay", 1, {"ps_ray.HindsightReplay/1": 1})
-# an earlier ps_ray wrote the anchor set's name and version as two fields: its reader joins them
+# an earlier ps_ray wrote the anchor set's name and version as two fields: id_in joins them
 ANCHOR_SET = FileFormat("ps_ray.anchor_set", 1)
 POLICY = FileFormat("ps_ray.policy", 2)
 EXAMPLE_ZOO = FileFormat("ps_ray.example_zoo", 1)

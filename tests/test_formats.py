@@ -174,3 +174,13 @@ def test_the_learner_state_of_either_checkpoint_version_holds_a_generator_state(
     assert checkpoint.version(old) == 1
     state = learner_state(old)
     assert torch.equal(state[TORCH_RNG], torch.get_rng_state()) and set(state) == {"actor.weight", TORCH_RNG}
+
+
+def test_the_stopping_rules_state_of_either_checkpoint_version_reads_whole(tmp_path):
+    """Version 2 keeps the streak, the best evaluation and the consolidation; a version-1
+    checkpoint written before the last two were kept reads as having none yet."""
+    assert checkpoint.progress(GOLDEN / "checkpoint-2") == {"streak": 1, "best": 0.5, "consolidated": {}}
+    old = tmp_path / "checkpoint"
+    shutil.copytree(GOLDEN / "checkpoint-1", old)
+    (old / checkpoint.PROGRESS_FILE).write_text(json.dumps({"streak": 2}))
+    assert checkpoint.progress(old) == {"streak": 2, "best": None, "consolidated": {}}

@@ -12,6 +12,7 @@ from pathlib import Path
 import pandas as pd
 
 from ps_ray.specs.names import short_name, trial_key
+from ps_ray.specs.train import TrainSpec
 from ps_ray.stitching.pair_table import read_table
 from ps_ray.store.attempts import PARAMS_FILE, attempts, merged_rows
 
@@ -49,7 +50,7 @@ def curves(stage_dir: Path) -> pd.DataFrame:
 def _points(trial: dict, rows: list[dict], member: str = "") -> list[dict]:
     """One source's curve points from its trial's rows (``member``: a population member's
     prefix, ``c00_``: its own evaluations, up to the step it stopped at)."""
-    spec = trial["spec"]
+    spec = TrainSpec.upgrade(trial["spec"])  # a trial stored before the method menu names an old row
     run = trial.get("key") or trial_key(spec)
     fields = {
         "run": run,

@@ -93,7 +93,7 @@ class GridRun(TrainingRun):
             (directory / cell_spec_file(index)).write_text(spec_text)
         (directory / GRID_FILE).write_text(json.dumps(self.grid.to_dict(), indent=2))
         progress = {"streak": self.streak, "best": self.best, "consolidated": self.consolidated}
-        (directory / "progress.json").write_text(json.dumps(progress))
+        (directory / checkpoint.PROGRESS_FILE).write_text(json.dumps(progress))
         checkpoint.seal(directory)
 
     def progress_line(self, row: dict[str, Any]) -> str:

@@ -29,7 +29,6 @@ from ps_ray.store.run_layout import (
 )
 
 # early-stop streak, best so far and consolidation figures: a resumed run goes on as it would have
-PROGRESS_FILE = "progress.json"
 
 
 def make_env(spec: TrainSpec):
@@ -210,7 +209,7 @@ class TrainingRun:
         (Path(directory) / SIGNATURE_FILE).write_text(json.dumps(dataclasses.asdict(signature), indent=2))
         (Path(directory) / SPEC_FILE).write_text(json.dumps(self.spec.to_dict(), indent=2))
         progress = {"streak": self.streak, "best": self.best, "consolidated": self.consolidated}
-        (Path(directory) / PROGRESS_FILE).write_text(json.dumps(progress))
+        (Path(directory) / checkpoint.PROGRESS_FILE).write_text(json.dumps(progress))
         checkpoint.seal(directory)
 
     def restore(self, directory: Path) -> None:
@@ -218,12 +217,10 @@ class TrainingRun:
         unaltered ps_ray checkpoint. Nothing in it is unpickled."""
         self.algo.load_checkpoint(str(checkpoint.verify(directory, replay_store=self.replay_store)))
         self.start_steps = self.env_steps
-        progress = Path(directory) / PROGRESS_FILE
-        if progress.is_file():
-            state = json.loads(progress.read_text())
-            self.streak = int(state.get("streak", 0))
-            self.best = None if state.get("best") is None else float(state["best"])
-            self.consolidated = {k: float(v) for k, v in (state.get("consolidated") or {}).items()}
+        state = checkpoint.progress(directory)
+        self.streak = int(state["streak"])
+        self.best = None if state["best"] is None else float(state["best"])
+        self.consolidated = {k: float(v) for k, v in state["consolidated"].items()}
         if self.consolidated and not self.done and self.spec.resolved.defer_relative:
             raise UserError(
                 f"{directory}: this {self.spec.method} run finished at {self.env_steps} env steps "

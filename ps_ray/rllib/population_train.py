@@ -23,7 +23,7 @@ import numpy as np
 
 from ps_ray.envs.goals import ROBOT_KEY, TASK_KEYS
 from ps_ray.envs.grid import cell_key
-from ps_ray.rllib.loop import PROGRESS_FILE, TrainingRun
+from ps_ray.rllib.loop import TrainingRun
 from ps_ray.specs.methods import spec_json
 from ps_ray.specs.population import PopulationSpec
 from ps_ray.store import checkpoint
@@ -183,12 +183,12 @@ class PopulationRun(TrainingRun):
             "streaks": self.streaks,
             "stopped": {str(i): figures for i, figures in self.stopped.items()},
         }
-        (directory / PROGRESS_FILE).write_text(json.dumps(progress))
+        (directory / checkpoint.PROGRESS_FILE).write_text(json.dumps(progress))
         checkpoint.seal(directory)
 
     def restore(self, directory: Path) -> None:
         super().restore(directory)  # verified whole before anything is read
-        state = json.loads((Path(directory) / PROGRESS_FILE).read_text())
+        state = checkpoint.progress(directory)
         self.streaks = [int(s) for s in state["streaks"]]
         self.stopped = {
             int(i): {k: int(v) if k == "env_steps" else float(v) for k, v in f.items()}

@@ -75,10 +75,11 @@ class TrainTrial:
 
     @classmethod
     def of(cls, config: Mapping[str, Any]) -> TrainTrial:
-        """The record of a Tune config or a stored ``params.json`` trial."""
+        """The record of a Tune config or a stored ``params.json`` trial (its spec upgraded:
+        :meth:`TrainSpec.upgrade`)."""
         fields = {f.name for f in dataclasses.fields(cls)}
         given = {k: v for k, v in config.items() if k in fields and k != "spec"}
-        return cls(spec=TrainSpec.from_mapping(config["spec"]), **given)
+        return cls(spec=TrainSpec.from_mapping(TrainSpec.upgrade(config["spec"])), **given)
 
 
 @dataclass(frozen=True)

@@ -130,14 +130,14 @@ class StitchedPair:
         """The record of a :meth:`to_row` row, also as read back from CSV (every cell text);
         relative files are taken inside ``root``."""
         names = [f.name for f in dataclasses.fields(cls) if f.name != "controls"]
-        text = {k: _text(row[k]) for k in names} | {k: _text(row.get(k)) for k in PATH_FIELDS}
+        text = {k: _text(row[k]) for k in (*names, *PATH_FIELDS)}
         for key in PATH_FIELDS if root is not None else ():
             if text[key] and not Path(text[key]).is_absolute():
                 text[key] = str(Path(root) / text[key])
         controls = {
             role: Control(_text(row[role]), text[f"{role}_path"])
             for role in CONTROL_ROLES
-            if _text(row.get(role))
+            if _text(row[role])
         }
         return cls(
             **{

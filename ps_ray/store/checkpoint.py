@@ -30,6 +30,7 @@ from ps_ray.store.run_layout import POLICY_FILE
 MANIFEST = "manifest.json"
 FORMAT = CHECKPOINT.id
 STATE_FILE = "ps_ray_state.json"
+PROGRESS_FILE = "progress.json"  # the stopping rule's state: streak, best, consolidated (a population: more)
 POLICY_ONLY = (STATE_FILE, POLICY_FILE)  # what a reader of the policy alone must hash
 
 
@@ -96,6 +97,14 @@ def version(directory: str | Path) -> int:
     """The format version of a verified checkpoint (its readers' upgrades ask it)."""
     manifest = json.loads((Path(directory) / MANIFEST).read_text())
     return CHECKPOINT.version_of(manifest["format"])
+
+
+def progress(directory: str | Path) -> dict:
+    """The stopping rule's state in a verified checkpoint, as version 2 holds it: a version-1
+    checkpoint written before the best evaluation or the consolidation was kept lacks them (none
+    yet)."""
+    state = json.loads((Path(directory) / PROGRESS_FILE).read_text())
+    return {"best": None, "consolidated": {}, **state} if version(directory) == 1 else state
 
 
 def env_steps(directory: str | Path) -> int:

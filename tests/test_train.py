@@ -195,6 +195,15 @@ def test_resume_drops_rows_after_the_checkpoint_and_a_row_a_kill_cut_short(tmp_p
     with open(path, "a", newline="") as f:  # the resumed run appends cleanly
         f.write(row(200) + "\n")
     assert pd.read_csv(path)["env_steps"].tolist() == [100, 200]
+    # written by a ps_ray with other columns: rewritten in today's, each value under its name
+    path.write_text("env_steps,gone,eval_success\n100,7,0.5\n")
+    metrics_up_to(tmp_path, 200)
+    again = pd.read_csv(path)
+    assert list(again.columns) == list(METRIC_FIELDS) and again.loc[0, "eval_success"] == 0.5
+    assert (
+        again.loc[0, "env_steps"] == 100
+        and again.drop(columns=["env_steps", "eval_success"]).isna().all().all()
+    )
 
 
 # 300 of the default 2,000 consolidation updates: at this size they shrink the gap as far

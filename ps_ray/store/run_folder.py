@@ -66,23 +66,26 @@ def latest_checkpoint(run_dir: Path) -> Path | None:
 def metrics_up_to(run_dir: Path, env_steps: int, fields: tuple[str, ...] = METRIC_FIELDS) -> None:
     """Drop metrics rows written after the checkpoint a run resumes from (they will be written
     again, and must not be there twice) and a last row that a kill cut short. ``fields``: the
-    file's columns."""
+    file's columns. The header names every column, so a file written by a ps_ray with other
+    columns is rewritten in these (its one upgrade): each value kept under its name, a column it
+    lacks empty, one no longer written dropped; the resumed run then appends under that header."""
     path = run_dir / METRICS_FILE
     if not path.exists():
         return
     text = path.read_text()
     complete = text if text.endswith("\n") else text[: text.rfind("\n") + 1]
-    rows = list(csv.DictReader(io.StringIO(complete, newline="")))
+    reader = csv.DictReader(io.StringIO(complete, newline=""))
+    rows = list(reader)
     kept = [
         r
         for r in rows
         if None not in r and None not in r.values() and r["env_steps"] and int(r["env_steps"]) <= env_steps
     ]
-    if len(kept) == len(rows) and complete == text:
+    if len(kept) == len(rows) and complete == text and tuple(reader.fieldnames or ()) == tuple(fields):
         return
     with atomic_file(path) as f:
         text = io.StringIO()
-        writer = csv.DictWriter(text, fields)
+        writer = csv.DictWriter(text, fields, extrasaction="ignore")
         writer.writeheader()
         writer.writerows(kept)
         f.write(text.getvalue().encode())

@@ -36,6 +36,7 @@ def _golden_ids() -> dict[str, object]:
         "hindsight_replay": json.loads(str(read_npz(GOLDEN / "hindsight_replay-1.npz")["meta"]))["format"],
         "replay_segments": json.loads((GOLDEN / "checkpoint-1" / "replay.json").read_text())["format"],
         "example_zoo": json.loads((EXAMPLE_DIR / "zoo.json").read_text())["format"],
+        "chance": json.loads((GOLDEN / "chance-1.json").read_text())["format"],
     }
 
 
@@ -184,3 +185,14 @@ def test_the_stopping_rules_state_of_either_checkpoint_version_reads_whole(tmp_p
     shutil.copytree(GOLDEN / "checkpoint-1", old)
     (old / checkpoint.PROGRESS_FILE).write_text(json.dumps({"streak": 2}))
     assert checkpoint.progress(old) == {"streak": 2, "best": None, "consolidated": {}}
+
+
+def test_a_kept_chance_level_of_version_1_reads_back_and_another_version_is_measured_again(tmp_path):
+    from ps_ray.pipeline.chance_levels import _kept_level
+
+    kept = _kept_level(GOLDEN / "chance-1.json")
+    assert (kept["chance_policy"], kept["chance_success"]) == ("random_actions", 0.07)
+    assert kept["task_blind_success"] != kept["task_blind_success"]  # NaN: no shared scene on push
+    newer = json.loads((GOLDEN / "chance-1.json").read_text().replace("NaN", "null"))
+    (tmp_path / "c.json").write_text(json.dumps({**newer, "format": "ps_ray.chance/2"}))
+    assert _kept_level(tmp_path / "c.json") is None

@@ -12,8 +12,7 @@ from ps_ray.specs.names import readable
 from ps_ray.stitching.pairs import StitchedPair
 from ps_ray.stitching.zoo import ModuleZoo
 from ps_ray.store.atomic import write_text
-
-CHANCE_FORMAT = "ps_ray.chance/1"  # what a kept chance file holds; another version is measured again
+from ps_ray.store.formats import CHANCE
 
 
 def chance_levels(
@@ -48,7 +47,7 @@ def chance_levels(
             levels[key] = chance(pair.robot, pair.task, episodes.kwargs(), oracles)
             if file is not None:
                 file.parent.mkdir(parents=True, exist_ok=True)
-                write_text(file, json.dumps({"format": CHANCE_FORMAT, "levels": levels[key]}))
+                write_text(file, json.dumps({"format": CHANCE.id, "levels": levels[key]}))
             if progress:
                 found = levels[key]
                 floor = found["task_blind_success"]
@@ -71,7 +70,7 @@ def _kept_level(file: Path | None) -> dict | None:
         kept = json.loads(file.read_text())
     except (OSError, ValueError):  # damaged by hand or by the disk: measuring again costs minutes
         return None
-    return kept.get("levels") if isinstance(kept, dict) and kept.get("format") == CHANCE_FORMAT else None
+    return kept.get("levels") if isinstance(kept, dict) and CHANCE.reads(kept.get("format")) else None
 
 
 def _chance_name(pair: StitchedPair, episodes: Episodes) -> str:

@@ -63,4 +63,15 @@ POLICY = FileFormat("ps_ray.policy", 2)
 EXAMPLE_ZOO = FileFormat("ps_ray.example_zoo", 1)
 # zero_shot.csv names it in a ``format`` column; a table without one is of version 1
 ZERO_SHOT_TABLE = FileFormat("ps_ray.zero_shot_table", 2)
-FORMATS = (CHECKPOINT, REPLAY_SEGMENTS, HINDSIGHT_REPLAY, ANCHOR_SET, POLICY, EXAMPLE_ZOO, ZERO_SHOT_TABLE)
+# a zero-shot stage's kept chance level and floor: a file of another version is measured again
+CHANCE = FileFormat("ps_ray.chance", 1)
+FORMATS = (
+    CHECKPOINT,
+    REPLAY_SEGMENTS,
+    HINDSIGHT_REPLAY,
+    ANCHOR_SET,
+    POLICY,
+    EXAMPLE_ZOO,
+    ZERO_SHOT_TABLE,
+    CHANCE,
+)

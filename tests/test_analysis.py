@@ -11,6 +11,7 @@ from scipy.stats import special_ortho_group
 
 from ps_ray.analysis import latent, tables
 from ps_ray.nets.relative import RelativeProjection
+from ps_ray.stitching.pair_table import upgrade
 
 
 def _dump(values, method="ps", robot="panda", task="reach", seed=1, dim=16):
@@ -126,7 +127,7 @@ def test_zero_shot_table_has_combinations_as_rows_and_methods_as_columns():
     reach = tables.zero_shot_table(frame.assign(touching_mean=float("nan"), touching_std=float("nan")))
     assert list(reach.columns) == [("ps", "success"), ("ablation", "success")]
     # the paper's Table 1 beside ours, for the E-combinations only (E1 here), as fractions
-    paper = tables.paper_zero_shot(frame)
+    paper = tables.paper_zero_shot(upgrade(frame, 1))  # as read_table gives it: no control scored
     assert list(paper.index) == [
         ("E1 (t: Pu1-R1 & r: Pu2-R2)", "ps_ray"),
         ("E1 (t: Pu1-R1 & r: Pu2-R2)", "paper"),
@@ -138,13 +139,13 @@ def test_zero_shot_table_has_combinations_as_rows_and_methods_as_columns():
     )
     assert e1.loc["paper", ("ablation", "success")] == "0.14 ± 0.04"
     assert e1.loc["ps_ray", ("ps", "success")] == table.loc["E1 (t: Pu1-R1 & r: Pu2-R2)", ("ps", "success")]
-    assert tables.paper_zero_shot(frame[frame["label"] != label_e1]) is None  # no E-combination
+    assert tables.paper_zero_shot(upgrade(frame[frame["label"] != label_e1], 1)) is None  # no E-combination
     # beside ours, the control the paper lacks: the better unstitched source, our seeds' mean
-    controls = tables.paper_zero_shot(frame.assign(best_unstitched=frame["seed"] * 0.1 + 0.2))
+    controls = tables.paper_zero_shot(upgrade(frame.assign(best_unstitched=frame["seed"] * 0.1 + 0.2), 1))
     e1 = controls.loc["E1 (t: Pu1-R1 & r: Pu2-R2)"]
     assert e1.loc["ps_ray", ("ps", "best unstitched")] == "0.35"  # seeds 1 and 2: 0.3 and 0.4
     assert e1.loc["paper", ("ablation", "best unstitched")] == "not reported"
-    assert ("ps", "best unstitched") not in paper.columns  # a table without controls: no column
+    assert ("ps", "best unstitched") not in paper.columns  # a table without scored controls: no column
 
 
 def test_goal_quadrants_follow_the_reach_regions():
@@ -198,7 +199,6 @@ def test_transfer_table_pairs_each_stitched_cell_with_its_controls():
     stays out of the best."""
     from ps_ray.analysis.transfer import controls_met, transfer_numbers, transfer_text
     from ps_ray.pipeline.zero_shot import gain
-    from ps_ray.stitching.pair_table import upgrade
 
     rows = []
     for seed, shift in ((1, 0.5), (2, 0.6), (3, 0.4)):
@@ -250,7 +250,6 @@ def test_the_task_blind_floor_raises_the_bar_and_the_old_gain_stays_beside_it():
     cross-seed rows have their intervals widened for the runs they share and no p-value."""
     from ps_ray.analysis.transfer import transfer_numbers, transfer_text
     from ps_ray.pipeline.zero_shot import gain
-    from ps_ray.stitching.pair_table import upgrade
 
     rows = []
     for method in ("ablation+affine@swapped", "ablation+affine@outcome"):

@@ -162,18 +162,20 @@ def test_the_learner_state_of_either_checkpoint_version_holds_a_generator_state(
     import torch
     from safetensors.torch import save_file
 
-    from ps_ray.rllib.sac_her import TORCH_RNG, learner_state
+    from ps_ray.rllib.sac_her import TORCH_RNG, read_learner_file
 
     torch.manual_seed(7)
     seeded = torch.get_rng_state()
     torch.manual_seed(0)
-    state = learner_state(GOLDEN / "checkpoint-2")
+    state = read_learner_file(GOLDEN / "checkpoint-2")
     assert torch.equal(state[TORCH_RNG], seeded) and state["actor.weight"].tolist() == [[1.0, 2.0]]
     old = tmp_path / "checkpoint"
     shutil.copytree(GOLDEN / "checkpoint-1", old)
     save_file({"actor.weight": torch.ones(1, 2)}, old / "learner.safetensors")
     assert checkpoint.version(old) == 1
-    state = learner_state(old)
+    torch.manual_seed(3)
+    state = read_learner_file(old)  # the generator as the restore finds it: it draws on from there
+    torch.manual_seed(3)
     assert torch.equal(state[TORCH_RNG], torch.get_rng_state()) and set(state) == {"actor.weight", TORCH_RNG}
 
 
@@ -183,8 +185,16 @@ def test_the_stopping_rules_state_of_either_checkpoint_version_reads_whole(tmp_p
     assert checkpoint.progress(GOLDEN / "checkpoint-2") == {"streak": 1, "best": 0.5, "consolidated": {}}
     old = tmp_path / "checkpoint"
     shutil.copytree(GOLDEN / "checkpoint-1", old)
+    assert checkpoint.progress(old) == {"streak": 0, "best": None, "consolidated": {}}  # none kept yet
     (old / checkpoint.PROGRESS_FILE).write_text(json.dumps({"streak": 2}))
     assert checkpoint.progress(old) == {"streak": 2, "best": None, "consolidated": {}}
+    new = tmp_path / "checkpoint-2"
+    shutil.copytree(GOLDEN / "checkpoint-2", new)
+    (new / checkpoint.PROGRESS_FILE).unlink()
+    with pytest.raises(
+        checkpoint.CheckpointError, match=f"{new}: not a usable ps_ray checkpoint .no progress.json"
+    ):
+        checkpoint.progress(new)
 
 
 def test_a_kept_chance_level_of_version_1_reads_back_and_another_version_is_measured_again(tmp_path):
@@ -196,3 +206,12 @@ def test_a_kept_chance_level_of_version_1_reads_back_and_another_version_is_meas
     newer = json.loads((GOLDEN / "chance-1.json").read_text().replace("NaN", "null"))
     (tmp_path / "c.json").write_text(json.dumps({**newer, "format": "ps_ray.chance/2"}))
     assert _kept_level(tmp_path / "c.json") is None
+
+
+def test_a_version_2_zero_shot_table_without_a_column_is_refused_naming_it(tmp_path):
+    table = pd.read_csv(GOLDEN / "zero_shot_table-2.csv").drop(columns=["oracle_success"])
+    table.to_csv(tmp_path / "zero_shot.csv", index=False)
+    with pytest.raises(UserError) as e:
+        read_table(tmp_path / "zero_shot.csv")
+    without = "a ps_ray.zero_shot_table/2 table without its column(s) oracle_success"
+    assert str(e.value) == f"{tmp_path / 'zero_shot.csv'}: {without}"

@@ -240,3 +240,24 @@ def test_a_run_folder_written_before_the_menu_joins_a_zoo_under_its_key(tmp_path
     (folder / "spec.json").write_text(json.dumps(spec))
     entry = read_entry(folder / "policy.safetensors")
     assert entry.key.method == entry.signature.method == "ps+norm=layer+norm_reg=1+ref_weight=0.1"
+
+
+def test_a_sweep_folder_recorded_before_the_menu_reads_its_old_names_as_keys(tmp_path):
+    """A sweep folder's own sweep.yaml is ps_ray's record, so its old names are upgraded; the same
+    names typed in a sweep file are refused."""
+    from ps_ray.specs.sweep import load_stored_sweep, load_sweep
+
+    data = {
+        "name": "old",
+        "methods": ["ps_ln", "ablation"],
+        "robots": ["panda"],
+        "tasks": ["reach"],
+        "seeds": [1],
+        "zero_shot": {"translate": {"ps_ln": ["affine"]}},
+    }
+    (tmp_path / "sweep.yaml").write_text(json.dumps(data))  # JSON is YAML
+    stored = load_stored_sweep(tmp_path / "sweep.yaml")
+    assert stored.methods == ("ps+norm=layer", "ablation")
+    assert dict(stored.zero_shot.translate) == {"ps+norm=layer": ["affine"]}
+    with pytest.raises(SpecError, match="method 'ps_ln' is an old name; write it as 'ps\\+norm=layer'"):
+        load_sweep(tmp_path / "sweep.yaml")

@@ -88,7 +88,8 @@ def paper_zero_shot(table: pd.DataFrame) -> pd.DataFrame | None:
     if pooled.empty:
         return None
     methods = method_order(pooled["method"])
-    controls = table.groupby(["method", "label"])[UNSTITCHED_KEY].mean() if UNSTITCHED_KEY in table else None
+    scored = table[UNSTITCHED_KEY].notna().any()  # a table of pairs scored beside their sources
+    controls = table.groupby(["method", "label"])[UNSTITCHED_KEY].mean() if scored else None
     rows = {}
     for label in sorted(pooled["label"].unique(), key=names.get):
         paper = PAPER_ZERO_SHOT[names[label].split()[0]]

@@ -21,7 +21,6 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
-import yaml
 
 from ps_ray.cli.args import Parser, positive_int
 from ps_ray.errors import UserError
@@ -39,7 +38,7 @@ def run(
     from ps_ray.analysis.stats import estimate
     from ps_ray.nets.policy_file import load_policy
     from ps_ray.plan.zero_shot import pair_episodes, stream_of
-    from ps_ray.specs.sweep import SweepSpec
+    from ps_ray.specs.sweep import load_stored_sweep
     from ps_ray.stitching.evaluate import evaluate
     from ps_ray.stitching.outcomes import fit_env_steps, fit_pairs
     from ps_ray.stitching.pair_table import pairs_from_table
@@ -49,7 +48,7 @@ def run(
     found = pairs_from_table(table)
     if not found:
         raise UserError(f"{table}: no zero-shot table with its pairs' files; run the zero-shot stage first")
-    spec = SweepSpec.from_mapping(yaml.safe_load((sweep / "sweep.yaml").read_text()), where=str(sweep))
+    spec = load_stored_sweep(sweep / "sweep.yaml")
     chosen, taken = [], {}
     for pair in found:
         if pair.translation and (pair.translation.kind, pair.translation.fit) == ("affine", fit):

@@ -105,7 +105,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
 
 def _load(args: argparse.Namespace):
     """The sweep spec named on the command line, with --storage/--tracking-uri applied."""
-    from ps_ray.specs.sweep import load_sweep
+    from ps_ray.specs.sweep import load_stored_sweep, load_sweep
 
     path = Path(args.sweep)
     sets = getattr(args, "set", None) or []
@@ -117,7 +117,7 @@ def _load(args: argparse.Namespace):
         spec_file = SweepLayout(path).spec_file
         if not spec_file.exists():
             raise UserError(f"{path}: not a sweep folder (no {spec_file.name})")
-        spec = dataclasses.replace(load_sweep(spec_file), storage=str(path.resolve().parent))
+        spec = dataclasses.replace(load_stored_sweep(spec_file), storage=str(path.resolve().parent))
         if spec.name != path.resolve().name:
             raise UserError(
                 f"{path}: holds sweep {spec.name!r}; a sweep folder must keep its "

@@ -70,7 +70,7 @@ def _kept_level(file: Path | None) -> dict | None:
         kept = json.loads(file.read_text())
     except (OSError, ValueError):  # damaged by hand or by the disk: measuring again costs minutes
         return None
-    return kept.get("levels") if isinstance(kept, dict) and CHANCE.reads(kept.get("format")) else None
+    return kept.get("levels") if isinstance(kept, dict) and kept.get("format") == CHANCE.id else None
 
 
 def _chance_name(pair: StitchedPair, episodes: Episodes) -> str:

@@ -4,7 +4,7 @@ sweep's MLflow experiment (:func:`connect`), the check that a folder keeps one s
 
 from __future__ import annotations
 
-from ps_ray.specs.sweep import SweepSpec
+from ps_ray.specs.sweep import SweepSpec, load_stored_sweep
 from ps_ray.specs.train import require_same
 from ps_ray.store.layout import sweep_layout
 
@@ -13,7 +13,6 @@ def require_same_sweep(spec: SweepSpec) -> None:
     """A folder that holds a sweep's work keeps it: a spec with other training settings is refused
     before anything is written, resumed or not, so two experiments never mix. A folder that holds
     only the spec of a start that failed early (no trial, no anchor set) takes the new spec."""
-    import yaml
 
     from ps_ray.store.attempts import attempts
 
@@ -26,7 +25,7 @@ def require_same_sweep(spec: SweepSpec) -> None:
         or any(layout.anchors.glob("*.npz"))
     )
     if spec_file.exists() and holds_work:
-        stored = SweepSpec.from_mapping(yaml.safe_load(spec_file.read_text()) or {}, where=str(spec_file))
+        stored = load_stored_sweep(spec_file)
         require_same(
             stored.training_identity(),
             spec.training_identity(),

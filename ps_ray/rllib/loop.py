@@ -28,8 +28,6 @@ from ps_ray.store.run_layout import (
     SPEC_FILE,
 )
 
-# early-stop streak, best so far and consolidation figures: a resumed run goes on as it would have
-
 
 def make_env(spec: TrainSpec):
     """The env of a run: its robot and task, or the gymnasium env its ``env`` names."""

@@ -74,7 +74,7 @@ TRAIN_SETTINGS = (
 )
 
 
-def learner_state(directory: Path) -> dict[str, torch.Tensor]:
+def read_learner_file(directory: Path) -> dict[str, torch.Tensor]:
     """The learner file's tensors as a version-2 checkpoint holds them, with torch's generator
     state: a version-1 checkpoint may have been written before it was kept, and then the
     restored run draws on from this process's own, as it did then."""
@@ -350,7 +350,7 @@ class ModularSAC(SAC):
     def load_checkpoint(self, checkpoint_dir: str) -> None:
         """Restore from a checkpoint folder that :func:`ps_ray.store.checkpoint.verify` accepted."""
         directory = Path(checkpoint_dir)
-        tensors = learner_state(directory)
+        tensors = read_learner_file(directory)
         rng = tensors.pop(TORCH_RNG)
         self.learner_group.foreach_learner(lambda learner: learner.load_training_state(tensors))
         self.env_runner_group.sync_weights(

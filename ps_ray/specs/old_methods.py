@@ -3,6 +3,8 @@ before the menu name them, and their upgrades read them through :func:`upgrade_n
 
 from __future__ import annotations
 
+from typing import Any
+
 # typed in a sweep or on the command line, an old name is refused with the key to write instead
 LEGACY: dict[str, str] = {
     "ps_ln": "ps+norm=layer",
@@ -24,6 +26,19 @@ LEGACY: dict[str, str] = {
         "ps+consolidate=true+norm=layer+norm_reg=1+ref_weight=0.03+relative_critics=false+scale=0.25"
     ),
 }
+
+
+def upgrade_names(data: Any) -> Any:
+    """A stored spec (a sweep folder's ``sweep.yaml``) in today's words: every string and mapping
+    key that is an old row's name (in ``methods``, a stage's ``methods``, ``translate``'s keys)
+    becomes its key. The old names are distinct from every other name a spec holds."""
+    if isinstance(data, str):
+        return upgrade_name(data)
+    if isinstance(data, list):
+        return [upgrade_names(v) for v in data]
+    if isinstance(data, dict):
+        return {upgrade_names(k): upgrade_names(v) for k, v in data.items()}
+    return data
 
 
 def upgrade_name(method: str) -> str:

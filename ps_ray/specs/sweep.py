@@ -242,6 +242,15 @@ def _identity(key: str, value: Any) -> Any:
     return json.dumps(value, sort_keys=True, default=plain_json)
 
 
+def load_stored_sweep(path: str | Path) -> SweepSpec:
+    """A sweep folder's own spec (its ``sweep.yaml``, resolved and written by ps_ray), strictly;
+    one recorded before the method menu names old rows, read as their keys."""
+    from ps_ray.specs.old_methods import upgrade_names
+    from ps_ray.specs.sweep_file import read_file
+
+    return SweepSpec.from_mapping(upgrade_names(read_file(Path(path)) or {}), where=str(path))
+
+
 def load_sweep(path: str | Path, sets: Sequence[str] = ()) -> SweepSpec:
     """Strict loading of a sweep file (:mod:`ps_ray.specs.sweep_file`: its base merged under it,
     ``sets`` over it): malformed YAML, duplicate or unknown keys and bad values fail with one line

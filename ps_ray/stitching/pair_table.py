@@ -95,7 +95,11 @@ def read_table(path: Path, *, as_text: bool = False) -> pd.DataFrame | None:
             f"{path}: not a zero-shot table this ps_ray reads (format {', '.join(ids)}; "
             f"it reads {', '.join(ZERO_SHOT_TABLE.readable)})"
         )
-    return upgrade(table, ZERO_SHOT_TABLE.version_of(ids[0]), empty="" if as_text else np.nan)
+    version = ZERO_SHOT_TABLE.version_of(ids[0])
+    missing = [c for c in COLUMNS if c not in table.columns]
+    if version == ZERO_SHOT_TABLE.version and missing:
+        raise UserError(f"{path}: a {ids[0]} table without its column(s) {', '.join(missing)}")
+    return upgrade(table, version, empty="" if as_text else np.nan)
 
 
 def upgrade(table: pd.DataFrame, version: int, empty: Any = np.nan) -> pd.DataFrame:

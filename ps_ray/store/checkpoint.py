@@ -101,10 +101,15 @@ def version(directory: str | Path) -> int:
 
 def progress(directory: str | Path) -> dict:
     """The stopping rule's state in a verified checkpoint, as version 2 holds it: a version-1
-    checkpoint written before the best evaluation or the consolidation was kept lacks them (none
-    yet)."""
-    state = json.loads((Path(directory) / PROGRESS_FILE).read_text())
-    return {"best": None, "consolidated": {}, **state} if version(directory) == 1 else state
+    checkpoint may have been written before the file, or the best evaluation or the consolidation
+    in it, was kept (none yet); a version-2 checkpoint without it is refused in one line."""
+    path = Path(directory) / PROGRESS_FILE
+    if version(directory) == 1:
+        kept = json.loads(path.read_text()) if path.is_file() else {}
+        return {"streak": 0, "best": None, "consolidated": {}, **kept}
+    if not path.is_file():
+        raise CheckpointError(f"{directory}: not a usable ps_ray checkpoint (no {PROGRESS_FILE})")
+    return json.loads(path.read_text())
 
 
 def env_steps(directory: str | Path) -> int:

@@ -5,7 +5,8 @@ for the version a file's id names, which also knows the ids an earlier ps_ray sp
 so old spellings are resolved here and nowhere else. A version newer than this code's, or an id
 of another format, is refused by the reader in one line; an older version goes through the one
 upgrade function beside its reader: ``ps_ray.store.signature.upgrade`` (policy files 1 -> 2),
-``ps_ray.rllib.sac_her.learner_state`` (checkpoints), ``ps_ray.stitching.pair_table.upgrade``
+``ps_ray.rllib.sac_her.read_learner_file`` and ``ps_ray.store.checkpoint.progress``
+(checkpoints), ``ps_ray.stitching.pair_table.upgrade``
 (zero-shot tables).
 tests/data/formats holds a golden file of each format and version, read by today's readers.
 """
@@ -46,7 +47,6 @@ class FileFormat:
         return version is not None and version <= self.version
 
 
-# version 2: the learner file holds torch's generator state (a version-1 one may not)
 def id_in(meta: Mapping[str, object]) -> object:
     """The format id a file's JSON metadata holds: its ``format``, joined to its ``version`` where
     an earlier ps_ray wrote them apart (anchor sets)."""
@@ -54,6 +54,8 @@ def id_in(meta: Mapping[str, object]) -> object:
     return f"{found}/{meta['version']}" if "version" in meta else found
 
 
+# version 2: the learner file holds torch's generator state, progress.json the best evaluation and
+# the consolidation (a version-1 checkpoint's may not)
 CHECKPOINT = FileFormat("ps_ray.checkpoint", 2, {"ps_ray-checkpoint-1": 1})
 REPLAY_SEGMENTS = FileFormat("ps_ray.replay_segments", 1, {"ps_ray-replay-segments-1": 1})
 HINDSIGHT_REPLAY = FileFormat("ps_ray.hindsight_replay", 1, {"ps_ray.HindsightReplay/1": 1})

@@ -170,3 +170,24 @@ def test_an_env_reset_to_a_task_input_shows_that_scene_object_and_markers_includ
     np.testing.assert_allclose(env.object_position, scene[:3], atol=1e-5)
     with pytest.raises(UserError, match="a task input of this scene is 21 finite numbers"):
         env.reset(seed=9, options={"task_input": scene[:18]})
+
+
+def test_the_world_frame_diagnostic_says_the_same_scenes_in_world_coordinates():
+    """goal_frame world: the goal the named marker's position, the achieved goal the object's; the
+    scene, the candidates and the success of the object at each marker as in the marker frame."""
+    for name, target in (("push_red", 0), ("push_blue", 1)):
+        marker_env, world_env = make("panda", name), make("panda", {"name": name, "goal_frame": "world"})
+        for seed in range(5):
+            a, _ = marker_env.reset(seed=seed)
+            b, _ = world_env.reset(seed=seed)
+            np.testing.assert_array_equal(a["task_state"], b["task_state"])
+            markers = b["task_state"][12:].reshape(2, 3)
+            np.testing.assert_allclose(b["desired_goal"], markers[target], atol=1e-6)
+            np.testing.assert_allclose(b["achieved_goal"], world_env.object_position, atol=1e-6)
+            np.testing.assert_allclose(world_env.candidate_targets(), marker_env.candidate_targets())
+        for marker in (0, 1):
+            world_env.reset(seed=3)
+            _, reward, _, _, info = place(world_env, world_env.candidate_targets()[marker])
+            assert info["is_success"] == (marker == target) and reward == (0.0 if marker == target else -1.0)
+    with pytest.raises(UserError, match="bad goal_frame 'hand'; valid goal frames: marker, world"):
+        make("panda", {"name": "push_red", "goal_frame": "hand"})

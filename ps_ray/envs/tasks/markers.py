@@ -73,13 +73,18 @@ class MarkerScene:
         ]
 
     @property
+    def offset(self) -> np.ndarray:
+        """The desired offset from the named marker (the goal itself, said in that marker's frame)."""
+        return self.goal
+
+    @property
     def target_position(self) -> np.ndarray:
         """Where the outcome must end: the named marker plus the desired offset."""
-        return self.positions[self.options.target] + self.goal
+        return self.positions[self.options.target] + self.offset
 
     def candidate_targets(self) -> np.ndarray:
         """Every marker plus the desired offset: where each task of the family would end here."""
-        return self.positions + self.goal
+        return self.positions + self.offset
 
     @property
     def named_candidate(self) -> int:

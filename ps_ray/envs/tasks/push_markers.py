@@ -11,6 +11,10 @@ Goals are said in the named marker's frame, as the marker family says them:
 - ``desired_goal``: the offset from the named marker at which the object must end: zero in every
   real episode, so a hindsight goal is "push to the named marker plus this offset".
 
+``goal_frame: world`` says both goals in the world frame instead (the desired goal the named
+marker's position, the achieved goal the object's), as plain push says them: a diagnostic of what
+the marker frame costs a learner, not a member of the family (the target is then an input).
+
 The outcome of an episode (outcome matching, the wrong-target rate, touching) is where the object
 is, read from the env (``RobotTaskEnv.object_position``), never from the achieved goal.
 """
@@ -26,6 +30,8 @@ from ps_ray.errors import UserError
 from .markers import MARKER_COLOURS, MarkerScene
 from .push import Push, PushOptions
 
+GOAL_FRAMES = ("marker", "world")
+
 
 @dataclass(frozen=True)
 class PushMarkerOptions(PushOptions):
@@ -37,8 +43,13 @@ class PushMarkerOptions(PushOptions):
     min_radius: float = 0.06
     # ... and this far from the object's start, so that every episode needs a push
     min_push: float = 0.08
+    # "world": a diagnostic only (the goal the named marker's world position, the achieved goal the
+    # object's): the target is then an input any source reads, so the family cannot use it
+    goal_frame: str = "marker"
 
     def __post_init__(self) -> None:
+        if self.goal_frame not in GOAL_FRAMES:
+            raise UserError(f"bad goal_frame {self.goal_frame!r}; valid goal frames: {', '.join(GOAL_FRAMES)}")
         if not isinstance(self.markers, int) or not 1 <= self.markers <= len(MARKER_COLOURS):
             raise UserError(f"bad markers {self.markers!r}; valid markers: 1..{len(MARKER_COLOURS)}")
         if not isinstance(self.target, int) or not 0 <= self.target < self.markers:
@@ -77,6 +88,14 @@ class PushMarkers(MarkerScene, Push):
         )
         away = lambda point: np.linalg.norm(point[:2] - start[:2]) >= o.min_push  # noqa: E731
         self._place_markers(self.sim, rng, *self.target_region(), where, clear=away)
+        if o.goal_frame == "world":
+            self.goal = self.positions[o.target].copy()
+
+    @property
+    def offset(self) -> np.ndarray:
+        if self.options.goal_frame == "world":
+            return self.goal - self.positions[self.options.target]
+        return self.goal
 
     def _set_own(self, state: np.ndarray) -> None:
         """The object where the task state's first 12 numbers put it (pose and velocities)."""
@@ -85,4 +104,6 @@ class PushMarkers(MarkerScene, Push):
     def observe(self, ee_position: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         state, position = super().observe(ee_position)
         task_state = np.concatenate([state, self.positions.reshape(-1)])
+        if self.options.goal_frame == "world":
+            return task_state, position
         return task_state, position - self.positions[self.options.target]

@@ -191,3 +191,26 @@ def test_the_world_frame_diagnostic_says_the_same_scenes_in_world_coordinates():
             assert info["is_success"] == (marker == target) and reward == (0.0 if marker == target else -1.0)
     with pytest.raises(UserError, match="bad goal_frame 'hand'; valid goal frames: marker, world"):
         make("panda", {"name": "push_red", "goal_frame": "hand"})
+
+
+def test_markers_said_from_the_object_are_each_task_s_achieved_goal_and_set_scenes_round_trip():
+    """marker_state from_object: the task state holds the object's position minus each marker's, so
+    each task's achieved goal is its own marker's columns; both tasks still see the same state; a
+    scene set from a task input is the scene that input came from."""
+    options = {"marker_state": "from_object"}
+    red, blue = (make("panda", {"name": n, **options}) for n in ("push_red", "push_blue"))
+    plain = make("panda", "push_red")
+    for seed in range(5):
+        a, _ = red.reset(seed=seed)
+        b, _ = blue.reset(seed=seed)
+        c, _ = plain.reset(seed=seed)
+        np.testing.assert_array_equal(a["task_state"], b["task_state"])
+        markers = c["task_state"][12:].reshape(2, 3)
+        np.testing.assert_allclose(a["task_state"][12:].reshape(2, 3), red.object_position - markers, atol=1e-6)
+        np.testing.assert_allclose(a["achieved_goal"], a["task_state"][12:15], atol=1e-6)
+        np.testing.assert_allclose(b["achieved_goal"], b["task_state"][15:18], atol=1e-6)
+        again, _ = red.reset(options={"task_input": task_input(a)})
+        np.testing.assert_allclose(red.candidate_targets(), plain.candidate_targets(), atol=1e-5)
+        np.testing.assert_allclose(again["task_state"], a["task_state"], atol=1e-5)
+    with pytest.raises(UserError, match="bad marker_state 'hand'; valid marker states: position, from_object"):
+        make("panda", {"name": "push_red", "marker_state": "hand"})

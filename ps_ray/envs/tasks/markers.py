@@ -110,13 +110,18 @@ class MarkerScene:
         the task state's positions, the desired offset from the goal part."""
         head, width = self.state_dim, self.state_dim + 3 * self.options.markers
         self._set_own(task_input[:head])
-        self.positions = task_input[head:width].reshape(-1, 3).copy()
+        self.positions = self._marker_positions(task_input[:head], task_input[head:width].reshape(-1, 3))
         for body, position in zip(self._bodies, self.positions):
             self.sim.move(body, position)
         self.goal = task_input[width:].copy()
 
     def _set_own(self, state: np.ndarray) -> None:
         """Set the family's own part of the task state (the markers have none)."""
+
+    def _marker_positions(self, own: np.ndarray, columns: np.ndarray) -> np.ndarray:
+        """The markers' world positions from their task-state columns (rows; the family's own part
+        of the task state beside them): the columns themselves here."""
+        return columns.copy()
 
     def _place_markers(self, sim: Sim, rng: np.random.Generator, low, high, where: str, clear=None) -> None:
         """Markers drawn uniformly in the box ``low``..``high`` by rejection sampling on the env's

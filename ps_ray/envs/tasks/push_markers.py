@@ -6,7 +6,10 @@ so a source of one task pushes to the wrong marker on the other, and no input gi
 Goals are said in the named marker's frame, as the marker family says them:
 
 - ``task_state``: the object's state (position, Euler angles, linear and angular velocity: 12),
-  then every marker's position (3 per marker), in a fixed order of colours;
+  then every marker's position (3 per marker), in a fixed order of colours; with ``marker_state:
+  from_object``, the object's position minus each marker's instead (what each task of the scene
+  reads as its achieved goal, so the critic compares two inputs, as plain push's does, and still
+  no input names the target);
 - ``achieved_goal``: the object's position minus the named marker's;
 - ``desired_goal``: the offset from the named marker at which the object must end: zero in every
   real episode, so a hindsight goal is "push to the named marker plus this offset".
@@ -31,6 +34,7 @@ from .markers import MARKER_COLOURS, MarkerScene
 from .push import Push, PushOptions
 
 GOAL_FRAMES = ("marker", "world")
+MARKER_STATES = ("position", "from_object")
 
 
 @dataclass(frozen=True)
@@ -46,10 +50,17 @@ class PushMarkerOptions(PushOptions):
     # "world": a diagnostic only (the goal the named marker's world position, the achieved goal the
     # object's): the target is then an input any source reads, so the family cannot use it
     goal_frame: str = "marker"
+    # how the task state says the markers: "position" (each marker's world position) or "from_object"
+    # (the object's position minus each marker's: each task's achieved goal, for every task alike)
+    marker_state: str = "position"
 
     def __post_init__(self) -> None:
         if self.goal_frame not in GOAL_FRAMES:
             raise UserError(f"bad goal_frame {self.goal_frame!r}; valid goal frames: {', '.join(GOAL_FRAMES)}")
+        if self.marker_state not in MARKER_STATES:
+            raise UserError(
+                f"bad marker_state {self.marker_state!r}; valid marker states: {', '.join(MARKER_STATES)}"
+            )
         if not isinstance(self.markers, int) or not 1 <= self.markers <= len(MARKER_COLOURS):
             raise UserError(f"bad markers {self.markers!r}; valid markers: 1..{len(MARKER_COLOURS)}")
         if not isinstance(self.target, int) or not 0 <= self.target < self.markers:
@@ -101,9 +112,15 @@ class PushMarkers(MarkerScene, Push):
         """The object where the task state's first 12 numbers put it (pose and velocities)."""
         self.sim.set_base_state(self.object, state)
 
+    def _marker_positions(self, own: np.ndarray, columns: np.ndarray) -> np.ndarray:
+        if self.options.marker_state == "from_object":
+            return own[:3] - columns
+        return columns.copy()
+
     def observe(self, ee_position: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         state, position = super().observe(ee_position)
-        task_state = np.concatenate([state, self.positions.reshape(-1)])
+        markers = position - self.positions if self.options.marker_state == "from_object" else self.positions
+        task_state = np.concatenate([state, markers.reshape(-1)])
         if self.options.goal_frame == "world":
             return task_state, position
         return task_state, position - self.positions[self.options.target]

@@ -3,9 +3,11 @@
 Follows the authors' HER (docs/authors_code.md §5, from TianhongDai/hindsight-experience-replay):
 episode ~ U(stored), t ~ U{0..T-1}; with probability ``relabel_prob`` (replay_k = 4 -> 0.8) the
 goal becomes ``achieved_goal[ep, t']`` with t' ~ U{t+1..T}; the reward is recomputed as
-``reward_fn(achieved_goal[ep, t+1], goal)``. A sample is one vectorised gather per observation
-key (no Python object per transition), which is what makes it ~100x cheaper than RLlib's episode
-replay (measured: 25-31 ms per RLlib sample against ~2 ms here; README "Design notes").
+``reward_fn(achieved_goal[ep, t+1], goal)``. With a :class:`MarkerShift` (a task said in a
+marker's frame) the goal stays real and the named marker moves instead
+(:mod:`ps_ray.data.marker_shift`); the rewards are the same. A sample is one vectorised gather per
+observation key (no Python object per transition), which is what makes it ~100x cheaper than
+RLlib's episode replay (measured: 25-31 ms per RLlib sample against ~2 ms here; README "Design notes").
 
 Pure numpy: no torch, no Ray. Checkpoints are plain ``.npz`` files read with
 ``allow_pickle=False``.
@@ -20,12 +22,13 @@ from typing import Any
 
 import numpy as np
 
+from ps_ray.data.marker_shift import MarkerShift
 from ps_ray.errors import UserError
 from ps_ray.store.atomic import atomic_file
 from ps_ray.store.formats import HINDSIGHT_REPLAY
 from ps_ray.store.npz import NpzError, read_npz
 
-__all__ = ["HindsightReplay", "ObsSpec", "RewardFn"]
+__all__ = ["HindsightReplay", "MarkerShift", "ObsSpec", "RewardFn"]
 
 ObsSpec = Mapping[str, tuple[tuple[int, ...], Any]]  # key -> (per-step shape, dtype-like)
 RewardFn = Callable[[np.ndarray, np.ndarray], np.ndarray]  # (achieved (N,G), goal (N,G)) -> (N,)
@@ -52,6 +55,7 @@ class HindsightReplay:
         seed: int | None = None,
         achieved_key: str = "achieved_goal",
         goal_key: str = "desired_goal",
+        marker: MarkerShift | None = None,
     ) -> None:
         self._spec: dict[str, tuple[tuple[int, ...], np.dtype]] = {
             str(k): (tuple(int(d) for d in shape), np.dtype(dt)) for k, (shape, dt) in obs_spec.items()
@@ -77,6 +81,9 @@ class HindsightReplay:
         self.relabel_prob = float(relabel_prob)
         self.achieved_key = achieved_key
         self.goal_key = goal_key
+        if marker is not None and marker.key not in self._spec:
+            raise ValueError(f"{marker.key!r} is not in obs_spec (keys: {sorted(self._spec)})")
+        self.marker = marker
         self._rng = np.random.Generator(np.random.PCG64(seed))
         self._episodes_added = 0
         T1, cap = self.horizon + 1, self._capacity
@@ -171,7 +178,12 @@ class HindsightReplay:
         goals = self._obs_flat[self.goal_key].take(row, axis=0)
         if relabel.any():
             future_rows = ep[relabel] * (T + 1) + t_future[relabel]
-            goals[relabel] = self._obs_flat[self.achieved_key].take(future_rows, axis=0)
+            future = self._obs_flat[self.achieved_key].take(future_rows, axis=0)
+            if self.marker is None:
+                goals[relabel] = future
+            else:
+                for side in ("obs", "next_obs"):
+                    self.marker.move(out, side, relabel, future - goals[relabel], self.achieved_key)
         out[f"obs/{self.goal_key}"], out[f"next_obs/{self.goal_key}"] = goals, goals.copy()
         out["actions"] = self._act_flat.take(ep * T + t, axis=0)
         rewards = np.asarray(self.reward_fn(out[f"next_obs/{self.achieved_key}"], goals))
@@ -195,11 +207,15 @@ class HindsightReplay:
         t = np.broadcast_to(np.arange(T), (n, T))
         relabel = rng.random((n, T)) < self.relabel_prob
         t_future = rng.integers(t + 1, T + 1)
-        goals = np.where(
-            relabel[..., None], np.take_along_axis(achieved, t_future[..., None], axis=1), goal[:, :T]
-        )
-        out = {k: a[:, :T].reshape(n * T, *a.shape[2:]) for k, a in arrays.items()}
-        out[self.goal_key] = goals.reshape(n * T, *goal.shape[2:]).astype(goal.dtype)
+        future = np.take_along_axis(achieved, t_future[..., None], axis=1)
+        out = {k: a[:, :T].reshape(n * T, *a.shape[2:]).copy() for k, a in arrays.items()}
+        if self.marker is None:
+            goals = np.where(relabel[..., None], future, goal[:, :T])
+            out[self.goal_key] = goals.reshape(n * T, *goal.shape[2:]).astype(goal.dtype)
+        else:
+            rows = relabel.reshape(-1)
+            shift = (future - goal[:, :T]).reshape(n * T, -1)[rows]
+            self.marker.move({f"obs/{k}": a for k, a in out.items()}, "obs", rows, shift, self.achieved_key)
         return out
 
     def sample_many(self, n_batches: int, batch_size: int) -> dict[str, np.ndarray]:

@@ -27,7 +27,7 @@ from ps_ray.errors import UserError
 from ps_ray.nets.policy_file import save_policy
 from ps_ray.rllib.grid_module import GridSACLearner, GridSACModule, grid_modules, grid_train_batch
 from ps_ray.rllib.private import runner_envs
-from ps_ray.rllib.sac_her import ModularSAC, ModularSACConfig
+from ps_ray.rllib.sac_her import ModularSAC, ModularSACConfig, hindsight_replay
 from ps_ray.specs.methods import method_spec
 from ps_ray.store.signature import Signature
 
@@ -96,15 +96,7 @@ class GridSAC(ModularSAC):
         self.keys = list(self._grid_env.keys)
         self.cuts = list(np.cumsum(self._grid_env.action_dims)[:-1])
         self.replays = {
-            key: HindsightReplay(
-                {k: (s.shape, np.float32) for k, s in env.observation_space.spaces.items()},
-                action_dim=env.action_space.shape[0],
-                horizon=env.unwrapped.max_episode_steps,
-                capacity_episodes=cfg.buffer_episodes,
-                reward_fn=lambda a, d, env=env.unwrapped: env.compute_reward(a, d, None),
-                relabel_prob=cfg.relabel_prob,
-                seed=seed,
-            )
+            key: hindsight_replay(env.unwrapped, cfg, seed)
             for key, env, seed in zip(self.keys, self._grid_env.envs, self.replay_seeds())
         }
         self.method = method_spec(cfg.model_config["method"])

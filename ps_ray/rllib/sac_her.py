@@ -27,7 +27,7 @@ from ray.rllib.utils.metrics import (
 )
 from safetensors.torch import load_file, save_file
 
-from ps_ray.data.her import HindsightReplay
+from ps_ray.data.her import HindsightReplay, MarkerShift
 from ps_ray.envs.goals import ROBOT_KEY, task_input
 from ps_ray.errors import UserError
 from ps_ray.nets.consolidate import consolidate_cells
@@ -46,7 +46,7 @@ from ps_ray.rllib.private import (
 )
 from ps_ray.specs.methods import ConsolidateSpec, method_spec, spec_json
 from ps_ray.specs.reset_seeds import RUNNER_STRIDE, run_episode_seed
-from ps_ray.specs.train import TrainSpec
+from ps_ray.specs.train import TrainSpec, marker_columns
 from ps_ray.store import checkpoint
 from ps_ray.store import replay as replay_segments
 from ps_ray.store.checkpoint import STATE_FILE
@@ -69,6 +69,7 @@ TRAIN_SETTINGS = (
     "action_l2",
     "critic_warmup_updates",
     "relabel_prob",
+    "hindsight",
     "eval_every",
     "eval_episodes",
 )
@@ -82,6 +83,26 @@ def read_learner_file(directory: Path) -> dict[str, torch.Tensor]:
     if checkpoint.version(directory) == 1:
         tensors.setdefault(TORCH_RNG, torch.get_rng_state())
     return tensors
+
+
+def hindsight_replay(env, cfg, seed: int | None) -> HindsightReplay:
+    """The replay of one env (a gymnasium env's own methods): its spaces, horizon and reward, the
+    config's relabelling (``hindsight`` marker: a :class:`MarkerShift` of the env's named marker)."""
+    space = env.observation_space
+    marker = None
+    if cfg.hindsight == "marker":
+        columns, sign = marker_columns(env.task_spec)
+        marker = MarkerShift("task_state", columns, sign)
+    return HindsightReplay(
+        {k: (s.shape, np.float32) for k, s in space.spaces.items()},
+        action_dim=env.action_space.shape[0],
+        horizon=env.max_episode_steps,
+        capacity_episodes=cfg.buffer_episodes,
+        reward_fn=lambda a, d: env.compute_reward(a, d, None),
+        relabel_prob=cfg.relabel_prob,
+        seed=seed,
+        marker=marker,
+    )
 
 
 class ModularSACConfig(SACConfig):
@@ -128,15 +149,7 @@ class ModularSAC(SAC):
         # A driver-side env instance supplies spaces, horizon and compute_reward for relabelling.
         self._reward_env = self.env_creator(cfg.env_config).unwrapped  # a gymnasium env's own methods
         space = self._reward_env.observation_space
-        self.replay = HindsightReplay(
-            {k: (s.shape, np.float32) for k, s in space.spaces.items()},
-            action_dim=self._reward_env.action_space.shape[0],
-            horizon=self._reward_env.max_episode_steps,
-            capacity_episodes=cfg.buffer_episodes,
-            reward_fn=lambda a, d: self._reward_env.compute_reward(a, d, None),
-            relabel_prob=cfg.relabel_prob,
-            seed=cfg.seed,
-        )
+        self.replay = hindsight_replay(self._reward_env, cfg, cfg.seed)
         self.method = method_spec(cfg.model_config["method"])
         self.counters = {"env_steps": 0, "episodes": 0, "updates": 0}
         # Where replay segments go (ps_ray.store.replay); None: each checkpoint holds the whole buffer.

@@ -51,7 +51,15 @@ RESUMABLE_CHANGES = (
 
 
 # Settings added after runs were recorded: written only where they differ from these defaults.
-LATER_SETTINGS = {"target_entropy": None, "relabel_prob": 0.8, "env": None}
+LATER_SETTINGS = {"target_entropy": None, "relabel_prob": 0.8, "env": None, "hindsight": "goal"}
+HINDSIGHT = ("goal", "marker")
+
+
+def marker_columns(task) -> tuple[slice, float] | None:
+    """The named marker's task-state columns and their sign (``MarkerScene.hindsight_marker``) of
+    a resolved task; None for a task whose goals are not said in a marker's frame."""
+    find = getattr(task.family, "hindsight_marker", None)
+    return None if find is None else find(task.options)
 
 
 def require_same(stored: Mapping[str, Any], current: Mapping[str, Any], what: str, advice: str) -> None:
@@ -120,6 +128,12 @@ class TrainSpec:
         None, "the policy entropy the temperature is tuned towards (None: minus the action dimension)"
     )
     relabel_prob: Share = setting(0.8, "share of replayed transitions with a relabelled goal (HER k=4: 0.8)")
+    hindsight: str = setting(
+        "goal",
+        "how a transition is relabelled: goal (the goal becomes a later achieved goal) or marker (a task "
+        "said in a marker's frame keeps its goal and the named marker moves to where the later outcome "
+        "puts it, so relabelled goals look like real ones: docs/transfer.md)",
+    )
     random_episodes: NonNegative = setting(10, "warm-up episodes with uniform random actions")
     learning_starts: NonNegative = setting(1000, "transitions in the buffer before the first update")
     eval_every: NonNegative = setting(10, "training steps between greedy evaluations (0: never)")
@@ -138,14 +152,25 @@ class TrainSpec:
     )
 
     def __post_init__(self) -> None:
+        if self.hindsight not in HINDSIGHT:
+            raise SpecError(f"unknown hindsight {self.hindsight!r}; valid hindsight: {', '.join(HINDSIGHT)}")
         if self.env is not None:
             _check_gym_id(self.env)
+            if self.hindsight != "goal":
+                raise SpecError(
+                    f"hindsight {self.hindsight!r} needs a built-in marker task, not env {self.env!r}"
+                )
             return
         try:
             resolve_robot(self.robot)
-            resolve_task(self.task)
+            task = resolve_task(self.task)
         except (ValueError, TypeError) as e:
             raise SpecError(str(e)) from None
+        if self.hindsight == "marker" and marker_columns(task) is None:
+            raise SpecError(
+                f"hindsight 'marker' needs a task said in a marker's frame, got task {self.task.spelling!r}; "
+                "valid: reach_red, reach_blue, push_red, push_blue (goal_frame marker)"
+            )
 
     @classmethod
     def from_mapping(cls, data: Mapping[str, Any], where: str = "train spec") -> TrainSpec:

@@ -97,6 +97,13 @@ class MarkerScene:
         first = cls.state_dim + 3 * index
         return slice(first, first + 3)
 
+    @classmethod
+    def hindsight_marker(cls, options) -> tuple[slice, float] | None:
+        """The named marker's task-state columns and how they move with it (+1: its position),
+        for hindsight that moves the marker rather than the goal (``ps_ray.data.her.MarkerShift``);
+        None where the goals are not said in its frame."""
+        return cls.marker_columns(options.target), 1.0
+
     def _settable(self, task_input: np.ndarray) -> np.ndarray:
         width = self.state_dim + 3 * self.options.markers + 3
         if task_input.shape != (width,) or not np.isfinite(task_input).all():

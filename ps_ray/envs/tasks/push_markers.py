@@ -56,7 +56,8 @@ class PushMarkerOptions(PushOptions):
 
     def __post_init__(self) -> None:
         if self.goal_frame not in GOAL_FRAMES:
-            raise UserError(f"bad goal_frame {self.goal_frame!r}; valid goal frames: {', '.join(GOAL_FRAMES)}")
+            frames = ", ".join(GOAL_FRAMES)
+            raise UserError(f"bad goal_frame {self.goal_frame!r}; valid goal frames: {frames}")
         if self.marker_state not in MARKER_STATES:
             raise UserError(
                 f"bad marker_state {self.marker_state!r}; valid marker states: {', '.join(MARKER_STATES)}"
@@ -107,6 +108,12 @@ class PushMarkers(MarkerScene, Push):
         if self.options.goal_frame == "world":
             return self.goal - self.positions[self.options.target]
         return self.goal
+
+    @classmethod
+    def hindsight_marker(cls, options) -> tuple[slice, float] | None:
+        if options.goal_frame == "world":
+            return None
+        return cls.marker_columns(options.target), -1.0 if options.marker_state == "from_object" else 1.0
 
     def _set_own(self, state: np.ndarray) -> None:
         """The object where the task state's first 12 numbers put it (pose and velocities)."""

@@ -66,13 +66,14 @@ def test_a_relabelled_transition_keeps_its_goal_and_is_the_scene_with_the_marker
     # what the normalisers see: the same inputs, goals real
     seen = moved.relabelled(obs)
     np.testing.assert_array_equal(seen["desired_goal"], np.zeros_like(seen["desired_goal"]))
-    assert not np.allclose(seen["task_state"][:, columns], obs["task_state"][:, :-1].reshape(-1, 18)[:, columns])
+    collected = obs["task_state"][:, :-1].reshape(-1, 18)
+    assert not np.allclose(seen["task_state"][:, columns], collected[:, columns])
 
 
 def test_hindsight_marker_needs_a_task_said_in_a_marker_s_frame():
     assert TrainSpec(task="reach_red", hindsight="marker").hindsight == "marker"
     assert "hindsight" not in TrainSpec(task="push_red").to_dict()  # earlier runs keep their identity
-    with pytest.raises(SpecError, match="hindsight 'marker' needs a task said in a marker's frame, got task 'push'"):
+    with pytest.raises(SpecError, match="needs a task said in a marker's frame, got task 'push'"):
         TrainSpec(task="push", hindsight="marker")
     with pytest.raises(SpecError, match="got task"):
         TrainSpec(task={"name": "push_red", "goal_frame": "world"}, hindsight="marker")

@@ -206,11 +206,12 @@ def test_markers_said_from_the_object_are_each_task_s_achieved_goal_and_set_scen
         c, _ = plain.reset(seed=seed)
         np.testing.assert_array_equal(a["task_state"], b["task_state"])
         markers = c["task_state"][12:].reshape(2, 3)
-        np.testing.assert_allclose(a["task_state"][12:].reshape(2, 3), red.object_position - markers, atol=1e-6)
+        from_object = a["task_state"][12:].reshape(2, 3)
+        np.testing.assert_allclose(from_object, red.object_position - markers, atol=1e-6)
         np.testing.assert_allclose(a["achieved_goal"], a["task_state"][12:15], atol=1e-6)
         np.testing.assert_allclose(b["achieved_goal"], b["task_state"][15:18], atol=1e-6)
         again, _ = red.reset(options={"task_input": task_input(a)})
         np.testing.assert_allclose(red.candidate_targets(), plain.candidate_targets(), atol=1e-5)
         np.testing.assert_allclose(again["task_state"], a["task_state"], atol=1e-5)
-    with pytest.raises(UserError, match="bad marker_state 'hand'; valid marker states: position, from_object"):
+    with pytest.raises(UserError, match="bad marker_state 'hand'; valid marker states: position, from_obj"):
         make("panda", {"name": "push_red", "marker_state": "hand"})

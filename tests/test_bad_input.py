@@ -150,6 +150,11 @@ CASES = [  # (arguments, with {f} the input folder and {out} a path that must no
     ),
     ("bench learn --methods ps --out {out}/b", "--baseline 'ablation' is not among --methods"),
     ("train --method ps_ln --run-dir {out}/r", "method 'ps_ln' is an old name; write it as 'ps+norm=layer'"),
+    (
+        "train --task push --hindsight marker --run-dir {out}/r",
+        "hindsight 'marker' needs a task said in a marker's frame, got task 'push'; valid: reach_red",
+    ),
+    ("train --task push_red --hindsight scene --run-dir {out}/r", "unknown hindsight 'scene'; valid"),
 ]
 
 

@@ -67,6 +67,13 @@ def test_a_grid_refuses_cells_of_different_widths():
         GridSpec.of(TrainSpec(method="ablation"), ["panda"], ["reach_red", "push"])
 
 
+def test_a_grid_with_hindsight_marker_needs_every_task_said_in_a_marker_s_frame():
+    base = TrainSpec(method="ablation", task="push_red", hindsight="marker")
+    assert GridSpec.of(base, ["panda"], ["push_red", "push_blue"]).base.hindsight == "marker"
+    with pytest.raises(ValueError, match="needs a task said in a marker's frame, got task 'push'"):
+        GridSpec.of(base, ["panda"], ["push_red", "push"])
+
+
 @pytest.mark.e2e
 def test_ps_ray_grid_answers_bad_input_in_one_line_and_writes_nothing(tmp_path):
     run_dir = tmp_path / "grid"

@@ -73,6 +73,8 @@ class GridSpec:
         if trained:  # the base names the first trained cell: one grid, one spelling
             base = dataclasses.replace(self.base, robot=trained[0][0], task=trained[0][1])
             object.__setattr__(self, "base", base)
+        for task in self.tasks:  # what the base checks of its own task (hindsight marker), every task
+            dataclasses.replace(self.base, task=task)
         for kind, parts, index in (("robot", self.robots, 0), ("task", self.tasks, 1)):
             for part in parts:
                 if not any(c[index] == part for c in trained):

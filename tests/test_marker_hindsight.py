@@ -79,3 +79,21 @@ def test_hindsight_marker_needs_a_task_said_in_a_marker_s_frame():
         TrainSpec(task={"name": "push_red", "goal_frame": "world"}, hindsight="marker")
     with pytest.raises(SpecError, match="unknown hindsight 'scene'; valid hindsight: goal, marker"):
         TrainSpec(task="push_red", hindsight="scene")
+
+
+@pytest.mark.e2e
+def test_the_learner_s_replay_moves_the_marker_when_the_spec_says_so(ray_local):
+    from ps_ray.rllib.algo import algo_config
+    from tests.small_runs import CELL_TRAIN
+
+    spec = TrainSpec.from_mapping({**CELL_TRAIN, "task": "push_blue", "hindsight": "marker", "seed": 5})
+    algo = algo_config(spec, None).build_algo()
+    try:
+        assert algo.replay.marker == MarkerShift("task_state", slice(15, 18), 1.0)
+        for _ in range(2):
+            algo.train()
+        batch = algo.replay.sample(256)  # what the learner read: real goals, the blue marker moved
+        np.testing.assert_array_equal(batch["obs/desired_goal"], np.zeros((256, 3)))
+        assert (batch["rewards"] == 0).any() and algo.counters["updates"] > 0
+    finally:
+        algo.stop()

@@ -182,8 +182,9 @@ class HindsightReplay:
             if self.marker is None:
                 goals[relabel] = future
             else:
+                shift = future - goals[relabel]
                 for side in ("obs", "next_obs"):
-                    self.marker.move(out, side, relabel, future - goals[relabel], self.achieved_key)
+                    self.marker.move(out, side, relabel, shift, self.achieved_key)
         out[f"obs/{self.goal_key}"], out[f"next_obs/{self.goal_key}"] = goals, goals.copy()
         out["actions"] = self._act_flat.take(ep * T + t, axis=0)
         rewards = np.asarray(self.reward_fn(out[f"next_obs/{self.achieved_key}"], goals))

@@ -100,7 +100,7 @@ class MarkerScene:
     @classmethod
     def hindsight_marker(cls, options) -> tuple[slice, float] | None:
         """The named marker's task-state columns and how they move with it (+1: its position),
-        for hindsight that moves the marker rather than the goal (``ps_ray.data.her.MarkerShift``);
+        for hindsight that moves the marker rather than the goal (``ps_ray.data.marker_shift.MarkerShift``);
         None where the goals are not said in its frame."""
         return cls.marker_columns(options.target), 1.0
 

@@ -105,6 +105,10 @@ CASES = [  # (arguments, with {f} the input folder and {out} a path that must no
     ("zero-shot {f}/sweep.yaml", "sweeps/never: no trained sweep there; train it first"),
     ("few-shot {f}/sweep.yaml --env-steps 0", "few_shot.env_steps must be a positive integer, got 0"),
     (
+        "few-shot {f}/sweep.yaml --set few_shot.translation=anchors@outcome",
+        "few_shot.translation: 'anchors@outcome' is not a fitted latent map; valid: orthogonal, affine,",
+    ),
+    (
         "render --policy {f}/reach.safetensors --task push --png {out}",
         "reach.safetensors: cannot run here: task dim: policy 3 vs target env (panda, push) 15",
     ),

@@ -367,3 +367,57 @@ def test_few_shot_trials_start_from_stitched_weights_beside_unstitched_and_scrat
     assert by_kind["scratch"]["spec"]["critic_warmup_updates"] == 0
     for points in curves(results).values():
         assert points and points[-1][0] >= 300
+
+
+def test_an_aligned_start_is_the_zero_shot_stage_s_aligned_stitch_with_its_map_folded_in(
+    trained_matrix, tmp_path
+):
+    """few_shot.translation: the stitch the zero-shot stage aligned (affine) and kept starts a run,
+    its map folded into the robot module, so it acts as the stitch that was scored; a translation
+    the zero-shot stage did not fit is refused before any start is written."""
+    import dataclasses
+    import shutil
+
+    from ps_ray.errors import UserError
+    from ps_ray.stitching.pair_files import STITCHED_FILE, pair_folder
+
+    copy = tmp_path / "copy"
+    shutil.copytree(sweep_layout(trained_matrix).root, copy / trained_matrix.name)
+    for made_here in ("tune_zero_shot", "mlartifacts", "mlflow.db", "few_shot"):  # no MLflow store
+        shutil.rmtree(copy / trained_matrix.name / made_here, ignore_errors=True)
+        (copy / trained_matrix.name / made_here).unlink(missing_ok=True)
+    spec = dataclasses.replace(trained_matrix, storage=str(copy))
+    table = run_zero_shot(spec, episodes=3, repeats=1, translate={"ablation": ["affine"]}, progress=False)
+    assert sorted(table["method"].unique()) == ["ablation", "ablation+affine"]
+    settings = dict(env_steps=300, collect_steps=200, max_pairs=1, critic_warmup_updates=20)
+    with pytest.raises(UserError, match="few_shot.translation 'affine@outcome': the zero-shot stage kept no"):
+        run_few_shot(spec, translation="affine@outcome", progress=False, **settings)
+    assert not sweep_layout(spec).stitched.exists()  # nothing written
+    results = run_few_shot(
+        spec, translation="affine", scratch=False, unstitched=False, progress=False, **settings
+    )
+    assert not any(r.error for r in results)
+    by_kind = {r.config["trial"]["kind"]: r.config["trial"] for r in results}
+    assert sorted(by_kind) == ["aligned", "stitched"]
+    assert by_kind["aligned"]["key"].startswith("aligned+affine/")
+    start = by_kind["aligned"]["spec"]["init_policy"]
+    meta = read_signature(start)[1]
+    assert (meta["start"], meta["translation"]) == ("aligned", "affine")
+    (scored,) = [
+        p
+        for p in pairs_from_table(sweep_layout(spec).zero_shot_table)
+        if p.translation == "affine"
+        and (p.task_from, p.robot_from) == (meta["task_from"], meta["robot_from"])
+    ]
+    kept = load_policy(pair_folder(sweep_layout(spec).tune_zero_shot, scored.key) / STITCHED_FILE)
+    folded, unaligned = load_policy(start), load_policy(by_kind["stitched"]["spec"]["init_policy"])
+    assert kept[1].translation == "affine" and folded[1].translation == ""
+    g = torch.Generator().manual_seed(0)
+    task_in = torch.randn(32, folded[1].task_dim, generator=g)
+    robot_in = torch.randn(32, folded[1].robot_dim, generator=g)
+    with torch.no_grad():
+        want, got, plain = (torch.cat(n[0].actor(task_in, robot_in), -1) for n in (kept, folded, unaligned))
+    assert torch.allclose(got, want, atol=1e-4 * want.abs().max().item())
+    assert not torch.allclose(plain, want, atol=1e-2 * want.abs().max().item())
+    for points in curves(results).values():
+        assert points and points[-1][0] >= 300

@@ -146,7 +146,8 @@ def learning_curves(
     return _save(fig, path)
 
 
-START_ORDER = ("stitched", "task_module", "robot_module", "unstitched", "scratch")  # few-shot starts
+# few-shot starts, in the order legends list them
+START_ORDER = ("stitched", "aligned", "task_module", "robot_module", "unstitched", "scratch")
 LINE_STYLES = [("-", "o"), ("--", "s"), (":", "^"), ("-.", "D"), ((0, (5, 1)), "v")]
 
 

@@ -7,12 +7,15 @@ are saved and a training trial starts from them: first `collect_steps` of data c
 without updates (the paper: 10 epochs), then training. The same target env trained
 from scratch runs beside it, so MLflow holds both learning curves (success vs env steps), and,
 with ``few_shot.halves``, each half of the stitch beside a fresh other half
-(:mod:`ps_ray.stitching.halves`), which takes the stitched start's head start apart.
+(:mod:`ps_ray.stitching.halves`), which takes the stitched start's head start apart; with
+``few_shot.translation``, the stitch aligned by that fitted latent map, as the zero-shot stage
+scored it, the map folded into the robot module (:mod:`ps_ray.stitching.fold`).
 """
 
 from __future__ import annotations
 
 import dataclasses
+from pathlib import Path
 from typing import Any
 
 from ps_ray.errors import UserError
@@ -35,28 +38,58 @@ def few_shot_trials(spec: SweepSpec, settings: FewShotSpec) -> list[TrainTrial]:
     zoo = trained(spec)
     table = pairs_from_table(sweep_layout(spec).zero_shot_table)
     pairs = evaluated_pairs(spec, table, lambda: zoo, list(settings.methods) or None)
-    for pair in few_shot_plan.selected_pairs(pairs, settings):
+    selected = few_shot_plan.selected_pairs(pairs, settings)
+    aligned = {p.key: aligned_stitch(spec, p, settings.translation, table) for p in selected}
+    for pair in selected:  # every aligned stitch found before any start is written
         for kind in few_shot_plan.starts(settings):
-            _write_start(spec, pair, kind)
+            _write_start(spec, pair, kind, settings.translation, aligned[pair.key])
     return few_shot_plan.plan(spec, zoo, pairs, settings)
 
 
-def _write_start(spec: SweepSpec, pair: StitchedPair, kind: str) -> None:
+def aligned_stitch(
+    spec: SweepSpec, pair: StitchedPair, translation: str | None, table: list[StitchedPair] | None
+) -> Path | None:
+    """The policy file of ``pair``'s stitch aligned by ``translation``, as the zero-shot stage
+    fitted, scored and kept it (:mod:`ps_ray.stitching.pair_files`); None without a translation."""
+    from ps_ray.stitching.pair_files import STITCHED_FILE, pair_folder
+
+    if translation is None:
+        return None
+    sources = (pair.task_from, pair.robot_from, pair.pairing, translation)
+    found = [p for p in table or [] if (p.task_from, p.robot_from, p.pairing, p.translation) == sources]
+    path = found and pair_folder(sweep_layout(spec).tune_zero_shot, found[0].key) / STITCHED_FILE
+    if not path or not path.is_file():
+        raise UserError(
+            f"few_shot.translation {translation!r}: the zero-shot stage kept no such stitch of "
+            f"{pair.title}; run zero-shot with zero_shot.translate: {{{pair.method}: [{translation}]}} first"
+        )
+    return path
+
+
+def _write_start(
+    spec: SweepSpec, pair: StitchedPair, kind: str, translation: str | None, aligned: Path | None
+) -> None:
     """The policy file a start of the pair begins from (:func:`ps_ray.plan.few_shot.start_file`):
-    its stitch, or (``kind`` one of the halves) the stitch with one half fresh, drawn from the
-    pair's seed; written once, so a resumed stage keeps the files its trials started from."""
-    from ps_ray.nets.policy_file import save_policy
+    its stitch, the ``aligned`` stitch with its map folded in, or (``kind`` one of the halves) the
+    stitch with one half fresh, drawn from the pair's seed; written once, so a resumed stage keeps
+    the files its trials started from."""
+    from ps_ray.nets.policy_file import load_policy, save_policy
+    from ps_ray.stitching.fold import fold_translation
     from ps_ray.stitching.halves import half_stitch
     from ps_ray.stitching.stitch import stitch_policies
 
-    path = few_shot_plan.start_file(spec, pair, kind)
-    if not path.exists():
-        if kind == TrialKind.STITCHED:
-            nets, signature = stitch_policies(pair.task_from_path, pair.robot_from_path)
-        else:
-            nets, signature = half_stitch(pair.task_from_path, pair.robot_from_path, kind, pair.seed)
-        extra = {"task_from": pair.task_from, "robot_from": pair.robot_from, "start": kind}
-        save_policy(path, nets, signature, extra=extra)
+    path = few_shot_plan.start_file(spec, pair, kind, translation)
+    if path.exists():
+        return
+    extra = {"task_from": pair.task_from, "robot_from": pair.robot_from, "start": kind}
+    if kind == TrialKind.STITCHED:
+        nets, signature = stitch_policies(pair.task_from_path, pair.robot_from_path)
+    elif kind == TrialKind.ALIGNED:
+        nets, signature = fold_translation(*load_policy(aligned))
+        extra["translation"] = str(translation)
+    else:
+        nets, signature = half_stitch(pair.task_from_path, pair.robot_from_path, kind, pair.seed)
+    save_policy(path, nets, signature, extra=extra)
 
 
 def run_few_shot(spec: SweepSpec, *, resume: bool = False, progress: bool = True, **overrides: Any):
@@ -111,7 +144,7 @@ def _source_tags(trial: TrainTrial, client, experiment_id: str) -> dict[str, str
     if trial.kind in STITCHED_STARTS:
         tags[PAIR_TAG] = trial.label
     start = trial.spec.init_policy
-    if trial.kind != TrialKind.STITCHED or not start:
+    if trial.kind not in (TrialKind.STITCHED, TrialKind.ALIGNED) or not start:
         return tags
     meta = read_signature(start)[1]
     return {**tags, **source_tags(client, experiment_id, meta["task_from"], meta["robot_from"], start)}

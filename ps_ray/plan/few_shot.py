@@ -1,6 +1,6 @@
-"""The few-shot stage's trials: fine-tuning runs that start from stitched pairs (and, taken
-apart, from each half of the stitch beside a fresh other half), from each pair's robot source as
-it is, and from scratch on each target."""
+"""The few-shot stage's trials: fine-tuning runs that start from stitched pairs (as they are, and
+aligned by a fitted latent map; taken apart, from each half of the stitch beside a fresh other
+half), from each pair's robot source as it is, and from scratch on each target."""
 
 from __future__ import annotations
 
@@ -38,14 +38,27 @@ def selected_pairs(pairs: list[StitchedPair], settings: FewShotSpec) -> list[Sti
 
 
 def starts(settings: FewShotSpec) -> tuple[str, ...]:
-    """The starts made from each selected pair: the stitch, and with ``halves`` each half of it."""
-    return ("stitched", *(HALVES if settings.halves else ()))
+    """The starts made from each selected pair: the stitch, with ``translation`` the stitch aligned
+    by it, and with ``halves`` each half of the stitch."""
+    aligned = (TrialKind.ALIGNED,) if settings.translation else ()
+    return (TrialKind.STITCHED, *aligned, *(HALVES if settings.halves else ()))
 
 
-def start_file(spec: SweepSpec, pair: StitchedPair, kind: str) -> Path:
-    """Where the policy file of a start of the pair (``kind``: one of :func:`starts`) stands: one
-    name per (sources, kind), so a resumed stage finds the files its trials started from."""
-    name = f"{pair.task_from}|{pair.robot_from}" + ("" if kind == TrialKind.STITCHED else f"|{kind}")
+def start_name(kind: str, translation: str | None = None) -> str:
+    """A start's name in its trials' keys: ``few_shot`` for the stitch, ``aligned+<translation>``
+    for the aligned stitch, else the kind (``robot_module``, ``task_module``)."""
+    if kind == TrialKind.ALIGNED:
+        return f"{kind}+{translation}"
+    return "few_shot" if kind == TrialKind.STITCHED else kind
+
+
+def start_file(spec: SweepSpec, pair: StitchedPair, kind: str, translation: str | None = None) -> Path:
+    """Where the policy file of a start of the pair (``kind``: one of :func:`starts`; an aligned
+    start names its ``translation``) stands: one name per (sources, start), so a resumed stage
+    finds the files its trials started from."""
+    name = f"{pair.task_from}|{pair.robot_from}"
+    if kind != TrialKind.STITCHED:
+        name += f"|{start_name(kind, translation)}"
     folder = sweep_layout(spec).stitched
     return folder / f"{hashlib.sha256(name.encode()).hexdigest()[:16]}.safetensors"
 
@@ -77,8 +90,9 @@ def plan(
         target = trial_key(base.to_dict())
         warm = {**base.to_dict(), "critic_warmup_updates": settings.critic_warmup_updates}
         for kind in starts(settings):
-            start = TrainSpec.from_mapping({**warm, "init_policy": str(start_file(spec, pair, kind))})
-            name = "few_shot" if kind == TrialKind.STITCHED else kind
+            path = start_file(spec, pair, kind, settings.translation)
+            start = TrainSpec.from_mapping({**warm, "init_policy": str(path)})
+            name = start_name(kind, settings.translation)
             trials.append(TrainTrial(start, key=f"{name}/{pair.label}/{target}", label=pair.label, kind=kind))
         own = pair.controls.get("robot_source")
         if settings.unstitched and own is not None:  # the robot source as it is, fine-tuned

@@ -22,6 +22,7 @@ def plan(spec: SweepSpec, zoo: ModuleZoo, settings: ZeroShotSpec | None = None) 
     """The stage's pairs: of ``settings.methods`` (default: the sweep's), in the pairing it names,
     each untranslated and then once per translation it names for the method."""
     settings = settings or spec.zero_shot
+    spec = dataclasses.replace(spec, zero_shot=settings)  # the translations the settings name
     return matrix(spec, zoo, list(settings.methods) or None, translate=True, pairing=settings.pairs)
 
 

@@ -60,10 +60,12 @@ class SearchMetric(Mode):
 
 class TrialKind(Mode):
     """What a training trial is: a source (or an anchor policy), or a few-shot start: the stitched
-    pair, one half of it beside a fresh other half, the pair's robot source as it is, or scratch."""
+    pair (as it is, or aligned), one half of it beside a fresh other half, the pair's robot source as
+    it is, or scratch."""
 
     TRAIN = "train"
     STITCHED = "stitched"
+    ALIGNED = "aligned"  # the stitch aligned by a fitted latent map, folded in (ps_ray.stitching.fold)
     ROBOT_MODULE = "robot_module"
     TASK_MODULE = "task_module"
     UNSTITCHED = "unstitched"

@@ -16,7 +16,14 @@ from ps_ray.errors import UserError, Words
 from ps_ray.specs.engine import NonNegative, Number, OneOf, Positive, Seq, SpecError, between, spec
 from ps_ray.specs.methods import method_key, reanchoring_problem
 from ps_ray.specs.modes import AnchorGoals, AnchorPolicy, Pairing
-from ps_ray.specs.names import EnvPart, Part, Translation, translations_problem
+from ps_ray.specs.names import (
+    LATENT_TRANSLATIONS,
+    TRANSLATION_CHOICES,
+    EnvPart,
+    Part,
+    Translation,
+    translations_problem,
+)
 from ps_ray.specs.reset_seeds import MAX_STAGE_SEED
 
 ANCHOR_POLICIES = tuple(AnchorPolicy)
@@ -136,6 +143,10 @@ class FewShotSpec:
     # also start from each half of the stitch beside a fresh other half (ps_ray.stitching.halves):
     # the pair's robot module under a fresh task module, its task module over a fresh robot module
     halves: bool = False
+    # also start from each pair's stitch aligned by this fitted latent map (e.g. affine@outcome), as
+    # the zero-shot stage fitted and scored it, the map folded into the robot module
+    # (ps_ray.stitching.fold): None starts from no aligned stitch
+    translation: str | None = None
     # the first updates of a start from trained weights fit the critics alone (actor frozen): a
     # stitched start's critics join halves of two networks and say nothing sound of its actor yet
     critic_warmup_updates: NonNegative = 500
@@ -145,6 +156,13 @@ class FewShotSpec:
         unique_entries("few_shot", methods=self.methods)
         if self.collect_steps >= self.env_steps:
             raise SpecError(f"few_shot.collect_steps must be in [0, env_steps), got {self.collect_steps}")
+        if self.translation is not None:
+            foldable = [t for t in TRANSLATION_CHOICES if Translation(t).kind in LATENT_TRANSLATIONS]
+            if self.translation not in foldable:
+                raise SpecError(
+                    f"few_shot.translation: {self.translation!r} is not a fitted latent map; valid: "
+                    f"{', '.join(foldable)}"
+                )
 
 
 @spec("report")

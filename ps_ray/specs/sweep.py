@@ -174,13 +174,16 @@ class SweepSpec:
             )
 
     def to_dict(self) -> dict[str, Any]:
-        """Plain JSON-able data (tuples as lists); no ``search`` key without a search and no
-        ``population`` key at 1, so a sweep recorded before either existed keeps its identity."""
+        """Plain JSON-able data (tuples as lists); no ``search`` key without a search, no
+        ``population`` key at 1 and no ``few_shot.translation`` without one, so a sweep recorded
+        before any of them existed keeps its identity."""
         data = json.loads(json.dumps(dataclasses.asdict(self), default=plain_json))
         if not self.search.active:
             del data["search"]
         if self.population == 1:  # a sweep recorded before populations existed keeps its identity
             del data["population"]
+        if self.few_shot.translation is None:  # nor one recorded before aligned starts existed
+            del data["few_shot"]["translation"]
         return data
 
     def training_identity(self) -> dict[str, Any]:

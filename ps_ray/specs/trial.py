@@ -23,7 +23,7 @@ from ps_ray.specs.train import TrainSpec
 # pair's robot source as it is, or the target env from scratch.
 HALVES = (TrialKind.ROBOT_MODULE, TrialKind.TASK_MODULE)  # which half of the stitch a start keeps
 KINDS = tuple(TrialKind)
-STITCHED_STARTS = (TrialKind.STITCHED, *HALVES)  # the starts made from a stitched pair
+STITCHED_STARTS = (TrialKind.STITCHED, TrialKind.ALIGNED, *HALVES)  # the starts made from a stitched pair
 
 
 @dataclass(frozen=True)
@@ -49,6 +49,7 @@ class TrainTrial:
         start = {
             TrialKind.TRAIN: label,  # a search's setting, or nothing
             TrialKind.STITCHED: f"from the stitch {label}",
+            TrialKind.ALIGNED: f"from the aligned stitch {label}",
             TrialKind.ROBOT_MODULE: f"the stitch's robot module, a fresh task module {label}",
             TrialKind.TASK_MODULE: f"the stitch's task module, a fresh robot module {label}",
             TrialKind.UNSTITCHED: "the robot source as it is",

@@ -57,8 +57,8 @@ def aligned_stitch(
         return None
     sources = (pair.task_from, pair.robot_from, pair.pairing, translation)
     found = [p for p in table or [] if (p.task_from, p.robot_from, p.pairing, p.translation) == sources]
-    path = found and pair_folder(sweep_layout(spec).tune_zero_shot, found[0].key) / STITCHED_FILE
-    if not path or not path.is_file():
+    path = pair_folder(sweep_layout(spec).tune_zero_shot, found[0].key) / STITCHED_FILE if found else None
+    if path is None or not path.is_file():
         raise UserError(
             f"few_shot.translation {translation!r}: the zero-shot stage kept no such stitch of "
             f"{pair.title}; run zero-shot with zero_shot.translate: {{{pair.method}: [{translation}]}} first"

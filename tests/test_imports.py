@@ -143,6 +143,11 @@ def test_the_update_benchmark_runs_where_only_torch_is_installed(tmp_path):
     args = ["--dims", "15,8,7", "--methods", "ps", "--rounds", "1", "--updates", "2", "--save", str(tmp_path)]
     code = f"from ps_ray.bench import update\nupdate.main({args!r})"
     assert _loaded_after(code, ("ray", "torch", "pybullet", "gymnasium", "mlflow")) == {"torch"}
+    # the GPU host's one call (`python -m ps_ray.bench.gpu`, docs/cost.md "The GPU check") likewise
+    assert (
+        _loaded_after("import ps_ray.bench.gpu", ("ray", "pybullet", "gymnasium", "mlflow", "sklearn"))
+        == set()
+    )
     assert sorted(p.name for p in tmp_path.iterdir()) == ["ablation_cpu.safetensors", "ps_cpu.safetensors"]
     nets, signature = load_policy(tmp_path / "ps_cpu.safetensors")
     widths = (signature.task_dim, signature.robot_dim, signature.action_dim)

@@ -10,8 +10,10 @@ import numpy as np
 import pytest
 import torch
 
+from ps_ray.errors import UserError
 from ps_ray.nets.population import LearningRates, Population
-from ps_ray.nets.sac import SACHyper, build_sac_nets, polyak, sac_forward, sac_losses
+from ps_ray.nets.sac import SACHyper, SACNets, build_sac_nets, sac_forward, sac_losses
+from ps_ray.nets.solo import SoloLearner
 from ps_ray.specs.dims import NetDims
 
 DIMS = NetDims(task_dim=6, robot_dim=5, action_dim=3)
@@ -32,32 +34,8 @@ def member(method: str, seed: int):
     return nets
 
 
-class Solo:
-    """One learner as the RLlib learner runs it: sac_forward + sac_losses, one backward, an Adam
-    per group (critic, actor, temperature), then Polyak."""
-
-    def __init__(self, nets):
-        self.nets = nets
-        self.log_alpha = torch.zeros(1, requires_grad=True)
-        critics = [*nets.critic.parameters(), *nets.critic_twin.parameters()]
-        self.optimizers = [
-            torch.optim.Adam(critics, lr=LRS.critic),
-            torch.optim.Adam(nets.actor.parameters(), lr=LRS.actor),
-            torch.optim.Adam([self.log_alpha], lr=LRS.alpha),
-        ]
-
-    def update(self, batch, rewards, noise, warmup=False):
-        losses = sac_losses(
-            sac_forward(self.nets, batch, noise), rewards, self.log_alpha, HP, DIMS.action_dim
-        )
-        total = losses["critic"] + 0.0 * (losses["actor"] + losses["alpha"]) if warmup else losses["total"]
-        for optimizer in self.optimizers:
-            optimizer.zero_grad()
-        total.backward()
-        for optimizer in self.optimizers:
-            optimizer.step()
-        polyak(self.nets, TAU)
-        return total.detach()
+def solo_learner(nets: SACNets) -> SoloLearner:
+    return SoloLearner(nets, hp=HP, lrs=LRS, tau=TAU)
 
 
 def batches(k: int, size: int, seed: int):
@@ -73,7 +51,7 @@ def batches(k: int, size: int, seed: int):
     return batch, rewards, noise
 
 
-def assert_same(population: Population, index: int, solo: Solo):
+def assert_same(population: Population, index: int, solo: SoloLearner):
     exported, log_alpha = population.export(index, copy.deepcopy(solo.nets))
     for (name, got), want in zip(exported.state_dict().items(), solo.nets.state_dict().values(), strict=True):
         torch.testing.assert_close(got, want, rtol=1e-4, atol=1e-5, msg=f"member {index}: {name}")
@@ -83,7 +61,7 @@ def assert_same(population: Population, index: int, solo: Solo):
 @pytest.mark.parametrize("method", ["ps", "ablation", "plain"])
 def test_each_member_gets_the_updates_a_solo_learner_gives_it(method):
     starts = [member(method, seed) for seed in (1, 2, 3)]
-    solos = [Solo(copy.deepcopy(nets)) for nets in starts]
+    solos = [solo_learner(copy.deepcopy(nets)) for nets in starts]
     population = Population(starts, hp=HP, lrs=LRS, tau=TAU)
     assert len(population) == 3
     for step in range(10):
@@ -215,3 +193,68 @@ def test_a_captured_update_is_asked_for_on_a_gpu_only(capsys):
     population = Population([member("ablation", 1)])
     with pytest.raises(ValueError, match="capturable=True"):
         population.captured(*batches(1, 8, seed=0)[:2])
+
+
+def test_the_gpu_check_finds_a_population_equal_to_solo_learners_and_says_what_a_cpu_leaves_out(capsys):
+    """`ps-ray bench gpu` (a GPU host's one call) on this CPU: the eager population at the training
+    widths is within the tolerance of solo learners after 2 and 10 updates, the graph rows are
+    left out and said to be, and the cost table follows."""
+    from ps_ray.bench import gpu
+
+    gpu.main(
+        ["--device", "cpu", "--members", "2", "--population", "1", "2", "--rounds", "1", "--updates", "1"]
+    )
+    out = capsys.readouterr().out.splitlines()
+    assert out[0].startswith("cpu (no CUDA graph here), torch ")
+    assert out[1] == "2 ablation members, widths 15,8,7, against solo learners:"
+    checks = [line.split() for line in out[2:4]]
+    assert [(c[:2], c[3]) for c in checks] == [
+        (["eager", "population"], "2"),
+        (["eager", "population"], "10"),
+    ]
+    assert all(float(c[7]) < 1e-3 and c[8] == "ok" for c in checks)  # rounding: about 1e-4 and less
+    assert not any("captured" in line for line in out)
+    assert [line.split()[0] for line in out[6:]] == ["1", "1", "2"]  # solo, then K = 1 and 2
+
+
+def test_the_gpu_checks_gap_is_about_one_for_a_member_fed_anothers_batches():
+    """The gap is a fraction of how far the updates moved each tensor: a population that hands
+    each member the other's batches is about 1 away from the solo learners, far over the 1e-2
+    the check allows."""
+    from ps_ray.bench import gpu
+
+    dims = NetDims(15, 8, 7)
+    start = gpu.members("ablation", dims, 2, 16, "cpu")
+    solos = [SoloLearner(copy.deepcopy(nets)) for nets in start]
+    swapped = Population([copy.deepcopy(nets) for nets in start])
+    for step in range(3):
+        batch, rewards, noise = gpu.inputs(dims, 2, 64, step, "cpu")
+        for i, learner in enumerate(solos):
+            learner.update({k: v[i] for k, v in batch.items()}, rewards[i], (noise[0][i], noise[1][i]))
+        other = [1, 0]
+        swapped.update(
+            {k: v[other] for k, v in batch.items()}, rewards[other], (noise[0][other], noise[1][other])
+        )
+    assert gpu.largest_gap(swapped, solos, start) > 0.5
+
+
+def test_the_gpu_check_fails_when_a_gap_is_over_its_tolerance(capsys):
+    from ps_ray.bench import gpu
+
+    with pytest.raises(SystemExit, match=r"2 equality check\(s\) over the tolerance 1e-12"):
+        gpu.main(
+            ["--device", "cpu", "--members", "1", "--population", "1", "--rounds", "1", "--updates", "1"]
+            + ["--tolerance", "1e-12", "--method", "plain"]
+        )
+    assert "OVER 1e-12" in capsys.readouterr().out
+
+
+def test_the_gpu_check_refuses_what_it_cannot_check_in_one_line(capsys):
+    from ps_ray.bench import gpu
+
+    with pytest.raises(SystemExit) as stop:
+        gpu.main(["--device", "cpu", "--check-updates", "1"])
+    assert stop.value.code == 2
+    assert "--check-updates 1: at least 2 (the graph's first replay is the 2nd)" in capsys.readouterr().err
+    with pytest.raises(UserError, match="unknown method 'psx'; valid presets: ps, ps_distilled, ablation"):
+        gpu.main(["--device", "cpu", "--method", "psx"])

@@ -124,32 +124,43 @@ class PopulationLoop:
         return (time.perf_counter() - start) / updates
 
 
-def population_table(method: str, dims: NetDims, sizes: list[int], args) -> None:
-    """Per source: K solo updates one after another against one update of a population of K."""
-    device = args.devices[0]
-    solo = UpdateLoop(method, dims, args.batch_size, args.interface_dim, device=device)
+def population_table(
+    method: str,
+    dims: NetDims,
+    sizes: list[int],
+    *,
+    device: str,
+    batch_size: int,
+    interface_dim: int,
+    rounds: int,
+    updates: int,
+    graph: bool,
+) -> None:
+    """Per source: K solo updates one after another against one update of a population of K
+    (eager, and with ``graph`` also captured as one CUDA graph)."""
+    solo = UpdateLoop(method, dims, batch_size, interface_dim, device=device)
     loops = {
-        (k, graph): PopulationLoop(method, dims, k, args.batch_size, args.interface_dim, device, graph)
+        (k, captured): PopulationLoop(method, dims, k, batch_size, interface_dim, device, captured)
         for k in sizes
-        for graph in ((False, True) if args.graph else (False,))
+        for captured in ((False, True) if graph else (False,))
     }
     for loop in (solo, *loops.values()):
         loop.timed(3)
     seconds = {"solo": [], **{key: [] for key in loops}}
-    for _ in range(args.rounds):  # taking turns: a noisy machine slows them alike
-        seconds["solo"].append(solo.timed(args.updates))
+    for _ in range(rounds):  # taking turns: a noisy machine slows them alike
+        seconds["solo"].append(solo.timed(updates))
         for key, loop in loops.items():
-            seconds[key].append(loop.timed(args.updates))
+            seconds[key].append(loop.timed(updates))
     base = float(np.median(seconds["solo"]))
     print(
-        f"{method} on {device}, batch {args.batch_size}, interface {args.interface_dim}, 1 torch thread; "
-        f"median over {args.rounds} rounds of {args.updates} updates"
+        f"{method} on {device}, batch {batch_size}, interface {interface_dim}, 1 torch thread; "
+        f"median over {rounds} rounds of {updates} updates"
     )
     print(f"{'sources':>8}{'ms/update (all)':>17}{'ms per source':>15}{'/ solo':>8}{'update':>8}")
     print(f"{'1 solo':>8}{1000 * base:>17.2f}{1000 * base:>15.2f}{1.0:>8.2f}{'eager':>8}")
-    for k, graph in loops:
-        ms = 1000 * float(np.median(seconds[(k, graph)]))
-        kind = "graph" if graph else "eager"
+    for k, captured in loops:
+        ms = 1000 * float(np.median(seconds[(k, captured)]))
+        kind = "graph" if captured else "eager"
         print(f"{k:>8}{ms:>17.2f}{ms / k:>15.2f}{ms / k / (1000 * base):>8.2f}{kind:>8}")
 
 
@@ -212,7 +223,17 @@ def main(argv: list[str] | None = None) -> None:
     torch.set_num_threads(1)
     dims = args.dims or task_dims(args.task)
     if args.population:
-        return population_table(args.methods[0], dims, sorted(set(args.population)), args)
+        return population_table(
+            args.methods[0],
+            dims,
+            sorted(set(args.population)),
+            device=args.devices[0],
+            batch_size=args.batch_size,
+            interface_dim=args.interface_dim,
+            rounds=args.rounds,
+            updates=args.updates,
+            graph=args.graph,
+        )
     loops: dict[str, UpdateLoop] = {}
     for device in args.devices:
         for m in methods:

@@ -140,6 +140,7 @@ BENCHMARKS = {
     "her": "hindsight replay writes and samples per second",
     "train": "the RLlib trainer beside a bare-torch loop doing the same work",
     "update": "one SAC gradient update per method (--devices cuda on a GPU)",
+    "gpu": "a GPU host's one call: populations equal solo learners (eager, one CUDA graph), cost vs K",
     "grid": "one co-trained grid update beside bare torch",
     "learn": "env steps to a greedy success target per method, over seeds",
     "tracking": "the driver-side cost of MLflow tracking per Tune result",

@@ -168,22 +168,30 @@ class Population:
         self._polyak()
         return losses.detach()
 
-    def captured(self, batch: Mapping[str, Tensor], rewards: Tensor) -> Callable[[], None]:
-        """The whole update (passes, losses, backward, Adam, Polyak, fresh noise) on these
-        tensors, captured as one CUDA graph; returns its replay, one update of every member per
-        call. The tensors are the graph's inputs: refill them in place between replays. Needs
-        CUDA tensors and ``capturable=True`` (Adam's step counts on the GPU)."""
+    def captured(
+        self,
+        batch: Mapping[str, Tensor],
+        rewards: Tensor,
+        noise: tuple[Tensor, Tensor] | None = None,
+        warmups: int = 3,
+    ) -> Callable[[], None]:
+        """The whole update (passes, losses, backward, Adam, Polyak, and fresh noise unless
+        ``noise`` is given) on these tensors, captured as one CUDA graph; returns its replay, one
+        update of every member per call. The tensors are the graph's inputs: refill them in place
+        between replays. First ``warmups`` ordinary updates on them, off the capture (gradients and
+        Adam slots allocated). Needs CUDA tensors and ``capturable=True`` (Adam's step counts on
+        the GPU)."""
         if not self.capturable:
             raise ValueError("a captured update needs Population(..., capturable=True)")
         side = torch.cuda.Stream()
         side.wait_stream(torch.cuda.current_stream())
-        with torch.cuda.stream(side):  # warm-up off the capture: gradients and Adam slots allocated
-            for _ in range(3):
-                self.update(batch, rewards)
+        with torch.cuda.stream(side):
+            for _ in range(warmups):
+                self.update(batch, rewards, noise)
         torch.cuda.current_stream().wait_stream(side)
         graph = torch.cuda.CUDAGraph()
         with torch.cuda.graph(graph):
-            self.update(batch, rewards)
+            self.update(batch, rewards, noise)
         return graph.replay
 
     @torch.no_grad()

@@ -197,8 +197,8 @@ def test_a_captured_update_is_asked_for_on_a_gpu_only(capsys):
 
 def test_the_gpu_check_finds_a_population_equal_to_solo_learners_and_says_what_a_cpu_leaves_out(capsys):
     """`ps-ray bench gpu` (a GPU host's one call) on this CPU: the eager population at the training
-    widths is within the tolerance of solo learners after 2 and 10 updates, the graph rows are
-    left out and said to be, and the cost table follows."""
+    widths is within the tolerance of solo learners after 2 and 10 updates, and so are the batched
+    pass's gradients; the graph rows are left out and said to be, and the cost table follows."""
     from ps_ray.bench import gpu
 
     gpu.main(
@@ -213,8 +213,10 @@ def test_the_gpu_check_finds_a_population_equal_to_solo_learners_and_says_what_a
         (["eager", "population"], "10"),
     ]
     assert all(float(c[7]) < 1e-3 and c[8] == "ok" for c in checks)  # rounding: about 1e-4 and less
+    batched = out[4].split()  # the RLlib population learner's pass: each member's gradients
+    assert batched[:2] == ["batched", "pass"] and float(batched[-2]) < 1e-5 and batched[-1] == "ok"
     assert not any("captured" in line for line in out)
-    assert [line.split()[0] for line in out[6:]] == ["1", "1", "2"]  # solo, then K = 1 and 2
+    assert [line.split()[0] for line in out[7:]] == ["1", "1", "2"]  # solo, then K = 1 and 2
 
 
 def test_the_gpu_checks_gap_is_about_one_for_a_member_fed_anothers_batches():
@@ -241,7 +243,7 @@ def test_the_gpu_checks_gap_is_about_one_for_a_member_fed_anothers_batches():
 def test_the_gpu_check_fails_when_a_gap_is_over_its_tolerance(capsys):
     from ps_ray.bench import gpu
 
-    with pytest.raises(SystemExit, match=r"2 equality check\(s\) over the tolerance 1e-12"):
+    with pytest.raises(SystemExit, match=r"3 equality check\(s\) over the tolerance 1e-12"):
         gpu.main(
             ["--device", "cpu", "--members", "1", "--population", "1", "--rounds", "1", "--updates", "1"]
             + ["--tolerance", "1e-12", "--method", "plain"]

@@ -18,8 +18,8 @@ from torch import Tensor
 
 from ps_ray.bench.update import parse_dims, population_table
 from ps_ray.cli.args import Parser, positive_int
-from ps_ray.nets.population import Population
-from ps_ray.nets.sac import SACNets, build_sac_nets
+from ps_ray.nets.population import Population, members_forward, members_losses
+from ps_ray.nets.sac import SACHyper, SACNets, build_sac_nets, sac_forward, sac_losses
 from ps_ray.nets.solo import SoloLearner
 from ps_ray.specs.dims import NetDims
 from ps_ray.specs.methods import method_spec, uses_anchors
@@ -104,8 +104,32 @@ def equality_rows(
             refill(graph_inputs, (batch, rewards, noise))
             replay()
         if step in (1, updates - 1):
-            rows += [(name, step + 1, largest_gap(pop, solos, start)) for name, pop in runs.items()]
+            rows += [
+                (name, f"after {step + 1} updates", largest_gap(pop, solos, start))
+                for name, pop in runs.items()
+            ]
     return rows
+
+
+def batched_pass_gap(method: str, dims: NetDims, k: int, batch_size: int, interface_dim: int, device: str):
+    """The RLlib population learner's pass (:func:`~ps_ray.nets.population.members_forward` and
+    ``members_losses``, each member keeping its own parameters): the largest distance of a
+    member's gradient from its solo pass's, as a fraction of the solo gradient's norm."""
+    batched = members(method, dims, k, interface_dim, device)
+    alone = [copy.deepcopy(nets) for nets in batched]
+    batch, rewards, noise = inputs(dims, k, batch_size, 0, device)
+    hp, log_alpha = SACHyper(), torch.zeros(k, device=device, requires_grad=True)
+    fwd = members_forward(batched, batch, noise)
+    members_losses(fwd, rewards, log_alpha, hp, dims.action_dim)["total"].sum().backward()
+    gap = 0.0
+    for i, nets in enumerate(alone):
+        own = sac_forward(nets, {key: v[i] for key, v in batch.items()}, (noise[0][i], noise[1][i]))
+        own_alpha = torch.zeros((), device=device, requires_grad=True)
+        sac_losses(own, rewards[i], own_alpha, hp, dims.action_dim)["total"].backward()
+        for got, want in zip(batched[i].parameters(), nets.parameters(), strict=True):
+            if want.grad is not None:
+                gap = max(gap, float((got.grad - want.grad).norm() / want.grad.norm().clamp_min(1e-12)))
+    return gap
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -137,15 +161,16 @@ def main(argv: list[str] | None = None) -> None:
         f"{where}, torch {torch.__version__}, tf32 matmul {torch.backends.cuda.matmul.allow_tf32}", flush=True
     )
     dims = args.dims
-    rows = equality_rows(
-        args.method, dims, args.members, args.check_updates, args.batch_size, args.interface_dim, args.device
-    )
+    shape = (args.method, dims, args.members)
+    rows = equality_rows(*shape, args.check_updates, args.batch_size, args.interface_dim, args.device)
+    gradients = batched_pass_gap(*shape, args.batch_size, args.interface_dim, args.device)
+    rows.append(("batched pass (the RLlib population learner)", "gradients", gradients))
     widths = f"{dims.task_dim},{dims.robot_dim},{dims.action_dim}"
     print(f"{args.members} {args.method} members, widths {widths}, against solo learners:")
     failed = [row for row in rows if not row[2] <= args.tolerance]
-    for name, after, gap in rows:
+    for name, when, gap in rows:
         verdict = "ok" if gap <= args.tolerance else f"OVER {args.tolerance:g}"
-        print(f"  {name:<38} after {after:>3} updates: largest gap {gap:.2e}  {verdict}", flush=True)
+        print(f"  {name:<44} {when:<17} largest gap {gap:.2e}  {verdict}", flush=True)
     sizes = args.population or ([1, 8, 64, 256, 1024] if gpu else [1, 2, 4, 8])
     population_table(
         args.method,

@@ -193,6 +193,9 @@ def test_a_captured_update_is_asked_for_on_a_gpu_only(capsys):
     population = Population([member("ablation", 1)])
     with pytest.raises(ValueError, match="capturable=True"):
         population.captured(*batches(1, 8, seed=0)[:2])
+    capturable = Population([member("ablation", 1)], capturable=True)
+    with pytest.raises(ValueError, match="at least one warm-up update, got 0"):
+        capturable.captured(*batches(1, 8, seed=0)[:2], warmups=0)
 
 
 def test_the_gpu_check_finds_a_population_equal_to_solo_learners_and_says_what_a_cpu_leaves_out(capsys):
@@ -205,7 +208,7 @@ def test_the_gpu_check_finds_a_population_equal_to_solo_learners_and_says_what_a
         ["--device", "cpu", "--members", "2", "--population", "1", "2", "--rounds", "1", "--updates", "1"]
     )
     out = capsys.readouterr().out.splitlines()
-    assert out[0].startswith("cpu (no CUDA graph here), torch ")
+    assert out[0].startswith("cpu (no CUDA graph here), torch ") and out[0].endswith("(tf32 off)")
     assert out[1] == "2 ablation members, widths 15,8,7, against solo learners:"
     checks = [line.split() for line in out[2:4]]
     assert [(c[:2], c[3]) for c in checks] == [

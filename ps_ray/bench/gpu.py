@@ -155,11 +155,10 @@ def main(argv: list[str] | None = None) -> None:
             f"--check-updates {args.check_updates}: at least 2 (the graph's first replay is the 2nd)"
         )
     torch.set_num_threads(1)
+    torch.backends.cuda.matmul.allow_tf32 = False  # float32 products, as on a CPU (the default)
     gpu = args.device == "cuda"
     where = f"cuda: {torch.cuda.get_device_name()}" if gpu else "cpu (no CUDA graph here)"
-    print(
-        f"{where}, torch {torch.__version__}, tf32 matmul {torch.backends.cuda.matmul.allow_tf32}", flush=True
-    )
+    print(f"{where}, torch {torch.__version__}, float32 products (tf32 off)", flush=True)
     dims = args.dims
     shape = (args.method, dims, args.members)
     rows = equality_rows(*shape, args.check_updates, args.batch_size, args.interface_dim, args.device)

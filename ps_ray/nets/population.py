@@ -183,6 +183,8 @@ class Population:
         the GPU)."""
         if not self.capturable:
             raise ValueError("a captured update needs Population(..., capturable=True)")
+        if warmups < 1:  # Adam's slots made inside the capture would start afresh on every replay
+            raise ValueError(f"a captured update needs at least one warm-up update, got {warmups}")
         side = torch.cuda.Stream()
         side.wait_stream(torch.cuda.current_stream())
         with torch.cuda.stream(side):
@@ -192,7 +194,15 @@ class Population:
         graph = torch.cuda.CUDAGraph()
         with torch.cuda.graph(graph):
             self.update(batch, rewards, noise)
-        return graph.replay
+        members, inputs = self.log_alpha, (batch, rewards, noise)  # the graph's tensors, kept alive
+
+        def replay() -> None:
+            if self.log_alpha is not members:  # keep() replaced the tensors the graph writes
+                raise RuntimeError("the population changed members since this update was captured")
+            graph.replay()
+
+        replay.inputs = inputs
+        return replay
 
     @torch.no_grad()
     def _polyak(self) -> None:
@@ -217,7 +227,8 @@ class Population:
 
     def keep(self, indices: Sequence[int]) -> None:
         """Go on with only these members (the others stopped or failed): their weights, targets,
-        temperatures and Adam slots are kept as they are, so they update on as if never grouped."""
+        temperatures and Adam slots are kept as they are, so they update on as if never grouped.
+        A captured update reads the old tensors: capture again."""
         index = torch.as_tensor(list(indices), dtype=torch.long, device=self.log_alpha.device)
         if index.numel() == 0:
             raise ValueError("a population keeps at least one member")

@@ -1,10 +1,10 @@
 """What a GPU host checks in one call (``ps-ray bench gpu``; ``python -m ps_ray.bench.gpu`` from the
 repository where only torch is installed): that a population's update there gives each member what
-a solo learner gives it, eager and captured as one CUDA graph (the same start, batches and noise;
-largest gap as a fraction of how far the updates moved each tensor, after the first replay and after
-the last update);
-then the population's cost per source against K, eager and graph (``ps-ray bench update
---population``'s table). On a CPU the graph is left out, said so. Exit 1 when a gap is over
+a solo learner gives it, eager and captured as one CUDA graph (same start, batches and noise; the
+largest gap as a fraction of how far the updates moved each tensor, after the first replay and
+after the last update), and that the RLlib population learner's batched pass gives each member its
+solo gradients; then the population's cost per source against K, eager and graph (``ps-ray bench
+update --population``'s table). On a CPU the graph is left out, said so. Exit 1 when a gap is over
 ``--tolerance``."""
 
 from __future__ import annotations
@@ -82,7 +82,7 @@ def largest_gap(population: Population, solos: list[SoloLearner], start: list[SA
 def equality_rows(
     method: str, dims: NetDims, k: int, updates: int, batch_size: int, interface_dim: int, device: str
 ):
-    """(what, after how many updates, largest gap) of the eager population and, on a GPU, the
+    """(what, when, largest gap) of the eager population and, on a GPU, the
     captured one, each against K solo learners from the same start on the same inputs."""
     start = members(method, dims, k, interface_dim, device)
     solos = [SoloLearner(copy.deepcopy(nets)) for nets in start]

@@ -249,12 +249,18 @@ seeds: [1]
         ),
         (
             GOOD + "zero_shot: {translate: {ps: [affine, anchors@outcome]}}\n",
-            "zero_shot.translate: anchors@outcome sets or swaps marker scenes, and task reach has none; "
-            "valid: tasks of the marker family (reach_red, reach_blue, ...)",
+            "zero_shot.translate: anchors@outcome sets reach marker scenes, and task reach has none; "
+            "valid: the reach markers (reach_red, reach_blue, ...)",
         ),
         (
             GOOD + "zero_shot: {translate: {ps: [affine@swapped]}}\n",
-            "zero_shot.translate: affine@swapped sets or swaps marker scenes, and task reach has none",
+            "zero_shot.translate: affine@swapped swaps marker scenes, and task reach has none; "
+            "valid: tasks with markers (reach_red, push_red, ...)",
+        ),
+        (
+            GOOD.replace("[reach]", "[push_red, push_blue]") + "zero_shot: {translate: {ps: [anchors@outcome]}}\n",
+            "zero_shot.translate: anchors@outcome sets reach marker scenes, and task push_red has none; "
+            "valid: the reach markers (reach_red, reach_blue, ...)",
         ),
         (
             GOOD + "zero_shot: {translate: {plain: [affine]}}\n",
@@ -269,6 +275,12 @@ def test_bad_sweep_files_fail_with_one_line_naming_the_problem(tmp_path, text, m
     assert message in str(err.value)
     assert str(path) in str(err.value)
     assert "\n" not in str(err.value)
+
+
+def test_the_push_family_takes_the_known_correspondence_as_an_upper_bound(tmp_path):
+    text = GOOD.replace("[reach]", "[push_red, push_blue]") + "zero_shot: {translate: {ps: [affine@swapped]}}\n"
+    spec = load_sweep(_write(tmp_path, text))
+    assert [str(t) for t in spec.zero_shot.translations("ps")] == ["affine@swapped"]
 
 
 def test_a_robot_or_task_given_by_name_alone_is_that_name():

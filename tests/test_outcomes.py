@@ -128,6 +128,22 @@ def test_an_env_reset_to_a_task_input_shows_that_scene():
         reach.close()
 
 
+def test_a_swapped_push_scene_means_to_one_task_what_the_original_means_to_the_other():
+    red, blue = make("panda", "push_red"), make("panda", "push_blue")
+    try:
+        obs, _ = red.reset(seed=5)
+        original = np.r_[obs["task_state"], obs["desired_goal"]].astype(np.float32)
+        swapped = colour_swapped(original[None], EnvPart("push_red"), EnvPart("push_blue"))[0]
+        seen, _ = blue.reset(seed=9, options={"task_input": swapped})
+        # the object where it was, the blue marker where the red one was: the same push
+        np.testing.assert_allclose(seen["achieved_goal"], obs["achieved_goal"], atol=1e-5)
+        np.testing.assert_allclose(seen["task_state"][:3], obs["task_state"][:3], atol=1e-5)
+        blue_there = obs["task_state"][:3] - obs["task_state"][15:18]  # push_blue's in the original
+        assert np.linalg.norm(seen["achieved_goal"] - blue_there) >= 0.1  # markers 0.1 m apart
+    finally:
+        red.close(), blue.close()
+
+
 @pytest.mark.e2e
 def test_anchors_matched_by_outcome_mean_to_the_task_module_what_they_mean_to_the_robot_module():
     """The robot module's anchors are reach_blue scenes; the robot source (a blue reacher on

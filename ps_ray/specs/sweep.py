@@ -14,7 +14,7 @@ from pydantic import BeforeValidator
 
 from ps_ray.envs.robots import resolve_robot
 from ps_ray.envs.tasks import resolve_task
-from ps_ray.envs.tasks.markers import Markers
+from ps_ray.envs.tasks.markers import Markers, MarkerScene
 from ps_ray.specs.defaults import INTERFACE_DIM
 from ps_ray.specs.engine import NonNegative, Positive, SpecError, parse, spec, sub_spec
 from ps_ray.specs.grid import GridSettings
@@ -162,16 +162,25 @@ class SweepSpec:
             raise SpecError(f"search.space.{both[0]} is also set in 'train'; set it in one place")
 
     def _check_marker_scenes(self) -> None:
-        """A stitch that sets a scene from a task input (``anchors@``) or swaps its markers
-        (``@swapped``) needs tasks of the marker family: refused here, not after training."""
+        """A stitch that sets a scene from a task input (``anchors@``: the reach markers only) or
+        swaps its markers (``@swapped``: any task with marker scenes, the push family's too) is
+        refused here for other tasks, not after training."""
         zero_shot = self.zero_shot
-        needing = [t for m in zero_shot.translate for t in zero_shot.translations(m) if t.scene_fit]
-        other = [t.short for t in self.tasks if not issubclass(resolve_task(t).family, Markers)]
-        if needing and other:
-            raise SpecError(
-                f"zero_shot.translate: {needing[0]} sets or swaps marker scenes, and task {other[0]} "
-                f"has none; valid: tasks of the marker family (reach_red, reach_blue, ...)"
-            )
+        kinds = [t for m in zero_shot.translate for t in zero_shot.translations(m) if t.scene_fit]
+        for translation in kinds:
+            anchors = translation.kind == "anchors"
+            family = Markers if anchors else MarkerScene
+            other = [t for t in self.tasks if not issubclass(resolve_task(t).family, family)]
+            if other:
+                what, valid = (
+                    ("sets reach marker scenes", "the reach markers (reach_red, reach_blue, ...)")
+                    if anchors
+                    else ("swaps marker scenes", "tasks with markers (reach_red, push_red, ...)")
+                )
+                raise SpecError(
+                    f"zero_shot.translate: {translation} {what}, and task {other[0].short} has none; "
+                    f"valid: {valid}"
+                )
 
     def to_dict(self) -> dict[str, Any]:
         """Plain JSON-able data (tuples as lists); no ``search`` key without a search, no

@@ -248,7 +248,7 @@ def test_the_task_blind_floor_raises_the_bar_and_the_old_gain_stays_beside_it():
     """On a family whose tasks share a scene the gain is taken over the floor too; the gain over
     the sources and chance alone stays as a column; an @swapped row is an upper bound, listed last;
     cross-seed rows have their intervals widened for the runs they share and no p-value."""
-    from ps_ray.analysis.transfer import transfer_numbers, transfer_text
+    from ps_ray.analysis.transfer import transfer_numbers, transfer_text, transfer_views
     from ps_ray.pipeline.zero_shot import gain
 
     rows = []
@@ -263,6 +263,8 @@ def test_the_task_blind_floor_raises_the_bar_and_the_old_gain_stays_beside_it():
                     "chance_success": 0.1,
                     "task_blind_success": 0.5,
                     "wrong_target_mean": 0.1,
+                    "task_blind_wrong_target": 0.45,
+                    "touching_mean": 0.6,
                     "fit_env_steps": 40_000 if "outcome" in method else 0,
                 }
                 row = {"method": method, "pairing": pairing, "seed": seed, "label": "a"}
@@ -275,6 +277,9 @@ def test_the_task_blind_floor_raises_the_bar_and_the_old_gain_stays_beside_it():
     assert same["gain_diff"] == pytest.approx(0.7875 - 0.5)  # over the floor
     assert same["chance_gain_diff"] == pytest.approx(0.7875 - 0.1)  # over chance, as before
     assert same["wrong_target_mean"] == pytest.approx(0.1)
+    assert same["task_blind_wrong_target"] == pytest.approx(0.45) and same["touching_mean"] == pytest.approx(
+        0.6
+    )
     cross = numbers[
         (numbers["method"] == "ablation+affine@outcome") & (numbers["pairing"] == "cross_seed")
     ].iloc[0]
@@ -284,6 +289,15 @@ def test_the_task_blind_floor_raises_the_bar_and_the_old_gain_stays_beside_it():
     shown = transfer_text(numbers)
     assert shown.loc[("ablation+affine@swapped", "same_seed"), "result"] == "upper bound (reads the target)"
     assert shown.loc[("ablation+affine@outcome", "same_seed"), "env steps of the fit per stitch"] == "40,000"
+    assert shown.loc[("ablation+affine@outcome", "same_seed"), "wrong target (floor)"].startswith("0.45 [")
+    controls, gains = transfer_views(numbers)
+    assert list(controls.columns)[-3:] == [
+        "wrong target (stitched)",
+        "wrong target (floor)",
+        "touching (stitched)",
+    ]
+    assert "touching (stitched)" not in transfer_views(numbers, touching=False)[0]  # reach: nothing to touch
+    assert list(gains.columns)[:2] == ["result", "seeds"]
     cross_shown = shown.loc[("ablation+affine@outcome", "cross_seed")]
     assert (
         "units share runs"

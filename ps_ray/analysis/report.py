@@ -33,8 +33,6 @@ from ps_ray.store.layout import SweepLayout, sweep_layout
 
 def build_report(spec: SweepSpec, *, progress: bool = True, log_to_mlflow: bool = True) -> Path:
     """Rebuild ``<sweep>/report/`` from the stored results; returns the path of ``index.html``."""
-    from ps_ray.store.layout import sweep_layout
-
     layout = sweep_layout(spec)
     root = layout.root
     say = print if progress else (lambda *a, **k: None)
@@ -308,7 +306,8 @@ def _transfer(report: Report, table: pd.DataFrame, episodes: int) -> None:
         "and the task-blind floor (every task of the scene but not told which: each episode driven "
         "to every candidate target in turn, averaged, so no draw; absent where the tasks do not "
         "share a scene), all on the pair's episodes, each seed on scenes of its own. Wrong target: "
-        "ended at a target the task does not name. Transfer gain: stitched minus the best of the "
+        "ended at a target the task does not name (the floor's beside it); touching: the stitch touched "
+        "the object (tasks that move one). Transfer gain: stitched minus the best of the "
         "sources, chance and the floor, per seed; t interval over seeds (success rates on the logit "
         "scale, so they stay in [0, 1]) and, from six seeds, a sign-flip p-value (fewer: the count "
         "of seeds up); the gain over the sources and chance alone beside it. Cross-seed units (seed i's "
@@ -317,7 +316,7 @@ def _transfer(report: Report, table: pd.DataFrame, episodes: int) -> None:
         "Pairs surely above / below: by more than their episodes' 95% interval (Newcombe's).",
         first=True,
     )
-    controls, gains = transfer.transfer_views(numbers)
+    controls, gains = transfer.transfer_views(numbers, touching=_has_object(table["task"]))
     report.table(section, "transfer", "Stitched success beside its controls", controls, numbers=numbers)
     report.shown(section, "The transfer gain over those controls, per method and pairing", gains)
     report.figure(section, "transfer_gain", lambda p: plots.transfer_gain_bars(table, p))
@@ -329,9 +328,10 @@ def _transfer(report: Report, table: pd.DataFrame, episodes: int) -> None:
         )
         report.table(section, "co_training", title, co_trained.set_index(["method", "pairing"]))
     report.headline.transfer = numbers
+    logged = ("success_mean", *transfer.CONTROL_COLUMNS, *transfer.BEHAVIOUR_COLUMNS, "gain_diff", "gain_p")
     for _, row in numbers.iterrows():
         prefix = f"transfer.{row['method']}.{row['pairing']}"
-        for column in ("success_mean", *transfer.CONTROL_COLUMNS, "wrong_target_mean", "gain_diff", "gain_p"):
+        for column in logged:
             if row[column] == row[column]:
                 report.metrics[f"{prefix}.{column}"] = float(row[column])
 

@@ -2,7 +2,8 @@
 unstitched sources, chance, the task-blind floor and the oracle on the same episodes, the
 wrong-target rate, and the transfer gain (stitched minus the best of the unstitched sources,
 chance and the floor) as a paired comparison over seeds, beside the gain over the sources and
-chance alone (docs/controls.md). Cross-seed units share runs: their intervals are widened for it
+chance alone (docs/controls.md); the floor's wrong-target rate and the stitches' touching beside
+them. Cross-seed units share runs: their intervals are widened for it
 and carry no p-value (ps_ray.analysis.stats). Rows whose translation reads the task's target
 (``@swapped``) are upper bounds, listed after the label-free rows. A table is in the current
 layout (:func:`ps_ray.stitching.pair_table.read_table`): a control not measured is NaN."""
@@ -23,6 +24,12 @@ CONTROL_COLUMNS = {
     "chance_success": "chance (no task knowledge)",
     "task_blind_success": "task-blind floor (every task, not told which)",
     "oracle_success": "oracle (trained on the target)",
+}
+# what each row's stitches (and its floor) did besides succeeding: shown after the controls
+BEHAVIOUR_COLUMNS = {
+    "wrong_target_mean": "wrong target (stitched)",
+    "task_blind_wrong_target": "wrong target (floor)",
+    "touching_mean": "touching (stitched)",
 }
 UPPER_BOUND_FITS = ("@swapped",)  # fits that read the task's target: the known correspondence
 
@@ -48,8 +55,8 @@ def transfer_numbers(table: pd.DataFrame, episodes: int | None = None) -> pd.Dat
         shared = pairing == Pairing.CROSS_SEED  # cyclic units share runs
         row = {"method": method, "pairing": pairing, "cells": len(part), "seeds": len(np.unique(seeds))}
         row["upper_bound"] = reads_target(method)
-        for column in ("success_mean", *CONTROL_COLUMNS, "wrong_target_mean"):
-            cells = part.dropna(subset=[column])
+        for column in ("success_mean", *CONTROL_COLUMNS, *BEHAVIOUR_COLUMNS):
+            cells = part.dropna(subset=[column]) if column in part else part.iloc[:0]
             if cells.empty:
                 row[column], row[f"{column}_lo"], row[f"{column}_hi"] = np.nan, np.nan, np.nan
                 continue
@@ -91,7 +98,7 @@ def transfer_text(numbers: pd.DataFrame) -> pd.DataFrame:
     out["result"] = ["upper bound (reads the target)" if r else "label-free" for r in numbers["upper_bound"]]
     out["cells (pairs x seeds)"] = numbers["cells"].to_numpy()
     out["seeds"] = numbers["seeds"].to_numpy()
-    shown = {"success_mean": "stitched", **CONTROL_COLUMNS, "wrong_target_mean": "wrong target (stitched)"}
+    shown = {"success_mean": "stitched", **CONTROL_COLUMNS, **BEHAVIOUR_COLUMNS}
     for column, name in shown.items():
         out[name] = [
             ("absent (the tasks do not share a scene)" if column == "task_blind_success" else "–")
@@ -134,12 +141,16 @@ def transfer_text(numbers: pd.DataFrame) -> pd.DataFrame:
     return out
 
 
-def transfer_views(numbers: pd.DataFrame) -> tuple[pd.DataFrame, pd.DataFrame]:
+def transfer_views(numbers: pd.DataFrame, touching: bool = True) -> tuple[pd.DataFrame, pd.DataFrame]:
     """:func:`transfer_text` as two tables that each fit a page's width: stitched success beside
-    its controls, then the gains (with the result kind and seed count repeated)."""
+    its controls and what the stitches did (without touching where no task moves an object), then
+    the gains (with the result kind and seed count repeated)."""
     text = transfer_text(numbers)
-    split = list(text.columns).index("wrong target (stitched)") + 1
-    return text.iloc[:, :split], text[["result", "seeds", *text.columns[split:]]]
+    split = list(text.columns).index(BEHAVIOUR_COLUMNS["touching_mean"]) + 1
+    controls = text.iloc[:, :split]
+    if not touching:
+        controls = controls.drop(columns=[BEHAVIOUR_COLUMNS["touching_mean"]])
+    return controls, text[["result", "seeds", *text.columns[split:]]]
 
 
 def co_training_numbers(table: pd.DataFrame) -> pd.DataFrame:

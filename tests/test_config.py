@@ -258,9 +258,16 @@ seeds: [1]
             "valid: tasks with markers (reach_red, push_red, ...)",
         ),
         (
-            GOOD.replace("[reach]", "[push_red, push_blue]") + "zero_shot: {translate: {ps: [anchors@outcome]}}\n",
+            GOOD.replace("[reach]", "[push_red, push_blue]")
+            + "zero_shot: {translate: {ps: [anchors@outcome]}}\n",
             "zero_shot.translate: anchors@outcome sets reach marker scenes, and task push_red has none; "
             "valid: the reach markers (reach_red, reach_blue, ...)",
+        ),
+        (
+            GOOD.replace("[reach]", "[reach_red, push_blue]")
+            + "zero_shot: {translate: {ps: [affine@swapped]}}\n",
+            "zero_shot.translate: affine@swapped swaps marker scenes between two tasks of one family, "
+            "and the sweep mixes Markers, PushMarkers; valid: tasks of one family",
         ),
         (
             GOOD + "zero_shot: {translate: {plain: [affine]}}\n",
@@ -278,7 +285,9 @@ def test_bad_sweep_files_fail_with_one_line_naming_the_problem(tmp_path, text, m
 
 
 def test_the_push_family_takes_the_known_correspondence_as_an_upper_bound(tmp_path):
-    text = GOOD.replace("[reach]", "[push_red, push_blue]") + "zero_shot: {translate: {ps: [affine@swapped]}}\n"
+    text = (
+        GOOD.replace("[reach]", "[push_red, push_blue]") + "zero_shot: {translate: {ps: [affine@swapped]}}\n"
+    )
     spec = load_sweep(_write(tmp_path, text))
     assert [str(t) for t in spec.zero_shot.translations("ps")] == ["affine@swapped"]
 

@@ -56,7 +56,7 @@ def transfer_numbers(table: pd.DataFrame, episodes: int | None = None) -> pd.Dat
         row = {"method": method, "pairing": pairing, "cells": len(part), "seeds": len(np.unique(seeds))}
         row["upper_bound"] = reads_target(method)
         for column in ("success_mean", *CONTROL_COLUMNS, *BEHAVIOUR_COLUMNS):
-            cells = part.dropna(subset=[column]) if column in part else part.iloc[:0]
+            cells = part.dropna(subset=[column])
             if cells.empty:
                 row[column], row[f"{column}_lo"], row[f"{column}_hi"] = np.nan, np.nan, np.nan
                 continue

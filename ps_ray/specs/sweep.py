@@ -163,23 +163,30 @@ class SweepSpec:
 
     def _check_marker_scenes(self) -> None:
         """A stitch that sets a scene from a task input (``anchors@``: the reach markers only) or
-        swaps its markers (``@swapped``: any task with marker scenes, the push family's too) is
-        refused here for other tasks, not after training."""
+        swaps its markers (``@swapped``: tasks of one family with marker scenes, the push family's
+        too) is refused here for other tasks, not after training."""
         zero_shot = self.zero_shot
         kinds = [t for m in zero_shot.translate for t in zero_shot.translations(m) if t.scene_fit]
+        families = {resolve_task(t).family for t in self.tasks}
         for translation in kinds:
             anchors = translation.kind == "anchors"
             family = Markers if anchors else MarkerScene
             other = [t for t in self.tasks if not issubclass(resolve_task(t).family, family)]
+            what, valid = (
+                ("sets reach marker scenes", "the reach markers (reach_red, reach_blue, ...)")
+                if anchors
+                else ("swaps marker scenes", "tasks with markers (reach_red, push_red, ...)")
+            )
             if other:
-                what, valid = (
-                    ("sets reach marker scenes", "the reach markers (reach_red, reach_blue, ...)")
-                    if anchors
-                    else ("swaps marker scenes", "tasks with markers (reach_red, push_red, ...)")
-                )
                 raise SpecError(
                     f"zero_shot.translate: {translation} {what}, and task {other[0].short} has none; "
                     f"valid: {valid}"
+                )
+            if len(families) > 1:  # a pair across families has no markers to trade
+                raise SpecError(
+                    f"zero_shot.translate: {translation} {what} between two tasks of one family, and "
+                    f"the sweep mixes {', '.join(sorted(f.__name__ for f in families))}; valid: "
+                    f"tasks of one family"
                 )
 
     def to_dict(self) -> dict[str, Any]:

@@ -265,6 +265,7 @@ def test_the_task_blind_floor_raises_the_bar_and_the_old_gain_stays_beside_it():
                     "wrong_target_mean": 0.1,
                     "task_blind_wrong_target": 0.45,
                     "touching_mean": 0.6,
+                    "told_robot_source_success": 0.85,
                     "fit_env_steps": 40_000 if "outcome" in method else 0,
                 }
                 row = {"method": method, "pairing": pairing, "seed": seed, "label": "a"}
@@ -291,11 +292,15 @@ def test_the_task_blind_floor_raises_the_bar_and_the_old_gain_stays_beside_it():
     assert shown.loc[("ablation+affine@outcome", "same_seed"), "env steps of the fit per stitch"] == "40,000"
     assert shown.loc[("ablation+affine@outcome", "same_seed"), "wrong target (floor)"].startswith("0.45 [")
     controls, gains = transfer_views(numbers)
-    assert list(controls.columns)[-3:] == [
+    assert list(controls.columns)[-4:] == [
+        "ceiling: robot source told the task (a perfect map)",
         "wrong target (stitched)",
         "wrong target (floor)",
         "touching (stitched)",
     ]
+    assert same["told_robot_source_success"] == pytest.approx(0.85)
+    untold = transfer_views(numbers.assign(told_robot_source_success=np.nan))[0]
+    assert not any(c.startswith("ceiling") for c in untold.columns)  # no pair has a ceiling
     assert "touching (stitched)" not in transfer_views(numbers, touching=False)[0]  # reach: nothing to touch
     assert list(gains.columns)[:2] == ["result", "seeds"]
     cross_shown = shown.loc[("ablation+affine@outcome", "cross_seed")]

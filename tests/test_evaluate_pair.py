@@ -70,6 +70,9 @@ def test_a_pair_and_its_outcome_translation_are_scored_beside_the_same_controls(
         controls = [metrics[f"{k}_success"] for k in ("robot_source", "task_source", "chance", "task_blind")]
         assert metrics["best_control"] == max(controls) and metrics["task_blind_success"] == 0.5
         assert metrics["transfer_gain"] == pytest.approx(metrics["success_mean"] - max(controls))
+        # told the task (the markers traded in what it reads), the robot source reaches the named
+        # marker: the ceiling of any map between the two task modules; no control the gain counts
+        assert metrics["told_robot_source_success"] >= 0.8
     # both stitches stand beside the same controls' figures, on the same episodes
     assert {k: plain[k] for k in plain if "source" in k or "oracle" in k} == {
         k: fitted[k] for k in fitted if "source" in k or "oracle" in k
@@ -85,6 +88,7 @@ def test_a_pair_and_its_outcome_translation_are_scored_beside_the_same_controls(
         assert (
             table["robot_source_success"].sum() == 0
             and table["oracle_success"].mean() == metrics["oracle_success"]
+            and table["told_robot_source_success"].mean() == metrics["told_robot_source_success"]
         )
         assert load_policy(folder / STITCHED_FILE)[1] is not None
     assert float(

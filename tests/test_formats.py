@@ -61,11 +61,10 @@ def test_every_format_has_one_id_style_and_a_golden_file_of_each_version_it_read
         "ps_ray.policy/2",
     )
     for name, fmt in (("checkpoint", CHECKPOINT), ("zero_shot_table", ZERO_SHOT_TABLE)):
-        assert fmt.version == 2 and sorted(p.stem for p in GOLDEN.glob(f"{name}-*")) == [
-            f"{name}-1",
-            f"{name}-2",
-        ]
-    assert ZERO_SHOT_TABLE.readable == ("ps_ray.zero_shot_table/1", "ps_ray.zero_shot_table/2")
+        versions = [f"{name}-{v}" for v in range(1, fmt.version + 1)]
+        assert sorted(p.stem for p in GOLDEN.glob(f"{name}-*")) == versions
+    assert (CHECKPOINT.version, ZERO_SHOT_TABLE.version) == (2, 3)
+    assert ZERO_SHOT_TABLE.readable == tuple(f"ps_ray.zero_shot_table/{v}" for v in (1, 2, 3))
 
     assert signature.FORMATS == ("ps_ray.policy/1", "ps_ray.policy/2")
     assert {p.parent.name for p in Path(__file__).parent.glob("data/policies_v*/*.safetensors")} == {
@@ -126,12 +125,15 @@ def test_a_golden_file_is_plain_arrays_and_json_never_a_pickle(name):
     assert data[:2] == b"PK" and b"\x80\x04\x95" not in data  # a zip of .npy members, no pickle stream
 
 
-def test_a_zero_shot_table_of_either_version_reads_in_todays_layout_with_the_same_pairs(tmp_path):
-    """Version 1 (a push study's rows before tables named their format) and version 2 read as
-    the same table: every current column, ``format`` first, the figures as written."""
-    old, new = (read_table(GOLDEN / f"zero_shot_table-{v}.csv") for v in (1, 2))
+def test_a_zero_shot_table_of_any_version_reads_in_todays_layout_with_the_same_pairs(tmp_path):
+    """Version 1 (a push study's rows before tables named their format), version 2 (before the
+    told robot source) and version 3 read as the same table: every current column, ``format``
+    first, the figures as written, a figure not measured then empty."""
+    old, middle, new = (read_table(GOLDEN / f"zero_shot_table-{v}.csv") for v in (1, 2, 3))
     pd.testing.assert_frame_equal(old, new)
-    assert list(new.columns) == list(COLUMNS) and set(new["format"]) == {"ps_ray.zero_shot_table/2"}
+    pd.testing.assert_frame_equal(middle, new)
+    assert list(new.columns) == list(COLUMNS) and set(new["format"]) == {"ps_ray.zero_shot_table/3"}
+    assert new["told_robot_source_success"].isna().all()  # push has no markers to trade
     assert new["method"].tolist() == ["ablation", "ablation+affine", "ablation+affine@outcome"]
     np.testing.assert_allclose(new["success_mean"], [0.05, 0.31, 0.21])
     pairs = pairs_from_table(GOLDEN / "zero_shot_table-1.csv")
@@ -144,15 +146,15 @@ def test_a_zero_shot_table_of_either_version_reads_in_todays_layout_with_the_sam
     assert pairs_from_table(tmp_path / "zero_shot.csv") is None
 
 
-@pytest.mark.parametrize("found", ["ps_ray.zero_shot_table/3", "ps_ray.policy/2"])
+@pytest.mark.parametrize("found", ["ps_ray.zero_shot_table/4", "ps_ray.policy/2"])
 def test_a_zero_shot_table_of_a_newer_ps_ray_or_another_format_is_refused_in_one_line(tmp_path, found):
-    table = pd.read_csv(GOLDEN / "zero_shot_table-2.csv").assign(format=found)
+    table = pd.read_csv(GOLDEN / "zero_shot_table-3.csv").assign(format=found)
     table.to_csv(tmp_path / "zero_shot.csv", index=False)
     with pytest.raises(UserError) as e:
         read_table(tmp_path / "zero_shot.csv")
     assert str(e.value) == (
         f"{tmp_path / 'zero_shot.csv'}: not a zero-shot table this ps_ray reads (format {found}; "
-        "it reads ps_ray.zero_shot_table/1, ps_ray.zero_shot_table/2)"
+        "it reads ps_ray.zero_shot_table/1, ps_ray.zero_shot_table/2, ps_ray.zero_shot_table/3)"
     )
 
 
@@ -208,10 +210,10 @@ def test_a_kept_chance_level_of_version_1_reads_back_and_another_version_is_meas
     assert _kept_level(tmp_path / "c.json") is None
 
 
-def test_a_version_2_zero_shot_table_without_a_column_is_refused_naming_it(tmp_path):
-    table = pd.read_csv(GOLDEN / "zero_shot_table-2.csv").drop(columns=["oracle_success"])
+def test_a_version_3_zero_shot_table_without_a_column_is_refused_naming_it(tmp_path):
+    table = pd.read_csv(GOLDEN / "zero_shot_table-3.csv").drop(columns=["oracle_success"])
     table.to_csv(tmp_path / "zero_shot.csv", index=False)
     with pytest.raises(UserError) as e:
         read_table(tmp_path / "zero_shot.csv")
-    without = "a ps_ray.zero_shot_table/2 table without its column(s) oracle_success"
+    without = "a ps_ray.zero_shot_table/3 table without its column(s) oracle_success"
     assert str(e.value) == f"{tmp_path / 'zero_shot.csv'}: {without}"

@@ -295,18 +295,21 @@ CONTROL_BARS = (
     ("chance_success", "chance"),
     ("task_blind_success", "task-blind floor"),
     ("oracle_success", "oracle"),
+    ("told_robot_source_success", "ceiling: robot source told the task"),
 )
 
 
 def controls_bars(numbers: pd.DataFrame, path: Path) -> Path:
     """Stitched success beside its controls, one group per (method, pairing) row of
     :func:`ps_ray.analysis.transfer.transfer_numbers`: stitched, robot source, task source, chance,
-    the task-blind floor and oracle, each a mean over seeds with its 95% t interval; a control
-    that was not run is left out of its group."""
+    the task-blind floor, oracle and the ceiling of a marker family, each a mean over seeds with its
+    95% t interval; a control that was not run is left out of its group, one no row has of the
+    figure."""
     rows = list(numbers.itertuples(index=False))
     fig, ax = plt.subplots(figsize=(8, 1.2 * len(rows) + 1.8))
-    height = 0.8 / len(CONTROL_BARS)
-    for index, (column, label) in enumerate(CONTROL_BARS):
+    bars = [(c, label) for c, label in CONTROL_BARS if c in numbers and numbers[c].notna().any()]
+    height = 0.8 / len(bars)
+    for index, (column, label) in enumerate(bars):
         mean = np.array([getattr(r, column) for r in rows], float)
         lo = np.array([getattr(r, f"{column}_lo") for r in rows], float)
         hi = np.array([getattr(r, f"{column}_hi") for r in rows], float)

@@ -23,6 +23,7 @@ from ps_ray.analysis.page import Report, Section, render_html
 from ps_ray.analysis.report_run import REPORT_RUN, log_report
 from ps_ray.analysis.search import search_section
 from ps_ray.analysis.summary import cost_section, summary_section
+from ps_ray.analysis.transfer_section import transfer_section
 from ps_ray.errors import UserError
 from ps_ray.specs import reset_seeds
 from ps_ray.specs.names import parse_spec_text, short_name
@@ -291,49 +292,9 @@ def zero_shot_section(report: Report, spec: SweepSpec, target: float, say) -> No
                     report.metrics[f"zero_shot.{method}.{name}"] = float(row[f"{metric}_{stat}"])
     report.figure(section, "zero_shot", lambda p: plots.zero_shot_bars(tables.pool_seeds(table), p))
     if transfer.has_controls(table):
-        _transfer(report, table, spec.zero_shot.episodes * spec.zero_shot.repeats)
+        episodes = spec.zero_shot.episodes * spec.zero_shot.repeats
+        transfer_section(report, table, episodes, touching=_has_object(table["task"]))
     say(f"report: zero-shot table of {len(table)} stitched pairs")
-
-
-def _transfer(report: Report, table: pd.DataFrame, episodes: int) -> None:
-    """Stitching against its controls: the transfer table and the transfer-gain figure, first."""
-    numbers = transfer.transfer_numbers(table, episodes)
-    section = report.section(
-        "Transfer: stitching against its controls",
-        "Each stitched pair (task module of (X, Ra), robot module of (Y, Rb), run on (X, Rb)) beside "
-        "its robot source run on (X, Rb), its task source run on robot Rb, the oracle trained on "
-        "(X, Rb), chance (no task knowledge: a random point of the target region; random actions) "
-        "and the task-blind floor (every task of the scene but not told which: each episode driven "
-        "to every candidate target in turn, averaged, so no draw; absent where the tasks do not "
-        "share a scene), all on the pair's episodes, each seed on scenes of its own. Wrong target: "
-        "ended at a target the task does not name (the floor's beside it); touching: the stitch touched "
-        "the object (tasks that move one). Transfer gain: stitched minus the best of the "
-        "sources, chance and the floor, per seed; t interval over seeds (success rates on the logit "
-        "scale, so they stay in [0, 1]) and, from six seeds, a sign-flip p-value (fewer: the count "
-        "of seeds up); the gain over the sources and chance alone beside it. Cross-seed units (seed i's "
-        "task modules, seed i+1's robot modules) share runs: their intervals are widened for it, "
-        "without a p-value. Rows that read the task's target (@swapped) are upper bounds, last. "
-        "Pairs surely above / below: by more than their episodes' 95% interval (Newcombe's).",
-        first=True,
-    )
-    controls, gains = transfer.transfer_views(numbers, touching=_has_object(table["task"]))
-    report.table(section, "transfer", "Stitched success beside its controls", controls, numbers=numbers)
-    report.shown(section, "The transfer gain over those controls, per method and pairing", gains)
-    report.figure(section, "transfer_gain", lambda p: plots.transfer_gain_bars(table, p))
-    report.figure(section, "transfer_controls", lambda p: plots.controls_bars(numbers, p))
-    co_trained = transfer.co_training_numbers(table)
-    if len(co_trained):
-        title = (
-            "What co-training adds: a grid's held-out pairs beside the same pairs of sources trained alone"
-        )
-        report.table(section, "co_training", title, co_trained.set_index(["method", "pairing"]))
-    report.headline.transfer = numbers
-    logged = ("success_mean", *transfer.CONTROL_COLUMNS, *transfer.BEHAVIOUR_COLUMNS, "gain_diff", "gain_p")
-    for _, row in numbers.iterrows():
-        prefix = f"transfer.{row['method']}.{row['pairing']}"
-        for column in logged:
-            if row[column] == row[column]:
-                report.metrics[f"{prefix}.{column}"] = float(row[column])
 
 
 def _has_object(tasks: pd.Series) -> bool:

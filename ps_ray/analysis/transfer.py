@@ -3,8 +3,9 @@ unstitched sources, chance, the task-blind floor and the oracle on the same epis
 wrong-target rate, and the transfer gain (stitched minus the best of the unstitched sources,
 chance and the floor) as a paired comparison over seeds, beside the gain over the sources and
 chance alone (docs/controls.md); the floor's wrong-target rate and the stitches' touching beside
-them. Cross-seed units share runs: their intervals are widened for it
-and carry no p-value (ps_ray.analysis.stats). Rows whose translation reads the task's target
+them, and on a marker family the ceiling of every translation (the robot source told the task).
+Cross-seed units share runs: their intervals are widened for it and carry no p-value
+(ps_ray.analysis.stats). Rows whose translation reads the task's target
 (``@swapped``) are upper bounds, listed after the label-free rows. A table is in the current
 layout (:func:`ps_ray.stitching.pair_table.read_table`): a control not measured is NaN."""
 
@@ -25,6 +26,9 @@ CONTROL_COLUMNS = {
     "task_blind_success": "task-blind floor (every task, not told which)",
     "oracle_success": "oracle (trained on the target)",
 }
+# not a control but every translation's ceiling: the robot source told the task (a perfect map,
+# ps_ray.stitching.told); on families whose tasks share a marker scene only
+CEILING_COLUMNS = {"told_robot_source_success": "ceiling: robot source told the task (a perfect map)"}
 # what each row's stitches (and its floor) did besides succeeding: shown after the controls
 BEHAVIOUR_COLUMNS = {
     "wrong_target_mean": "wrong target (stitched)",
@@ -55,7 +59,7 @@ def transfer_numbers(table: pd.DataFrame, episodes: int | None = None) -> pd.Dat
         shared = pairing == Pairing.CROSS_SEED  # cyclic units share runs
         row = {"method": method, "pairing": pairing, "cells": len(part), "seeds": len(np.unique(seeds))}
         row["upper_bound"] = reads_target(method)
-        for column in ("success_mean", *CONTROL_COLUMNS, *BEHAVIOUR_COLUMNS):
+        for column in ("success_mean", *CONTROL_COLUMNS, *CEILING_COLUMNS, *BEHAVIOUR_COLUMNS):
             cells = part.dropna(subset=[column])
             if cells.empty:
                 row[column], row[f"{column}_lo"], row[f"{column}_hi"] = np.nan, np.nan, np.nan
@@ -98,7 +102,7 @@ def transfer_text(numbers: pd.DataFrame) -> pd.DataFrame:
     out["result"] = ["upper bound (reads the target)" if r else "label-free" for r in numbers["upper_bound"]]
     out["cells (pairs x seeds)"] = numbers["cells"].to_numpy()
     out["seeds"] = numbers["seeds"].to_numpy()
-    shown = {"success_mean": "stitched", **CONTROL_COLUMNS, **BEHAVIOUR_COLUMNS}
+    shown = {"success_mean": "stitched", **CONTROL_COLUMNS, **CEILING_COLUMNS, **BEHAVIOUR_COLUMNS}
     for column, name in shown.items():
         out[name] = [
             ("absent (the tasks do not share a scene)" if column == "task_blind_success" else "–")
@@ -143,13 +147,16 @@ def transfer_text(numbers: pd.DataFrame) -> pd.DataFrame:
 
 def transfer_views(numbers: pd.DataFrame, touching: bool = True) -> tuple[pd.DataFrame, pd.DataFrame]:
     """:func:`transfer_text` as two tables that each fit a page's width: stitched success beside
-    its controls and what the stitches did (without touching where no task moves an object), then
-    the gains (with the result kind and seed count repeated)."""
+    its controls, the ceiling and what the stitches did (without touching where no task moves an
+    object, without the ceiling where no pair has one), then the gains (with the result kind and
+    seed count repeated)."""
     text = transfer_text(numbers)
     split = list(text.columns).index(BEHAVIOUR_COLUMNS["touching_mean"]) + 1
     controls = text.iloc[:, :split]
     if not touching:
         controls = controls.drop(columns=[BEHAVIOUR_COLUMNS["touching_mean"]])
+    if numbers["told_robot_source_success"].isna().all():
+        controls = controls.drop(columns=list(CEILING_COLUMNS.values()))
     return controls, text[["result", "seeds", *text.columns[split:]]]
 
 

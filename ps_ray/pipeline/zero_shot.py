@@ -104,6 +104,18 @@ class Sources:
             self._scored[key] = evaluate(self(path), pair.robot, pair.task, **episodes.kwargs())
         return self._scored[key]
 
+    def told(self, path: str, pair: StitchedPair, episodes: Episodes) -> dict:
+        """The robot source at ``path`` told ``pair``'s task (:mod:`ps_ray.stitching.told`), on
+        its target env and ``episodes``."""
+        from ps_ray.stitching.evaluate import as_action_fn, evaluate
+        from ps_ray.stitching.told import TellTask
+
+        key = ("told", path, pair.robot.text, pair.task.text, pair.robot_from_task.text, episodes.seed)
+        if key not in self._scored:
+            act = TellTask(as_action_fn(self(path))[0], pair.task, pair.robot_from_task)
+            self._scored[key] = evaluate(act, pair.robot, pair.task, **episodes.kwargs())
+        return self._scored[key]
+
 
 def zero_shot_trial(config: dict[str, Any]) -> None:
     """Tune function trainable: a :class:`ZeroShotBatch`'s pairs one after another, one result
@@ -157,6 +169,7 @@ def evaluate_pair(
     from ps_ray.stitching.evaluate import evaluate
     from ps_ray.stitching.outcomes import fit_cost
     from ps_ray.stitching.stitch import stitch_policies, translation_ridge
+    from ps_ray.stitching.told import can_tell
 
     sources = sources or Sources()
     stitched = stitch_policies(
@@ -179,6 +192,12 @@ def evaluate_pair(
         if unstitched["episodes_digest"] != result["episodes_digest"]:  # a bug, never bad input
             raise RuntimeError(f"{pair.key}: its {role} control ran on other episodes")
         metrics[f"{role}_success"] = unstitched["success_mean"]
+    robot_source = pair.controls.get("robot_source")
+    if robot_source is not None and can_tell(pair.task, pair.robot_from_task):  # the ceiling
+        controls["told_robot_source"] = told = sources.told(robot_source.path, pair, episodes)
+        if told["episodes_digest"] != result["episodes_digest"]:  # a bug, never bad input
+            raise RuntimeError(f"{pair.key}: its told robot source ran on other episodes")
+        metrics["told_robot_source_success"] = told["success_mean"]
     if chance["episodes_digest"] != result["episodes_digest"]:  # a bug, never bad input
         raise RuntimeError(f"{pair.key}: its chance level was measured on other episodes")
     for key in ("chance_success", "task_blind_success", "task_blind_wrong_target"):

@@ -44,6 +44,7 @@ CONTROL_KEYS = (
     "chance_success",
     "task_blind_success",
     "task_blind_wrong_target",
+    "told_robot_source_success",  # the robot source told the task: every translation's ceiling
     "best_unstitched",
     "best_control",
     "transfer_gain",
@@ -103,11 +104,12 @@ def read_table(path: Path, *, as_text: bool = False) -> pd.DataFrame | None:
 
 
 def upgrade(table: pd.DataFrame, version: int, empty: Any = np.nan) -> pd.DataFrame:
-    """A table of ``version`` as the current version writes it. Version 1 gets every column it
-    lacks, empty (``empty``): a figure not measured then, or the sources' files of a table
-    written before its rows named them (its pairs come from the zoo again); one from before
-    chance joined the controls has its best unstitched source as its best control."""
-    if version == 1:
+    """A table of ``version`` as the current version writes it. An older one gets every column it
+    lacks, empty (``empty``): a figure not measured then (version 2: the told robot source), or
+    the sources' files of a table written before its rows named them (its pairs come from the
+    zoo again); one from before chance joined the controls has its best unstitched source as its
+    best control."""
+    if version < ZERO_SHOT_TABLE.version:
         if "best_control" not in table.columns and "best_unstitched" in table.columns:
             # before chance joined the controls, the best of them was the best unstitched source
             table = table.assign(best_control=table["best_unstitched"])

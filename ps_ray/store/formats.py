@@ -63,8 +63,9 @@ HINDSIGHT_REPLAY = FileFormat("ps_ray.hindsight_replay", 1, {"ps_ray.HindsightRe
 ANCHOR_SET = FileFormat("ps_ray.anchor_set", 1)
 POLICY = FileFormat("ps_ray.policy", 2)
 EXAMPLE_ZOO = FileFormat("ps_ray.example_zoo", 1)
-# zero_shot.csv names it in a ``format`` column; a table without one is of version 1
-ZERO_SHOT_TABLE = FileFormat("ps_ray.zero_shot_table", 2)
+# zero_shot.csv names it in a ``format`` column; a table without one is of version 1; version 3
+# adds the told robot source's success (ps_ray.stitching.told)
+ZERO_SHOT_TABLE = FileFormat("ps_ray.zero_shot_table", 3)
 # a zero-shot stage's kept chance level and floor: a file of another version is measured again
 CHANCE = FileFormat("ps_ray.chance", 1)
 FORMATS = (

@@ -85,9 +85,10 @@ def test_the_grid_stage_is_priced_per_cell_and_its_held_out_pairs_beside_the_alo
     # 5 seeds x 2 held-out cells = 10 grids, each training its 3 other cells to the 16k cap
     assert len(loads["grid"].trials) == 10 and loads["grid"].env_steps == 10 * 3 * 16000
     # alone: 4 targets x 5 seeds, same and cross seed = 40 pairs; co-trained: 2 held-out targets x 5
-    # seeds x 2 pairings = 20 pairs; each with 3 controls; on each of 4 targets and for each of the 5
-    # seeds' episodes, chance (2 policies) and the task-blind floor (one run per marker, 2)
-    assert loads["zero_shot"].eval_steps == ((40 + 20) * 4 + 4 * 5 * (2 + 2)) * 30 * 2 * 50
+    # seeds x 2 pairings = 20 pairs; each with 3 controls and the ceiling (its robot source told the
+    # task); on each of 4 targets and for each of the 5 seeds' episodes, chance (2 policies) and the
+    # task-blind floor (one run per marker, 2)
+    assert loads["zero_shot"].eval_steps == ((40 + 20) * 5 + 4 * 5 * (2 + 2)) * 30 * 2 * 50
 
 
 def test_projection_is_the_rates_times_the_work():

@@ -15,6 +15,7 @@ from ps_ray.specs.sweep import SweepSpec
 from ps_ray.specs.train import TrainSpec
 from ps_ray.stitching.chance import CHANCE_POLICIES, candidate_count, scene_oracles, scripted_floor
 from ps_ray.stitching.pairs import StitchedPair
+from ps_ray.stitching.told import can_tell
 from ps_ray.stitching.zoo import ModuleZoo
 
 
@@ -91,15 +92,22 @@ def workload(spec: SweepSpec) -> list[StageLoad]:
     return [load for stage in spec.stages if stage in LOADS for load in LOADS[stage](spec, zoo)]
 
 
+def _evaluated_beside(pair: StitchedPair) -> int:
+    """How many policies a pair is scored beside: its controls, and the ceiling where it has one."""
+    told = "robot_source" in pair.controls and can_tell(pair.task, pair.robot_from_task)
+    return len(pair.controls) + told
+
+
 def zero_shot_load(spec: SweepSpec, zoo: ModuleZoo, pairs: list[StitchedPair]) -> StageLoad:
-    """The evaluations of the planned pairs: each stitch, each untranslated pair's controls (its
-    translations share their evaluations), chance (its policies) and the task-blind floor (once
+    """The evaluations of the planned pairs: each stitch, each untranslated pair's controls and,
+    on a marker family, its robot source told the task (its translations share their
+    evaluations), chance (its policies) and the task-blind floor (once
     per candidate target, or per oracle of each candidate's task where no script does it) once
     per target env and training seed (each seed's own episodes), and
     the rollouts of the fits on scenes matched by outcome (:mod:`ps_ray.stitching.outcomes`)."""
     settings = spec.zero_shot
     targets = {(p.robot, p.task, p.seed) for p in pairs}
-    evaluations = len(pairs) + sum(len(p.controls) for p in pairs if not p.translation)
+    evaluations = len(pairs) + sum(_evaluated_beside(p) for p in pairs if not p.translation)
     for robot, task, seed in targets:
         evaluations += len(CHANCE_POLICIES)
         if scripted_floor(task):  # driven to each candidate

@@ -34,6 +34,7 @@ ROWS = (
     ("chance", "chance (the better of random actions and a random point)"),
     ("task_blind_floor", "task-blind floor (either marker, in expectation)"),
     ("oracle", "oracle: trained on the target pair (reads it)"),
+    ("ceiling", "ceiling: robot module's source told the task (reads it)"),
 )
 
 
@@ -91,12 +92,15 @@ class ExampleZoo:
 
 
 def run_demo(zoo: ExampleZoo) -> dict[str, Any]:
-    """Stitch the zoo's task module and robot module, and score the stitch and each control on the
-    same episodes: greedy success per row of :data:`ROWS`, the transfer gain over the best control,
+    """Stitch the zoo's task module and robot module, and score the stitch, each control and the
+    ceiling (the robot module's source told the task, :mod:`ps_ray.stitching.told`) on the same
+    episodes: greedy success per row of :data:`ROWS`, the transfer gain over the best control,
     the episodes' count and the wall time."""
+    from ps_ray.specs.names import EnvPart
     from ps_ray.stitching.chance import chance
-    from ps_ray.stitching.evaluate import evaluate
+    from ps_ray.stitching.evaluate import as_action_fn, evaluate
     from ps_ray.stitching.stitch import stitch_policies
+    from ps_ray.stitching.told import TellTask
 
     start = time.time()
     robot, task = zoo.target
@@ -105,6 +109,9 @@ def run_demo(zoo: ExampleZoo) -> dict[str, Any]:
     scored = {"stitched": evaluate(stitched, robot, task, **settings)}
     for key, role in (("robot_source", "robot_module"), ("task_source", "task_module"), ("oracle", "oracle")):
         scored[key] = evaluate(zoo.path(role), robot, task, **settings)
+    robot_task = zoo.manifest["modules"]["robot_module"]["trained_on"]["task"]
+    told = TellTask(as_action_fn(zoo.path("robot_module"))[0], EnvPart(task), EnvPart(robot_task))
+    scored["ceiling"] = evaluate(told, robot, task, **settings)  # what a perfect map would reach
     digests = {result["episodes_digest"] for result in scored.values()}
     levels = chance(robot, task, settings)
     if digests != {levels["episodes_digest"]}:  # a bug, never bad input

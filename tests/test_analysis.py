@@ -301,6 +301,11 @@ def test_the_task_blind_floor_raises_the_bar_and_the_old_gain_stays_beside_it():
     assert same["told_robot_source_success"] == pytest.approx(0.85)
     untold = transfer_views(numbers.assign(told_robot_source_success=np.nan))[0]
     assert not any(c.startswith("ceiling") for c in untold.columns)  # no pair has a ceiling
+    # a stage resumed across the ceiling's arrival: kept rows lack it, and the table says so
+    resumed = upgrade(pd.DataFrame(rows).assign(told_robot_source_success=[0.85, np.nan] * 8), 1)
+    ceiling = "ceiling: robot source told the task (a perfect map)"
+    partial = transfer_text(transfer_numbers(resumed)).loc[("ablation+affine@outcome", "same_seed"), ceiling]
+    assert partial.startswith("0.85 [") and partial.endswith("(on 2 of 4 cells)")
     assert "touching (stitched)" not in transfer_views(numbers, touching=False)[0]  # reach: nothing to touch
     assert list(gains.columns)[:2] == ["result", "seeds"]
     cross_shown = shown.loc[("ablation+affine@outcome", "cross_seed")]

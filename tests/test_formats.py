@@ -210,10 +210,11 @@ def test_a_kept_chance_level_of_version_1_reads_back_and_another_version_is_meas
     assert _kept_level(tmp_path / "c.json") is None
 
 
-def test_a_version_3_zero_shot_table_without_a_column_is_refused_naming_it(tmp_path):
-    table = pd.read_csv(GOLDEN / "zero_shot_table-3.csv").drop(columns=["oracle_success"])
+@pytest.mark.parametrize("version", [2, 3])
+def test_a_zero_shot_table_without_a_column_its_version_wrote_is_refused_naming_it(tmp_path, version):
+    table = pd.read_csv(GOLDEN / f"zero_shot_table-{version}.csv").drop(columns=["oracle_success"])
     table.to_csv(tmp_path / "zero_shot.csv", index=False)
     with pytest.raises(UserError) as e:
         read_table(tmp_path / "zero_shot.csv")
-    without = "a ps_ray.zero_shot_table/3 table without its column(s) oracle_success"
+    without = f"a ps_ray.zero_shot_table/{version} table without its column(s) oracle_success"
     assert str(e.value) == f"{tmp_path / 'zero_shot.csv'}: {without}"

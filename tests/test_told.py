@@ -42,6 +42,7 @@ def test_a_blue_reacher_told_the_red_task_reaches_the_red_marker():
         ("reach_red", "reach_red", False),  # the same task: nothing to tell
         ("push_red", "reach_blue", False),  # two families: no markers to trade
         ("push", "push_slippery", False),  # no markers at all
+        ({"name": "push_red", "marker_state": "from_object"}, "push_blue", False),  # said otherwise
     ],
 )
 def test_only_two_tasks_of_one_marker_family_naming_different_markers_can_be_told(task, robot_task, tellable):

@@ -307,14 +307,23 @@ def controls_bars(numbers: pd.DataFrame, path: Path) -> Path:
     figure."""
     rows = list(numbers.itertuples(index=False))
     fig, ax = plt.subplots(figsize=(8, 1.2 * len(rows) + 1.8))
-    bars = [(c, label) for c, label in CONTROL_BARS if c in numbers and numbers[c].notna().any()]
+    # each bar keeps its colour whichever are left out, so figures of different sweeps read alike
+    bars = [(f"C{i}", c, label) for i, (c, label) in enumerate(CONTROL_BARS) if numbers[c].notna().any()]
     height = 0.8 / len(bars)
-    for index, (column, label) in enumerate(bars):
+    for index, (colour, column, label) in enumerate(bars):
         mean = np.array([getattr(r, column) for r in rows], float)
         lo = np.array([getattr(r, f"{column}_lo") for r in rows], float)
         hi = np.array([getattr(r, f"{column}_hi") for r in rows], float)
         errors = np.nan_to_num(np.stack([mean - lo, hi - mean]).clip(min=0))
-        ax.barh(np.arange(len(rows)) + index * height, mean, height, xerr=errors, label=label, capsize=2)
+        ax.barh(
+            np.arange(len(rows)) + index * height,
+            mean,
+            height,
+            xerr=errors,
+            label=label,
+            capsize=2,
+            color=colour,
+        )
     for gap in np.arange(len(rows) - 1) + 0.9 - height / 2:  # a faint line between groups
         ax.axhline(gap, color="0.85", linewidth=0.8)
     names = [readable(f"{r.method}, {r.pairing.replace('_', ' ')}") for r in rows]

@@ -26,8 +26,8 @@ CONTROL_COLUMNS = {
     "task_blind_success": "task-blind floor (every task, not told which)",
     "oracle_success": "oracle (trained on the target)",
 }
-# not a control but every translation's ceiling: the robot source told the task (a perfect map,
-# ps_ray.stitching.told); on families whose tasks share a marker scene only
+# not a control but what a perfect map would reach: the robot source told the task
+# (ps_ray.stitching.told); on families whose tasks share a marker scene only
 CEILING_COLUMNS = {"told_robot_source_success": "ceiling: robot source told the task (a perfect map)"}
 # what each row's stitches (and its floor) did besides succeeding: shown after the controls
 BEHAVIOUR_COLUMNS = {
@@ -67,6 +67,8 @@ def transfer_numbers(table: pd.DataFrame, episodes: int | None = None) -> pd.Dat
             values = cells[column].to_numpy()
             e = estimate(values, cells["seed"].to_numpy(), shared_runs=shared, rate=True)
             row[column], row[f"{column}_lo"], row[f"{column}_hi"] = e.mean, e.mean_lo, e.mean_hi
+        # a stage resumed across the ceiling's arrival has it on some cells only: say on how many
+        row["ceiling_cells"] = int(part["told_robot_source_success"].notna().sum())
         cells = part.dropna(subset=["best_control"])
         best = cells["best_control"]
         gain = paired(cells["success_mean"], best, cells["seed"], shared) if len(cells) else None
@@ -108,6 +110,7 @@ def transfer_text(numbers: pd.DataFrame) -> pd.DataFrame:
             ("absent (the tasks do not share a scene)" if column == "task_blind_success" else "–")
             if np.isnan(r[column])
             else f"{r[column]:.2f} {ci(r[f'{column}_lo'], r[f'{column}_hi'])}"
+            + (_partial(r) if column in CEILING_COLUMNS else "")
             for _, r in numbers.iterrows()
         ]
 
@@ -143,6 +146,12 @@ def transfer_text(numbers: pd.DataFrame) -> pd.DataFrame:
         for _, r in numbers.iterrows()
     ]
     return out
+
+
+def _partial(row) -> str:
+    """`` (on n of N cells)`` where the ceiling was measured on some of a row's cells only."""
+    n = row.get("ceiling_cells", row["cells"])
+    return f" (on {int(n)} of {int(row['cells'])} cells)" if n < row["cells"] else ""
 
 
 def transfer_views(numbers: pd.DataFrame, touching: bool = True) -> tuple[pd.DataFrame, pd.DataFrame]:

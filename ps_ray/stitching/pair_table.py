@@ -5,7 +5,8 @@ reader and :func:`upgrade` the one place that knows the versions:
 
 - 1: tables written before the id (no ``format`` column); the earliest lack columns added later
   (the sources' files, the task-blind floor, the wrong-target rate, the ridge...).
-- 2: every column of :data:`COLUMNS`, ``format`` first.
+- 2: every column of :data:`COLUMNS` but ``told_robot_source_success``, ``format`` first;
+- 3: every column of :data:`COLUMNS` (:data:`ADDED` names what each version added).
 
 Ray- and torch-free: the report reads the table through it."""
 
@@ -57,6 +58,7 @@ RECORD_COLUMNS = (
     *(column for role in CONTROL_ROLES for column in (role, f"{role}_path")),
 )
 COLUMNS = ("format", *RECORD_COLUMNS, *RESULT_KEYS, *CONTROL_KEYS)
+ADDED = {3: ("told_robot_source_success",)}  # the columns a version added to the one before it
 
 
 def table_of(results: list[tuple[StitchedPair, dict[str, Any]]], root: Path | None = None) -> pd.DataFrame:
@@ -97,8 +99,9 @@ def read_table(path: Path, *, as_text: bool = False) -> pd.DataFrame | None:
             f"it reads {', '.join(ZERO_SHOT_TABLE.readable)})"
         )
     version = ZERO_SHOT_TABLE.version_of(ids[0])
-    missing = [c for c in COLUMNS if c not in table.columns]
-    if version == ZERO_SHOT_TABLE.version and missing:
+    later = {c for v, added in ADDED.items() if v > version for c in added}
+    missing = [c for c in COLUMNS if c not in table.columns and c not in later]
+    if version >= 2 and missing:  # a version that wrote all its columns lacks one: damaged
         raise UserError(f"{path}: a {ids[0]} table without its column(s) {', '.join(missing)}")
     return upgrade(table, version, empty="" if as_text else np.nan)
 

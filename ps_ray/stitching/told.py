@@ -4,12 +4,12 @@ means there what the target's task means.
 
 On a family whose tasks share a scene and differ in which marker they name (the reach markers,
 the push family), a stitch joins the target task's module to the robot source's robot module
-through a map of latents. The best such a map can do is give the robot module exactly the latent
-its own task module would give on the traded scene, which is this policy. Its success on the
-pair's episodes is the ceiling of every translation of the pair (a perfect map, not a fitted one):
-beside the stitch it says how much of the remaining gap a better map could close, and how much is
-the robot source's own skill. It reads the target's marker, so it is an upper bound, never a
-control a stitch must beat.
+through a map of latents. A perfect map gives the robot module exactly the latent its own task
+module would give on the traded scene, which is this policy. Its success on the pair's episodes
+is the ceiling the report shows (what a perfect map reaches; not a strict bound, as a map could
+in principle hand the robot module latents it acts on better than its own): beside the stitch
+it says how much of the gap a better map could close, and how much is the robot source's own
+skill. It reads the target's marker, so it is never a control a stitch must beat.
 """
 
 from __future__ import annotations
@@ -21,14 +21,19 @@ from ps_ray.envs.tasks.markers import MarkerScene
 from ps_ray.specs.names import EnvPart
 from ps_ray.stitching.outcomes import colour_swapped
 
+# the options two tasks of a marker family must share for their scenes to be said alike
+SCENE_OPTIONS = ("markers", "marker_state", "goal_frame")
+
 
 def can_tell(task: EnvPart, robot_task: EnvPart) -> bool:
     """Whether the robot source's task can be told ``task``: two tasks of one marker family that
-    name different markers."""
+    say their scenes alike (:data:`SCENE_OPTIONS`) and name different markers."""
     spec, other = resolve_task(task), resolve_task(robot_task)
+    alike = all(getattr(spec.options, k, None) == getattr(other.options, k, None) for k in SCENE_OPTIONS)
     return (
         issubclass(spec.family, MarkerScene)
         and spec.family is other.family
+        and alike
         and spec.options.target != other.options.target
     )
 

@@ -158,3 +158,26 @@ def test_the_eta_counts_a_trial_s_own_steps_from_its_first_result_not_its_checkp
         view.on_trial_result(0, trials, trial, trial.last_result)
     # 0.3 + 0.1 of a trial's work in the hour, 0.7 + 0.4 left
     assert abs(_eta_ratio(view) - 1.1 / 0.4) < 0.01, view.status()
+
+
+def test_a_grid_s_eta_counts_each_cell_s_env_steps_against_its_budget(tmp_path):
+    """A grid reports one cell's env steps (its cells step in lockstep): the live view counts them
+    against each cell's budget, so an hours-long grid shows an ETA while it runs."""
+    from ray.tune.experiment import Trial
+
+    from ps_ray.pipeline.training_trials import env_step_budget
+    from ps_ray.plan import grid as grid_plan
+    from ps_ray.specs.sweep import load_sweep
+
+    spec = load_sweep(Path(__file__).parents[1] / "sweeps" / "push_family.yaml")
+    grids = grid_plan.plan(spec)
+    assert [env_step_budget(g) for g in grids] == [spec.trials()[0].env_steps] * 3 == [150_000] * 3
+    view = StageProgress("grid", total=1, key="trial", budgets={identity({"n": 0}): env_step_budget(grids[0])})
+    view.started = time.time() - 3600
+    (trial,) = trials = [_trial(tmp_path, 0)]
+    trial.set_status(Trial.RUNNING)
+    view.on_trial_start(0, trials, trial)
+    for steps in (50_000, 100_000):  # resumed at a third; a third more in the hour, a third left
+        trial.update_last_result({"env_steps": steps})
+        view.on_trial_result(0, trials, trial, trial.last_result)
+    assert abs(_eta_ratio(view) - 1.0) < 0.01, view.status()

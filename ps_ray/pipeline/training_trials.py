@@ -177,7 +177,7 @@ def run_tune(
             resources=resources,
             constants={"compile": resources.compile},  # how to run, not what: not the trial's identity
             scheduler_fn=scheduler_fn,
-            budgets=[_budget(t) for t in trials],
+            budgets=[env_step_budget(t) for t in trials],
         )
         stage_run.record(*stage_summary(results))
     return results
@@ -205,10 +205,13 @@ def _member_runs(trial, *, models: bool = False) -> list:
     ]
 
 
-def _budget(trial) -> int | None:
-    """A trial's env steps (a population's: each member's); None where the live view cannot
-    count them (a grid's)."""
-    return trial.sources[0].spec.env_steps if isinstance(trial, (TrainTrial, PopulationTrial)) else None
+def env_step_budget(trial: TrainTrial | GridTrial | PopulationTrial) -> int:
+    """The env steps the live view counts a trial's results against: a source's budget (a
+    population's: each member's, run together; a grid's: each cell's, its cells stepped in
+    lockstep and its results' ``env_steps`` one cell's)."""
+    if isinstance(trial, GridTrial):
+        return trial.grid.base.env_steps
+    return trial.sources[0].spec.env_steps
 
 
 def record_of(trial) -> TrainTrial | PopulationTrial:

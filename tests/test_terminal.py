@@ -172,7 +172,8 @@ def test_a_grid_s_eta_counts_each_cell_s_env_steps_against_its_budget(tmp_path):
     spec = load_sweep(Path(__file__).parents[1] / "sweeps" / "push_family.yaml")
     grids = grid_plan.plan(spec)
     assert [env_step_budget(g) for g in grids] == [spec.trials()[0].env_steps] * 3 == [150_000] * 3
-    view = StageProgress("grid", total=1, key="trial", budgets={identity({"n": 0}): env_step_budget(grids[0])})
+    budgets = {identity({"n": 0}): env_step_budget(grids[0])}
+    view = StageProgress("grid", total=1, key="trial", budgets=budgets)
     view.started = time.time() - 3600
     (trial,) = trials = [_trial(tmp_path, 0)]
     trial.set_status(Trial.RUNNING)

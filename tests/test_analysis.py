@@ -415,14 +415,26 @@ def test_every_transfer_gain_bar_says_its_value_so_a_zero_gain_or_a_missing_pair
         ("ps", "same_seed", "t: a & r: b", 0.25),
         ("ps", "same_seed", "t: a & r: b", 0.35),
         ("ps", "same_seed", "t: b & r: a", 0.0),  # a gain of 0 draws no bar
-        ("ablation", "same_seed", "t: a & r: b", -0.5),  # and ablation has no pair for t: b & r: a
+        ("ablation", "same_seed", "t: a & r: b", -0.5),  # ablation never stitched t: b & r: a
+        ("ablation", "cross_seed", "t: a & r: b", -0.4),  # ps has no cross-seed pair
     ]
     table = pd.DataFrame(rows, columns=["method", "pairing", "label", "transfer_gain"])
     fig = transfer_gain_figure(table)
-    (ax,) = fig.axes
-    assert [t.get_text() for t in ax.texts] == ["+0.30", "+0.00", "-0.50", "no pairs"]
-    assert "task-blind floor" in ax.get_xlabel()
-    # each value stands right of its bar's error bar (or of 0), on its bar's row
-    ys = {t.get_text(): t.get_position() for t in ax.texts}
+    same, cross = fig.axes
+    assert [t.get_text() for t in same.texts] == ["+0.30", "-0.50", "+0.00"]
+    # a method stitched in one pairing but not the other says so; one never stitched is not drawn
+    assert [t.get_text() for t in cross.texts] == ["no pairs", "-0.40", "no pairs"]
+    assert "task-blind floor" in same.get_xlabel()
+    # each value stands right of its bar's error bar (or of 0), on its bar's row; a blank row
+    # parts the combinations, each labelled at its bars' middle
+    ys = {t.get_text(): t.get_position() for t in same.texts}
     assert ys["+0.30"][0] == pytest.approx(0.38) and ys["-0.50"][0] == pytest.approx(0.03)
-    assert ys["+0.30"][1] == ys["+0.00"][1] - 1
+    assert [ys[v][1] for v in ("+0.30", "-0.50", "+0.00")] == [0, 1, 3]
+    assert list(same.get_yticks()) == [0.5, 3.0]
+    assert [t.get_text() for t in same.get_yticklabels()] == ["t: a & r: b", "t: b & r: a"]
+    # the legend names every method and stands above the panels, over no bar
+    (legend,) = fig.legends
+    assert [t.get_text() for t in legend.get_texts()] == ["ps", "ablation"]
+    fig.canvas.draw()
+    renderer = fig.canvas.get_renderer()
+    assert legend.get_window_extent(renderer).y0 >= same.get_window_extent(renderer).y1

@@ -15,6 +15,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
+from matplotlib.patches import Patch  # noqa: E402
 
 from ps_ray.analysis.latent import QUADRANTS, Group, Probes, mean_matrix, shared_pca  # noqa: E402
 from ps_ray.specs.names import readable  # noqa: E402
@@ -241,48 +242,47 @@ def transfer_gain_bars(table: pd.DataFrame, path: Path) -> Path:
 
 
 def transfer_gain_figure(table: pd.DataFrame):
-    """The report's main figure: per stitched combination (rows) and method (bars), the transfer
+    """The report's main figure: per stitched combination (groups) and method (bars), the transfer
     gain, stitched success minus the best of its controls (unstitched sources, chance, the
     task-blind floor) on the same episodes (mean over seeds, written beside each bar; error bar:
-    the seeds' range); one panel per pairing (same seed, across seeds)."""
+    the seeds' range); one panel per pairing (same seed, across seeds). A combination shows only
+    the methods that stitched it in some pairing (a co-trained grid stitches its held-out cell
+    alone); one stitched in another pairing but not this one says "no pairs"."""
     from ps_ray.analysis.tables import method_order
 
     pairings = list(dict.fromkeys(table["pairing"]))
-    labels = list(dict.fromkeys(table["label"]))
     methods = method_order(table["method"])
+    colours = {method: f"C{i}" for i, method in enumerate(methods)}
+    stitched_by = table.groupby("label", sort=False)["method"].agg(set)
+    groups = [(label, [m for m in methods if m in stitched_by[label]]) for label in stitched_by.index]
+    # one row per bar, a blank row between groups; each group's tick at its middle
+    bar_rows, ticks, row = [], [], 0
+    for label, present in groups:
+        bar_rows += [(label, method, row + i) for i, method in enumerate(present)]
+        ticks.append(row + (len(present) - 1) / 2)
+        row += len(present) + 1
     fig, axes = plt.subplots(
-        1,
-        len(pairings),
-        figsize=(6 * len(pairings) + 3, 0.3 * len(labels) * len(methods) + 1.5),
-        sharey=True,
-        squeeze=False,
+        1, len(pairings), figsize=(6 * len(pairings) + 3, 0.3 * row + 1.5), sharey=True, squeeze=False
     )
-    height = 0.8 / len(methods)
+    gains = table.groupby(["pairing", "label", "method"])["transfer_gain"].agg(["mean", "min", "max"])
     for ax, pairing in zip(axes[0], pairings):
-        for index, method in enumerate(methods):
-            part = table[(table["method"] == method) & (table["pairing"] == pairing)]
-            gain = part.groupby("label")["transfer_gain"].agg(["mean", "min", "max"]).reindex(labels)
-            rows = np.arange(len(labels)) + index * height
-            bars = ax.barh(
-                rows,
-                gain["mean"],
-                height,
-                xerr=[gain["mean"] - gain["min"], gain["max"] - gain["mean"]],
-                label=method,
-                capsize=2,
-            )
-            # every bar says its value, so a gain of 0 (no bar) or a row without pairs still reads
-            for y, mean, top in zip(rows, gain["mean"], gain["max"], strict=True):
-                text = "no pairs" if mean != mean else f"{mean:+.2f}"
-                right = 0.0 if top != top else max(top, 0.0)
-                ax.text(right + 0.03, y, text, va="center", fontsize=8, color=bars.patches[0].get_facecolor())
+        for label, method, y in bar_rows:
+            key = (pairing, label, method)
+            mean, low, top = gains.loc[key] if key in gains.index else (np.nan, np.nan, np.nan)
+            if mean == mean:
+                ax.barh(y, mean, 0.8, xerr=[[mean - low], [top - mean]], color=colours[method], capsize=2)
+            # every bar says its value, so a gain of 0 (no bar) or a missing pair still reads
+            text = "no pairs" if mean != mean else f"{mean:+.2f}"
+            right = 0.0 if top != top else max(top, 0.0)
+            ax.text(right + 0.03, y, text, va="center", fontsize=8, color=colours[method])
         ax.axvline(0.0, color="black", linewidth=0.8)
-        ax.set_yticks(np.arange(len(labels)) + 0.4 - height / 2, [readable(x) for x in labels])
+        ax.set_yticks(ticks, [readable(label) for label, _ in groups])
+        ax.set_ylim(row - 0.5, -1.0)  # top to bottom, in the table's order
         ax.set_xlim(-1.05, 1.3)
         ax.set_xlabel("transfer gain: stitched - best control (sources, chance, task-blind floor)")
         ax.set_title(pairing.replace("_", " "))
-        ax.invert_yaxis()
-    axes[0][0].legend()
+    handles = [Patch(color=colours[m]) for m in methods]
+    fig.legend(handles, methods, loc="lower center", bbox_to_anchor=(0.5, 1.0), ncol=min(len(methods), 4))
     fig.tight_layout()
     return fig
 

@@ -438,3 +438,36 @@ def test_every_transfer_gain_bar_says_its_value_so_a_zero_gain_or_a_missing_pair
     fig.canvas.draw()
     renderer = fig.canvas.get_renderer()
     assert legend.get_window_extent(renderer).y0 >= same.get_window_extent(renderer).y1
+
+
+def test_the_controls_figure_puts_same_seed_first_upper_bounds_last_and_leaves_out_controls_not_run():
+    from matplotlib.colors import to_rgb
+
+    from ps_ray.analysis.plots import CONTROL_BARS, controls_figure
+
+    rows = [
+        ("ablation+affine@swapped", "same_seed", True, 0.4),
+        ("ablation", "cross_seed", False, 0.1),
+        ("ablation", "same_seed", False, 0.2),
+        ("ablation co-trained", "same_seed", False, 0.45),  # no cross-seed pairs
+    ]
+    numbers = pd.DataFrame(rows, columns=["method", "pairing", "upper_bound", "success_mean"])
+    for column, _ in CONTROL_BARS[1:]:
+        numbers[column] = 0.3
+    numbers["told_robot_source_success"] = np.nan  # the ceiling was not run
+    for column, _ in CONTROL_BARS:
+        numbers[f"{column}_lo"], numbers[f"{column}_hi"] = numbers[column] - 0.1, numbers[column] + 0.1
+    fig = controls_figure(numbers)
+    same, cross = fig.axes
+    assert (same.get_title(), cross.get_title()) == ("same seed", "cross seed")
+    names = [t.get_text() for t in same.get_yticklabels()]
+    assert names == ["ablation", "ablation co-trained", "ablation+affine@swapped"]
+    (legend,) = fig.legends
+    assert "ceiling: robot source told the task" not in [t.get_text() for t in legend.get_texts()]
+    assert [t.get_text() for t in legend.get_texts()][0] == "stitched"
+    # the stitched bar of each row is its method's success in that panel; a row without pairs says so
+    stitched = sorted(
+        (p for p in same.patches if p.get_facecolor()[:3] == to_rgb("C0")), key=lambda p: p.get_y()
+    )
+    assert [round(p.get_width(), 2) for p in stitched] == [0.2, 0.45, 0.4]
+    assert [t.get_text() for t in cross.texts] == ["no pairs", "no pairs"]

@@ -300,40 +300,48 @@ CONTROL_BARS = (
 
 
 def controls_bars(numbers: pd.DataFrame, path: Path) -> Path:
-    """Stitched success beside its controls, one group per (method, pairing) row of
-    :func:`ps_ray.analysis.transfer.transfer_numbers`: stitched, robot source, task source, chance,
-    the task-blind floor, oracle and the ceiling of a marker family, each a mean over seeds with its
-    95% t interval; a control that was not run is left out of its group, one no row has of the
-    figure."""
-    rows = list(numbers.itertuples(index=False))
-    fig, ax = plt.subplots(figsize=(8, 1.2 * len(rows) + 1.8))
+    """:func:`controls_figure`, saved at ``path``."""
+    return _save(controls_figure(numbers), path)
+
+
+def controls_figure(numbers: pd.DataFrame):
+    """Stitched success beside its controls, one panel per pairing (same seed first) and one group
+    per method of :func:`ps_ray.analysis.transfer.transfer_numbers` (upper bounds last): stitched,
+    robot source, task source, chance, the task-blind floor, oracle and the ceiling of a marker
+    family, each a mean over seeds with its 95% t interval; a control that was not run is left out
+    of every group, a method without pairs in a pairing says so."""
+    from ps_ray.analysis.tables import method_order
+
+    pairings = sorted(dict.fromkeys(numbers["pairing"]), key=lambda p: p != "same_seed")
+    rank = {m: i for i, m in enumerate(method_order(numbers["method"]))}
+    by_rank = numbers.assign(rank=numbers["method"].map(rank)).sort_values(["upper_bound", "rank"])
+    methods = list(dict.fromkeys(by_rank["method"]))
     # each bar keeps its colour whichever are left out, so figures of different sweeps read alike
     bars = [(f"C{i}", c, label) for i, (c, label) in enumerate(CONTROL_BARS) if numbers[c].notna().any()]
     height = 0.8 / len(bars)
-    for index, (colour, column, label) in enumerate(bars):
-        mean = np.array([getattr(r, column) for r in rows], float)
-        lo = np.array([getattr(r, f"{column}_lo") for r in rows], float)
-        hi = np.array([getattr(r, f"{column}_hi") for r in rows], float)
-        errors = np.nan_to_num(np.stack([mean - lo, hi - mean]).clip(min=0))
-        ax.barh(
-            np.arange(len(rows)) + index * height,
-            mean,
-            height,
-            xerr=errors,
-            label=label,
-            capsize=2,
-            color=colour,
-        )
-    for gap in np.arange(len(rows) - 1) + 0.9 - height / 2:  # a faint line between groups
-        ax.axhline(gap, color="0.85", linewidth=0.8)
-    names = [readable(f"{r.method}, {r.pairing.replace('_', ' ')}") for r in rows]
-    ax.set_yticks(np.arange(len(rows)) + 0.4 - height / 2, names)
-    ax.set_xlim(0, 1.05)
-    ax.set_xlabel("zero-shot success on the stitched pairs' episodes (mean over seeds, 95% interval)")
-    ax.invert_yaxis()
-    ax.legend(loc="lower center", bbox_to_anchor=(0.5, 1.0), ncol=3)
+    fig, axes = plt.subplots(
+        1, len(pairings), figsize=(7 * len(pairings) + 2, len(bars) * 0.2 * len(methods) + 1.8), squeeze=False
+    )
+    rows = np.arange(len(methods))
+    for ax, pairing in zip(axes[0], pairings):
+        part = numbers[numbers["pairing"] == pairing].set_index("method").reindex(methods)
+        for index, (colour, column, label) in enumerate(bars):
+            mean, lo, hi = (part[f"{column}{end}"].to_numpy(float) for end in ("", "_lo", "_hi"))
+            errors = np.nan_to_num(np.stack([mean - lo, hi - mean]).clip(min=0))
+            ax.barh(rows + index * height, mean, height, xerr=errors, label=label, capsize=2, color=colour)
+        for row in rows[part["success_mean"].isna().to_numpy()]:
+            ax.text(0.02, row + 0.4 - height / 2, "no pairs", va="center", color="0.3")
+        for gap in rows[:-1] + 0.9 - height / 2:  # a faint line between groups
+            ax.axhline(gap, color="0.85", linewidth=0.8)
+        ax.set_yticks(rows + 0.4 - height / 2, [readable(m) for m in methods] if ax is axes[0][0] else [])
+        ax.set_ylim(len(methods) - 0.1, -0.1 - height / 2)  # top to bottom, in the table's order
+        ax.set_xlim(0, 1.05)
+        ax.set_title(pairing.replace("_", " "))
+        ax.set_xlabel("zero-shot success on the stitched pairs' episodes\n(mean over seeds, 95% interval)")
+    handles, labels = axes[0][0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="lower center", bbox_to_anchor=(0.5, 1.0), ncol=4)
     fig.tight_layout()
-    return _save(fig, path)
+    return fig
 
 
 def search_curves(curves: pd.DataFrame, path: Path) -> Path:

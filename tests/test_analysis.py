@@ -417,7 +417,7 @@ def test_every_transfer_gain_bar_says_its_value_so_a_zero_gain_or_a_missing_pair
         ("ps", "same_seed", "t: b & r: a", 0.0),  # a gain of 0 draws no bar
         ("ablation", "same_seed", "t: a & r: b", -0.5),  # ablation never stitched t: b & r: a
         ("ablation", "cross_seed", "t: a & r: b", -0.4),  # ps has no cross-seed pair
-    ]
+    ][::-1]  # same seed's panel first, whichever pairing the table lists first
     table = pd.DataFrame(rows, columns=["method", "pairing", "label", "transfer_gain"])
     fig = transfer_gain_figure(table)
     same, cross = fig.axes

@@ -245,12 +245,12 @@ def transfer_gain_figure(table: pd.DataFrame):
     """The report's main figure: per stitched combination (groups) and method (bars), the transfer
     gain, stitched success minus the best of its controls (unstitched sources, chance, the
     task-blind floor) on the same episodes (mean over seeds, written beside each bar; error bar:
-    the seeds' range); one panel per pairing (same seed, across seeds). A combination shows only
+    the seeds' range); one panel per pairing (same seed first). A combination shows only
     the methods that stitched it in some pairing (a co-trained grid stitches its held-out cell
     alone); one stitched in another pairing but not this one says "no pairs"."""
     from ps_ray.analysis.tables import method_order
 
-    pairings = list(dict.fromkeys(table["pairing"]))
+    pairings = sorted(dict.fromkeys(table["pairing"]), key=lambda p: p != "same_seed")
     methods = method_order(table["method"])
     colours = {method: f"C{i}" for i, method in enumerate(methods)}
     stitched_by = table.groupby("label", sort=False)["method"].agg(set)

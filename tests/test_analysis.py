@@ -408,6 +408,49 @@ def test_a_sections_text_sets_backticked_names_as_code_and_escapes_the_rest():
     assert "`" not in prose("`a` and `b@c`") and prose("`a` and `b@c`").count("<code>") == 2
 
 
+def test_the_few_shot_figure_draws_its_targets_floor_and_oracle_from_the_same_seeds_zero_shot_pairs():
+    from ps_ray.analysis.plots import seed_interval_figure
+    from ps_ray.analysis.transfer import few_shot_references, seed_curves
+
+    curves = pd.DataFrame(
+        [
+            {"run": run, "kind": kind, "method": "ablation", "robot": "panda_far", "task": task, "seed": 7}
+            | {"env_steps": 1000, "success": 0.1}
+            for run, kind, task in (("a", "stitched", "push_blue"), ("b", "scratch", "push_red"))
+        ]
+    )
+    pair = {"method": "ablation", "pairing": "same_seed", "robot": "panda_far", "seed": 7}
+    zero_shot = pd.DataFrame(
+        [
+            pair | {"task": "push_blue", "task_blind_success": 0.3, "oracle_success": 0.6},
+            pair | {"task": "push_blue", "task_blind_success": 0.3, "oracle_success": 0.6},  # 2 pairs
+            pair | {"task": "push_red", "task_blind_success": 0.2, "oracle_success": 0.4},
+            # none of these is the few-shot runs' target and method, seed and pairing
+            pair | {"task": "push_red", "seed": 8, "task_blind_success": 0.9, "oracle_success": 0.9},
+            pair
+            | {"task": "push_red", "pairing": "cross_seed", "task_blind_success": 0.9, "oracle_success": 0.9},
+            pair | {"task": "push_red", "method": "ps", "task_blind_success": 0.9, "oracle_success": 0.9},
+        ]
+    )
+    levels = few_shot_references(curves, zero_shot)
+    # each target once, however many pairs it has: (0.3 + 0.2) / 2 and (0.6 + 0.4) / 2
+    floor, oracle = levels["ablation"].values()
+    assert (floor, oracle) == pytest.approx((0.25, 0.5))
+    assert few_shot_references(curves, None) == {}
+    assert few_shot_references(curves.assign(seed=9), zero_shot) == {}  # no pair of these targets
+
+    (ax,) = seed_interval_figure(seed_curves(curves), "few-shot", references=levels).axes
+    legend = [t.get_text() for t in ax.get_legend().get_texts()]
+    assert legend == [
+        "stitch as it is (1 seed)",
+        "scratch (1 seed)",
+        "task-blind floor (zero-shot): 0.25",
+        "oracle (trained on the target): 0.50",
+    ]
+    levels_drawn = [line.get_ydata()[0] for line in ax.get_lines() if line.get_color() == "0.35"]
+    assert levels_drawn == pytest.approx([0.25, 0.5])
+
+
 def test_every_transfer_gain_bar_says_its_value_so_a_zero_gain_or_a_missing_pair_still_reads():
     from ps_ray.analysis.plots import transfer_gain_figure
 

@@ -147,37 +147,57 @@ def learning_curves(
     return _save(fig, path)
 
 
-# few-shot starts, in the order legends list them
-START_ORDER = ("stitched", "aligned", "task_module", "robot_module", "unstitched", "scratch")
+# few-shot starts, in the order legends list them, with what a legend says of each
+START_LABELS = {
+    "stitched": "stitch as it is",
+    "aligned": "stitch aligned by its translation",
+    "task_module": "its task module, a fresh robot module",
+    "robot_module": "its robot module, a fresh task module",
+    "unstitched": "robot source as it is",
+    "scratch": "scratch",
+}
+START_ORDER = tuple(START_LABELS)
 LINE_STYLES = [("-", "o"), ("--", "s"), (":", "^"), ("-.", "D"), ((0, (5, 1)), "v")]
 
 
-def seed_interval_curves(table: pd.DataFrame, title: str, path: Path) -> Path:
+def seed_interval_curves(
+    table: pd.DataFrame, title: str, path: Path, references: Mapping[str, Mapping[str, float]] | None = None
+) -> Path:
+    """:func:`seed_interval_figure`, saved at ``path``."""
+    return _save(seed_interval_figure(table, title, references), path)
+
+
+def seed_interval_figure(
+    table: pd.DataFrame, title: str, references: Mapping[str, Mapping[str, float]] | None = None
+):
     """A panel per method, a line per start kind: the mean over seeds of ``seed_curves``' table
     (ps_ray.analysis.transfer) with its 95% t interval as a band (none from one seed, and the
-    title says which)."""
+    title says which); ``references``: per method, levels drawn across its panel (the target
+    envs' zero-shot floor and oracle, ps_ray.analysis.transfer.few_shot_references)."""
     methods = list(dict.fromkeys(table["method"]))
-    fig, axes = plt.subplots(1, len(methods), figsize=(5.4 * len(methods), 3.6), squeeze=False)
+    fig, axes = plt.subplots(1, len(methods), figsize=(8.6 * len(methods), 3.6), squeeze=False)
     for ax, method in zip(axes[0], methods):
         lines = table[table["method"] == method]
         kinds = sorted(dict.fromkeys(lines["kind"]), key=lambda k: (START_ORDER + (k,)).index(k))
         for kind, style in zip(kinds, LINE_STYLES * len(kinds)):  # lines that coincide stay told apart
             line = lines[lines["kind"] == kind]
             seeds = int(line["seeds"].iloc[0])
-            label = f"{kind} ({seeds} seed{'' if seeds == 1 else 's'})"
+            label = f"{START_LABELS.get(kind, kind)} ({seeds} seed{'' if seeds == 1 else 's'})"
             drawn = ax.plot(line["env_steps"], line["mean"], linestyle=style[0], marker=style[1], label=label)
             ax.fill_between(
                 line["env_steps"], line["low"], line["high"], color=drawn[0].get_color(), alpha=0.15
             )
+        for (label, level), style in zip((references or {}).get(method, {}).items(), (":", "--")):
+            ax.axhline(level, color="0.35", linestyle=style, linewidth=1.2, label=f"{label}: {level:.2f}")
         ax.set_title(readable(str(method)))
         ax.set_xlabel("env steps")
         ax.set_ylabel("greedy success")
         ax.set_ylim(-0.05, 1.05)
-        ax.legend(fontsize=8)
+        ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))  # beside, over no line
     one = table["seeds"].max() < 2  # no interval titled over one seed
     fig.suptitle(f"{title}, {'one seed, no interval' if one else 'mean and 95% t interval over seeds'}")
     fig.tight_layout()
-    return _save(fig, path)
+    return fig
 
 
 _VERB = {"success": "reached the goal", "touching": "touched the object"}

@@ -48,7 +48,7 @@ def build_report(spec: SweepSpec, *, progress: bool = True, log_to_mlflow: bool 
     if not spec.search.active:  # a search's trials are candidate settings, not sources to compare
         _latent(report, spec, root, say)
     zero_shot_section(report, spec, target, say)
-    _few_shot(report, root, spec.report.few_shot_threshold, say)
+    _few_shot(report, spec, spec.report.few_shot_threshold, say)
     _clips(report, spec, say)
     cost_section(report, spec, root)
     summary_section(report, spec, target)
@@ -307,8 +307,9 @@ def _has_object(tasks: pd.Series) -> bool:
     return any(resolve_task(name).has_object for name in names)
 
 
-def _few_shot(report: Report, root: Path, threshold: float, say) -> None:
-    frame = results.curves(SweepLayout(root).tune_few_shot)
+def _few_shot(report: Report, spec: SweepSpec, threshold: float, say) -> None:
+    layout = sweep_layout(spec)
+    frame = results.curves(layout.tune_few_shot)
     if frame.empty:
         return
     section = report.section(
@@ -319,12 +320,16 @@ def _few_shot(report: Report, root: Path, threshold: float, say) -> None:
         "mean over seeds (a seed's runs averaged first; a run stopped at its target keeps its last "
         "success) with a 95% t interval over seeds. Where the sweep asks for the halves "
         "(few_shot.halves): the pair's robot module under a fresh task module (robot_module) and "
-        "its task module over a fresh robot module (task_module).",
+        "its task module over a fresh robot module (task_module). Grey lines: the target envs' "
+        "task-blind floor and oracle from the zero-shot table (same seed), where it has them.",
     )
     title = "few-shot: greedy success in the target envs"
     seed_table = transfer.seed_curves(frame)
+    levels = transfer.few_shot_references(frame, results.zero_shot_results(layout.zero_shot_table))
     report.figure(
-        section, "few_shot_curves", lambda p: plots.seed_interval_curves(seed_table, title=title, path=p)
+        section,
+        "few_shot_curves",
+        lambda p: plots.seed_interval_curves(seed_table, title=title, path=p, references=levels),
     )
     frame["target"] = frame["robot"] + " / " + frame["task"]
     frame["line"] = frame["kind"] + ": " + frame["method"]

@@ -307,11 +307,42 @@ def seed_curves(curves: pd.DataFrame) -> pd.DataFrame:
     return pd.DataFrame(rows, columns=["kind", "method", "env_steps", "mean", "low", "high", "seeds"])
 
 
+# the zero-shot controls drawn beside the few-shot curves: (column, legend label)
+FEW_SHOT_REFERENCES = (
+    ("task_blind_success", "task-blind floor (zero-shot)"),
+    ("oracle_success", "oracle (trained on the target)"),
+)
+
+
+def few_shot_references(curves: pd.DataFrame, zero_shot: pd.DataFrame | None) -> dict[str, dict[str, float]]:
+    """Per method of few-shot ``curves``, the floor and oracle of its target envs read from the
+    zero-shot table (same seed, the method's own sources, unstitched rows): each target's value
+    averaged over its pairs, then over the few-shot runs' targets. Empty where no zero-shot pair
+    of the method shares a target with the few-shot runs."""
+    if zero_shot is None or zero_shot.empty:
+        return {}
+    same = zero_shot[zero_shot["pairing"] == Pairing.SAME_SEED]
+    keys = ["robot", "task", "seed"]
+    out = {}
+    for method, part in curves.groupby("method", sort=False):
+        targets = part[keys].drop_duplicates()
+        rows = same[same["method"] == method].merge(targets, on=keys)
+        columns = [column for column, _ in FEW_SHOT_REFERENCES]
+        per_target = rows.groupby(keys)[columns].mean().mean()
+        found = {
+            label: float(per_target[c]) for c, label in FEW_SHOT_REFERENCES if per_target[c] == per_target[c]
+        }
+        if found:
+            out[method] = found
+    return out
+
+
 __all__ = [
     "CONTROL_ROLES",
     "co_training_numbers",
     "controls_met",
     "curve_area",
+    "few_shot_references",
     "few_shot_steps",
     "has_controls",
     "seed_curves",

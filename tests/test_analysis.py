@@ -514,3 +514,42 @@ def test_the_controls_figure_puts_same_seed_first_upper_bounds_last_and_leaves_o
     )
     assert [round(p.get_width(), 2) for p in stitched] == [0.2, 0.45, 0.4]
     assert [t.get_text() for t in cross.texts] == ["no pairs", "no pairs"]
+
+
+def test_the_headline_gives_success_per_pairing_where_a_method_was_scored_beside_its_controls(tmp_path):
+    """A co-trained grid's held-out cell transfers within its seed and not across: the headline
+    shows each pairing's success (same seed first), not their pooled mean; a method scored without
+    controls keeps the pooled mean and IQM."""
+    from ps_ray.analysis.page import Report
+    from ps_ray.analysis.summary import summary_section
+    from ps_ray.specs.sweep import load_sweep
+
+    spec = load_sweep("sweeps/push_family.yaml")
+    report = Report(tmp_path)
+    (tmp_path / "tables").mkdir()
+    pooled = {"success_mean": 0.23, "success_mean_lo": 0.2, "success_mean_hi": 0.3, "success_iqm": 0.2}
+    report.headline.zero_shot = pd.DataFrame(
+        [pooled | {"success_cells": 6}, pooled | {"success_cells": 24}],
+        index=["ablation co-trained", "ablation"],
+    )
+    gain = {"gain_diff": 0.19, "gain_lo": 0.03, "gain_hi": 0.36, "gain_p": np.nan, "seeds": 3}
+    report.headline.transfer = pd.DataFrame(
+        [
+            {"method": "ablation co-trained", "pairing": "cross_seed", "success_mean": 0.003}
+            | {"success_mean_lo": 0.0, "success_mean_hi": 0.1}
+            | gain,
+            {"method": "ablation co-trained", "pairing": "same_seed", "success_mean": 0.45}
+            | {"success_mean_lo": 0.36, "success_mean_hi": 0.55}
+            | gain,
+        ]
+    )
+    summary_section(report, spec, target=0.9)
+    headline = pd.read_csv(tmp_path / "tables" / "summary.csv", index_col="method")
+    co_trained, alone = headline.loc["ablation co-trained"], headline.loc["ablation"]
+    assert co_trained["zero-shot success, same seed [95% CI]"] == "0.45 [0.36, 0.55]"
+    assert co_trained["zero-shot success, cross seed [95% CI]"] == "0.00 [0.00, 0.10]"
+    assert co_trained["zero-shot success, mean [95% CI]"] == "–"  # no pooled mean beside them
+    assert alone["zero-shot success, mean [95% CI]"] == "0.23 [0.20, 0.30]"
+    assert alone["zero-shot success, same seed [95% CI]"] == "–"
+    columns = list(headline.columns)
+    assert columns.index("transfer gain, same seed") < columns.index("transfer gain, cross seed")

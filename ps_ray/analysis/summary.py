@@ -55,31 +55,40 @@ def summary_section(report: Report, spec: SweepSpec, target: float) -> None:
     translated = [] if h.zero_shot is None else list(h.zero_shot.index)
     for method in tables.method_order([*spec.methods, *translated]):  # "ablation+affine" rows too
         row: dict[str, str] = {}
-        zs = h.zero_shot
-        if zs is not None and method in zs.index:
+        zs, tr = h.zero_shot, h.transfer
+        mine = pd.DataFrame() if tr is None else tr[tr["method"] == method]
+        mine = mine.sort_values("pairing", key=lambda p: p != "same_seed") if len(mine) else mine
+        if len(mine):  # scored beside its controls: success per pairing, same seed first (a
+            # co-trained grid's cell transfers within its seed, not across: a pooled mean hides it)
+            for _, r in mine.iterrows():
+                name = f"zero-shot success, {r['pairing'].replace('_', ' ')} [95% CI]"
+                row[name] = f"{r['success_mean']:.2f} " + tables.ci(
+                    r["success_mean_lo"], r["success_mean_hi"]
+                )
+        elif zs is not None and method in zs.index:
             r = zs.loc[method]
             row["zero-shot success, mean [95% CI]"] = f"{r['success_mean']:.2f} " + tables.ci(
                 r["success_mean_lo"], r["success_mean_hi"]
             )
             row["zero-shot success IQM"] = f"{r['success_iqm']:.2f}"
+        if zs is not None and method in zs.index:
+            r = zs.loc[method]
             if "touching_mean" in r and r["touching_mean"] == r["touching_mean"]:
                 row["touching, mean [95% CI]"] = f"{r['touching_mean']:.2f} " + tables.ci(
                     r["touching_mean_lo"], r["touching_mean_hi"]
                 )
             row["cells"] = str(int(r["success_cells"]))
-        tr = h.transfer
-        if tr is not None:
-            for _, r in tr[tr["method"] == method].iterrows():
-                if r["gain_diff"] == r["gain_diff"]:
-                    if r["gain_p"] != r["gain_p"]:
-                        p = ", units share runs"
-                    elif r["seeds"] < SIGN_TEST_MIN_SEEDS:  # the sign-flip p cannot reach 0.05
-                        p = f", {int(r['gain_wins'])}/{int(r['seeds'])} seeds up"
-                    else:
-                        p = f", p {r['gain_p']:.2g}"
-                    row[f"transfer gain, {r['pairing'].replace('_', ' ')}"] = (
-                        f"{r['gain_diff']:+.2f} " + tables.ci(r["gain_lo"], r["gain_hi"]) + p
-                    )
+        for _, r in mine.iterrows():
+            if r["gain_diff"] == r["gain_diff"]:
+                if r["gain_p"] != r["gain_p"]:
+                    p = ", units share runs"
+                elif r["seeds"] < SIGN_TEST_MIN_SEEDS:  # the sign-flip p cannot reach 0.05
+                    p = f", {int(r['gain_wins'])}/{int(r['seeds'])} seeds up"
+                else:
+                    p = f", p {r['gain_p']:.2g}"
+                row[f"transfer gain, {r['pairing'].replace('_', ' ')}"] = (
+                    f"{r['gain_diff']:+.2f} " + tables.ci(r["gain_lo"], r["gain_hi"]) + p
+                )
         al = h.alignment
         if al is not None:
             part = al[(al["method"] == method) & (al["comparison"] == "robots")]

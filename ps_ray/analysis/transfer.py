@@ -93,8 +93,9 @@ def transfer_numbers(table: pd.DataFrame, episodes: int | None = None) -> pd.Dat
     if out.empty:
         return out
     order = {m: i for i, m in enumerate(method_order(out["method"]))}
+    keys = {"method": lambda s: s.map(order), "pairing": lambda s: s != Pairing.SAME_SEED}  # same seed first
     return out.sort_values(
-        ["upper_bound", "pairing", "method"], key=lambda s: s.map(order) if s.name == "method" else s
+        ["upper_bound", "pairing", "method"], key=lambda s: keys.get(s.name, lambda s: s)(s)
     )
 
 

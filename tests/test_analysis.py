@@ -453,7 +453,7 @@ def test_the_few_shot_figure_draws_its_targets_floor_and_oracle_from_the_same_se
 
 
 def test_every_transfer_gain_bar_says_its_value_so_a_zero_gain_or_a_missing_pair_still_reads():
-    from ps_ray.analysis.plots import transfer_gain_figure
+    from ps_ray.analysis.transfer_plots import transfer_gain_figure
 
     rows = [
         ("ps", "same_seed", "t: a & r: b", 0.25),
@@ -487,7 +487,7 @@ def test_every_transfer_gain_bar_says_its_value_so_a_zero_gain_or_a_missing_pair
 def test_the_controls_figure_puts_same_seed_first_upper_bounds_last_and_leaves_out_controls_not_run():
     from matplotlib.colors import to_rgb
 
-    from ps_ray.analysis.plots import CONTROL_BARS, controls_figure
+    from ps_ray.analysis.transfer_plots import CONTROL_BARS, controls_figure
 
     rows = [
         ("ablation+affine@swapped", "same_seed", True, 0.4),

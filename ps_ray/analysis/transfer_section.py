@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import pandas as pd
 
-from ps_ray.analysis import plots, transfer
+from ps_ray.analysis import transfer, transfer_plots
 from ps_ray.analysis.page import Report
 
 # the transfer table's figures logged per method and pairing
@@ -48,8 +48,8 @@ def transfer_section(report: Report, table: pd.DataFrame, episodes: int, touchin
     controls, gains = transfer.transfer_views(numbers, touching=touching)
     report.table(section, "transfer", "Stitched success beside its controls", controls, numbers=numbers)
     report.shown(section, "The transfer gain over those controls, per method and pairing", gains)
-    report.figure(section, "transfer_gain", lambda p: plots.transfer_gain_bars(table, p))
-    report.figure(section, "transfer_controls", lambda p: plots.controls_bars(numbers, p))
+    report.figure(section, "transfer_gain", lambda p: transfer_plots.transfer_gain_bars(table, p))
+    report.figure(section, "transfer_controls", lambda p: transfer_plots.controls_bars(numbers, p))
     co_trained = transfer.co_training_numbers(table)
     if len(co_trained):
         title = (

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pandas as pd
 import pytest
@@ -272,7 +274,7 @@ def test_the_task_blind_floor_raises_the_bar_and_the_old_gain_stays_beside_it():
                 rows.append(row | metrics | gain(metrics))
     numbers = transfer_numbers(upgrade(pd.DataFrame(rows), 1))
     assert list(numbers["method"])[-2:] == ["ablation+affine@swapped"] * 2  # upper bounds last
-    assert list(numbers["pairing"])[::2] == ["same_seed"] * 2  # each method's same-seed row first
+    assert list(numbers["pairing"])[::2] == ["same_seed"] * 2  # same seed first within each block
     same = numbers[
         (numbers["method"] == "ablation+affine@outcome") & (numbers["pairing"] == "same_seed")
     ].iloc[0]
@@ -413,14 +415,16 @@ def test_the_few_shot_figure_draws_its_targets_floor_and_oracle_from_the_same_se
     from ps_ray.analysis.plots import seed_interval_figure
     from ps_ray.analysis.transfer import few_shot_references, seed_curves
 
+    far = 'panda_far{"base_offset":0.1}'  # a mapping robot: its short name here, its spec text there
     curves = pd.DataFrame(
         [
-            {"run": run, "kind": kind, "method": "ablation", "robot": "panda_far", "task": task, "seed": 7}
+            {"run": run, "kind": kind, "method": "ablation", "robot": far, "task": task, "seed": 7}
             | {"env_steps": 1000, "success": 0.1}
             for run, kind, task in (("a", "stitched", "push_blue"), ("b", "scratch", "push_red"))
         ]
     )
-    pair = {"method": "ablation", "pairing": "same_seed", "robot": "panda_far", "seed": 7}
+    robot_text = '{"base_offset": 0.1, "name": "panda_far"}'
+    pair = {"method": "ablation", "pairing": "same_seed", "robot": robot_text, "seed": 7}
     zero_shot = pd.DataFrame(
         [
             pair | {"task": "push_blue", "task_blind_success": 0.3, "oracle_success": 0.6},
@@ -431,12 +435,20 @@ def test_the_few_shot_figure_draws_its_targets_floor_and_oracle_from_the_same_se
             pair
             | {"task": "push_red", "pairing": "cross_seed", "task_blind_success": 0.9, "oracle_success": 0.9},
             pair | {"task": "push_red", "method": "ps", "task_blind_success": 0.9, "oracle_success": 0.9},
+            pair
+            | {"task": "push_red", "robot": "panda_far", "task_blind_success": 0.9, "oracle_success": 0.9},
         ]
     )
     levels = few_shot_references(curves, zero_shot)
     # each target once, however many pairs it has: (0.3 + 0.2) / 2 and (0.6 + 0.4) / 2
-    floor, oracle = levels["ablation"].values()
-    assert (floor, oracle) == pytest.approx((0.25, 0.5))
+    assert levels["ablation"] == pytest.approx(
+        {
+            "task-blind floor (zero-shot), mean of 2 targets": 0.25,
+            "oracle (trained on the target), mean of 2 targets": 0.5,
+        }
+    )
+    one = few_shot_references(curves[curves["task"] == "push_red"], zero_shot)["ablation"]
+    assert one == pytest.approx({"task-blind floor (zero-shot)": 0.2, "oracle (trained on the target)": 0.4})
     assert few_shot_references(curves, None) == {}
     assert few_shot_references(curves.assign(seed=9), zero_shot) == {}  # no pair of these targets
 
@@ -445,8 +457,8 @@ def test_the_few_shot_figure_draws_its_targets_floor_and_oracle_from_the_same_se
     assert legend == [
         "stitch as it is (1 seed)",
         "scratch (1 seed)",
-        "task-blind floor (zero-shot): 0.25",
-        "oracle (trained on the target): 0.50",
+        "task-blind floor (zero-shot), mean of 2 targets: 0.25",
+        "oracle (trained on the target), mean of 2 targets: 0.50",
     ]
     levels_drawn = [line.get_ydata()[0] for line in ax.get_lines() if line.get_color() == "0.35"]
     assert levels_drawn == pytest.approx([0.25, 0.5])
@@ -490,8 +502,8 @@ def test_the_controls_figure_puts_same_seed_first_upper_bounds_last_and_leaves_o
     from ps_ray.analysis.transfer_plots import CONTROL_BARS, controls_figure
 
     rows = [
+        ("ablation", "cross_seed", False, 0.1),  # listed first, drawn in the second panel
         ("ablation+affine@swapped", "same_seed", True, 0.4),
-        ("ablation", "cross_seed", False, 0.1),
         ("ablation", "same_seed", False, 0.2),
         ("ablation co-trained", "same_seed", False, 0.45),  # no cross-seed pairs
     ]
@@ -519,13 +531,13 @@ def test_the_controls_figure_puts_same_seed_first_upper_bounds_last_and_leaves_o
 
 def test_the_headline_gives_success_per_pairing_where_a_method_was_scored_beside_its_controls(tmp_path):
     """A co-trained grid's held-out cell transfers within its seed and not across: the headline
-    shows each pairing's success (same seed first), not their pooled mean; a method scored without
-    controls keeps the pooled mean and IQM."""
+    shows each pairing's success (same seed first), not their pooled mean; a method whose pairs
+    were scored without controls (no gain) keeps the pooled mean and IQM."""
     from ps_ray.analysis.page import Report
     from ps_ray.analysis.summary import summary_section
     from ps_ray.specs.sweep import load_sweep
 
-    spec = load_sweep("sweeps/push_family.yaml")
+    spec = load_sweep(Path(__file__).parents[1] / "sweeps" / "push_family.yaml")
     report = Report(tmp_path)
     (tmp_path / "tables").mkdir()
     pooled = {"success_mean": 0.23, "success_mean_lo": 0.2, "success_mean_hi": 0.3, "success_iqm": 0.2}
@@ -542,6 +554,10 @@ def test_the_headline_gives_success_per_pairing_where_a_method_was_scored_beside
             {"method": "ablation co-trained", "pairing": "same_seed", "success_mean": 0.45}
             | {"success_mean_lo": 0.36, "success_mean_hi": 0.55}
             | gain,
+            {"method": "ablation", "pairing": "same_seed", "success_mean": 0.23}
+            | {"success_mean_lo": 0.2, "success_mean_hi": 0.3}
+            | gain
+            | {"gain_diff": np.nan},
         ]
     )
     summary_section(report, spec, target=0.9)

@@ -58,8 +58,9 @@ def summary_section(report: Report, spec: SweepSpec, target: float) -> None:
         zs, tr = h.zero_shot, h.transfer
         mine = pd.DataFrame() if tr is None else tr[tr["method"] == method]
         mine = mine.sort_values("pairing", key=lambda p: p != "same_seed") if len(mine) else mine
-        if len(mine):  # scored beside its controls: success per pairing, same seed first (a
-            # co-trained grid's cell transfers within its seed, not across: a pooled mean hides it)
+        if len(mine) and mine["gain_diff"].notna().any():  # scored beside its controls: success per
+            # pairing, same seed first (a co-trained grid's cell transfers within its seed, not
+            # across: a pooled mean hides it)
             for _, r in mine.iterrows():
                 name = f"zero-shot success, {r['pairing'].replace('_', ' ')} [95% CI]"
                 row[name] = f"{r['success_mean']:.2f} " + tables.ci(
@@ -109,9 +110,9 @@ def summary_section(report: Report, spec: SweepSpec, target: float) -> None:
             )
         src = h.sources
         if src is not None and (src["method"] == method).any():
-            mine = src[src["method"] == method]
-            row["training success (mean)"] = f"{mine['success'].mean():.2f}"
-            row[f"sources < {target:.2f}"] = f"{int(mine['below_target'].sum())}/{len(mine)}"
+            sources = src[src["method"] == method]
+            row["training success (mean)"] = f"{sources['success'].mean():.2f}"
+            row[f"sources < {target:.2f}"] = f"{int(sources['below_target'].sum())}/{len(sources)}"
         if row:
             rows[method] = row
     if not rows:

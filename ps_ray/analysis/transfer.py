@@ -17,7 +17,7 @@ import pandas as pd
 from ps_ray.analysis.stats import SIGN_TEST_MIN_SEEDS, estimate, newcombe, paired, t_interval
 from ps_ray.analysis.tables import ci, method_order
 from ps_ray.specs.modes import Pairing, TrialKind
-from ps_ray.specs.names import CONTROL_ROLES
+from ps_ray.specs.names import CONTROL_ROLES, parse_spec_text, short_name
 
 CONTROL_COLUMNS = {
     "robot_source_success": "robot source unstitched",
@@ -318,20 +318,26 @@ FEW_SHOT_REFERENCES = (
 def few_shot_references(curves: pd.DataFrame, zero_shot: pd.DataFrame | None) -> dict[str, dict[str, float]]:
     """Per method of few-shot ``curves``, the floor and oracle of its target envs read from the
     zero-shot table (same seed, the method's own sources, unstitched rows): each target's value
-    averaged over its pairs, then over the few-shot runs' targets. Empty where no zero-shot pair
-    of the method shares a target with the few-shot runs."""
+    averaged over its pairs, then over the few-shot runs' targets (the label says how many). Empty
+    where no zero-shot pair of the method shares a target with the few-shot runs."""
     if zero_shot is None or zero_shot.empty:
         return {}
     same = zero_shot[zero_shot["pairing"] == Pairing.SAME_SEED]
+    # the table holds a robot or task as its spec text, the curves as its short name
+    same = same.assign(
+        **{c: same[c].map(lambda t: short_name(parse_spec_text(str(t)))) for c in ("robot", "task")}
+    )
     keys = ["robot", "task", "seed"]
+    columns = [column for column, _ in FEW_SHOT_REFERENCES]
     out = {}
     for method, part in curves.groupby("method", sort=False):
-        targets = part[keys].drop_duplicates()
-        rows = same[same["method"] == method].merge(targets, on=keys)
-        columns = [column for column, _ in FEW_SHOT_REFERENCES]
-        per_target = rows.groupby(keys)[columns].mean().mean()
+        rows = same[same["method"] == method].merge(part[keys].drop_duplicates(), on=keys)
+        per_target = rows.groupby(keys)[columns].mean()
+        targets = f", mean of {len(per_target)} targets" if len(per_target) > 1 else ""
         found = {
-            label: float(per_target[c]) for c, label in FEW_SHOT_REFERENCES if per_target[c] == per_target[c]
+            f"{label}{targets}": float(value)
+            for (column, label), value in zip(FEW_SHOT_REFERENCES, per_target.mean())
+            if value == value
         }
         if found:
             out[method] = found

@@ -28,6 +28,7 @@ def transfer_gain_figure(table: pd.DataFrame):
     the seeds' range); one panel per pairing (same seed first). A combination shows only
     the methods that stitched it in some pairing (a co-trained grid stitches its held-out cell
     alone); one stitched in another pairing but not this one says "no pairs"."""
+    table = table.dropna(subset=["transfer_gain"])  # pairs scored without their controls have none
     pairings = sorted(dict.fromkeys(table["pairing"]), key=lambda p: p != "same_seed")
     methods = method_order(table["method"])
     colours = {method: f"C{i}" for i, method in enumerate(methods)}
@@ -55,7 +56,7 @@ def transfer_gain_figure(table: pd.DataFrame):
             ax.text(right + 0.03, y, text, va="center", fontsize=8, color=colours[method])
         ax.axvline(0.0, color="black", linewidth=0.8)
         ax.set_yticks(ticks, [readable(label) for label, _ in groups])
-        ax.set_ylim(row - 0.5, -1.0)  # top to bottom, in the table's order
+        ax.set_ylim(row - 1.0, -1.0)  # top to bottom, in the table's order
         ax.set_xlim(-1.05, 1.3)
         ax.set_xlabel("transfer gain: stitched - best control (sources, chance, task-blind floor)")
         ax.set_title(pairing.replace("_", " "))

@@ -570,3 +570,8 @@ def test_the_headline_gives_success_per_pairing_where_a_method_was_scored_beside
     assert alone["zero-shot success, same seed [95% CI]"] == "–"
     columns = list(headline.columns)
     assert columns.index("transfer gain, same seed") < columns.index("transfer gain, cross seed")
+    report.headline.transfer = None  # a sweep whose zero-shot stage scored no controls at all
+    summary_section(report, spec, target=0.9)
+    headline = pd.read_csv(tmp_path / "tables" / "summary.csv", index_col="method", dtype=str)
+    assert headline.loc["ablation co-trained", "zero-shot success, mean [95% CI]"] == "0.23 [0.20, 0.30]"
+    assert not any("same seed" in column for column in headline.columns)

@@ -47,6 +47,41 @@ def cost_section(report: Report, spec: SweepSpec, root: Path) -> None:
     report.table(section, "cost", "Projected and used cost per stage", frame)
 
 
+def _zero_shot_columns(pooled: pd.Series | None, transfer_rows: pd.DataFrame) -> dict[str, str]:
+    """A method's zero-shot cells of the headline: where its pairs were scored beside their controls,
+    success per pairing (same seed first: a co-trained grid's cell transfers within its seed, not
+    across, and a mean over both hides it) and the gain; else the mean over every pair and its IQM.
+    Touching and the count of cells are over every pair."""
+    row: dict[str, str] = {}
+    scored = len(transfer_rows) and transfer_rows["gain_diff"].notna().any()
+    for _, r in transfer_rows.iterrows() if scored else ():
+        name = f"zero-shot success, {r['pairing'].replace('_', ' ')} [95% CI]"
+        row[name] = f"{r['success_mean']:.2f} " + tables.ci(r["success_mean_lo"], r["success_mean_hi"])
+    if pooled is not None and not scored:
+        row["zero-shot success, mean [95% CI]"] = f"{pooled['success_mean']:.2f} " + tables.ci(
+            pooled["success_mean_lo"], pooled["success_mean_hi"]
+        )
+        row["zero-shot success IQM"] = f"{pooled['success_iqm']:.2f}"
+    if pooled is not None:
+        if "touching_mean" in pooled and pooled["touching_mean"] == pooled["touching_mean"]:
+            row["touching, mean [95% CI]"] = f"{pooled['touching_mean']:.2f} " + tables.ci(
+                pooled["touching_mean_lo"], pooled["touching_mean_hi"]
+            )
+        row["cells"] = str(int(pooled["success_cells"]))
+    for _, r in transfer_rows.iterrows():
+        if r["gain_diff"] == r["gain_diff"]:
+            if r["gain_p"] != r["gain_p"]:
+                p = ", units share runs"
+            elif r["seeds"] < SIGN_TEST_MIN_SEEDS:  # the sign-flip p cannot reach 0.05
+                p = f", {int(r['gain_wins'])}/{int(r['seeds'])} seeds up"
+            else:
+                p = f", p {r['gain_p']:.2g}"
+            row[f"transfer gain, {r['pairing'].replace('_', ' ')}"] = (
+                f"{r['gain_diff']:+.2f} " + tables.ci(r["gain_lo"], r["gain_hi"]) + p
+            )
+    return row
+
+
 def summary_section(report: Report, spec: SweepSpec, target: float) -> None:
     """The answer first: per method, zero-shot success and touching with CIs, cross-robot
     alignment and training success, with the budget in one sentence; put at the top."""
@@ -56,40 +91,11 @@ def summary_section(report: Report, spec: SweepSpec, target: float) -> None:
     for method in tables.method_order([*spec.methods, *translated]):  # "ablation+affine" rows too
         row: dict[str, str] = {}
         zs, tr = h.zero_shot, h.transfer
+        pooled = zs.loc[method] if zs is not None and method in zs.index else None
         mine = pd.DataFrame() if tr is None else tr[tr["method"] == method]
-        mine = mine.sort_values("pairing", key=lambda p: p != "same_seed") if len(mine) else mine
-        if len(mine) and mine["gain_diff"].notna().any():  # scored beside its controls: success per
-            # pairing, same seed first (a co-trained grid's cell transfers within its seed, not
-            # across: a pooled mean hides it)
-            for _, r in mine.iterrows():
-                name = f"zero-shot success, {r['pairing'].replace('_', ' ')} [95% CI]"
-                row[name] = f"{r['success_mean']:.2f} " + tables.ci(
-                    r["success_mean_lo"], r["success_mean_hi"]
-                )
-        elif zs is not None and method in zs.index:
-            r = zs.loc[method]
-            row["zero-shot success, mean [95% CI]"] = f"{r['success_mean']:.2f} " + tables.ci(
-                r["success_mean_lo"], r["success_mean_hi"]
-            )
-            row["zero-shot success IQM"] = f"{r['success_iqm']:.2f}"
-        if zs is not None and method in zs.index:
-            r = zs.loc[method]
-            if "touching_mean" in r and r["touching_mean"] == r["touching_mean"]:
-                row["touching, mean [95% CI]"] = f"{r['touching_mean']:.2f} " + tables.ci(
-                    r["touching_mean_lo"], r["touching_mean_hi"]
-                )
-            row["cells"] = str(int(r["success_cells"]))
-        for _, r in mine.iterrows():
-            if r["gain_diff"] == r["gain_diff"]:
-                if r["gain_p"] != r["gain_p"]:
-                    p = ", units share runs"
-                elif r["seeds"] < SIGN_TEST_MIN_SEEDS:  # the sign-flip p cannot reach 0.05
-                    p = f", {int(r['gain_wins'])}/{int(r['seeds'])} seeds up"
-                else:
-                    p = f", p {r['gain_p']:.2g}"
-                row[f"transfer gain, {r['pairing'].replace('_', ' ')}"] = (
-                    f"{r['gain_diff']:+.2f} " + tables.ci(r["gain_lo"], r["gain_hi"]) + p
-                )
+        if len(mine):
+            mine = mine.sort_values("pairing", key=lambda p: p != "same_seed")
+        row |= _zero_shot_columns(pooled, mine)
         al = h.alignment
         if al is not None:
             part = al[(al["method"] == method) & (al["comparison"] == "robots")]

@@ -12,6 +12,7 @@ from ps_ray.analysis.alignment import chance_mrr
 from ps_ray.analysis.latent import QUADRANTS
 from ps_ray.analysis.page import Report, Section
 from ps_ray.analysis.stats import SIGN_TEST_MIN_SEEDS
+from ps_ray.specs.modes import same_seed_first
 from ps_ray.specs.sweep import SweepSpec
 
 
@@ -94,7 +95,7 @@ def summary_section(report: Report, spec: SweepSpec, target: float) -> None:
         pooled = zs.loc[method] if zs is not None and method in zs.index else None
         mine = pd.DataFrame() if tr is None else tr[tr["method"] == method]
         if len(mine):
-            mine = mine.sort_values("pairing", key=lambda p: p != "same_seed")
+            mine = mine.sort_values("pairing", key=lambda s: s.map(same_seed_first))
         row |= _zero_shot_columns(pooled, mine)
         al = h.alignment
         if al is not None:

@@ -16,7 +16,7 @@ import pandas as pd
 
 from ps_ray.analysis.stats import SIGN_TEST_MIN_SEEDS, estimate, newcombe, paired, t_interval
 from ps_ray.analysis.tables import ci, method_order
-from ps_ray.specs.modes import Pairing, TrialKind
+from ps_ray.specs.modes import Pairing, TrialKind, same_seed_first
 from ps_ray.specs.names import CONTROL_ROLES, parse_spec_text, short_name
 
 CONTROL_COLUMNS = {
@@ -93,7 +93,7 @@ def transfer_numbers(table: pd.DataFrame, episodes: int | None = None) -> pd.Dat
     if out.empty:
         return out
     order = {m: i for i, m in enumerate(method_order(out["method"]))}
-    keys = {"method": lambda s: s.map(order), "pairing": lambda s: s != Pairing.SAME_SEED}  # same seed first
+    keys = {"method": lambda s: s.map(order), "pairing": lambda s: s.map(same_seed_first)}
     return out.sort_values(
         ["upper_bound", "pairing", "method"], key=lambda s: keys.get(s.name, lambda s: s)(s)
     )

@@ -13,6 +13,7 @@ from matplotlib.patches import Patch
 
 from ps_ray.analysis.plots import save_figure
 from ps_ray.analysis.tables import method_order
+from ps_ray.specs.modes import same_seed_first
 from ps_ray.specs.names import readable
 
 
@@ -29,7 +30,7 @@ def transfer_gain_figure(table: pd.DataFrame):
     the methods that stitched it in some pairing (a co-trained grid stitches its held-out cell
     alone); one stitched in another pairing but not this one says "no pairs"."""
     table = table.dropna(subset=["transfer_gain"])  # pairs scored without their controls have none
-    pairings = sorted(dict.fromkeys(table["pairing"]), key=lambda p: p != "same_seed")
+    pairings = sorted(dict.fromkeys(table["pairing"]), key=same_seed_first)
     methods = method_order(table["method"])
     colours = {method: f"C{i}" for i, method in enumerate(methods)}
     stitched_by = table.groupby("label", sort=False)["method"].agg(set)
@@ -89,7 +90,7 @@ def controls_figure(numbers: pd.DataFrame):
     robot source, task source, chance, the task-blind floor, oracle and the ceiling of a marker
     family, each a mean over seeds with its 95% t interval; a control that was not run is left out
     of every group, a method without pairs in a pairing says so."""
-    pairings = sorted(dict.fromkeys(numbers["pairing"]), key=lambda p: p != "same_seed")
+    pairings = sorted(dict.fromkeys(numbers["pairing"]), key=same_seed_first)
     rank = {m: i for i, m in enumerate(method_order(numbers["method"]))}
     by_rank = numbers.assign(rank=numbers["method"].map(rank)).sort_values(["upper_bound", "rank"])
     methods = list(dict.fromkeys(by_rank["method"]))

@@ -44,6 +44,11 @@ class Pairing(Mode):
     BOTH = "both"
 
 
+def same_seed_first(pairing: str) -> bool:
+    """A sort key that lists same-seed rows and panels (the headline pairing) before cross-seed ones."""
+    return pairing != Pairing.SAME_SEED
+
+
 class Scheduler(Mode):
     """A search's trial scheduler: Tune's ASHA, or none (every trial runs out)."""
 

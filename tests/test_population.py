@@ -210,16 +210,18 @@ def test_the_gpu_check_finds_a_population_equal_to_solo_learners_and_says_what_a
     out = capsys.readouterr().out.splitlines()
     assert out[0].startswith("cpu (no CUDA graph here), torch ") and out[0].endswith("(tf32 off)")
     assert out[1] == "2 ablation members, widths 15,8,7, against solo learners:"
-    checks = [line.split() for line in out[2:4]]
-    assert [(c[:2], c[3]) for c in checks] == [
-        (["eager", "population"], "2"),
-        (["eager", "population"], "10"),
+    checks = [line.split() for line in out[2:6] if line.split()[0] == "eager"]
+    assert [(" ".join(c[:5]), c[6]) for c in checks] == [
+        ("eager population vs solo learners", "2"),
+        ("eager population vs solo learners", "10"),
     ]
-    assert all(float(c[7]) < 1e-3 and c[8] == "ok" for c in checks)  # rounding: about 1e-4 and less
-    batched = out[4].split()  # the RLlib population learner's pass: each member's gradients
+    assert all(float(c[10]) < 1e-3 and c[11] == "ok" for c in checks)  # rounding: about 1e-4 and less
+    reach = [line.split() for line in out[2:6] if line.split()[0] == "one"]
+    assert [c[-1] for c in reach] == ["(yardstick)", "(yardstick)"]  # not checked: what a rounding reaches
+    batched = out[6].split()  # the RLlib population learner's pass: each member's gradients
     assert batched[:2] == ["batched", "pass"] and float(batched[-2]) < 1e-5 and batched[-1] == "ok"
     assert not any("captured" in line for line in out)
-    assert [line.split()[0] for line in out[7:]] == ["1", "1", "2"]  # solo, then K = 1 and 2
+    assert [line.split()[0] for line in out[9:]] == ["1", "1", "2"]  # solo, then K = 1 and 2
 
 
 def test_the_gpu_checks_gap_is_about_one_for_a_member_fed_anothers_batches():
@@ -240,7 +242,7 @@ def test_the_gpu_checks_gap_is_about_one_for_a_member_fed_anothers_batches():
         swapped.update(
             {k: v[other] for k, v in batch.items()}, rewards[other], (noise[0][other], noise[1][other])
         )
-    assert gpu.largest_gap(swapped, solos, start) > 0.5
+    assert gpu.largest_gap(gpu.member_states(swapped, start), gpu.member_states(solos, start), start) > 0.5
 
 
 def test_the_gpu_check_fails_when_a_gap_is_over_its_tolerance(capsys):

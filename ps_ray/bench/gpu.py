@@ -110,20 +110,20 @@ def equality_rows(
     solos = [SoloLearner(copy.deepcopy(nets)) for nets in start]
     learners = {"solo": solos, "eager population": Population([copy.deepcopy(n) for n in start])}
     learners["nudged solo"] = [SoloLearner(nudged(n, seed)) for seed, n in enumerate(start)]
-    compared = [("eager population", "solo", True), ("nudged solo", "solo", False)]
+    compared = [  # (learner, its reference, label, checked)
+        ("eager population", "solo", "eager population vs solo learners", True),
+        ("nudged solo", "solo", "one rounding's reach (nudged solo vs solo)", False),
+    ]
     replay, graph_inputs = None, None
     if device == "cuda":
         learners["capturable solo"] = [SoloLearner(copy.deepcopy(n), capturable=True) for n in start]
         learners["captured"] = graph = Population([copy.deepcopy(n) for n in start], capturable=True)
-        compared += [("captured", "capturable solo", True), ("capturable solo", "solo", False)]
+        compared += [
+            ("captured", "capturable solo", "one CUDA graph vs capturable solo learners", True),
+            ("capturable solo", "solo", "capturable Adam alone (solo vs solo)", False),
+        ]
         graph_inputs = inputs(dims, k, batch_size, 0, device)  # update 0 is the capture's warm-up
         replay = graph.captured(graph_inputs[0], graph_inputs[1], graph_inputs[2], warmups=1)
-    names = {
-        "eager population": "eager population vs solo learners",
-        "captured": "one CUDA graph vs capturable solo learners",
-        "capturable solo": "capturable Adam alone (solo vs solo)",
-        "nudged solo": "one rounding's reach (nudged solo vs solo)",
-    }
     rows = []
     for step in range(updates):
         batch, rewards, noise = inputs(dims, k, batch_size, step, device)
@@ -139,9 +139,9 @@ def equality_rows(
             replay()
         if step in (1, updates - 1):
             states = {name: member_states(learner, start) for name, learner in learners.items()}
-            for got, want, checked in compared:
+            for got, want, label, checked in compared:
                 gap = largest_gap(states[got], states[want], start)
-                rows.append((names[got], f"after {step + 1} updates", gap, checked))
+                rows.append((label, f"after {step + 1} updates", gap, checked))
     return rows
 
 

@@ -245,15 +245,32 @@ def test_the_gpu_checks_gap_is_about_one_for_a_member_fed_anothers_batches():
     assert gpu.largest_gap(gpu.member_states(swapped, start), gpu.member_states(solos, start), start) > 0.5
 
 
-def test_the_gpu_check_fails_when_a_gap_is_over_its_tolerance(capsys):
+def test_the_gpu_check_fails_when_a_population_mixes_up_its_members(capsys, monkeypatch):
+    """A population that hands each member the other's batches is caught at the default tolerance
+    (1e-2) by both eager rows; the RLlib learner's batched pass, which this fault leaves alone, stays
+    ok. (A population of one on some CPUs equals its solo learner to the last bit, so a tiny
+    tolerance alone is no way to reach the failure.)"""
     from ps_ray.bench import gpu
 
-    with pytest.raises(SystemExit, match=r"3 equality check\(s\) over the tolerance 1e-12"):
+    update = Population.update
+
+    def mixed_up(self, batch, rewards, noise=None, warmup=False):  # member i gets member i-1's inputs
+        def other(tensor):
+            return tensor.roll(1, dims=0)
+
+        noise = None if noise is None else tuple(map(other, noise))
+        return update(self, {k: other(v) for k, v in batch.items()}, other(rewards), noise, warmup)
+
+    monkeypatch.setattr(Population, "update", mixed_up)
+    with pytest.raises(SystemExit, match=r"^2 equality check\(s\) over the tolerance 0.01$"):
         gpu.main(
-            ["--device", "cpu", "--members", "1", "--population", "1", "--rounds", "1", "--updates", "1"]
-            + ["--tolerance", "1e-12", "--method", "plain"]
+            ["--device", "cpu", "--members", "2", "--population", "1", "--rounds", "1"] + ["--updates", "1"]
         )
-    assert "OVER 1e-12" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    eager = [line for line in out.splitlines() if line.strip().startswith("eager population")]
+    assert len(eager) == 2 and all(line.endswith("OVER 0.01") for line in eager)
+    assert all(float(line.split()[-3]) > 0.5 for line in eager)  # about 1: a member moved as another
+    assert next(line for line in out.splitlines() if "batched pass" in line).endswith("ok")
 
 
 def test_the_gpu_check_refuses_what_it_cannot_check_in_one_line(capsys):

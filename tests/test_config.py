@@ -210,6 +210,10 @@ seeds: [1]
             'anchors.source_tasks: duplicate entries "reach"; list each once',
         ),
         (GOOD + "few_shot: {scratch: maybe}\n", "few_shot.scratch must be true or false, got 'maybe'"),
+        (
+            GOOD + "few_shot: {stitched: false, unstitched: false, scratch: false}\n",
+            "few_shot: every start is off; turn on one of stitched, translation, halves, unstitched, scratch",
+        ),
         (GOOD + "report: {seed: 1.5}\n", "report.seed must be an integer 0..1099511627775, got 1.5"),
         (
             GOOD + "report: {few_shot_threshold: 1.5}\n",

@@ -14,7 +14,7 @@ from ps_ray.analysis.clips import stitched_clips
 from ps_ray.analysis.page import Report
 from ps_ray.plan import zero_shot as zero_shot_plan
 from ps_ray.plan.catalogue import trained
-from ps_ray.plan.few_shot import selected_pairs
+from ps_ray.plan.few_shot import selected_pairs, starts
 from ps_ray.plan.zero_shot import evaluated_pairs
 from ps_ray.specs.names import short_name
 from ps_ray.specs.stage_settings import FewShotSpec, ZeroShotSpec
@@ -227,3 +227,10 @@ def test_a_translation_is_parsed_once_into_its_kind_and_fit():
     for bad in ("anchors", "affine@nowhere", "rotate"):  # re-anchoring needs a fit; unknown names
         with pytest.raises(UserError, match=f"unknown translation '{bad}'; valid: orthogonal, affine, "):
             Translation(bad)
+
+
+def test_the_few_shot_starts_are_those_its_settings_turn_on():
+    assert starts(FewShotSpec()) == ("stitched",)
+    both = FewShotSpec(translation="affine@outcome", halves=True)
+    assert starts(both) == ("stitched", "aligned", "robot_module", "task_module")
+    assert starts(FewShotSpec(stitched=False, translation="affine@outcome")) == ("aligned",)

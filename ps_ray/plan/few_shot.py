@@ -38,10 +38,11 @@ def selected_pairs(pairs: list[StitchedPair], settings: FewShotSpec) -> list[Sti
 
 
 def starts(settings: FewShotSpec) -> tuple[str, ...]:
-    """The starts made from each selected pair: the stitch, with ``translation`` the stitch aligned
-    by it, and with ``halves`` each half of the stitch."""
+    """The starts made from each selected pair: with ``stitched`` the stitch as it is, with
+    ``translation`` the stitch aligned by it, and with ``halves`` each half of the stitch."""
+    stitched = (TrialKind.STITCHED,) if settings.stitched else ()
     aligned = (TrialKind.ALIGNED,) if settings.translation else ()
-    return (TrialKind.STITCHED, *aligned, *(HALVES if settings.halves else ()))
+    return (*stitched, *aligned, *(HALVES if settings.halves else ()))
 
 
 def start_name(kind: str, translation: str | None = None) -> str:

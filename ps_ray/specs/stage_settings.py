@@ -138,6 +138,7 @@ class FewShotSpec:
     max_pairs: Positive | None = None  # per method; default: every stitched pair
     pairs_per_seed: Positive | None = None  # per method and seed (a paired comparison over seeds)
     methods: Seq[str] = ()  # default: the sweep's methods
+    stitched: bool = True  # start from each selected pair's stitch as it is
     scratch: bool = True  # also train each target env from scratch
     unstitched: bool = True  # also fine-tune each pair's robot source as it is (where widths fit)
     # also start from each half of the stitch beside a fresh other half (ps_ray.stitching.halves):
@@ -154,6 +155,9 @@ class FewShotSpec:
     def __post_init__(self) -> None:
         object.__setattr__(self, "methods", method_keys("few_shot.methods", self.methods))
         unique_entries("few_shot", methods=self.methods)
+        if not (self.stitched or self.translation or self.halves or self.unstitched or self.scratch):
+            starts = "stitched, translation, halves, unstitched, scratch"
+            raise SpecError(f"few_shot: every start is off; turn on one of {starts}")
         if self.collect_steps >= self.env_steps:
             raise SpecError(f"few_shot.collect_steps must be in [0, env_steps), got {self.collect_steps}")
         if self.translation is not None:
